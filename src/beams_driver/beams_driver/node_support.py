@@ -1,0 +1,148 @@
+"""The small ROS helpers every BeAMS node uses: start-up, parameters, diagnostics, clean shutdown.
+
+This is the only module of beams_driver besides the nodes that imports rclpy.
+"""
+
+from collections.abc import Callable
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+
+from beams_driver.calibration_file import SensorCalibration, load_calibration
+
+EXIT_INVALID_PARAMETERS = 2
+_LEVELS = {"ok": DiagnosticStatus.OK, "warn": DiagnosticStatus.WARN, "error": DiagnosticStatus.ERROR}
+
+
+class ParameterValidationError(ValueError):
+    """A parameter value the node cannot run with; the message tells the user what to change."""
+
+
+def run_node(node_class: Callable[[], Node], args: list[str] | None = None) -> int:
+    """Create the node, spin it until SIGINT or SIGTERM, and return the process exit status.
+
+    Returns 0 on a normal shutdown (no traceback) and EXIT_INVALID_PARAMETERS when the node
+    refused its parameters at start-up.
+    """
+    rclpy.init(args=args)
+    node: Node | None = None
+    try:
+        node = node_class()
+        rclpy.spin(node)
+    except ParameterValidationError as error:
+        rclpy.logging.get_logger("beams").fatal(f"invalid parameters: {error}")
+        return EXIT_INVALID_PARAMETERS
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+def declare_parameter(
+    node: Node,
+    name: str,
+    default: Any,
+    description: str,
+    *,
+    minimum: float | None = None,
+    maximum: float | None = None,
+) -> Any:
+    """Declare a parameter with its description and range, and return its value.
+
+    A value outside [minimum, maximum] raises ParameterValidationError naming the parameter.
+    """
+    descriptor = ParameterDescriptor(description=description)
+    if minimum is not None and maximum is not None and not isinstance(default, bool):
+        if isinstance(default, int):
+            descriptor.integer_range = [IntegerRange(from_value=int(minimum), to_value=int(maximum), step=0)]
+        elif isinstance(default, float):
+            descriptor.floating_point_range = [
+                FloatingPointRange(from_value=float(minimum), to_value=float(maximum), step=0.0)
+            ]
+    try:
+        value = node.declare_parameter(name, default, descriptor).value
+    except Exception as error:  # rclpy raises several types for out-of-range or mistyped overrides
+        raise ParameterValidationError(f"{name}: {error}") from None
+    _check_range(name, value, minimum, maximum)
+    return value
+
+
+def _check_range(name: str, value: Any, minimum: float | None, maximum: float | None) -> None:
+    values = value if isinstance(value, list | tuple) else [value]
+    for item in values:
+        if not isinstance(item, int | float) or isinstance(item, bool):
+            continue
+        if minimum is not None and item < minimum:
+            raise ParameterValidationError(f"{name} = {value} is below its minimum {minimum}")
+        if maximum is not None and item > maximum:
+            raise ParameterValidationError(f"{name} = {value} is above its maximum {maximum}")
+
+
+def load_calibration_parameter(node: Node) -> SensorCalibration | None:
+    """Read the `calibration_file` parameter and load that file (None when the parameter is empty)."""
+    path = declare_parameter(
+        node,
+        "calibration_file",
+        "",
+        "Calibration file written by beams_calibration (YAML); empty for none.",
+    )
+    if not path:
+        return None
+    try:
+        calibration = load_calibration(path)
+    except (OSError, ValueError) as error:
+        raise ParameterValidationError(f"calibration_file: {error}") from None
+    node.get_logger().info(f"calibration loaded from {path}")
+    return calibration
+
+
+class Diagnostics:
+    """Counters and a status published on /diagnostics once a second (diagnostic_msgs)."""
+
+    def __init__(self, node: Node, name: str, period_s: float = 1.0) -> None:
+        self._node = node
+        self._name = f"{node.get_fully_qualified_name()}: {name}"
+        self._values: dict[str, Any] = {}
+        self._level = "ok"
+        self._message = "running"
+        self._publisher = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._timer = node.create_timer(period_s, self.publish)
+
+    def increment(self, key: str, count: int = 1) -> None:
+        self._values[key] = self._values.get(key, 0) + count
+
+    def set(self, key: str, value: Any) -> None:
+        self._values[key] = value
+
+    def get(self, key: str, default: Any = 0) -> Any:
+        return self._values.get(key, default)
+
+    def set_level(self, level: str, message: str) -> None:
+        if level not in _LEVELS:
+            raise ValueError(f"diagnostic level must be one of {sorted(_LEVELS)}, got {level!r}")
+        self._level = level
+        self._message = message
+
+    def publish(self) -> None:
+        status = DiagnosticStatus(
+            level=_LEVELS[self._level],
+            name=self._name,
+            message=self._message,
+            hardware_id="beams",
+            values=[KeyValue(key=key, value=_format_value(value)) for key, value in self._values.items()],
+        )
+        array = DiagnosticArray(status=[status])
+        array.header.stamp = self._node.get_clock().now().to_msg()
+        self._publisher.publish(array)
+
+
+def _format_value(value: Any) -> str:
+    return f"{value:.6g}" if isinstance(value, float) else str(value)
+

@@ -1,0 +1,202 @@
+"""Fixtures for tests that run the installed executables and talk to them over DDS.
+
+Every test gets a ROS_DOMAIN_ID of its own (claimed with a lock file, so parallel runs and other
+sessions on the machine never share one), discovery stays on localhost, and every wait is bounded.
+"""
+
+import fcntl
+import os
+import pathlib
+import signal
+import subprocess
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import pytest
+import yaml
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
+# Domains 61-69 are left for developers' manual experiments.
+TEST_DOMAIN_IDS = [*range(1, 61), *range(70, 101)]
+SHUTDOWN_TIMEOUT_S = 15.0
+
+
+@pytest.fixture
+def ros_domain_id() -> Iterator[int]:
+    """A DDS domain no other test or session uses while this test runs."""
+    lock_dir = pathlib.Path(tempfile.gettempdir()) / "beams_ros_domains"
+    lock_dir.mkdir(exist_ok=True)
+    for domain_id in TEST_DOMAIN_IDS:
+        handle = open(lock_dir / f"{domain_id}.lock", "w")  # noqa: SIM115 (held for the test's duration)
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            handle.close()
+            continue
+        try:
+            yield domain_id
+        finally:
+            handle.close()
+        return
+    pytest.fail("no free ROS_DOMAIN_ID for this test")
+
+
+@pytest.fixture
+def ros_env(ros_domain_id: int, monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
+    """Environment for node subprocesses (and this process) in the test's own domain, localhost only."""
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain_id))
+    monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    env = dict(os.environ)
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+@dataclass
+class RosGraph:
+    """An rclpy node in the test's domain, with bounded spinning."""
+
+    node: Any
+    executor: Any
+    received: dict[str, list[Any]] = field(default_factory=dict)
+
+    def subscribe(self, msg_type: Any, topic: str, qos: Any = 10) -> list[Any]:
+        """Record every message on a topic into the returned list."""
+        messages = self.received.setdefault(topic, [])
+        self.node.create_subscription(msg_type, topic, messages.append, qos)
+        return messages
+
+    def spin_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
+        """Spin until predicate() is true or timeout_s passes; returns predicate()."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if predicate():
+                return True
+            self.executor.spin_once(timeout_sec=0.05)
+        return predicate()
+
+    def publish_until(
+        self, publisher: Any, message: Any, predicate: Callable[[], bool], timeout_s: float
+    ) -> bool:
+        """Publish message every 0.25 s until predicate() holds (discovery takes a moment) or timeout_s."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            publisher.publish(message)
+            if self.spin_until(predicate, 0.25):
+                return True
+        return predicate()
+
+    def spin_for(self, duration_s: float) -> None:
+        deadline = time.monotonic() + duration_s
+        while time.monotonic() < deadline:
+            self.executor.spin_once(timeout_sec=0.05)
+
+    def call(self, srv_type: Any, name: str, request: Any, timeout_s: float) -> Any:
+        """Call a service and wait (bounded) for its answer; fails the test on a time-out."""
+        client = self.node.create_client(srv_type, name)
+        if not client.wait_for_service(timeout_sec=timeout_s):
+            pytest.fail(f"service {name} not available within {timeout_s} s")
+        future = client.call_async(request)
+        self.spin_until(future.done, timeout_s)
+        if not future.done():
+            pytest.fail(f"service {name} did not answer within {timeout_s} s")
+        return future.result()
+
+
+@pytest.fixture
+def rclpy_node(ros_env: dict[str, str], ros_domain_id: int) -> Iterator[RosGraph]:
+    rclpy = pytest.importorskip("rclpy", reason="rclpy missing: run the tests through `make test`")
+    from rclpy.executors import SingleThreadedExecutor
+
+    context = rclpy.Context()
+    rclpy.init(context=context, domain_id=ros_domain_id)
+    node = rclpy.create_node("beams_test_probe", context=context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    try:
+        yield RosGraph(node=node, executor=executor)
+    finally:
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+@dataclass
+class NodeProcess:
+    """An installed executable running as a separate process."""
+
+    name: str
+    process: subprocess.Popen
+    log_path: pathlib.Path
+
+    def log(self) -> str:
+        return self.log_path.read_text(errors="replace")
+
+    def stop(self, sig: int = signal.SIGINT) -> int:
+        """Send a signal and wait (bounded) for the exit status."""
+        if self.process.poll() is None:
+            self.process.send_signal(sig)
+        try:
+            return self.process.wait(timeout=SHUTDOWN_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait(timeout=SHUTDOWN_TIMEOUT_S)
+            pytest.fail(f"{self.name} ignored signal {sig} for {SHUTDOWN_TIMEOUT_S} s\n{self.log()}")
+
+    def assert_clean_exit(self, sig: int = signal.SIGINT) -> None:
+        status = self.stop(sig)
+        output = self.log()
+        assert status == 0, f"{self.name} exited with {status} on signal {sig}:\n{output}"
+        assert "Traceback" not in output, f"{self.name} printed a traceback:\n{output}"
+
+
+def executable_path(package: str, executable: str) -> pathlib.Path:
+    path = INSTALL_BASE / package / "lib" / package / executable
+    if not path.exists():
+        pytest.fail(f"{path} is not installed: run `make build`")
+    return path
+
+
+@pytest.fixture
+def start_node(ros_env: dict[str, str], tmp_path: pathlib.Path) -> Iterator[Callable[..., NodeProcess]]:
+    """Start installed executables; at teardown each gets SIGINT and must exit 0 with no traceback."""
+    started: list[NodeProcess] = []
+
+    def start(
+        package: str,
+        executable: str,
+        params: dict[str, Any] | None = None,
+        namespace: str = "",
+        extra_args: list[str] | None = None,
+    ) -> NodeProcess:
+        command = [str(executable_path(package, executable)), "--ros-args"]
+        if params:
+            params_file = tmp_path / f"{executable}_{len(started)}.yaml"
+            params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": params}}))
+            command += ["--params-file", str(params_file)]
+        if namespace:
+            command += ["-r", f"__ns:={namespace}"]
+        command += extra_args or []
+        log_path = tmp_path / f"{executable}_{len(started)}.log"
+        with open(log_path, "w") as log_file:
+            process = subprocess.Popen(
+                command, env=ros_env, stdout=log_file, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL
+            )
+        node = NodeProcess(name=f"{package}/{executable}", process=process, log_path=log_path)
+        started.append(node)
+        return node
+
+    yield start
+    failures = []
+    for node in started:
+        if node.process.poll() is not None:
+            continue  # the test stopped it and asserted what it needed
+        status = node.stop()
+        output = node.log()
+        if status != 0 or "Traceback" in output:
+            failures.append(f"{node.name} exited with {status} on SIGINT:\n{output}")
+    if failures:
+        pytest.fail("\n".join(failures))
