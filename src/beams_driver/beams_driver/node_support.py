@@ -145,4 +145,3 @@ class Diagnostics:
 
 def _format_value(value: Any) -> str:
     return f"{value:.6g}" if isinstance(value, float) else str(value)
-

@@ -1,0 +1,66 @@
+"""Run every benchmark under bench/ and print one table: the table BENCHMARKS.md records.
+
+Each bench/bench_<area>.py module has `rows() -> list[(figure, value, unit, compared with)]`.
+Usage (through `make bench`): python bench/run_all.py [--only AREA ...] [--markdown PATH]
+"""
+
+import argparse
+import datetime
+import importlib.util
+import pathlib
+import platform
+import sys
+import time
+
+BENCH_DIR = pathlib.Path(__file__).resolve().parent
+
+
+def load_bench(path: pathlib.Path):
+    spec = importlib.util.spec_from_file_location(path.stem, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def format_value(value: float) -> str:
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--only", nargs="*", default=None, help="areas to run (bench_<area>.py)")
+    parser.add_argument("--markdown", type=pathlib.Path, help="also write the table to this file")
+    options = parser.parse_args()
+    paths = sorted(BENCH_DIR.glob("bench_*.py"))
+    if options.only:
+        paths = [p for p in paths if p.stem.removeprefix("bench_") in options.only]
+    lines = [
+        f"Measured {datetime.date.today().isoformat()} on {platform.node()} "
+        f"({platform.processor() or platform.machine()}, Python {platform.python_version()}).",
+        "",
+        "| figure | value | unit | compared with | command |",
+        "|---|---|---|---|---|",
+    ]
+    failures = 0
+    for path in paths:
+        started = time.monotonic()
+        print(f"running {path.name} ...", file=sys.stderr, flush=True)
+        try:
+            rows = load_bench(path).rows()
+        except Exception as error:  # one broken benchmark must not hide the others' figures
+            print(f"{path.name} failed: {error!r}", file=sys.stderr)
+            failures += 1
+            continue
+        for figure, value, unit, compared_with in rows:
+            command = f"`python bench/{path.name}`"
+            lines.append(f"| {figure} | {format_value(value)} | {unit} | {compared_with} | {command} |")
+        print(f"{path.name}: {len(rows)} figures in {time.monotonic() - started:.1f} s", file=sys.stderr)
+    table = "\n".join(lines)
+    print(table)
+    if options.markdown:
+        options.markdown.write_text(table + "\n")
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

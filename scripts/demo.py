@@ -1,0 +1,297 @@
+"""`make demo`: a simulated Eurobot match with every BeAMS node running as its own process.
+
+Starts sim_world_node, driver_node (simulated sensor), triangulation_node and ekf_node from the install
+tree (the executables `ros2 run` starts), records every topic to an MCAP bag, prints live progress
+(pose errors against the truth, bearings per second, rejected windows), stops the nodes with SIGINT and
+leaves a trajectory plot and a summary table in the output directory.
+"""
+
+import argparse
+import datetime
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import rclpy
+from beams_driver.angles import wrap_to_pi
+from beams_ekf.bag_io import BagRecorder, beams_typestore
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from nav_msgs.msg import Odometry
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import qos_profile_sensor_data
+from rclpy.serialization import deserialize_message
+
+from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
+NODES = (
+    ("beams_driver", "sim_world_node", "sim_world.yaml"),
+    ("beams_driver", "driver_node", "driver_node.yaml"),
+    ("beams_triangulation", "triangulation_node", "triangulation_node.yaml"),
+    ("beams_ekf", "ekf_node", "ekf_node.yaml"),
+)
+# Every topic of the suite, with its type, recorded to the bag.
+TOPICS = {
+    "beams/sim/ground_truth": Odometry,
+    "odom": Odometry,
+    "beams/bearings": BeaconBearingArray,
+    "beams/pose": TriangulatedPose,
+    "beams/pose_cov": PoseWithCovarianceStamped,
+    "beams/ekf/odometry": Odometry,
+    "/diagnostics": DiagnosticArray,
+}
+PROGRESS_PERIOD_S = 5.0
+START_TIMEOUT_S = 30.0
+
+
+def ros_type_name(msg_type: type) -> str:
+    module = msg_type.__module__.split(".")
+    return f"{module[0]}/{module[1]}/{msg_type.__name__}"
+
+
+def stamp_s(header) -> float:
+    return header.stamp.sec + 1e-9 * header.stamp.nanosec
+
+
+def yaw_of(orientation) -> float:
+    return float(
+        np.arctan2(
+            2.0 * (orientation.w * orientation.z + orientation.x * orientation.y),
+            1.0 - 2.0 * (orientation.y**2 + orientation.z**2),
+        )
+    )
+
+
+@dataclass
+class Track:
+    """Poses (t, x, y, theta) of one source, in arrival order."""
+
+    rows: list[tuple[float, float, float, float]] = field(default_factory=list)
+
+    def add(self, t: float, pose) -> None:
+        self.rows.append((t, pose.position.x, pose.position.y, yaw_of(pose.orientation)))
+
+    def array(self) -> np.ndarray:
+        return np.array(self.rows, dtype=float).reshape(-1, 4)
+
+
+@dataclass
+class MatchRecord:
+    truth: Track = field(default_factory=Track)
+    odometry: Track = field(default_factory=Track)
+    total: Track = field(default_factory=Track)
+    ekf: Track = field(default_factory=Track)
+    bearings: int = 0
+    revolutions: int = 0
+    rejected_windows: int = 0
+    poses_rejected: int = 0
+
+    def on_message(self, topic: str, msg) -> None:
+        if topic == "beams/sim/ground_truth":
+            self.truth.add(stamp_s(msg.header), msg.pose.pose)
+        elif topic == "odom":
+            self.odometry.add(stamp_s(msg.header), msg.pose.pose)
+        elif topic == "beams/ekf/odometry":
+            self.ekf.add(stamp_s(msg.header), msg.pose.pose)
+        elif topic == "beams/bearings":
+            self.revolutions += 1
+            self.bearings += len(msg.bearings)
+            self.rejected_windows += msg.rejected_windows
+        elif topic == "beams/pose":
+            if msg.accepted:
+                self.total.add(stamp_s(msg.header), msg.pose.pose)
+            else:
+                self.poses_rejected += 1
+
+
+def errors_against_truth(track: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position (m) and heading (rad) errors of a track against the truth interpolated at its stamps."""
+    if len(track) == 0 or len(truth) < 2:
+        return np.empty(0), np.empty(0)
+    inside = (track[:, 0] >= truth[0, 0]) & (track[:, 0] <= truth[-1, 0])
+    track = track[inside]
+    x = np.interp(track[:, 0], truth[:, 0], truth[:, 1])
+    y = np.interp(track[:, 0], truth[:, 0], truth[:, 2])
+    heading = np.interp(track[:, 0], truth[:, 0], np.unwrap(truth[:, 3]))
+    return np.hypot(track[:, 1] - x, track[:, 2] - y), np.abs(wrap_to_pi(track[:, 3] - heading))
+
+
+def rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(values**2))) if len(values) else float("nan")
+
+
+def start_nodes(output: pathlib.Path, duration_s: float, env: dict[str, str]) -> list[subprocess.Popen]:
+    processes = []
+    for package, executable, config in NODES:
+        command = [
+            str(INSTALL_BASE / package / "lib" / package / executable),
+            "--ros-args",
+            "--params-file",
+            str(INSTALL_BASE / package / "share" / package / "config" / config),
+        ]
+        if executable == "sim_world_node":
+            command += ["-p", f"duration_s:={duration_s}"]
+        log = open(output / f"{executable}.log", "w")  # noqa: SIM115 (kept open while the node runs)
+        processes.append(subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT))
+    return processes
+
+
+def stop_nodes(processes: list[subprocess.Popen]) -> list[int]:
+    for process in processes:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+    statuses = []
+    for process in processes:
+        try:
+            statuses.append(process.wait(timeout=15))
+        except subprocess.TimeoutExpired:
+            process.kill()
+            statuses.append(process.wait(timeout=15))
+    return statuses
+
+
+def progress_line(record: MatchRecord, elapsed_s: float) -> str:
+    truth = record.truth.array()
+    ekf_position, ekf_heading = errors_against_truth(record.ekf.array(), truth)
+    total_position, _ = errors_against_truth(record.total.array(), truth)
+    rate = record.bearings / elapsed_s if elapsed_s > 0 else 0.0
+    last_position = ekf_position[-1] if len(ekf_position) else np.nan
+    last_heading = ekf_heading[-1] if len(ekf_heading) else np.nan
+    return (
+        f"t={elapsed_s:5.1f} s  EKF error {1000 * last_position:6.1f} mm {np.degrees(last_heading):5.2f} deg"
+        " | ToTal RMS "
+        f"{1000 * rms(total_position):6.1f} mm | {rate:5.1f} bearings/s | "
+        f"{record.rejected_windows} rejected windows | {record.poses_rejected} poses gated out"
+    )
+
+
+def summary_table(record: MatchRecord) -> str:
+    truth = record.truth.array()
+    lines = ["| source | poses | RMS position (mm) | RMS heading (deg) |", "|---|---|---|---|"]
+    for name, track in (
+        ("odometry", record.odometry),
+        ("ToTal (accepted)", record.total),
+        ("EKF", record.ekf),
+    ):
+        position, heading = errors_against_truth(track.array(), truth)
+        lines.append(
+            f"| {name} | {len(position)} | {1000 * rms(position):.1f} | {np.degrees(rms(heading)):.3f} |"
+        )
+    lines += [
+        "",
+        f"revolutions {record.revolutions}, bearings {record.bearings}, "
+        f"rejected windows {record.rejected_windows}, ToTal poses gated out {record.poses_rejected}",
+    ]
+    return "\n".join(lines)
+
+
+def plot_trajectories(record: MatchRecord, path: pathlib.Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(figsize=(9, 6.5))
+    styles = (
+        ("truth", record.truth, "k-"),
+        ("odometry", record.odometry, "C1--"),
+        ("ToTal", record.total, "C0."),
+        ("EKF", record.ekf, "C2-"),
+    )
+    for name, track, style in styles:
+        rows = track.array()
+        if len(rows):
+            axes.plot(rows[:, 1], rows[:, 2], style, label=name, markersize=2, linewidth=1)
+    axes.add_patch(plt.Rectangle((0, 0), 3, 2, fill=False, color="grey"))
+    axes.set_aspect("equal")
+    axes.set_xlabel("x (m, map)")
+    axes.set_ylabel("y (m, map)")
+    axes.set_title("BeAMS demo: simulated Eurobot match")
+    axes.legend(loc="upper right")
+    figure.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(figure)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--duration", type=float, default=90.0, help="match duration (s), default 90")
+    parser.add_argument(
+        "--output", type=pathlib.Path, default=None, help="output directory (default out/demo-<time>)"
+    )
+    options = parser.parse_args()
+    output = options.output or ROOT / "out" / f"demo-{datetime.datetime.now():%Y%m%d-%H%M%S}"
+    output.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ)
+    env.setdefault("ROS_DOMAIN_ID", "42")
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+    print(f"demo: {options.duration:.0f} s match, domain {env['ROS_DOMAIN_ID']}, output in {output}")
+
+    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = rclpy.create_node("beams_demo_recorder")
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    record = MatchRecord()
+    typestore = beams_typestore()
+    processes = start_nodes(output, options.duration, env)
+    statuses: list[int] = []
+    interrupted = False
+    try:
+        with BagRecorder(output / "bag", typestore) as recorder:
+            for topic, msg_type in TOPICS.items():
+
+                def on_raw(raw: bytes, topic=topic, msg_type=msg_type) -> None:
+                    msg = deserialize_message(raw, msg_type)
+                    stamp_ns = node.get_clock().now().nanoseconds
+                    recorder.write(topic, ros_type_name(msg_type), stamp_ns, raw)
+                    record.on_message(topic, msg)
+
+                qos = qos_profile_sensor_data if topic in ("beams/bearings",) else 50
+                node.create_subscription(msg_type, topic, on_raw, qos, raw=True)
+            started = time.monotonic()
+            next_progress = started + PROGRESS_PERIOD_S
+            while time.monotonic() - started < options.duration + 1.0:
+                executor.spin_once(timeout_sec=0.05)
+                if time.monotonic() >= next_progress:
+                    print(progress_line(record, time.monotonic() - started), flush=True)
+                    next_progress += PROGRESS_PERIOD_S
+                if not record.truth.rows and time.monotonic() - started > START_TIMEOUT_S:
+                    print("demo: no ground truth after 30 s; see the node logs in", output, file=sys.stderr)
+                    break
+                if any(p.poll() is not None for p in processes):
+                    print("demo: a node stopped early; see the node logs in", output, file=sys.stderr)
+                    break
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        statuses = stop_nodes(processes)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+    table = summary_table(record)
+    (output / "summary.md").write_text(table + "\n")
+    plot_trajectories(record, output / "trajectory.png")
+    print()
+    print(table)
+    print(f"\nbag: {output / 'bag'} ({recorder.messages_written} messages, MCAP)")
+    print(f"plot: {output / 'trajectory.png'}; node logs: {output}/*.log")
+    names = [executable for _, executable, _ in NODES]
+    bad = [f"{name} exited {status}" for name, status in zip(names, statuses, strict=True) if status != 0]
+    if bad:
+        print("demo: " + ", ".join(bad), file=sys.stderr)
+        return 1
+    return 130 if interrupted else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,72 @@
+"""Read and write rosbag2 bags (MCAP or sqlite3) of the BeAMS topics without a ROS install (`rosbags`).
+
+The demo records every topic with `BagRecorder`; the offline replay reads them back with `read_messages`.
+Messages are CDR bytes exactly as they travelled over DDS, so `ros2 bag play` replays them unchanged.
+"""
+
+import pathlib
+from collections.abc import Iterable, Iterator
+from types import TracebackType
+from typing import Any
+
+from ament_index_python.packages import get_package_share_directory
+from rosbags.rosbag2 import Reader, StoragePlugin, Writer
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+from rosbags.typesys.store import Typestore
+
+BEAMS_MSGS_PACKAGE = "beams_msgs"
+
+
+def beams_typestore(beams_msgs_share: pathlib.Path | None = None) -> Typestore:
+    """The ROS 2 Jazzy typestore extended with the beams_msgs message definitions."""
+    share = beams_msgs_share or pathlib.Path(get_package_share_directory(BEAMS_MSGS_PACKAGE))
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    definitions: dict[str, Any] = {}
+    for msg_file in sorted((share / "msg").glob("*.msg")):
+        definitions.update(
+            get_types_from_msg(msg_file.read_text(), f"{BEAMS_MSGS_PACKAGE}/msg/{msg_file.stem}")
+        )
+    typestore.register(definitions)
+    return typestore
+
+
+class BagRecorder:
+    """Write serialized messages to a new bag; one connection per topic, created on first use."""
+
+    def __init__(self, path: pathlib.Path, typestore: Typestore, storage: str = "mcap") -> None:
+        if path.exists():
+            raise FileExistsError(f"bag {path} exists already; choose another output directory")
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        self._writer = Writer(path, version=9, storage_plugin=plugin)
+        self._typestore = typestore
+        self._connections: dict[str, Any] = {}
+        self.messages_written = 0
+
+    def __enter__(self) -> "BagRecorder":
+        self._writer.open()
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, traceback: TracebackType | None
+    ) -> None:
+        self._writer.close()
+
+    def write(self, topic: str, msgtype: str, stamp_ns: int, cdr_bytes: bytes) -> None:
+        """Append one message (ROS type name such as 'nav_msgs/msg/Odometry') received at stamp_ns."""
+        connection = self._connections.get(topic)
+        if connection is None:
+            connection = self._writer.add_connection(topic, msgtype, typestore=self._typestore)
+            self._connections[topic] = connection
+        self._writer.write(connection, stamp_ns, cdr_bytes)
+        self.messages_written += 1
+
+
+def read_messages(
+    path: pathlib.Path, typestore: Typestore, topics: Iterable[str] | None = None
+) -> Iterator[tuple[str, int, Any]]:
+    """Yield (topic, bag timestamp ns, deserialized message) in bag order, for sqlite3 and MCAP bags."""
+    wanted = set(topics) if topics is not None else None
+    with Reader(path) as reader:
+        connections = [c for c in reader.connections if wanted is None or c.topic in wanted]
+        for connection, timestamp, raw in reader.messages(connections=connections):
+            yield connection.topic, timestamp, typestore.deserialize_cdr(raw, connection.msgtype)

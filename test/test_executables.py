@@ -1,0 +1,42 @@
+"""Every executable starts from the install tree, answers over DDS, and exits 0 without a traceback
+on SIGINT and on SIGTERM (issue 2)."""
+
+import signal
+
+import pytest
+
+pytestmark = pytest.mark.dds
+
+EXECUTABLES = [
+    ("beams_driver", "sim_world_node"),
+    ("beams_driver", "driver_node"),
+    ("beams_triangulation", "triangulation_node"),
+    ("beams_ekf", "ekf_node"),
+    ("beams_calibration", "calibration_node"),
+]
+ANSWER_TIMEOUT_S = 20.0
+
+
+@pytest.mark.parametrize("signal_number", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+@pytest.mark.parametrize(("package", "executable"), EXECUTABLES, ids=[e for _, e in EXECUTABLES])
+def test_executable_answers_and_exits_cleanly(rclpy_node, start_node, package, executable, signal_number):
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    diagnostics = rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
+    node = start_node(package, executable)
+
+    def reported() -> bool:
+        return any(executable.removesuffix("_node") in status.name for msg in diagnostics for status in msg.status)
+
+    assert rclpy_node.spin_until(reported, ANSWER_TIMEOUT_S), (
+        f"{executable} published nothing on /diagnostics within {ANSWER_TIMEOUT_S} s:\n{node.log()}"
+    )
+    node.assert_clean_exit(signal_number)
+
+
+def test_invalid_parameter_is_refused_with_a_clear_message(start_node):
+    node = start_node("beams_driver", "driver_node", params={"variance_mode": "guess"})
+    status = node.process.wait(timeout=ANSWER_TIMEOUT_S)
+    output = node.log()
+    assert status == 2, output
+    assert "variance_mode" in output and "Traceback" not in output, output
