@@ -1,0 +1,58 @@
+"""The BeAMS suite for robots with ROS 2 Jazzy from apt (`make demo` runs the same executables without it).
+
+Simulated robot and sensor (the embedded default):
+    ros2 launch beams_driver beams.launch.py namespace:=robot1
+A real robot (the serial sensor; the robot publishes its wheel odometry on `odom`):
+    ros2 launch beams_driver beams.launch.py source:=serial device:=/dev/ttyUSB0 \
+        calibration_file:=/home/robot/beams_calibration.yaml
+Each node reads its parameter file from its package's share/config; the calibration file, when given,
+overrides the beacon coordinates and carries the turret offset and the bearing corrections.
+"""
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument
+from launch.conditions import LaunchConfigurationEquals
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch_ros.actions import Node
+from launch_ros.substitutions import FindPackageShare
+
+NODES = (
+    ("beams_driver", "sim_world_node", "sim_world.yaml"),
+    ("beams_driver", "driver_node", "driver_node.yaml"),
+    ("beams_triangulation", "triangulation_node", "triangulation_node.yaml"),
+    ("beams_ekf", "ekf_node", "ekf_node.yaml"),
+)
+ARGUMENTS = (
+    ("namespace", "", "namespace of this robot's nodes"),
+    ("source", "sim", "sim (simulated robot and sensor) or serial (the real sensor)"),
+    ("device", "/dev/ttyUSB0", "serial device of the sensor (source:=serial)"),
+    ("calibration_file", "", "calibration file written by beams_calibration"),
+    ("use_sim_time", "false", "follow /clock (rosbag replay)"),
+)
+
+
+def node_action(package: str, executable: str, config: str) -> Node:
+    parameters = [
+        PathJoinSubstitution([FindPackageShare(package), "config", config]),
+        {"use_sim_time": LaunchConfiguration("use_sim_time")},
+    ]
+    if executable != "sim_world_node":
+        parameters.append({"calibration_file": LaunchConfiguration("calibration_file")})
+    if executable == "driver_node":
+        parameters.append({"source": LaunchConfiguration("source"), "device": LaunchConfiguration("device")})
+    return Node(
+        package=package,
+        executable=executable,
+        namespace=LaunchConfiguration("namespace"),
+        parameters=parameters,
+        output="screen",
+        # The simulated robot only runs with the simulated sensor.
+        condition=LaunchConfigurationEquals("source", "sim") if executable == "sim_world_node" else None,
+    )
+
+
+def generate_launch_description() -> LaunchDescription:
+    arguments = [
+        DeclareLaunchArgument(name, default_value=value, description=text) for name, value, text in ARGUMENTS
+    ]
+    return LaunchDescription([*arguments, *(node_action(*node) for node in NODES)])
