@@ -1,0 +1,322 @@
+"""driver_node: BeAMS bearings, once per turret revolution, from the simulated sensor or the serial device.
+
+Publishes `beams/bearings` (beams_msgs/BeaconBearingArray, sensor-data QoS) and `/diagnostics`.
+The simulated source (the default) follows the robot's true pose on `beams/sim/ground_truth`
+(or a static pose) edge by edge; the serial source reads the sensor microcontroller's edge captures.
+Both go through the same decoder and variance model; the calibration file's bearing corrections
+(power bias, rotation bias; thesis ch. 7) are applied to the published bearings.
+"""
+
+import sys
+from collections import deque
+
+import numpy as np
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from rclpy.time import Time
+
+from beams_driver.angles import wrap_to_pi
+from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_driver.bearing_correction import BearingCorrection
+from beams_driver.codes import BIT_TIME_S, code_family, codes_from_strings, validate_codes
+from beams_driver.decoder import BearingDecoder, DecodedRevolution
+from beams_driver.edges import TURRET_PERIOD_S
+from beams_driver.node_support import (
+    Diagnostics,
+    ParameterValidationError,
+    declare_parameter,
+    load_calibration_parameter,
+    run_node,
+)
+from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
+from beams_driver.serial_source import DeviceNotFoundError, DeviceOpenError, SerialEdgeSource
+from beams_driver.variance import VARIANCE_MODES, VarianceModel
+from beams_msgs.msg import BeaconBearing, BeaconBearingArray
+
+GROUND_TRUTH_HISTORY_S = 2.0
+# A pose older than this cannot stand for the robot during a revolution: skip it and say so.
+MAX_POSE_EXTRAPOLATION_S = 0.25
+SERIAL_POLL_PERIOD_S = 0.01
+
+
+def stamp_seconds(stamp) -> float:
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+class GroundTruthHistory:
+    """The robot's recent true poses, interpolated at any instant of a revolution."""
+
+    def __init__(self) -> None:
+        self._samples: deque[tuple[float, float, float, float, float, float]] = deque()
+
+    def add(self, msg: Odometry) -> bool:
+        """Store a ground-truth message; False (and nothing stored) for a non-finite one."""
+        pose = msg.pose.pose
+        heading = float(
+            np.arctan2(2.0 * pose.orientation.w * pose.orientation.z, 1.0 - 2.0 * pose.orientation.z**2)
+        )
+        row = (
+            stamp_seconds(msg.header.stamp),
+            pose.position.x,
+            pose.position.y,
+            heading,
+            msg.twist.twist.linear.x,
+            msg.twist.twist.angular.z,
+        )
+        if not all(np.isfinite(row)):
+            return False
+        if self._samples and row[0] < self._samples[-1][0]:
+            self._samples.clear()  # time went backwards (a bag replayed in a loop)
+        self._samples.append(row)
+        while self._samples and row[0] - self._samples[0][0] > GROUND_TRUTH_HISTORY_S:
+            self._samples.popleft()
+        return True
+
+    def covers(self, t: float) -> bool:
+        return (
+            bool(self._samples)
+            and self._samples[0][0] <= t <= self._samples[-1][0] + MAX_POSE_EXTRAPOLATION_S
+        )
+
+    def pose_at(self, t: float) -> tuple[float, float, float]:
+        """Pose (x, y, theta) at t: interpolated in the history, extrapolated with the last twist after it."""
+        samples = np.array(self._samples)
+        if t >= samples[-1, 0]:
+            t_last, x, y, theta, speed, yaw_rate = samples[-1]
+            dt = t - t_last
+            heading = theta + 0.5 * yaw_rate * dt
+            return (x + speed * dt * np.cos(heading), y + speed * dt * np.sin(heading), theta + yaw_rate * dt)
+        times = samples[:, 0]
+        theta = np.unwrap(samples[:, 3])
+        return (
+            float(np.interp(t, times, samples[:, 1])),
+            float(np.interp(t, times, samples[:, 2])),
+            float(np.interp(t, times, theta)),
+        )
+
+
+class DriverNode(Node):
+    def __init__(self) -> None:
+        super().__init__("driver_node")
+        self.diagnostics = Diagnostics(self, "driver")
+        self.frame_id = declare_parameter(self, "frame_id", "beams_sensor", "Frame of the turret (sensor).")
+        self.source = declare_parameter(
+            self, "source", "sim", "Edge source: sim (simulated sensor) or serial."
+        )
+        if self.source not in ("sim", "serial"):
+            raise ParameterValidationError(f"source must be 'sim' or 'serial', got {self.source!r}")
+        self.codes = self._declare_codes()
+        self.decoder = BearingDecoder(self.codes, self._declare_variance_model())
+        calibration = load_calibration_parameter(self)
+        self.correction = calibration.bearing_correction if calibration else BearingCorrection()
+        self.publisher = self.create_publisher(BeaconBearingArray, "beams/bearings", qos_profile_sensor_data)
+        if self.source == "sim":
+            self._start_simulated_source()
+        else:
+            self._start_serial_source()
+        self.get_logger().info(
+            f"{self.source} source, codes {[str(c) for c in self.codes]}, variance mode "
+            f"{self.decoder.variance_model.mode}, publishing {self.resolve_topic_name('beams/bearings')}"
+        )
+
+    # ---- parameters ----
+
+    def _declare_codes(self):
+        code_count = declare_parameter(
+            self, "code_count", 5, "Number of codes of the family C_i (thesis eq. 2.6).", minimum=1, maximum=9
+        )
+        custom_codes = declare_parameter(
+            self,
+            "custom_codes",
+            [""],
+            "Custom code list as bit strings (e.g. '10111111'), code i+1 = entry i; [''] for the family.",
+        )
+        bit_time_s = declare_parameter(
+            self, "bit_time_s", BIT_TIME_S, "Bit time T0 of the codes (s).", minimum=1e-6, maximum=1e-3
+        )
+        try:
+            custom = [c for c in custom_codes if c]
+            codes = codes_from_strings(custom, bit_time_s) if custom else code_family(code_count, bit_time_s)
+            validate_codes(codes)
+        except ValueError as error:
+            raise ParameterValidationError(f"codes: {error}") from None
+        return codes
+
+    def _declare_variance_model(self) -> VarianceModel:
+        mode = declare_parameter(
+            self, "variance_mode", "exact", f"Bearing variance model, one of {list(VARIANCE_MODES)}."
+        )
+        if mode not in VARIANCE_MODES:
+            raise ParameterValidationError(
+                f"variance_mode must be one of {list(VARIANCE_MODES)}, got {mode!r}"
+            )
+        natural = declare_parameter(
+            self,
+            "natural_variance_rad2",
+            SensorSimConfig().natural_variance_rad2,
+            "Natural (noise) variance added to the code variance (rad^2).",
+            minimum=0.0,
+            maximum=1e-2,
+        )
+        constant = declare_parameter(
+            self,
+            "constant_variance_rad2",
+            1e-6,
+            "Variance of every bearing in variance_mode 'constant' (rad^2).",
+            minimum=1e-12,
+            maximum=1e-2,
+        )
+        return VarianceModel(
+            self.codes,
+            mode,
+            natural_variance_rad2=natural,
+            constant_variance_rad2=constant,
+            min_burst_fraction=SensorSimConfig().min_burst_fraction,
+        )
+
+    # ---- simulated source ----
+
+    def _start_simulated_source(self) -> None:
+        ids = declare_parameter(self, "sim_beacon_ids", list(EUROBOT_BEACON_MAP.ids), "Simulated beacon ids.")
+        xs = declare_parameter(
+            self, "sim_beacon_x", EUROBOT_BEACON_MAP.xy[:, 0].tolist(), "True x of the simulated beacons (m)."
+        )
+        ys = declare_parameter(
+            self, "sim_beacon_y", EUROBOT_BEACON_MAP.xy[:, 1].tolist(), "True y of the simulated beacons (m)."
+        )
+        try:
+            beacons = beacons_from_map(BeaconMap.from_lists(ids, xs, ys))
+        except ValueError as error:
+            raise ParameterValidationError(f"sim_beacon_*: {error}") from None
+        unknown = sorted(set(ids) - {c.code_id for c in self.codes})
+        if unknown:
+            raise ParameterValidationError(f"sim_beacon_ids {unknown} have no code in the code list")
+        self.static_pose = declare_parameter(
+            self,
+            "sim_static_pose",
+            [0.0],
+            "Fixed robot pose [x, y, theta] for the simulated sensor; [0.0] follows beams/sim/ground_truth.",
+        )
+        if len(self.static_pose) not in (1, 3):
+            raise ParameterValidationError("sim_static_pose must be [x, y, theta] or [0.0]")
+        offset = declare_parameter(
+            self, "sim_turret_offset_m", [0.0, 0.0], "True turret centre in base_link [x, y] (m), simulated."
+        )
+        occluded = declare_parameter(
+            self, "sim_occluded_beacons", [-1], "Beacons the simulation hides ([-1]: none)."
+        )
+        spurious_rate = declare_parameter(
+            self,
+            "sim_stray_ir_rate_hz",
+            0.0,
+            "Rate of stray infrared bursts (Hz).",
+            minimum=0.0,
+            maximum=10000.0,
+        )
+        seed = declare_parameter(
+            self, "sim_seed", 1, "Seed of the simulated sensor's noise.", minimum=0, maximum=2**31
+        )
+        config = SensorSimConfig(codes=tuple(self.codes), spurious_rate_hz=spurious_rate)
+        self.simulator = SensorSimulator(
+            config,
+            beacons,
+            np.random.default_rng(seed),
+            turret_offset_m=(float(offset[0]), float(offset[1])),
+            occlusion={int(i) for i in occluded if i >= 0},
+        )
+        self.ground_truth = GroundTruthHistory()
+        self.next_revolution_start_s: float | None = None
+        self.create_subscription(Odometry, "beams/sim/ground_truth", self._on_ground_truth, 50)
+        self.create_timer(TURRET_PERIOD_S, self._simulate_due_revolutions)
+
+    def _on_ground_truth(self, msg: Odometry) -> None:
+        if not self.ground_truth.add(msg):
+            self.diagnostics.increment("ground_truth_rejected_non_finite")
+
+    def _pose_source(self):
+        if len(self.static_pose) == 3:
+            pose = tuple(float(v) for v in self.static_pose)
+            return lambda t: pose
+        return self.ground_truth.pose_at
+
+    def _simulate_due_revolutions(self) -> None:
+        now_s = self.get_clock().now().nanoseconds * 1e-9
+        start_s = self.next_revolution_start_s
+        if start_s is None or start_s > now_s or now_s - start_s > 1.0:
+            # First revolution, or the clock jumped (bag loop, sim time reset): restart from now.
+            self.next_revolution_start_s = now_s - TURRET_PERIOD_S
+            return
+        while start_s + TURRET_PERIOD_S <= now_s:
+            end_s = start_s + TURRET_PERIOD_S
+            if len(self.static_pose) == 1 and not self.ground_truth.covers(end_s):
+                self.diagnostics.set_level("warn", "waiting for beams/sim/ground_truth")
+                self.diagnostics.increment("revolutions_skipped_no_pose")
+            else:
+                self._publish(self.decoder.decode(self.simulator.revolution(self._pose_source(), start_s)))
+            start_s = end_s
+        self.next_revolution_start_s = start_s
+
+    # ---- serial source ----
+
+    def _start_serial_source(self) -> None:
+        device = declare_parameter(self, "device", "/dev/ttyUSB0", "Serial device of the BeAMS sensor.")
+        baud_rate = declare_parameter(
+            self, "baud_rate", 921600, "Serial baud rate.", minimum=9600, maximum=12_000_000
+        )
+        self.serial = SerialEdgeSource(
+            device, baud_rate, read_timeout_s=SERIAL_POLL_PERIOD_S / 2, log=self.get_logger().warning
+        )
+        try:
+            self.serial.open()
+        except (DeviceNotFoundError, DeviceOpenError) as error:
+            raise ParameterValidationError(f"device: {error}") from None
+        self.create_timer(SERIAL_POLL_PERIOD_S, self._read_serial)
+
+    def _read_serial(self) -> None:
+        for edges in self.serial.read():
+            self._publish(self.decoder.decode(edges))
+        for reason, count in self.serial.drops.items():
+            self.diagnostics.set(f"serial_drops_{reason}", count)
+        self.diagnostics.set("serial_connected", self.serial.connected)
+        self.diagnostics.set("serial_reconnections", self.serial.reconnections)
+        if not self.serial.connected:
+            self.diagnostics.set_level("error", f"serial device {self.serial.device} lost, reconnecting")
+
+    # ---- publishing ----
+
+    def _publish(self, decoded: DecodedRevolution) -> None:
+        msg = BeaconBearingArray()
+        msg.header.stamp = Time(seconds=decoded.start_time_s).to_msg()
+        msg.header.frame_id = self.frame_id
+        msg.revolution = decoded.revolution % 2**32
+        msg.period = decoded.period_s
+        msg.bearings = [self._bearing_message(b) for b in decoded.bearings]
+        msg.rejected_windows = min(len(decoded.rejections), 2**16 - 1)
+        self.publisher.publish(msg)
+        self.diagnostics.increment("revolutions")
+        self.diagnostics.increment("bearings", len(msg.bearings))
+        for rejection in decoded.rejections:
+            self.diagnostics.increment(f"rejected_{rejection.kind}")
+        self.diagnostics.set_level("ok", f"{len(msg.bearings)} bearings in the last revolution")
+
+    def _bearing_message(self, decoded) -> BeaconBearing:
+        msg = BeaconBearing()
+        msg.header.stamp = Time(seconds=decoded.stamp_s).to_msg()
+        msg.header.frame_id = self.frame_id
+        msg.beacon_id = decoded.beacon_id
+        msg.bearing = float(wrap_to_pi(self.correction.correct(decoded.bearing, decoded.angular_window)))
+        msg.variance = float(decoded.variance)
+        msg.angular_window = float(decoded.angular_window)
+        msg.rising_angle = float(decoded.rising_angle)
+        msg.falling_angle = float(decoded.falling_angle)
+        msg.codes_seen = decoded.codes_seen
+        return msg
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(run_node(DriverNode, args))
+
+
+if __name__ == "__main__":
+    main()
