@@ -26,7 +26,9 @@ def test_executable_answers_and_exits_cleanly(rclpy_node, start_node, package, e
     node = start_node(package, executable)
 
     def reported() -> bool:
-        return any(executable.removesuffix("_node") in status.name for msg in diagnostics for status in msg.status)
+        return any(
+            executable.removesuffix("_node") in status.name for msg in diagnostics for status in msg.status
+        )
 
     assert rclpy_node.spin_until(reported, ANSWER_TIMEOUT_S), (
         f"{executable} published nothing on /diagnostics within {ANSWER_TIMEOUT_S} s:\n{node.log()}"

@@ -1,0 +1,71 @@
+"""driver_node over DDS, as a separate process: the simulated sensor's bearings agree with the geometry
+within their published variance, occluded beacons vanish, a missing serial device is a clear error."""
+
+import math
+
+import numpy as np
+import pytest
+
+from beams_driver.beacon_map import EUROBOT_BEACON_MAP
+
+pytestmark = pytest.mark.dds
+
+WAIT_S = 20.0
+STATIC_POSE = (1.0, 1.2, 0.4)
+
+
+def true_bearing(beacon_id: int, pose: tuple[float, float, float]) -> float:
+    bx, by = EUROBOT_BEACON_MAP.position(beacon_id)
+    return math.atan2(by - pose[1], bx - pose[0]) - pose[2]
+
+
+def collect_revolutions(rclpy_node, count: int) -> list:
+    from rclpy.qos import qos_profile_sensor_data
+
+    from beams_msgs.msg import BeaconBearingArray
+
+    revolutions = rclpy_node.subscribe(BeaconBearingArray, "beams/bearings", qos_profile_sensor_data)
+    assert rclpy_node.spin_until(lambda: len(revolutions) >= count, WAIT_S), f"{len(revolutions)} revolutions"
+    return revolutions
+
+
+def test_simulated_bearings_match_the_geometry_within_their_variance(rclpy_node, start_node):
+    start_node("beams_driver", "driver_node", params={"sim_static_pose": list(STATIC_POSE)})
+    revolutions = collect_revolutions(rclpy_node, 30)
+    normalised_errors = {1: [], 2: [], 3: []}
+    for revolution in revolutions:
+        assert revolution.header.frame_id == "beams_sensor"
+        assert 0.0998 < revolution.period < 0.0999  # 62400 steps of a 625 kHz timer
+        for bearing in revolution.bearings:
+            error = math.remainder(
+                bearing.bearing - true_bearing(bearing.beacon_id, STATIC_POSE), 2 * math.pi
+            )
+            assert -math.pi < bearing.bearing <= math.pi
+            assert bearing.variance > 0.0 and bearing.angular_window > 0.0
+            normalised_errors[bearing.beacon_id].append(error / math.sqrt(bearing.variance))
+    for beacon_id, errors in normalised_errors.items():
+        assert len(errors) >= 0.9 * len(revolutions), f"beacon {beacon_id} seen in {len(errors)} revolutions"
+        # Normalised errors of an unbiased, correctly-weighted bearing: mean ~0, spread ~1.
+        assert abs(np.mean(errors)) < 1.0, (beacon_id, np.mean(errors))
+        assert 0.3 < np.std(errors) < 2.0, (beacon_id, np.std(errors))
+
+
+def test_occluded_beacon_is_not_reported(rclpy_node, start_node):
+    start_node(
+        "beams_driver",
+        "driver_node",
+        params={"sim_static_pose": list(STATIC_POSE), "sim_occluded_beacons": [2]},
+    )
+    revolutions = collect_revolutions(rclpy_node, 10)
+    seen = {bearing.beacon_id for revolution in revolutions for bearing in revolution.bearings}
+    assert seen == {1, 3}
+
+
+def test_missing_serial_device_is_a_clear_error(start_node):
+    node = start_node(
+        "beams_driver", "driver_node", params={"source": "serial", "device": "/dev/beams_nowhere"}
+    )
+    status = node.process.wait(timeout=WAIT_S)
+    output = node.log()
+    assert status == 2, output
+    assert "/dev/beams_nowhere" in output and "does not exist" in output and "Traceback" not in output
