@@ -22,6 +22,7 @@ setup(
     entry_points={
         "console_scripts": [
             "calibration_node = beams_calibration.calibration_node:main",
+            "calibrate = beams_calibration.calibrate_command:entry_point",
         ],
     },
 )

@@ -24,6 +24,7 @@ setup(
         "console_scripts": [
             "driver_node = beams_driver.driver_node:main",
             "sim_world_node = beams_driver.sim_world_node:main",
+            "variance_plot = beams_driver.variance_plot:main",
         ],
     },
 )

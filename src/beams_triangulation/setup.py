@@ -22,6 +22,7 @@ setup(
     entry_points={
         "console_scripts": [
             "triangulation_node = beams_triangulation.triangulation_node:main",
+            "error_map = beams_triangulation.error_map:main",
         ],
     },
 )

@@ -10,6 +10,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.executors import ExternalShutdownException
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 
 from beams_driver.calibration_file import SensorCalibration, load_calibration
@@ -38,6 +39,10 @@ def run_node(node_class: Callable[[], Node], args: list[str] | None = None) -> i
         return EXIT_INVALID_PARAMETERS
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
+    except _rclpy.RCLError:
+        # SIGTERM shuts the context down under the executor, which may then fail to build its wait set.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.destroy_node()

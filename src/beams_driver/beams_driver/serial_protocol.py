@@ -36,12 +36,12 @@ Examples (hex)::
 Link: 460800 baud, 8N1 by default (57600 frames/s at most; a revolution with 5 beacons in sight
 carries a few hundred edges, i.e. a few thousand frames/s).
 
-Host side. The parser hunts for the sync pair, checks the CRC and the kind, and on any failure drops
-the candidate's sync pair and hunts again from the next byte, so that a corrupted byte, a truncated
-frame (another sync pair starts inside the candidate) or a bad checksum costs at most the frames it
-touches. Every drop is counted by reason in `FrameParser.drops`. The 16-bit timer is unwrapped into
-a monotonic 64-bit tick count by adding the forward difference modulo 65536 between consecutive
-frames; a gap in the sequence numbers (lost frames) marks the next event `after_gap`, and the
+Host side. The parser hunts for the sync pair and checks the CRC and the kind; on a bad checksum it
+drops the candidate's sync pair and hunts again from the byte after it, so that a corrupted byte, a
+truncated frame (another sync pair starts inside the candidate) or a bad checksum costs only the
+frames it touches. Every drop is counted by reason in `FrameParser.drops`. The 16-bit timer is
+unwrapped into a monotonic tick count by adding the forward difference modulo 65536 between
+consecutive frames; a gap in the sequence numbers (lost frames) marks the next event `after_gap`, and the
 assembler then discards the revolution it falls in, since the unwrapping across a gap is ambiguous.
 The angle of an edge is 2*pi * (ticks since the revolution's zero reference) / (ticks between the
 two zero references that bound the revolution) (eq. 2.1 with the measured turret speed).
@@ -127,7 +127,8 @@ class FrameEncoder:
 
     def revolution(self, edges: RevolutionEdges, tick_rate_hz: float = TIMER_HZ) -> bytes:
         """The frames of one revolution: its opening zero reference, then every edge in time order."""
-        out = bytearray(self.event(EventKind.ZERO_REFERENCE, seconds_to_ticks(edges.start_time_s, tick_rate_hz)))
+        opening_ticks = seconds_to_ticks(edges.start_time_s, tick_rate_hz)
+        out = bytearray(self.event(EventKind.ZERO_REFERENCE, opening_ticks))
         ticks = np.rint(np.asarray(edges.edge_times_s, dtype=float) * tick_rate_hz).astype(np.int64)
         for tick, rising in zip(ticks.tolist(), np.asarray(edges.edge_rising).tolist(), strict=True):
             out += self.event(EventKind.RISING if rising else EventKind.FALLING, tick)
@@ -204,10 +205,10 @@ class FrameParser:
             if start < 0:
                 # A trailing 0xA5 may be the first half of the next sync pair.
                 keep = 1 if end > position and buffer[end - 1] == SYNC[0] else 0
-                self.drops["garbage_bytes"] += end - position - keep
+                self._skip(end - keep - position)
                 position = end - keep
                 break
-            self.drops["garbage_bytes"] += start - position
+            self._skip(start - position)
             position = start
             if end - start < FRAME_SIZE:
                 break
@@ -222,16 +223,22 @@ class FrameParser:
         return events
 
     def flush(self) -> int:
-        """Drop a pending partial frame at the end of a stream (counted as truncated); returns bytes dropped."""
+        """Drop a pending partial frame at the end of a stream (a truncated frame); returns its bytes."""
         pending = len(self._buffer)
-        if pending:
+        if pending >= len(SYNC):
             self.drops["truncated"] += 1
-            self.drops["garbage_bytes"] += max(0, pending - len(SYNC))
-            self._buffer.clear()
-            self._gap = True
+            self._skip(pending - len(SYNC))
+        else:
+            self._skip(pending)
+        self._buffer.clear()
+        self._gap = self._gap or pending > 0
         return pending
 
-    def _parse_candidate(self, buffer: bytearray, start: int) -> "FrameEvent | object | None":
+    def _skip(self, n_bytes: int) -> None:
+        if n_bytes > 0:
+            self.drops["garbage_bytes"] += n_bytes
+
+    def _parse_candidate(self, buffer: bytearray, start: int) -> FrameEvent | object | None:
         """The event of the frame at start, _UNKNOWN for an unknown kind, None for a rejected candidate."""
         body = bytes(buffer[start + 2 : start + 6])
         (received_crc,) = _CRC.unpack_from(buffer, start + 6)
@@ -293,6 +300,7 @@ class RevolutionAssembler:
         self.tick_rate_hz = float(tick_rate_hz)
         self.ticks_per_revolution = int(ticks_per_revolution)
         self.period_tolerance = float(period_tolerance)
+        self._tolerance_ticks = period_tolerance * ticks_per_revolution
         self.time_offset_s = float(time_offset_s)
         self.drops: Counter[str] = Counter()
         self.revolutions_ok = 0
@@ -304,6 +312,8 @@ class RevolutionAssembler:
 
     def reset(self) -> None:
         """Forget the open revolution (e.g. after a reconnection); the next zero reference opens one."""
+        if self._zero_ticks is not None:
+            self._open_revolution += 1
         self._zero_ticks = None
         self._edge_ticks.clear()
         self._edge_rising.clear()
@@ -335,7 +345,7 @@ class RevolutionAssembler:
             span_ticks = zero_ticks - self._zero_ticks
             if self._gap:
                 self.drops["revolution_with_gap"] += 1
-            elif abs(span_ticks - self.ticks_per_revolution) > self.period_tolerance * self.ticks_per_revolution:
+            elif abs(span_ticks - self.ticks_per_revolution) > self._tolerance_ticks:
                 self.drops["bad_revolution_period"] += 1
             else:
                 result = self._build(span_ticks)

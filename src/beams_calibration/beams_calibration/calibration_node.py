@@ -1,0 +1,399 @@
+"""calibration_node: the chapter-7 calibration of BeAMS as ROS services, from capture to calibration file.
+
+Subscribes `beams/bearings` (beams_msgs/BeaconBearingArray, sensor-data QoS). Services (relative names):
+
+- `capture_reference` (beams_msgs/CaptureReference): the operator has placed the robot at a known pose;
+  average that many revolutions per beacon and append the configuration to the dataset file
+  (atomically); refused, with the reason, when a beacon is missing or the bearings spread (robot moved);
+- `calibrate` (beams_msgs/Calibrate): Algorithm 7.1 on the dataset, then the calibration file (and the
+  PNG figures when `plots_directory` is set); refused when the dataset cannot support it;
+- `list_configurations` (beams_msgs/ListConfigurations) and `clear_dataset` (std_srvs/Trigger; the
+  previous file stays as `<dataset_file>.bak`).
+
+Capture from a driver running WITHOUT a calibration file: the dataset must hold the raw bearings.
+The services are coroutines: while a capture waits for revolutions, or a calibration runs in its worker
+thread, the node keeps receiving bearings and publishing diagnostics. One capture, calibration or clear
+runs at a time; a second request meanwhile is refused as busy.
+"""
+
+import math
+import sys
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.clock import Clock, ClockType
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from rclpy.task import Future
+from std_srvs.srv import Trigger
+
+from beams_calibration.calibrate import (
+    DEFAULT_ETA_M_PER_RAD,
+    DEFAULT_THRESHOLD,
+    CalibrationRefusedError,
+    CalibrationResult,
+    CoverageRequirements,
+    calibrate,
+)
+from beams_calibration.dataset import (
+    DEFAULT_MAX_SPREAD_RAD,
+    DEFAULT_MIN_SEEN_FRACTION,
+    Configuration,
+    Dataset,
+    DatasetError,
+    append_configuration,
+    average_capture,
+    load_dataset,
+    now_utc,
+    save_dataset,
+)
+from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_driver.calibration_file import save_calibration
+from beams_driver.node_support import Diagnostics, ParameterValidationError, declare_parameter, run_node
+from beams_msgs.msg import BeaconBearingArray
+from beams_msgs.srv import Calibrate, CaptureReference, ListConfigurations
+
+# Upper bound on a turret period (s) when bounding a capture's duration (the sensor turns at ~10 Hz).
+SLOWEST_REVOLUTION_S = 0.2
+CAPTURE_MARGIN_S = 5.0
+MAX_REVOLUTIONS = 10000
+BUSY = "busy: a capture, calibration or clear is in progress; try again"
+
+
+@dataclass
+class _Capture:
+    """A capture in progress: the revolutions received so far and the future the service awaits."""
+
+    target: int
+    done: Future
+    revolutions: list[dict[int, tuple[float, float]]] = field(default_factory=list)
+
+
+class CalibrationNode(Node):
+    def __init__(self) -> None:
+        super().__init__("calibration_node")
+        self.dataset_file = Path(
+            declare_parameter(
+                self, "dataset_file", "calibration_dataset.yaml", "Dataset file (YAML) to append to."
+            )
+        )
+        self.output_file = Path(
+            declare_parameter(self, "calibration_file_out", "calibration.yaml", "Calibration file written.")
+        )
+        self.plots_directory = declare_parameter(
+            self, "plots_directory", "", "Directory for the PNG figures of each calibration; empty for none."
+        )
+        self.prior_map = self._declare_beacon_map()
+        self.default_revolutions = declare_parameter(
+            self,
+            "default_revolutions",
+            100,
+            "Revolutions averaged when a request asks 0.",
+            minimum=1,
+            maximum=10000,
+        )
+        self.min_seen_fraction = declare_parameter(
+            self,
+            "min_seen_fraction",
+            DEFAULT_MIN_SEEN_FRACTION,
+            "A beacon decoded in fewer revolutions than this fraction counts as missing.",
+            minimum=0.01,
+            maximum=1.0,
+        )
+        self.max_spread_rad = math.radians(
+            declare_parameter(
+                self,
+                "max_spread_deg",
+                math.degrees(DEFAULT_MAX_SPREAD_RAD),
+                "Bearing spread (deg, one revolution) above which the robot is deemed to have moved.",
+                minimum=1e-3,
+                maximum=10.0,
+            )
+        )
+        self.eta = declare_parameter(
+            self,
+            "eta_m_per_rad",
+            DEFAULT_ETA_M_PER_RAD,
+            "eta of eq. 7.12 (m/rad).",
+            minimum=1e-3,
+            maximum=1e3,
+        )
+        self.threshold = declare_parameter(
+            self, "threshold", DEFAULT_THRESHOLD, "t of Algorithm 7.1.", minimum=1e-6, maximum=1.0
+        )
+        self.max_iterations = declare_parameter(
+            self, "max_iterations", 10, "Bound on the loop of Algorithm 7.1.", minimum=1, maximum=100
+        )
+        self.leave_one_out = declare_parameter(
+            self, "leave_one_out", True, "Compute the leave-one-position-out error (12 extra fits)."
+        )
+        self.requirements = CoverageRequirements(
+            min_configurations=declare_parameter(
+                self,
+                "min_configurations",
+                CoverageRequirements().min_configurations,
+                "Fewest configurations a calibration accepts.",
+                minimum=3,
+                maximum=100000,
+            )
+        )
+        self._check_dataset_file()
+        self.diagnostics = Diagnostics(self, "calibration")
+        self._capture: _Capture | None = None
+        self._busy = False
+        self._steady_clock = Clock(clock_type=ClockType.STEADY_TIME)
+        self.create_subscription(
+            BeaconBearingArray, "beams/bearings", self._on_bearings, qos_profile_sensor_data
+        )
+        services = ReentrantCallbackGroup()
+        self.create_service(CaptureReference, "capture_reference", self._on_capture, callback_group=services)
+        self.create_service(Calibrate, "calibrate", self._on_calibrate, callback_group=services)
+        self.create_service(ListConfigurations, "list_configurations", self._on_list, callback_group=services)
+        self.create_service(Trigger, "clear_dataset", self._on_clear, callback_group=services)
+        self.get_logger().info(
+            f"dataset {self.dataset_file} ({self._count()} configurations), "
+            f"calibration file {self.output_file}; listening to {self.resolve_topic_name('beams/bearings')} "
+            "(run the driver without calibration_file while capturing)"
+        )
+
+    # ---- parameters ----
+
+    def _declare_beacon_map(self) -> BeaconMap:
+        ids = declare_parameter(self, "beacon_ids", list(EUROBOT_BEACON_MAP.ids), "A-priori beacon ids.")
+        xs = declare_parameter(
+            self, "beacon_x", EUROBOT_BEACON_MAP.xy[:, 0].tolist(), "A-priori beacon x, map frame (m)."
+        )
+        ys = declare_parameter(
+            self, "beacon_y", EUROBOT_BEACON_MAP.xy[:, 1].tolist(), "A-priori beacon y, map frame (m)."
+        )
+        try:
+            return BeaconMap.from_lists(ids, xs, ys)
+        except ValueError as error:
+            raise ParameterValidationError(f"beacon_*: {error}") from None
+
+    def _check_dataset_file(self) -> None:
+        """An existing but unreadable dataset is a start-up error, not something to overwrite later."""
+        if not self.dataset_file.exists():
+            return
+        try:
+            dataset = load_dataset(self.dataset_file)
+        except (OSError, DatasetError) as error:
+            raise ParameterValidationError(f"dataset_file: {error}") from None
+        if dataset.beacon_map.ids != self.prior_map.ids:
+            self.get_logger().warn(
+                f"the dataset's beacons {list(dataset.beacon_map.ids)} differ from beacon_ids "
+                f"{list(self.prior_map.ids)}: the dataset's a-priori map is used"
+            )
+
+    def _count(self) -> int:
+        try:
+            return len(load_dataset(self.dataset_file).configurations) if self.dataset_file.exists() else 0
+        except (OSError, DatasetError):
+            return 0
+
+    # ---- bearings ----
+
+    def _on_bearings(self, msg: BeaconBearingArray) -> None:
+        self.diagnostics.increment("revolutions received")
+        capture = self._capture
+        if capture is None or capture.done.done():
+            return
+        revolution = {
+            int(b.beacon_id): (float(b.bearing), float(b.angular_window))
+            for b in msg.bearings
+            if math.isfinite(b.bearing) and math.isfinite(b.angular_window)
+        }
+        capture.revolutions.append(revolution)
+        if len(capture.revolutions) >= capture.target:
+            capture.done.set_result(True)
+
+    # ---- services ----
+
+    async def _on_capture(self, request: CaptureReference.Request, response: CaptureReference.Response):
+        pose = (request.x, request.y, request.theta)
+        if self._busy:
+            return self._capture_reply(response, BUSY)
+        if not all(math.isfinite(v) for v in pose):
+            return self._capture_reply(response, f"refused: the pose {pose} is not finite")
+        revolutions = int(request.revolutions) or int(self.default_revolutions)
+        if revolutions > MAX_REVOLUTIONS:
+            return self._capture_reply(response, f"refused: at most {MAX_REVOLUTIONS} revolutions")
+        self._busy = True
+        try:
+            samples = await self._collect(revolutions)
+            if len(samples) < revolutions:
+                return self._capture_reply(
+                    response,
+                    f"refused: {len(samples)} of {revolutions} revolutions received in time: "
+                    f"is the driver publishing {self.resolve_topic_name('beams/bearings')}?",
+                )
+            dataset_map = self._dataset_map()
+            observations = average_capture(
+                samples,
+                dataset_map.ids,
+                min_seen_fraction=self.min_seen_fraction,
+                max_spread_rad=self.max_spread_rad,
+            )
+            configuration = Configuration(*map(float, pose), observations, revolutions, now_utc())
+            dataset = append_configuration(self.dataset_file, dataset_map, configuration)
+        except (OSError, DatasetError) as error:
+            self.diagnostics.set("last capture", f"refused: {error}")
+            return self._capture_reply(response, f"refused: {error}")
+        finally:
+            self._busy = False
+        response.success = True
+        response.configurations = len(dataset.configurations)
+        message = f"configuration {response.configurations} recorded: {configuration.summary()}"
+        response.message = message
+        self.diagnostics.set("configurations", response.configurations)
+        self.diagnostics.set("last capture", "recorded")
+        self.get_logger().info(message)
+        return response
+
+    def _capture_reply(self, response: CaptureReference.Response, message: str) -> CaptureReference.Response:
+        response.success = False
+        response.message = message
+        response.configurations = self._count()
+        self.get_logger().warn(f"capture_reference: {message}")
+        return response
+
+    async def _collect(self, revolutions: int) -> list[dict[int, tuple[float, float]]]:
+        """Wait for the next `revolutions` revolutions, bounded in (steady) time."""
+        capture = _Capture(target=revolutions, done=Future(executor=self.executor))
+        timeout_s = revolutions * SLOWEST_REVOLUTION_S + CAPTURE_MARGIN_S
+
+        def expire() -> None:
+            if not capture.done.done():
+                capture.done.set_result(False)
+
+        # A steady-clock timer: an operator's time-out, valid with use_sim_time and no /clock.
+        timer = self.create_timer(timeout_s, expire, clock=self._steady_clock)
+        self._capture = capture
+        try:
+            await capture.done
+        finally:
+            self._capture = None
+            self.destroy_timer(timer)
+        return capture.revolutions
+
+    def _dataset_map(self) -> BeaconMap:
+        return load_dataset(self.dataset_file).beacon_map if self.dataset_file.exists() else self.prior_map
+
+    async def _on_calibrate(self, request: Calibrate.Request, response: Calibrate.Response):
+        if self._busy:
+            response.success = False
+            response.message = BUSY
+            return response
+        self._busy = True
+        try:
+            dataset = load_dataset(self.dataset_file)
+            result = await self._in_worker(lambda: self._run_calibration(dataset))
+            written = ""
+            if not request.dry_run:
+                save_calibration(result.to_sensor_calibration(), self.output_file)
+                written = str(self.output_file)
+            if self.plots_directory:
+                from beams_calibration.plots import plot_all
+
+                plot_all(result, self.plots_directory)
+        except (OSError, DatasetError, CalibrationRefusedError) as error:
+            response.success = False
+            response.message = str(error)
+            self.diagnostics.set_level("warn", f"last calibration failed: {error}")
+            self.get_logger().warn(f"calibrate: {error}")
+            return response
+        finally:
+            self._busy = False
+        response.success = True
+        response.position_rms_before = result.before.position_rms_m
+        response.position_rms_after = result.after.position_rms_m
+        response.orientation_rms_before = result.before.orientation_rms_rad
+        response.orientation_rms_after = result.after.orientation_rms_rad
+        response.calibration_file = written
+        response.message = _summary(result, written)
+        self.diagnostics.set_level("warn" if result.warnings else "ok", response.message)
+        self.get_logger().info(response.message)
+        return response
+
+    def _run_calibration(self, dataset: Dataset) -> CalibrationResult:
+        return calibrate(
+            dataset,
+            eta_m_per_rad=self.eta,
+            threshold=self.threshold,
+            max_iterations=self.max_iterations,
+            leave_one_out=self.leave_one_out,
+            requirements=self.requirements,
+            progress=lambda line: self.get_logger().info(f"calibrate: {line}"),
+        )
+
+    async def _in_worker(self, work: Callable[[], Any]) -> Any:
+        """Run blocking work in a thread and await it: the executor keeps serving meanwhile."""
+        future = Future(executor=self.executor)
+
+        def run() -> None:
+            try:
+                future.set_result(work())
+            except Exception as error:  # handed to the awaiting service, which reports it
+                future.set_exception(error)
+
+        threading.Thread(target=run, name="calibration", daemon=True).start()
+        return await future
+
+    def _on_list(self, _request: ListConfigurations.Request, response: ListConfigurations.Response):
+        response.dataset_file = str(self.dataset_file)
+        try:
+            configurations = (
+                load_dataset(self.dataset_file).configurations if self.dataset_file.exists() else ()
+            )
+        except (OSError, DatasetError) as error:
+            response.summaries = [f"error: {error}"]
+            return response
+        response.configurations = len(configurations)
+        response.summaries = [f"{k + 1}: {c.summary()}" for k, c in enumerate(configurations)]
+        return response
+
+    def _on_clear(self, _request: Trigger.Request, response: Trigger.Response):
+        if self._busy:
+            response.success = False
+            response.message = BUSY
+            return response
+        try:
+            dataset = (
+                load_dataset(self.dataset_file) if self.dataset_file.exists() else Dataset(self.prior_map)
+            )
+            save_dataset(dataset.cleared(), self.dataset_file)
+        except (OSError, DatasetError) as error:
+            response.success = False
+            response.message = f"not cleared: {error}"
+            return response
+        response.success = True
+        response.message = (
+            f"cleared {len(dataset.configurations)} configurations; the previous dataset is kept as "
+            f"{self.dataset_file}.bak"
+        )
+        self.diagnostics.set("configurations", 0)
+        self.get_logger().info(response.message)
+        return response
+
+
+def _summary(result: CalibrationResult, written: str) -> str:
+    text = (
+        f"position RMS {result.before.position_rms_m * 1e3:.2f} -> "
+        f"{result.after.position_rms_m * 1e3:.2f} mm, "
+        f"orientation RMS {math.degrees(result.before.orientation_rms_rad):.3f} -> "
+        f"{math.degrees(result.after.orientation_rms_rad):.3f} deg"
+    )
+    if result.leave_one_out is not None:
+        text += f", leave-one-position-out {result.leave_one_out.position_rms_m * 1e3:.2f} mm"
+    text += f"; written to {written}" if written else "; dry run, nothing written"
+    if result.warnings:
+        text += "; WARNINGS: " + "; ".join(result.warnings)
+    return text
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(run_node(CalibrationNode, args))

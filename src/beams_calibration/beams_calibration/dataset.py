@@ -1,0 +1,316 @@
+"""The calibration dataset of thesis section 7.3.1: reference configurations and their mean bearings.
+
+One configuration (eq. 7.5) is a true robot pose in the map frame, placed by the operator, with the
+bearing of every beacon averaged over many revolutions (the thesis used 100, footnote 5) and its
+angular window (eq. 7.16), from which Algorithm 7.1 fits the calibration.
+
+The file is YAML, meant to be read, edited and re-used offline:
+
+    format: beams-calibration-dataset
+    version: 1
+    beacons:                     # the a-priori (manually measured) beacon coordinates, map frame, m
+      - {id: 1, x_m: 1.151, y_m: 0.049}
+    configurations:
+      - pose: {x_m: 0.12, y_m: 0.84, theta_rad: 0.0}     # true robot pose (base_link in map)
+        revolutions: 100                                   # revolutions averaged
+        recorded_utc: '2026-11-22T03:30:00Z'
+        label: P1 O1                                       # free text
+        beacons:                                           # per beacon, sensor frame, rad
+          - {id: 1, bearing_rad: -0.7, window_rad: 0.11, spread_rad: 0.0009, revolutions: 100}
+
+bearing_rad is the circular mean of the bearings, window_rad the mean angular window, spread_rad
+the standard deviation of the single-revolution bearings about their mean, revolutions the number
+of revolutions in which that beacon was decoded. Every change rewrites the file atomically.
+"""
+
+import math
+import os
+from collections.abc import Iterable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from beams_driver.angles import wrap_to_pi
+from beams_driver.beacon_map import BeaconMap
+from beams_driver.calibration_file import SensorCalibration, atomic_write_text
+
+DATASET_FORMAT = "beams-calibration-dataset"
+DATASET_VERSION = 1
+# A beacon decoded in fewer than this fraction of the revolutions is treated as missing.
+DEFAULT_MIN_SEEN_FRACTION = 0.8
+# Single-revolution bearing spread above which the robot is deemed to have moved (0.3 deg).
+DEFAULT_MAX_SPREAD_RAD = math.radians(0.3)
+
+
+class DatasetError(ValueError):
+    """A dataset file that cannot be read, or a capture that cannot be recorded; says why."""
+
+
+@dataclass(frozen=True)
+class BeaconObservation:
+    """One beacon in one configuration: mean bearing and window (rad), spread (rad), revolutions seen."""
+
+    beacon_id: int
+    bearing_rad: float
+    window_rad: float
+    spread_rad: float
+    revolutions: int
+
+
+@dataclass(frozen=True)
+class Configuration:
+    """A reference configuration C_k (eq. 7.5) and its averaged measurements (eq. 7.7, 7.16)."""
+
+    x_m: float
+    y_m: float
+    theta_rad: float
+    observations: tuple[BeaconObservation, ...]
+    revolutions: int
+    recorded_utc: str = ""
+    label: str = ""
+
+    def observation(self, beacon_id: int) -> BeaconObservation | None:
+        """The observation of one beacon, or None when it was not recorded."""
+        return next((o for o in self.observations if o.beacon_id == beacon_id), None)
+
+    def summary(self) -> str:
+        """One line: pose and beacons seen (for ListConfigurations)."""
+        seen = ", ".join(
+            f"B{o.beacon_id} {math.degrees(o.bearing_rad):.2f} deg (w {math.degrees(o.window_rad):.2f} deg)"
+            for o in self.observations
+        )
+        label = f" [{self.label}]" if self.label else ""
+        return (
+            f"x={self.x_m:.4f} m y={self.y_m:.4f} m theta={math.degrees(self.theta_rad):.1f} deg"
+            f"{label}, {self.revolutions} revolutions: {seen}"
+        )
+
+
+@dataclass(frozen=True)
+class Dataset:
+    """The a-priori beacon map (section 7.3.4's starting point) and the recorded configurations."""
+
+    beacon_map: BeaconMap
+    configurations: tuple[Configuration, ...] = field(default=())
+
+    def with_configuration(self, configuration: Configuration) -> "Dataset":
+        return replace(self, configurations=(*self.configurations, configuration))
+
+    def cleared(self) -> "Dataset":
+        return replace(self, configurations=())
+
+
+@dataclass(frozen=True)
+class CalibrationArrays:
+    """A dataset as arrays for Algorithm 7.1: n configurations by the map's three beacons."""
+
+    poses: np.ndarray  # (n, 3) true x (m), y (m), theta (rad)
+    bearings_rad: np.ndarray  # (n, 3) mean bearings, sensor frame
+    windows_rad: np.ndarray  # (n, 3) mean angular windows
+    beacon_ids: tuple[int, ...]  # the beacons, in the columns' order
+    beacons_xy: np.ndarray  # (3, 2) a-priori coordinates
+
+    @property
+    def count(self) -> int:
+        return int(self.poses.shape[0])
+
+
+def to_arrays(dataset: Dataset, beacon_ids: Sequence[int] | None = None) -> CalibrationArrays:
+    """Arrays of the configurations that saw the three chosen beacons (default: the map's first three)."""
+    ids = tuple(beacon_ids) if beacon_ids is not None else dataset.beacon_map.ids[:3]
+    if len(ids) != 3:
+        raise DatasetError(f"calibration uses exactly three beacons (thesis ch. 7), got {list(ids)}")
+    rows = [c for c in dataset.configurations if all(c.observation(i) is not None for i in ids)]
+    poses = np.array([(c.x_m, c.y_m, c.theta_rad) for c in rows], dtype=float).reshape(-1, 3)
+    bearings = np.array([[c.observation(i).bearing_rad for i in ids] for c in rows], dtype=float)
+    windows = np.array([[c.observation(i).window_rad for i in ids] for c in rows], dtype=float)
+    return CalibrationArrays(
+        poses=poses,
+        bearings_rad=bearings.reshape(-1, 3),
+        windows_rad=windows.reshape(-1, 3),
+        beacon_ids=ids,
+        beacons_xy=dataset.beacon_map.subset(ids),
+    )
+
+
+# --- capture: averaging revolutions into one configuration ------------------------------------
+
+
+def average_capture(
+    revolutions: Sequence[Mapping[int, tuple[float, float]]],
+    required_ids: Iterable[int],
+    *,
+    min_seen_fraction: float = DEFAULT_MIN_SEEN_FRACTION,
+    max_spread_rad: float = DEFAULT_MAX_SPREAD_RAD,
+) -> tuple[BeaconObservation, ...]:
+    """Average single revolutions {beacon_id: (bearing_rad, window_rad)} into observations.
+
+    Refuses (DatasetError with the reason) when a required beacon was seen in fewer than
+    min_seen_fraction of the revolutions, or when a beacon's bearings spread more than
+    max_spread_rad (the robot moved, or the bearing is unstable).
+    """
+    if not revolutions:
+        raise DatasetError("no revolution received: is the driver publishing beams/bearings?")
+    observations = []
+    for beacon_id in sorted(set(required_ids)):
+        samples = [rev[beacon_id] for rev in revolutions if beacon_id in rev]
+        if len(samples) < min_seen_fraction * len(revolutions):
+            raise DatasetError(
+                f"beacon {beacon_id} seen in {len(samples)} of {len(revolutions)} revolutions "
+                f"(at least {min_seen_fraction:.0%} needed): is it occluded or switched off?"
+            )
+        observation = _average_beacon(beacon_id, np.array(samples, dtype=float))
+        if observation.spread_rad > max_spread_rad:
+            raise DatasetError(
+                f"beacon {beacon_id}: bearing spread {math.degrees(observation.spread_rad):.3f} deg exceeds "
+                f"{math.degrees(max_spread_rad):.3f} deg: did the robot move during the capture?"
+            )
+        observations.append(observation)
+    return tuple(observations)
+
+
+def _average_beacon(beacon_id: int, samples: np.ndarray) -> BeaconObservation:
+    """Circular mean of the bearings (they may straddle +-pi), arithmetic mean of the windows."""
+    bearings, windows = samples[:, 0], samples[:, 1]
+    mean_bearing = math.atan2(float(np.mean(np.sin(bearings))), float(np.mean(np.cos(bearings))))
+    deviations = np.asarray(wrap_to_pi(bearings - mean_bearing))
+    return BeaconObservation(
+        beacon_id=int(beacon_id),
+        bearing_rad=float(wrap_to_pi(mean_bearing)),
+        window_rad=float(np.mean(windows)),
+        spread_rad=float(np.sqrt(np.mean(deviations**2))),
+        revolutions=len(samples),
+    )
+
+
+# --- the file ----------------------------------------------------------------------------------
+
+
+def dataset_to_dict(dataset: Dataset) -> dict[str, Any]:
+    """The YAML document of a dataset (plain types only)."""
+    return {
+        "format": DATASET_FORMAT,
+        "version": DATASET_VERSION,
+        "beacons": [
+            {"id": int(i), "x_m": float(xy[0]), "y_m": float(xy[1])}
+            for i, xy in zip(dataset.beacon_map.ids, dataset.beacon_map.xy, strict=True)
+        ],
+        "configurations": [_configuration_to_dict(c) for c in dataset.configurations],
+    }
+
+
+def _configuration_to_dict(configuration: Configuration) -> dict[str, Any]:
+    return {
+        "pose": {"x_m": configuration.x_m, "y_m": configuration.y_m, "theta_rad": configuration.theta_rad},
+        "revolutions": configuration.revolutions,
+        "recorded_utc": configuration.recorded_utc,
+        "label": configuration.label,
+        "beacons": [
+            {
+                "id": o.beacon_id,
+                "bearing_rad": o.bearing_rad,
+                "window_rad": o.window_rad,
+                "spread_rad": o.spread_rad,
+                "revolutions": o.revolutions,
+            }
+            for o in configuration.observations
+        ],
+    }
+
+
+_HEADER = """\
+# BeAMS calibration dataset (thesis section 7.3.1), written by beams_calibration; editable.
+# beacons: a-priori beacon coordinates in the map frame (m), the calibration's starting point.
+# configurations: true robot pose (m, rad, map frame) and, per beacon, the circular mean of the
+#   bearings (rad, sensor frame), mean angular window (rad), bearing spread (rad, one revolution)
+#   and the number of revolutions in which the beacon was decoded.
+"""
+
+
+def save_dataset(dataset: Dataset, path: str | os.PathLike) -> None:
+    """Write the whole dataset atomically (temporary file, fsync, rename), keeping `<path>.bak`."""
+    text = _HEADER + yaml.safe_dump(dataset_to_dict(dataset), sort_keys=False, default_flow_style=None)
+    atomic_write_text(path, text, keep_backup=True)
+
+
+def load_dataset(path: str | os.PathLike) -> Dataset:
+    """Read a dataset file; FileNotFoundError when missing, DatasetError naming the problem otherwise."""
+    source = Path(path)
+    if not source.is_file():
+        raise FileNotFoundError(f"dataset file {source} does not exist")
+    try:
+        document = yaml.safe_load(source.read_text(encoding="utf-8"))
+        return dataset_from_dict(document)
+    except yaml.YAMLError as error:
+        raise DatasetError(f"dataset file {source} is not valid YAML: {error}") from None
+    except (KeyError, TypeError, ValueError) as error:
+        detail = f"missing entry {error}" if isinstance(error, KeyError) else str(error)
+        raise DatasetError(f"dataset file {source}: {detail}") from None
+
+
+def load_or_create_dataset(path: str | os.PathLike, beacon_map: BeaconMap) -> Dataset:
+    """The dataset at `path`, or an empty one on `beacon_map` when the file does not exist yet."""
+    return load_dataset(path) if Path(path).is_file() else Dataset(beacon_map)
+
+
+def append_configuration(
+    path: str | os.PathLike, beacon_map: BeaconMap, configuration: Configuration
+) -> Dataset:
+    """Append one configuration to the dataset file (created on `beacon_map` if absent); atomic."""
+    dataset = load_or_create_dataset(path, beacon_map).with_configuration(configuration)
+    save_dataset(dataset, path)
+    return dataset
+
+
+def dataset_from_dict(document: Any) -> Dataset:
+    """Parse and validate the YAML document of a dataset (see the module docstring)."""
+    if not isinstance(document, dict):
+        raise ValueError("expected a YAML mapping at the top level")
+    if document.get("format") != DATASET_FORMAT:
+        raise ValueError(f"format is {document.get('format')!r}, expected {DATASET_FORMAT!r}")
+    if document.get("version") != DATASET_VERSION:
+        raise ValueError(f"version {document.get('version')!r} is not supported (expected {DATASET_VERSION})")
+    beacons = document["beacons"]
+    beacon_map = BeaconMap.from_lists(
+        [int(b["id"]) for b in beacons],
+        [float(b["x_m"]) for b in beacons],
+        [float(b["y_m"]) for b in beacons],
+    )
+    configurations = tuple(
+        _configuration_from_dict(index, item)
+        for index, item in enumerate(document.get("configurations") or [])
+    )
+    return Dataset(beacon_map, configurations)
+
+
+def _configuration_from_dict(index: int, item: dict[str, Any]) -> Configuration:
+    pose = item["pose"]
+    values = (float(pose["x_m"]), float(pose["y_m"]), float(pose["theta_rad"]))
+    observations = tuple(
+        BeaconObservation(
+            beacon_id=int(b["id"]),
+            bearing_rad=float(b["bearing_rad"]),
+            window_rad=float(b["window_rad"]),
+            spread_rad=float(b.get("spread_rad", 0.0)),
+            revolutions=int(b.get("revolutions", item.get("revolutions", 1))),
+        )
+        for b in item["beacons"]
+    )
+    numbers = [*values] + [v for o in observations for v in (o.bearing_rad, o.window_rad)]
+    if not all(math.isfinite(v) for v in numbers):
+        raise ValueError(f"configuration {index}: poses, bearings and windows must be finite")
+    return Configuration(
+        *values,
+        observations=observations,
+        revolutions=int(item.get("revolutions", 1)),
+        recorded_utc=str(item.get("recorded_utc", "")),
+        label=str(item.get("label", "")),
+    )
+
+
+def now_utc() -> str:
+    """Timestamp format of recorded configurations (same as the calibration file's)."""
+    return SensorCalibration.now_utc()

@@ -1,0 +1,369 @@
+"""Edge-level simulation of the BeAMS sensor (thesis section 2.4, with the departures of section 5.6).
+
+One call to `SensorSimulator.revolution` produces the edges the microcontroller would capture during one
+turret revolution:
+
+- the turret turns at 625000 / 62400 turn/s, driven by a 625 kHz timer (62400 virtual steps, 0.1 mrad);
+  edges are captured on that timer and their angle counts from the optical-switch zero reference,
+  which the simulator puts on the robot's x axis;
+- every beacon emits its code in a loop from a random phase (no synchronisation, section 2.4.4);
+- the received power falls as 1/d^2 (eq. 2.7) over a symmetric beam P_IR(phi) (eq. 2.2-2.3, here a
+  Gaussian); the receiver sees the beacon while P_IR exceeds a threshold (eq. 2.4), so the angular
+  window shrinks with distance;
+- the receiver output is code AND window (section 3.2), OR-ed over beacons (beacons close in angle give
+  compound windows, section 2.4.5) and over stray-IR pulses; clipped bursts shorter than about 56% of
+  T_0 are not detected, and the window's first rising edge is noisier than its last falling edge (5.6);
+- injected hardware imperfections (chapter 7): power bias f(window), rotation bias f(angle), turret
+  offset from the robot centre, beacons standing where the caller says (the true positions);
+- the robot moves during the revolution: the pose is taken from pose_at(t) at each window's edges.
+"""
+
+import math
+from collections.abc import Callable, Collection, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from beams_driver.codes import BeaconCode, bursts_in_window, code_family, first_last_edges
+from beams_driver.edges import TIMER_HZ, TURRET_PERIOD_S, RevolutionEdges
+
+PoseAt = Callable[[float], tuple[float, float, float]]
+BiasFunction = Callable[[np.ndarray], np.ndarray]
+Occlusion = Collection[int] | Callable[[int, float], bool]
+# A pass centred this close to the zero reference may reach into the neighbouring revolution
+# (half window plus the robot's turn in one revolution, with room to spare).
+_PASS_MARGIN_RAD = 1.0
+_FIXED_POINT_STEPS = 3
+_TWO_PI = 2.0 * math.pi
+
+
+@dataclass(frozen=True)
+class SensorSimConfig:
+    """Parameters of the simulated sensor; defaults model the thesis's device on a Eurobot table.
+
+    Beam: P_IR(phi) = P_r exp(-phi^2 / (2 beam_sigma^2)), P_r(d) / P_th = power_ratio_at_1m / d^2
+    (eq. 2.7), so the window is 2 beam_sigma sqrt(2 ln(P_r / P_th)): about 8 deg at 1 m, 2.2 deg (about
+    20 bits, section 2.5.1) at 6 m, nothing beyond 6.9 m.
+    """
+
+    codes: tuple[BeaconCode, ...] = field(default_factory=code_family)
+    period_s: float = TURRET_PERIOD_S
+    tick_s: float = 1.0 / TIMER_HZ
+    beam_sigma_rad: float = float(np.radians(1.437))
+    power_ratio_at_1m: float = 48.0
+    min_burst_fraction: float = 0.56
+    rising_noise_rad: float = float(np.radians(0.06))
+    falling_noise_rad: float = float(np.radians(0.02))
+    edge_jitter_s: float = 0.3e-6
+    spurious_rate_hz: float = 0.0
+    spurious_burst_s: tuple[float, float] = (15e-6, 150e-6)
+
+    def __post_init__(self) -> None:
+        if not self.period_s > 0.0 or not self.tick_s > 0.0:
+            raise ValueError("sensor sim: period_s and tick_s must be positive")
+        if self.beam_sigma_rad <= 0.0 or self.power_ratio_at_1m <= 0.0:
+            raise ValueError("sensor sim: beam_sigma_rad and power_ratio_at_1m must be positive")
+        if min(self.rising_noise_rad, self.falling_noise_rad, self.edge_jitter_s, self.spurious_rate_hz) < 0:
+            raise ValueError("sensor sim: noise levels and spurious rate must be >= 0")
+
+    @classmethod
+    def ideal(cls, **overrides: object) -> "SensorSimConfig":
+        """The receiver of the theory (chapters 3-4): exact AND, no natural noise, no stray IR."""
+        base = cls(min_burst_fraction=0.0, rising_noise_rad=0.0, falling_noise_rad=0.0, edge_jitter_s=0.0)
+        return replace(base, **overrides)
+
+    @property
+    def turret_speed_rad_s(self) -> float:
+        """omega (rad/s), eq. 2.1."""
+        return 2.0 * np.pi / self.period_s
+
+    @property
+    def natural_variance_rad2(self) -> float:
+        """Bearing variance the edge noise adds: (sigma_r^2 + sigma_f^2) / 4 (eq. 3.13, independent edges)."""
+        return (self.rising_noise_rad**2 + self.falling_noise_rad**2) / 4.0
+
+    def code(self, beacon_id: int) -> BeaconCode:
+        """The code a beacon emits (its identifier is the code identifier)."""
+        for code in self.codes:
+            if code.code_id == beacon_id:
+                return code
+        raise KeyError(f"beacon {beacon_id} has no code in {[c.code_id for c in self.codes]}")
+
+    def half_window_rad(self, distance_m: float, power_scale: float = 1.0) -> float:
+        """Half angular window (rad) at distance d: where P_IR crosses the threshold; 0 when out of range."""
+        ratio = power_scale * self.power_ratio_at_1m / max(distance_m, 1e-3) ** 2
+        return self.beam_sigma_rad * math.sqrt(2.0 * math.log(max(ratio, 1.0)))
+
+    def window_rad(self, distance_m: ArrayLike, power_scale: float = 1.0) -> np.ndarray | float:
+        """True angular window phi_W = phi_F - phi_R (rad) at distance(s) d (figure 2.8)."""
+        if np.ndim(distance_m) == 0:
+            return 2.0 * self.half_window_rad(float(distance_m), power_scale)  # type: ignore[arg-type]
+        distances = np.asarray(distance_m, dtype=float)
+        return np.array([2.0 * self.half_window_rad(d, power_scale) for d in distances.ravel()]).reshape(
+            distances.shape
+        )
+
+
+@dataclass(frozen=True)
+class SimulatedBeacon:
+    """A beacon as it really stands: id (= its code), map position (m), emitted power / nominal."""
+
+    beacon_id: int
+    x_m: float
+    y_m: float
+    power_scale: float = 1.0
+
+
+def beacons_from_map(beacon_map: object) -> tuple[SimulatedBeacon, ...]:
+    """SimulatedBeacons from any object with `ids` and `xy` (n, 2), e.g. a BeaconMap."""
+    xy = np.asarray(beacon_map.xy, dtype=float).reshape(-1, 2)  # type: ignore[attr-defined]
+    ids = beacon_map.ids  # type: ignore[attr-defined]
+    return tuple(SimulatedBeacon(int(i), float(x), float(y)) for i, (x, y) in zip(ids, xy, strict=True))
+
+
+class SensorSimulator:
+    """Simulated BeAMS sensor: `revolution(pose_at, start_time_s)` gives one revolution's edges."""
+
+    def __init__(
+        self,
+        config: SensorSimConfig,
+        beacons: Sequence[SimulatedBeacon] | object,
+        rng: np.random.Generator,
+        power_bias_rad: BiasFunction | None = None,
+        rotation_bias_rad: BiasFunction | None = None,
+        turret_offset_m: tuple[float, float] = (0.0, 0.0),
+        *,
+        occlusion: Occlusion | None = None,
+    ) -> None:
+        """beacons: true positions (SimulatedBeacons, or a BeaconMap-like object with ids and xy).
+
+        power_bias_rad(window) and rotation_bias_rad(angle) are added to the measured bearing
+        (phi_biased = phi_real + f, eq. 7.17 and 7.24); turret_offset_m is the turret centre in base_link;
+        occlusion hides beacons: a set of ids or a callable (beacon_id, time_s) -> bool.
+        """
+        self.config = config
+        self.beacons = tuple(beacons) if _is_beacon_sequence(beacons) else beacons_from_map(beacons)
+        self._codes = [config.code(b.beacon_id) for b in self.beacons]
+        self._rng = rng
+        # Free-running beacons: each code starts from an independent random phase (section 2.4.4).
+        self._phase_s = np.array([rng.uniform(0.0, code.duration_s) for code in self._codes])
+        # Receiver noise of one pass is drawn from a key of (beacon, pass instant): a pass over the zero
+        # reference, simulated in two revolutions, is the same pass in both.
+        self._noise_key = int(rng.integers(0, 2**62))
+        self._power_bias = power_bias_rad
+        self._rotation_bias = rotation_bias_rad
+        self._turret_offset_m = (float(turret_offset_m[0]), float(turret_offset_m[1]))
+        self.occlusion = occlusion
+        self._revolution = 0
+
+    def revolution(self, pose_at: PoseAt, start_time_s: float) -> RevolutionEdges:
+        """Edges captured during the revolution opened by the zero-reference pulse at start_time_s."""
+        period = self.config.period_s
+        intervals = [self._beacon_bursts(k, pose_at, start_time_s) for k in range(len(self.beacons))]
+        intervals.append(self._spurious_bursts())
+        # Relative times keep the capture arithmetic exact however long the run has lasted.
+        starts = np.concatenate([s for s, _ in intervals])
+        ends = np.concatenate([e for _, e in intervals])
+        times_rel, rising = self._capture(starts, ends)
+        edges = RevolutionEdges(
+            revolution=self._revolution,
+            start_time_s=float(start_time_s),
+            period_s=period,
+            edge_times_s=start_time_s + times_rel,
+            edge_angles_rad=times_rel * self.config.turret_speed_rad_s,
+            edge_rising=rising,
+        )
+        self._revolution += 1
+        return edges
+
+    def true_bearing(self, beacon_id: int, pose: tuple[float, float, float]) -> tuple[float, float]:
+        """(bearing in [0, 2 pi), distance m) of a beacon from the turret centre, robot frame."""
+        beacon = next(b for b in self.beacons if b.beacon_id == beacon_id)
+        return self._view(beacon, pose)
+
+    # ---- one beacon's window ----
+
+    def _beacon_bursts(self, k: int, pose_at: PoseAt, t0: float) -> tuple[np.ndarray, np.ndarray]:
+        """Bursts (s from t0, unclipped) of every pass of beacon k that can reach this revolution.
+
+        A beacon near the zero reference is seen twice: the tail of the pass around t0 and the head of
+        the pass around t0 + period, each with the robot's pose at its own instants.
+        """
+        beacon = self.beacons[k]
+        omega, period = self.config.turret_speed_rad_s, self.config.period_s
+        bearing, _ = self._view(beacon, pose_at(t0 + 0.5 * period))
+        cycles = [0.0]
+        if bearing < _PASS_MARGIN_RAD:
+            cycles.append(1.0)
+        if bearing > 2.0 * np.pi - _PASS_MARGIN_RAD:
+            cycles.append(-1.0)
+        pieces = [self._pass_bursts(k, pose_at, t0, t0 + (bearing + 2.0 * np.pi * n) / omega) for n in cycles]
+        return np.concatenate([s for s, _ in pieces]), np.concatenate([e for _, e in pieces])
+
+    def _pass_bursts(
+        self, k: int, pose_at: PoseAt, t0: float, t_guess: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Bursts (s from t0) of one pass of the turret over beacon k, the pass nearest t_guess."""
+        beacon = self.beacons[k]
+        window = self._window_times(beacon, pose_at, t0, t_guess)
+        if window is None or self._occluded(beacon.beacon_id, 0.5 * (window[0] + window[1])):
+            return np.empty(0), np.empty(0)
+        code = self._codes[k]
+        # Code time of instant t0 + r: the beacon's clock runs from its own phase.
+        phase = float(np.mod(t0 + self._phase_s[k], code.duration_s))
+        min_burst = self.config.min_burst_fraction * _gap_time(code)
+        starts, ends = bursts_in_window(code, window[0] - t0 + phase, window[1] - t0 + phase, min_burst)
+        pass_index = int(np.floor(0.5 * (window[0] + window[1]) / self.config.period_s))
+        noise = np.random.Generator(np.random.Philox(key=[self._noise_key + k, pass_index % 2**63]))
+        return self._add_edge_noise(starts - phase, ends - phase, noise)
+
+    def _window_times(
+        self, beacon: SimulatedBeacon, pose_at: PoseAt, t0: float, t_guess: float
+    ) -> tuple[float, float] | None:
+        """Instants (s) the received power crosses the threshold, upwards then downwards (eq. 2.4).
+
+        Fixed-point iterations on turret angle = beacon bearing (+- half window + bias), the pose taken
+        at each iterate; they contract by the ratio of the robot's turn rate to the turret's (~3%).
+        """
+        omega = self.config.turret_speed_rad_s
+
+        def mismatch(t: float, side: float, bias: float) -> tuple[float, float]:
+            bearing, distance = self._view(beacon, pose_at(t))
+            half = self.config.half_window_rad(distance, beacon.power_scale)
+            return _wrap(bearing + side * half + bias - omega * (t - t0)) / omega, half
+
+        centre = t_guess
+        for _ in range(_FIXED_POINT_STEPS):
+            step, half = mismatch(centre, 0.0, 0.0)
+            centre += step
+        if half <= 0.0:
+            return None
+        bias = self._bias(2.0 * half, float(np.mod(omega * (centre - t0), 2.0 * np.pi)))
+        edges = []
+        for side in (-1.0, 1.0):
+            edge = centre + (side * half + bias) / omega
+            for _ in range(_FIXED_POINT_STEPS - 1):
+                edge += mismatch(edge, side, bias)[0]
+            edges.append(edge)
+        return (edges[0], edges[1]) if edges[1] > edges[0] else None
+
+    def _view(self, beacon: SimulatedBeacon, pose: tuple[float, float, float]) -> tuple[float, float]:
+        """(bearing in [0, 2 pi) in the robot frame, distance m) of the beacon from the turret centre."""
+        # Scalar math: called a few times per beacon and revolution, where numpy's overhead dominates.
+        x, y, theta = (float(v) for v in pose)
+        c, s = math.cos(theta), math.sin(theta)
+        ox, oy = self._turret_offset_m
+        dx = beacon.x_m - (x + c * ox - s * oy)
+        dy = beacon.y_m - (y + s * ox + c * oy)
+        return (math.atan2(dy, dx) - theta) % _TWO_PI, math.hypot(dx, dy)
+
+    def _bias(self, window_rad: float, bearing_rad: float) -> float:
+        """Injected chapter-7 biases (rad) added to the bearing this window gives."""
+        total = 0.0
+        if self._power_bias is not None:
+            total += float(np.asarray(self._power_bias(np.array([window_rad]))).reshape(-1)[0])
+        if self._rotation_bias is not None:
+            total += float(np.asarray(self._rotation_bias(np.array([bearing_rad]))).reshape(-1)[0])
+        return total
+
+    def _occluded(self, beacon_id: int, time_s: float) -> bool:
+        if self.occlusion is None:
+            return False
+        if callable(self.occlusion):
+            return bool(self.occlusion(beacon_id, time_s))
+        return beacon_id in self.occlusion
+
+    def _add_edge_noise(
+        self, starts: np.ndarray, ends: np.ndarray, rng: np.random.Generator
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Receiver jitter on every edge, plus the AGC's larger noise on the window's outer edges (5.6)."""
+        if starts.size == 0:
+            return starts, ends
+        cfg = self.config
+        if cfg.edge_jitter_s > 0.0:
+            starts = starts + rng.normal(0.0, cfg.edge_jitter_s, starts.size)
+            ends = ends + rng.normal(0.0, cfg.edge_jitter_s, ends.size)
+        omega = cfg.turret_speed_rad_s
+        # Keep each outer burst at least one tick long so the edge order never changes.
+        starts[0] = min(starts[0] + rng.normal(0.0, cfg.rising_noise_rad / omega), ends[0] - cfg.tick_s)
+        ends[-1] = max(ends[-1] + rng.normal(0.0, cfg.falling_noise_rad / omega), starts[-1] + cfg.tick_s)
+        return starts, ends
+
+    def _spurious_bursts(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stray-IR pulses (s from the revolution start): a Poisson process over the revolution."""
+        cfg = self.config
+        count = self._rng.poisson(cfg.spurious_rate_hz * cfg.period_s) if cfg.spurious_rate_hz > 0 else 0
+        durations = self._rng.uniform(*cfg.spurious_burst_s, count)
+        # Kept inside the revolution: a pulse is drawn once, so it must not straddle two of them.
+        starts = self._rng.uniform(0.0, 1.0, count) * (cfg.period_s - durations)
+        return starts, starts + durations
+
+    def _capture(self, starts_rel: np.ndarray, ends_rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Timer captures (s from the zero reference) and polarities of the OR of all bursts.
+
+        Only the edges inside [0, period) belong to this revolution: a window over the zero reference
+        shows its tail at the start and the head of the next pass at the end (the decoder joins
+        consecutive revolutions).
+        """
+        period, tick = self.config.period_s, self.config.tick_s
+        starts, ends = _union(starts_rel, ends_rel)
+        captured_starts, captured_ends = np.round(starts / tick) * tick, np.round(ends / tick) * tick
+        # A burst shorter than the timer resolution leaves no capture.
+        keep = captured_ends > captured_starts
+        raw = np.column_stack([starts[keep], ends[keep]]).ravel()
+        times = np.column_stack([captured_starts[keep], captured_ends[keep]]).ravel()
+        rising = np.tile([True, False], int(np.count_nonzero(keep)))
+        inside = (raw >= 0.0) & (raw < period)
+        return np.clip(times[inside], 0.0, period - tick), rising[inside]
+
+
+def _is_beacon_sequence(beacons: object) -> bool:
+    return isinstance(beacons, Sequence) and all(isinstance(b, SimulatedBeacon) for b in beacons)
+
+
+def _gap_time(code: BeaconCode) -> float:
+    """T_0 (s) of the code (its shortest gap when they differ)."""
+    return min(code.gap_bits) * code.bit_time_s
+
+
+def _wrap(angle: float) -> float:
+    return (angle + math.pi) % _TWO_PI - math.pi
+
+
+def _union(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Union of intervals (the receiver ORs overlapping signals), sorted."""
+    if starts.size == 0:
+        return starts, ends
+    order = np.argsort(starts, kind="stable")
+    starts, ends = starts[order], ends[order]
+    reach = np.maximum.accumulate(ends)
+    new = np.ones(starts.size, dtype=bool)
+    new[1:] = starts[1:] > reach[:-1]
+    first = np.flatnonzero(new)
+    return starts[first], np.maximum.reduceat(ends, first)
+
+
+def fixed_window_bearing_errors(
+    code: BeaconCode,
+    window_s: np.ndarray,
+    period_s: float,
+    n_turns: int,
+    tick_s: float = 100e-9,
+    min_burst_s: float = 0.0,
+    phase_s: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The simulator of sections 4.3-4.4: one beacon, fixed windows, n_turns turret turns.
+
+    Turn k sees the code shifted by k * period (mod T_c): with a period coprime with T_c in ticks, T_c
+    turns visit every shift once (time stationarity). Edges are captured on the tick. Returns the bearing
+    errors (windows, turns) in s and a mask of detected windows; vectorised over windows and turns.
+    """
+    windows = np.asarray(window_s, dtype=float).reshape(-1, 1)
+    starts = phase_s + np.arange(n_turns, dtype=float)[None, :] * period_s
+    starts = np.round(np.mod(starts, code.duration_s) / tick_s) * tick_s
+    starts = np.broadcast_to(starts, (windows.size, n_turns))
+    ends = starts + np.round(windows / tick_s) * tick_s
+    rising, falling, detected = first_last_edges(code, starts, ends, min_burst_s)
+    error = 0.5 * ((rising - starts) + (falling - ends))
+    return np.where(detected, error, 0.0), detected

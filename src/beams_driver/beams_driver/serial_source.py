@@ -1,0 +1,212 @@
+"""The real-hardware edge source: the BeAMS sensor's serial stream (see `serial_protocol`) read with pyserial.
+
+`SerialEdgeSource.read()` returns the revolutions completed by the bytes that arrived, as
+`RevolutionEdges` stamped on the host's clock, and never raises once the source is open: a device that
+disappears (unplugged, USB reset) is closed and reopened with an exponential back-off, its loss and
+return are logged and counted, and bad bytes are counted drops (see `FrameParser` and
+`RevolutionAssembler`). Only `open()` raises, with a message that says what to fix, when the device
+path does not exist or cannot be opened at start-up.
+
+Device time to host time: the device's timer starts anywhere, so the source maps it onto the host clock
+with the smallest observed (arrival - capture) offset, the one with the least transmission delay;
+the offset may grow by `max_clock_drift` s/s to follow a device clock that runs slow.
+"""
+
+import contextlib
+import os
+import time
+from collections import Counter
+from collections.abc import Callable
+from typing import Any
+
+import serial
+
+from beams_driver.edges import RevolutionEdges
+from beams_driver.serial_protocol import DEFAULT_BAUDRATE, FrameEvent, FrameParser, RevolutionAssembler
+
+
+class DeviceNotFoundError(FileNotFoundError):
+    """The serial device path does not exist."""
+
+
+class DeviceOpenError(OSError):
+    """The serial device exists but cannot be opened (permissions, busy, not a tty)."""
+
+
+class SerialEdgeSource:
+    """Edges from the BeAMS sensor on a serial port: open(), read() in a loop, close()."""
+
+    def __init__(
+        self,
+        device: str,
+        baudrate: int = DEFAULT_BAUDRATE,
+        *,
+        read_timeout_s: float = 0.05,
+        reconnect_initial_s: float = 0.1,
+        reconnect_max_s: float = 5.0,
+        max_clock_drift: float = 1e-4,
+        drop_log_period_s: float = 5.0,
+        assembler: RevolutionAssembler | None = None,
+        clock: Callable[[], float] = time.time,
+        sleep: Callable[[float], None] = time.sleep,
+        log: Callable[[str], None] | None = None,
+        serial_factory: Callable[..., Any] = serial.Serial,
+    ) -> None:
+        if not read_timeout_s > 0 or not 0 < reconnect_initial_s <= reconnect_max_s:
+            raise ValueError(
+                f"read_timeout_s ({read_timeout_s}) must be > 0 and 0 < reconnect_initial_s "
+                f"({reconnect_initial_s}) <= reconnect_max_s ({reconnect_max_s})"
+            )
+        self.device = device
+        self.baudrate = int(baudrate)
+        self.read_timeout_s = float(read_timeout_s)
+        self.reconnect_initial_s = float(reconnect_initial_s)
+        self.reconnect_max_s = float(reconnect_max_s)
+        self.max_clock_drift = float(max_clock_drift)
+        self.drop_log_period_s = float(drop_log_period_s)
+        self.parser = FrameParser()
+        self.assembler = assembler or RevolutionAssembler()
+        self.disconnections = 0
+        self.reconnections = 0
+        self.failed_reconnections = 0
+        self._clock = clock
+        self._sleep = sleep
+        self._log = log or (lambda message: None)
+        self._serial_factory = serial_factory
+        self._port: Any = None
+        self._opened = False
+        self._backoff_s = self.reconnect_initial_s
+        self._next_attempt_s = 0.0
+        self._offset_s: float | None = None
+        self._last_arrival_s = 0.0
+        self._logged_drops: Counter[str] = Counter()
+        self._next_drop_log_s = 0.0
+
+    # ---- life cycle ----
+
+    def open(self) -> None:
+        """Open the device; raises DeviceNotFoundError / DeviceOpenError with a clear message."""
+        if not os.path.exists(self.device):
+            raise DeviceNotFoundError(
+                f"serial device {self.device!r} does not exist: is the BeAMS sensor plugged in, and is the "
+                f"`device` parameter right (e.g. /dev/ttyUSB0 or a /dev/serial/by-id/ link)?"
+            )
+        self._port = self._open_port()
+        self._opened = True
+
+    def close(self) -> None:
+        """Close the port (idempotent); read() returns nothing afterwards."""
+        self._opened = False
+        self._close_port()
+
+    def __enter__(self) -> "SerialEdgeSource":
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def connected(self) -> bool:
+        return self._port is not None
+
+    @property
+    def reconnect_delay_s(self) -> float:
+        """The current back-off between reconnection attempts (doubles per failure up to reconnect_max_s)."""
+        return self._backoff_s
+
+    @property
+    def drops(self) -> Counter[str]:
+        """Every drop so far, by reason: the parser's (bytes and frames) and the assembler's (revolutions)."""
+        return self.parser.drops + self.assembler.drops
+
+    # ---- reading ----
+
+    def read(self) -> list[RevolutionEdges]:
+        """Wait at most about read_timeout_s for bytes; return the revolutions they complete. Never raises."""
+        if not self._opened:
+            return []
+        if self._port is None and not self._reconnect():
+            return []
+        try:
+            data = self._port.read(max(1, self._port.in_waiting))
+        except (serial.SerialException, OSError) as error:
+            self._lost(error)
+            return []
+        if not data:
+            return []
+        events = self.parser.feed(data)
+        self._update_clock(events, self._clock())
+        revolutions = self.assembler.feed(events)
+        self._log_new_drops()
+        return revolutions
+
+    def _open_port(self) -> Any:
+        try:
+            return self._serial_factory(port=self.device, baudrate=self.baudrate, timeout=self.read_timeout_s)
+        except (serial.SerialException, OSError) as error:
+            raise DeviceOpenError(f"cannot open serial device {self.device!r}: {error}") from None
+
+    def _close_port(self) -> None:
+        port, self._port = self._port, None
+        if port is not None:
+            # The device may already be gone; there is nothing more to release then.
+            with contextlib.suppress(serial.SerialException, OSError):
+                port.close()
+
+    def _lost(self, error: Exception) -> None:
+        """The device vanished: close it and schedule the first reconnection attempt."""
+        self._close_port()
+        self.disconnections += 1
+        self._backoff_s = self.reconnect_initial_s
+        self._next_attempt_s = time.monotonic() + self._backoff_s
+        self._log(f"serial device {self.device} lost ({error}); reconnecting")
+
+    def _reconnect(self) -> bool:
+        """One attempt when the back-off allows it, else sleep a little; True when connected again."""
+        now = time.monotonic()
+        if now < self._next_attempt_s:
+            self._sleep(min(self.read_timeout_s, self._next_attempt_s - now))
+            return False
+        try:
+            if not os.path.exists(self.device):
+                raise DeviceNotFoundError(f"{self.device} does not exist")
+            self._port = self._open_port()
+        except OSError:
+            self.failed_reconnections += 1
+            self._backoff_s = min(2.0 * self._backoff_s, self.reconnect_max_s)
+            self._next_attempt_s = now + self._backoff_s
+            return False
+        # A new stream: its sequence numbers, timer epoch and open revolution are unrelated to the old one.
+        self.parser.new_stream()
+        self.assembler.reset()
+        self._offset_s = None
+        self.reconnections += 1
+        self._log(f"serial device {self.device} reconnected")
+        return True
+
+    def _log_new_drops(self) -> None:
+        """One line per drop_log_period_s at most, with the drops counted since the previous line."""
+        now = time.monotonic()
+        if now < self._next_drop_log_s:
+            return
+        drops = self.drops
+        new = drops - self._logged_drops
+        if new:
+            summary = ", ".join(f"{reason} {count}" for reason, count in sorted(new.items()))
+            self._log(f"serial device {self.device}: dropped {summary}")
+            self._logged_drops = drops
+            self._next_drop_log_s = now + self.drop_log_period_s
+
+    def _update_clock(self, events: list[FrameEvent], arrival_s: float) -> None:
+        """Map device ticks onto the host clock with the least-delayed arrival seen so far."""
+        if not events:
+            return
+        candidate = arrival_s - events[-1].ticks / self.assembler.tick_rate_hz
+        if self._offset_s is None:
+            self._offset_s = candidate
+        else:
+            allowance = self.max_clock_drift * max(0.0, arrival_s - self._last_arrival_s)
+            self._offset_s = min(candidate, self._offset_s + allowance)
+        self._last_arrival_s = arrival_s
+        self.assembler.time_offset_s = self._offset_s

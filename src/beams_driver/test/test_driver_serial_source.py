@@ -1,0 +1,192 @@
+"""SerialEdgeSource through a real pseudo-terminal pair, with the sensor simulator as the device."""
+
+import contextlib
+import math
+import os
+import pathlib
+import threading
+import time
+from collections.abc import Iterator
+
+import numpy as np
+import pytest
+
+from beams_driver.beacon_map import EUROBOT_BEACON_MAP
+from beams_driver.decoder import BearingDecoder
+from beams_driver.edges import RevolutionEdges
+from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
+from beams_driver.serial_protocol import FRAME_SIZE, TICKS_PER_REVOLUTION, FrameEncoder
+from beams_driver.serial_source import DeviceNotFoundError, DeviceOpenError, SerialEdgeSource
+from beams_driver.variance import VarianceModel
+
+HALF_TICK_RAD = math.pi / TICKS_PER_REVOLUTION
+WAIT_S = 10.0
+
+
+class FakeDevice:
+    """The sensor's end of the link: a pty master, reached by the source through a stable symlink."""
+
+    def __init__(self, link: pathlib.Path) -> None:
+        self.master, slave = os.openpty()
+        self.slave_path = os.ttyname(slave)
+        self._slave = slave  # keep the pty alive until the source has opened its end
+        self.link = link
+        if link.is_symlink():
+            link.unlink()
+        link.symlink_to(self.slave_path)
+
+    def write_in_background(self, data: bytes, chunk: int = 997) -> threading.Thread:
+        """Write from a thread: the pty buffer is small and blocks until the source reads."""
+
+        def run() -> None:
+            for offset in range(0, len(data), chunk):
+                try:
+                    os.write(self.master, data[offset : offset + chunk])
+                except OSError:
+                    return  # the test unplugged the device mid-write
+
+        thread = threading.Thread(target=run, daemon=True)
+        thread.start()
+        return thread
+
+    def unplug(self) -> None:
+        for fd in (self.master, self._slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self.link.unlink(missing_ok=True)
+
+
+@pytest.fixture
+def link(tmp_path: pathlib.Path) -> pathlib.Path:
+    return tmp_path / "beams_sensor"
+
+
+@pytest.fixture
+def device(link: pathlib.Path) -> Iterator[FakeDevice]:
+    fake = FakeDevice(link)
+    yield fake
+    fake.unplug()
+
+
+def simulated_revolutions(count: int, seed: int, first: int = 0) -> list[RevolutionEdges]:
+    """Edges of a robot standing still in the middle of the table, from driver-sensor's simulator."""
+    config = SensorSimConfig()
+    simulator = SensorSimulator(config, EUROBOT_BEACON_MAP, np.random.default_rng(seed))
+    pose = (1.2, 0.8, 0.3)
+    return [simulator.revolution(lambda t: pose, k * config.period_s) for k in range(first, first + count)]
+
+
+def read_until(source: SerialEdgeSource, count: int, timeout_s: float = WAIT_S) -> list[RevolutionEdges]:
+    received: list[RevolutionEdges] = []
+    deadline = time.monotonic() + timeout_s
+    while len(received) < count and time.monotonic() < deadline:
+        received += source.read()
+    return received
+
+
+def assert_same_edges(sent: list[RevolutionEdges], received: list[RevolutionEdges]) -> None:
+    assert len(received) == len(sent)
+    for original, decoded in zip(sent, received, strict=True):
+        assert decoded.n_edges == original.n_edges > 0
+        np.testing.assert_array_equal(decoded.edge_rising, original.edge_rising)
+        assert np.max(np.abs(decoded.edge_angles_rad - original.edge_angles_rad)) <= HALF_TICK_RAD * 1.0001
+        assert decoded.period_s == pytest.approx(original.period_s, rel=1e-9)
+
+
+def test_missing_device_at_start_is_a_clear_error(tmp_path: pathlib.Path) -> None:
+    source = SerialEdgeSource(str(tmp_path / "ttyUSB9"))
+    with pytest.raises(DeviceNotFoundError, match=r"does not exist.*plugged in.*`device` parameter"):
+        source.open()
+
+
+def test_a_path_that_is_not_a_tty_is_a_clear_error(tmp_path: pathlib.Path) -> None:
+    directory = tmp_path / "not_a_device"
+    directory.mkdir()
+    with pytest.raises(DeviceOpenError, match="cannot open serial device"):
+        SerialEdgeSource(str(directory)).open()
+
+
+def test_simulated_sensor_edges_cross_the_pty_intact(device: FakeDevice, link: pathlib.Path) -> None:
+    sent = simulated_revolutions(20, seed=11)
+    data = FrameEncoder().revolutions(sent)
+    with SerialEdgeSource(str(link), clock=lambda: 1000.0) as source:
+        writer = device.write_in_background(data)
+        received = read_until(source, len(sent))
+        writer.join(WAIT_S)
+    assert_same_edges(sent, received)
+    assert [r.revolution for r in received] == list(range(20))
+    assert sum(source.drops.values()) == 0
+    # The host clock read 1000 s at every arrival: device time is mapped so the last capture lands on it.
+    assert received[-1].start_time_s + received[-1].period_s == pytest.approx(1000.0, abs=1e-6)
+
+
+def test_bearings_decoded_from_the_pty_equal_the_simulator_s(device: FakeDevice, link: pathlib.Path) -> None:
+    sent = simulated_revolutions(10, seed=15)
+    decoder = BearingDecoder(SensorSimConfig().codes, VarianceModel(SensorSimConfig().codes))
+    with SerialEdgeSource(str(link)) as source:
+        device.write_in_background(FrameEncoder().revolutions(sent))
+        received = read_until(source, len(sent))
+    assert len(received) == len(sent)
+    for original, decoded in zip(sent, received, strict=True):
+        direct, serial = decoder.decode(original), decoder.decode(decoded)
+        assert [b.beacon_id for b in serial.bearings] == [b.beacon_id for b in direct.bearings]
+        assert sorted(b.beacon_id for b in serial.bearings) == [1, 2, 3]
+        for a, b in zip(direct.bearings, serial.bearings, strict=True):
+            assert b.bearing == pytest.approx(a.bearing, abs=1e-9)
+            assert b.angular_window == pytest.approx(a.angular_window, abs=1e-9)
+            assert b.variance == pytest.approx(a.variance, rel=1e-6)
+
+
+def test_corrupted_stream_on_the_pty_drops_only_damaged_revolutions(
+    device: FakeDevice, link: pathlib.Path
+) -> None:
+    sent = simulated_revolutions(10, seed=12)
+    data = bytearray(FrameEncoder().revolutions(sent))
+    frames_before_rev4 = sum(1 + r.n_edges for r in sent[:4])
+    data[(frames_before_rev4 + 3) * FRAME_SIZE + 6] ^= 0xFF  # a checksum byte in revolution 4
+    data[len(data) // 2 : len(data) // 2] = b"\x00\xa5\x13garbage"
+    logs: list[str] = []
+    with SerialEdgeSource(str(link), log=logs.append) as source:
+        device.write_in_background(bytes(data))
+        received = read_until(source, 8)
+    assert source.drops["bad_crc"] >= 1
+    assert logs and "dropped" in logs[0] and "bad_crc" in logs[0]  # logged as soon as it happens
+    assert 4 not in [r.revolution for r in received]
+    kept = {r.revolution: r for r in received}
+    survivors = [s for s in sent if s.revolution in kept]
+    assert_same_edges(survivors, [kept[s.revolution] for s in survivors])
+    assert len(kept) >= 8
+
+
+def test_device_that_disappears_is_reopened_with_back_off(link: pathlib.Path) -> None:
+    logs: list[str] = []
+    first = FakeDevice(link)
+    source = SerialEdgeSource(str(link), reconnect_initial_s=0.05, reconnect_max_s=0.2, log=logs.append)
+    source.open()
+    try:
+        sent_before = simulated_revolutions(3, seed=13)
+        first.write_in_background(FrameEncoder().revolutions(sent_before)).join(WAIT_S)
+        assert_same_edges(sent_before, read_until(source, 3))
+        first.unplug()  # USB cable pulled: the pty closes and the /dev link vanishes
+        deadline = time.monotonic() + WAIT_S
+        while source.connected and time.monotonic() < deadline:
+            assert source.read() == []
+        assert not source.connected and source.disconnections == 1
+        while source.failed_reconnections < 3 and time.monotonic() < deadline:
+            assert source.read() == []  # absent device: attempts fail quietly, with growing delays
+        assert source.reconnect_delay_s == pytest.approx(0.2)  # 0.05 doubled, capped at reconnect_max_s
+        second = FakeDevice(link)  # plugged back: a new tty behind the same link
+        try:
+            sent_after = simulated_revolutions(4, seed=14, first=50)
+            while not source.connected and time.monotonic() < deadline:
+                source.read()
+            assert source.reconnections == 1
+            # A new stream: unrelated sequence numbers and timer epoch, yet every revolution is assembled.
+            second.write_in_background(FrameEncoder(first_sequence=77).revolutions(sent_after))
+            assert_same_edges(sent_after, read_until(source, 4))
+        finally:
+            second.unplug()
+    finally:
+        source.close()
+    assert any("lost" in line for line in logs) and any("reconnected" in line for line in logs)
+    assert source.read() == []  # closed sources stay quiet

@@ -1,0 +1,280 @@
+"""ekf_node: wheel odometry and every BeAMS bearing fused in an EKF (thesis fig. 8.1), ToTal to initialise it.
+
+Subscribes (relative names): `odom` (nav_msgs/Odometry, odom frame), `beams/bearings`
+(beams_msgs/BeaconBearingArray), `beams/pose` (beams_msgs/TriangulatedPose, accepted fixes initialise
+the filter or re-initialise it after a kidnapping), `beams/ekf/set_pose` and `/initialpose`
+(geometry_msgs/PoseWithCovarianceStamped, an operator's pose: always re-initialises).
+Publishes `beams/ekf/odometry` (nav_msgs/Odometry, map -> base_link, pose and twist with covariance)
+and `beams/ekf/pose` (PoseWithCovarianceStamped) at `publish_rate_hz`, plus `/diagnostics`.
+Service `beams/ekf/reset` (std_srvs/Trigger) forgets the estimate until the next pose.
+All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
+"""
+
+import math
+import sys
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rclpy.qos import qos_profile_sensor_data
+from std_srvs.srv import Trigger
+
+from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_driver.node_support import (
+    Diagnostics,
+    ParameterValidationError,
+    declare_parameter,
+    load_calibration_parameter,
+    run_node,
+)
+from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise
+from beams_ekf.localiser import Bearing, Estimate, Localiser, LocaliserConfig
+from beams_ekf.odometry_history import heading_of
+from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
+
+# rows/columns of x, y and yaw in ROS's 6x6 (x, y, z, roll, pitch, yaw) covariance
+_PLANAR = (0, 1, 5)
+
+
+def stamp_seconds(stamp) -> float:
+    """builtin_interfaces/Time in seconds."""
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+def planar_covariance(covariance_6x6) -> np.ndarray:
+    """The (x, y, yaw) 3x3 block of a row-major 6x6 ROS covariance."""
+    full = np.asarray(covariance_6x6, dtype=float).reshape(6, 6)
+    return full[np.ix_(_PLANAR, _PLANAR)]
+
+
+def ros_covariance(planar: np.ndarray) -> list[float]:
+    """Row-major 6x6 ROS covariance holding a (x, y, yaw) 3x3 block (z, roll, pitch not estimated: 0)."""
+    full = np.zeros((6, 6))
+    full[np.ix_(_PLANAR, _PLANAR)] = planar
+    return full.ravel().tolist()
+
+
+def pose_of(pose_msg) -> tuple[float, float, float]:
+    """(x, y, yaw) of a geometry_msgs/Pose."""
+    q = pose_msg.orientation
+    return (pose_msg.position.x, pose_msg.position.y, heading_of(q.x, q.y, q.z, q.w))
+
+
+class EkfNode(Node):
+    """ROS wiring of `Localiser` (see the module docstring)."""
+
+    def __init__(self) -> None:
+        super().__init__("ekf_node")
+        self._declare_filter()
+        self.map_frame = declare_parameter(self, "map_frame", "map", "Frame of the estimate (REP-105).")
+        self.base_frame = declare_parameter(self, "base_frame", "base_link", "The robot's frame (child).")
+        rate_hz = declare_parameter(self, "publish_rate_hz", 20.0, "Rate of the published estimate (Hz).",
+                                    minimum=0.1, maximum=1000.0)
+        self.use_total = declare_parameter(self, "use_total_pose", True,
+                                           "Initialise (and re-initialise after a kidnapping) from ToTal's "
+                                           "accepted poses on beams/pose.")
+        sigma = declare_parameter(self, "default_pose_sigma", [0.05, 0.05, 0.1],
+                                  "Standard deviations (m, m, rad) of a pose without a usable covariance.",
+                                  minimum=1e-6, maximum=100.0)
+        if len(sigma) != 3:
+            raise ParameterValidationError(f"default_pose_sigma needs 3 values (x, y, yaw), got {sigma}")
+        self.default_covariance = np.diag(np.square(sigma))
+        self.diagnostics = Diagnostics(self, "ekf")
+        self.diagnostics.set_level("warn", "waiting for an initial pose (beams/pose or /initialpose)")
+        self._last_twist = None
+        # the newest odometry header stamp, republished exactly (a float loses nanoseconds at epoch scale)
+        self._last_odometry_stamp: tuple[float, Time] | None = None
+        self._published_stamp_s: float | None = None
+
+        self.odometry_publisher = self.create_publisher(Odometry, "beams/ekf/odometry", 10)
+        self.pose_publisher = self.create_publisher(PoseWithCovarianceStamped, "beams/ekf/pose", 10)
+        self.create_subscription(Odometry, "odom", self._on_odometry, qos_profile_sensor_data)
+        self.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings,
+                                 qos_profile_sensor_data)
+        self.create_subscription(TriangulatedPose, "beams/pose", self._on_total_pose, 10)
+        for topic in ("beams/ekf/set_pose", "/initialpose"):
+            self.create_subscription(PoseWithCovarianceStamped, topic, self._on_operator_pose, 10)
+        self.create_service(Trigger, "beams/ekf/reset", self._on_reset)
+        self.create_timer(1.0 / rate_hz, self._publish)
+        self.get_logger().info(f"ekf_node ready: {len(self.localiser.ekf.beacons_xy)} beacons, turret offset "
+                               f"{self.localiser.ekf.sensor_offset_m} m, gate {self.localiser.ekf.gate:.2f}")
+
+    # -- parameters -----------------------------------------------------------------------------------
+    def _declare_filter(self) -> None:
+        """Beacon map and turret offset (calibration file first), process noise, gating, timing."""
+        calibration = load_calibration_parameter(self)
+        beacon_map, offset = self._declare_geometry()
+        if calibration is not None:
+            beacon_map, offset = calibration.beacon_map, calibration.turret_offset_m
+        noise = ProcessNoise(
+            translation_m2_per_m=self._non_negative("translation_variance_m2_per_m", 3.0e-5,
+                                                    "Odometry position variance per metre travelled."),
+            rotation_rad2_per_rad=self._non_negative("rotation_variance_rad2_per_rad", 3.0e-5,
+                                                     "Odometry heading variance per radian turned."),
+            rotation_rad2_per_m=self._non_negative("rotation_variance_rad2_per_m", 3.0e-5,
+                                                   "Odometry heading variance per metre travelled."),
+        )
+        gate = declare_parameter(self, "gate_probability", 0.999,
+                                 "Chi-square (1 dof) probability of the per-bearing validation gate.",
+                                 minimum=0.5, maximum=0.999999)
+        config = LocaliserConfig(
+            history_span_s=declare_parameter(self, "history_span_s", 1.0,
+                                             "Odometry kept to apply late bearings (s).", minimum=0.1,
+                                             maximum=10.0),
+            max_extrapolation_s=declare_parameter(
+                self, "max_extrapolation_s", 0.05,
+                "Bearings up to this far (s) past the newest odometry are applied at once; later ones wait "
+                "for odometry.", minimum=0.0, maximum=1.0),
+            odometry_gap_s=declare_parameter(self, "odometry_gap_s", 0.25,
+                                             "Odometry silence (s) treated as a gap (covariance grows).",
+                                             minimum=0.001, maximum=10.0),
+            gap_position_variance_m2_per_s=self._non_negative(
+                "gap_position_variance_m2_per_s", 1.0e-3, "Position variance added per second of gap."),
+            gap_heading_variance_rad2_per_s=self._non_negative(
+                "gap_heading_variance_rad2_per_s", 1.0e-3, "Heading variance added per second of gap."),
+            kidnap_gated_bearings=declare_parameter(
+                self, "kidnap_gated_bearings", 6, "Consecutive gated bearings before a far ToTal pose "
+                "re-initialises the filter.", minimum=1, maximum=1000),
+            kidnap_distance_m=self._non_negative(
+                "kidnap_distance_m", 0.25, "Distance (m) from the estimate that makes a ToTal pose 'far'."),
+            kidnap_heading_rad=self._non_negative("kidnap_heading_rad", 0.35,
+                                                  "Heading difference (rad) that makes a ToTal pose 'far'."),
+        )
+        beacons = dict(zip(beacon_map.ids, map(tuple, beacon_map.xy), strict=True))
+        self.localiser = Localiser(BearingEkf(beacons, offset, noise, gate), config)
+
+    def _declare_geometry(self) -> tuple[BeaconMap, tuple[float, float]]:
+        ids = declare_parameter(self, "beacon_ids", list(EUROBOT_BEACON_MAP.ids), "Beacon ids (codes).")
+        xs = declare_parameter(self, "beacon_x", EUROBOT_BEACON_MAP.xy[:, 0].tolist(), "Beacon x (m, map).")
+        ys = declare_parameter(self, "beacon_y", EUROBOT_BEACON_MAP.xy[:, 1].tolist(), "Beacon y (m, map).")
+        offset = declare_parameter(self, "turret_offset_m", [0.0, 0.0],
+                                   "Turret centre (x, y) in base_link (m); a calibration file overrides it.")
+        try:
+            beacon_map = BeaconMap.from_lists(ids, xs, ys)
+        except ValueError as error:
+            raise ParameterValidationError(str(error)) from None
+        if len(offset) != 2 or not all(math.isfinite(v) for v in offset):
+            raise ParameterValidationError(f"turret_offset_m needs 2 finite values, got {offset}")
+        return beacon_map, (float(offset[0]), float(offset[1]))
+
+    def _non_negative(self, name: str, default: float, description: str) -> float:
+        return float(declare_parameter(self, name, default, description, minimum=0.0, maximum=1.0e3))
+
+    # -- inputs ---------------------------------------------------------------------------------------
+    def _on_odometry(self, msg: Odometry) -> None:
+        stamp_s = stamp_seconds(msg.header.stamp)
+        outcome = self.localiser.on_odometry(stamp_s, pose_of(msg.pose.pose))
+        if outcome in ("reference", "predicted"):
+            self._last_twist = msg.twist
+            self._last_odometry_stamp = (stamp_s, msg.header.stamp)
+        if outcome == "reference":  # a time jump resets what was published too
+            self._published_stamp_s = None
+
+    def _on_bearings(self, msg: BeaconBearingArray) -> None:
+        bearings = [Bearing(stamp_seconds(b.header.stamp), int(b.beacon_id), b.bearing, b.variance)
+                    for b in msg.bearings]
+        self.localiser.on_bearings(bearings)
+
+    def _on_total_pose(self, msg: TriangulatedPose) -> None:
+        if not (self.use_total and msg.accepted):
+            return
+        self._offer_pose(msg.header.stamp, msg.pose, operator=False)
+
+    def _on_operator_pose(self, msg: PoseWithCovarianceStamped) -> None:
+        if msg.header.frame_id and msg.header.frame_id != self.map_frame:
+            self.get_logger().warn(
+                f"pose in frame {msg.header.frame_id!r} ignored (expected {self.map_frame!r})")
+            self.diagnostics.increment("poses_wrong_frame")
+            return
+        what = self._offer_pose(msg.header.stamp, msg.pose, operator=True)
+        self.get_logger().info(f"operator pose: {what}")
+
+    def _offer_pose(self, stamp, pose_with_covariance, *, operator: bool) -> str:
+        covariance = planar_covariance(pose_with_covariance.covariance)
+        if not (np.all(np.isfinite(covariance)) and np.all(np.linalg.eigvalsh(covariance) > 0.0)):
+            covariance = self.default_covariance
+        # an operator's pose has no meaningful stamp in the odometry's past: take it as "now"
+        stamp_s = stamp_seconds(stamp)
+        latest = self.localiser.history.latest
+        if operator and latest is not None and (stamp_s == 0.0 or stamp_s > latest[0]):
+            stamp_s = latest[0]
+        return self.localiser.on_pose(stamp_s, pose_of(pose_with_covariance.pose), covariance,
+                                      operator=operator)
+
+    def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self.localiser.reset("manual_resets")
+        self._published_stamp_s = None
+        response.success = True
+        response.message = "EKF reset: waiting for a pose (beams/pose, beams/ekf/set_pose or /initialpose)"
+        self.get_logger().info(response.message)
+        return response
+
+    # -- outputs --------------------------------------------------------------------------------------
+    def _publish(self) -> None:
+        estimate = self.localiser.estimate()
+        self._update_diagnostics(estimate)
+        if estimate is None or not math.isfinite(estimate.stamp_s):
+            return
+        if estimate.stamp_s == self._published_stamp_s:  # nothing new since the last message
+            return
+        self._published_stamp_s = estimate.stamp_s
+        odometry = Odometry()
+        exact = self._last_odometry_stamp
+        same = exact is not None and exact[0] == estimate.stamp_s
+        odometry.header.stamp = exact[1] if same else _time_msg(estimate.stamp_s)
+        odometry.header.frame_id = self.map_frame
+        odometry.child_frame_id = self.base_frame
+        _fill_pose(odometry.pose, estimate)
+        if self._last_twist is not None:
+            odometry.twist = self._last_twist
+        else:
+            odometry.twist.twist.linear.x, odometry.twist.twist.linear.y = estimate.twist[:2]
+            odometry.twist.twist.angular.z = estimate.twist[2]
+        self.odometry_publisher.publish(odometry)
+        pose = PoseWithCovarianceStamped()
+        pose.header = odometry.header
+        pose.pose = odometry.pose
+        self.pose_publisher.publish(pose)
+
+    def _update_diagnostics(self, estimate: Estimate | None) -> None:
+        stats = self.localiser.stats
+        for key, value in stats.counts.items():
+            self.diagnostics.set(key, value)
+        if estimate is None:
+            self.diagnostics.set_level("warn", "waiting for an initial pose (beams/pose or /initialpose)")
+            return
+        self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
+        since_s = (estimate.stamp_s - stats.last_bearing_stamp_s if stats.last_bearing_stamp_s is not None
+                   else float("inf"))
+        self.diagnostics.set("time_since_last_bearing_s", since_s)
+        if since_s > 1.0:
+            self.diagnostics.set_level("warn", "no accepted bearing for more than 1 s: odometry only")
+        elif self.localiser.kidnap_suspected:
+            self.diagnostics.set_level("warn", "bearings gated out: robot moved? waiting for a ToTal pose")
+        else:
+            self.diagnostics.set_level("ok", "tracking")
+
+
+def _time_msg(stamp_s: float) -> Time:
+    """builtin_interfaces/Time from seconds."""
+    seconds = math.floor(stamp_s)
+    return Time(sec=int(seconds), nanosec=min(round((stamp_s - seconds) * 1e9), 999_999_999))
+
+
+def _fill_pose(pose_with_covariance, estimate: Estimate) -> None:
+    x, y, theta = estimate.pose
+    pose_with_covariance.pose.position.x = x
+    pose_with_covariance.pose.position.y = y
+    pose_with_covariance.pose.orientation.z = math.sin(0.5 * theta)
+    pose_with_covariance.pose.orientation.w = math.cos(0.5 * theta)
+    pose_with_covariance.covariance = ros_covariance(estimate.covariance)
+
+
+def main(args: list[str] | None = None) -> None:
+    sys.exit(run_node(EkfNode, args))
+
+
+if __name__ == "__main__":
+    main()

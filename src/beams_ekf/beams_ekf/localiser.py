@@ -1,0 +1,341 @@
+"""The complete positioning scheme of thesis fig. 8.1 without ROS: odometry + BeAMS bearings in the EKF,
+ToTal (or an operator) to initialise it.
+
+`Localiser` owns the timing: the EKF state is kept at the newest odometry instant, with the states at
+the odometry samples of the last `history_span_s`; a bearing (stamped when the turret pointed at its
+beacon, so usually before the newest odometry) is applied at its own stamp by going back to the state
+of the odometry sample before it, the turret placed where the interpolated odometry puts it, and
+predicting again through the later samples (see `Localiser.on_bearings`); a pose (ToTal's accepted fix or an
+operator's /initialpose) initialises the filter, and re-initialises it when the robot was kidnapped
+(bearings consistently gated out while ToTal is confident of a pose far away: identified beacons make
+this possible, thesis ch. 8 "System deployment"). Time going backwards (a rosbag played in a loop)
+resets everything; odometry gaps inflate the covariance instead of freezing the filter.
+"""
+
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from math import hypot, isfinite
+
+import numpy as np
+
+from beams_ekf.bearing_ekf import BearingEkf, BearingOutcome, turret_pose
+from beams_ekf.odometry_history import OdometryHistory, Pose2D, between, compose, is_finite_pose, wrap_angle
+
+# bearings waiting for odometry beyond this many are dropped, oldest first (a dead odometry source)
+MAX_PENDING_BEARINGS = 64
+
+
+@dataclass(frozen=True)
+class LocaliserConfig:
+    """Timing and re-initialisation parameters (defaults suit 50 Hz odometry and a 10 Hz turret)."""
+
+    history_span_s: float = 1.0
+    max_extrapolation_s: float = 0.05
+    # an odometry step longer than this is a gap: the covariance grows with its duration
+    odometry_gap_s: float = 0.25
+    gap_position_variance_m2_per_s: float = 1.0e-3
+    gap_heading_variance_rad2_per_s: float = 1.0e-3
+    # a gap never inflates more than this long (the table bounds how lost the robot can be)
+    max_gap_inflation_s: float = 10.0
+    # consecutive gated bearings after which a far ToTal fix re-initialises the filter
+    kidnap_gated_bearings: int = 6
+    kidnap_distance_m: float = 0.25
+    kidnap_heading_rad: float = 0.35
+    # odometry stamps going back by more than this reset the filter (smaller steps are dropped)
+    time_jump_tolerance_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not (self.history_span_s > 0.0 and self.max_extrapolation_s >= 0.0 and self.odometry_gap_s > 0.0):
+            raise ValueError("history_span_s and odometry_gap_s must be > 0, max_extrapolation_s >= 0")
+        if self.kidnap_gated_bearings < 1:
+            raise ValueError(f"kidnap_gated_bearings must be >= 1, got {self.kidnap_gated_bearings}")
+
+
+@dataclass(frozen=True)
+class Bearing:
+    """One bearing of the driver: sensor frame, at the instant the turret pointed at the beacon."""
+
+    stamp_s: float
+    beacon_id: int
+    bearing_rad: float
+    variance_rad2: float
+
+
+@dataclass
+class _Slot:
+    """What the localiser keeps with an odometry sample: the filter state there (before the bearings of
+    the interval that starts at the sample) and those bearings, to filter again from there."""
+
+    state: tuple[np.ndarray, np.ndarray]
+    bearings: list[Bearing] = field(default_factory=list)
+
+
+def _rejected(reason: str) -> BearingOutcome:
+    return BearingOutcome(False, float("nan"), float("nan"), reason)
+
+
+@dataclass
+class Estimate:
+    """The filter's output at its instant."""
+
+    stamp_s: float
+    pose: Pose2D
+    covariance: np.ndarray
+    # robot-frame velocity (v_x, v_y, omega) from the last two odometry samples
+    twist: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass
+class LocaliserCounters:
+    """Counts for diagnostics (names are the diagnostic keys)."""
+
+    counts: Counter = field(default_factory=Counter)
+    last_bearing_stamp_s: float | None = None
+
+
+class Localiser:
+    """Odometry history + BearingEkf + initialisation, kidnap and time-jump logic."""
+
+    def __init__(self, ekf: BearingEkf, config: LocaliserConfig | None = None) -> None:
+        self.ekf = ekf
+        self.config = config or LocaliserConfig()
+        self.history = OdometryHistory(self.config.history_span_s, self.config.max_extrapolation_s)
+        self.stats = LocaliserCounters()
+        self._consecutive_gated = 0
+        self._stamp_s: float | None = None
+        # bearings stamped after the newest odometry, waiting for the odometry that covers them
+        self._pending: list[Bearing] = []
+
+    @property
+    def initialised(self) -> bool:
+        """True once a pose initialised the filter (and no reset since)."""
+        return self.ekf.initialised
+
+    def reset(self, reason: str = "reset") -> None:
+        """Forget the estimate and the odometry; the filter waits for a pose."""
+        self.ekf.reset()
+        self.history.clear()
+        self._consecutive_gated = 0
+        self._stamp_s = None
+        self._pending.clear()
+        self.stats.counts[reason] += 1
+
+    # -- odometry -------------------------------------------------------------------------------------
+    def on_odometry(self, stamp_s: float, odom_pose: Pose2D) -> str:
+        """Predict with the motion since the previous odometry pose. Returns what happened."""
+        if not (isfinite(stamp_s) and is_finite_pose(odom_pose)):
+            self.stats.counts["odometry_invalid"] += 1
+            return "invalid"
+        latest = self.history.latest
+        if latest is not None and stamp_s <= latest[0]:
+            if stamp_s >= latest[0] - self.config.time_jump_tolerance_s:
+                self.stats.counts["odometry_stale"] += 1
+                return "stale"
+            self.reset("time_jump_resets")
+            latest = None
+        self.stats.counts["odometry"] += 1
+        if latest is None or not self.ekf.initialised:
+            self.history.append(stamp_s, odom_pose, _Slot(self.ekf.state()) if self.ekf.initialised else None)
+            self._stamp_s = stamp_s if self.ekf.initialised else None
+            return "reference"
+        if stamp_s - latest[0] > self.config.odometry_gap_s:
+            self.stats.counts["odometry_gaps"] += 1
+        self._advance(latest[0], latest[1], stamp_s, odom_pose)
+        self.history.append(stamp_s, odom_pose, _Slot(self.ekf.state()))
+        self._stamp_s = stamp_s
+        self._apply_pending(stamp_s)
+        return "predicted"
+
+    def _apply_pending(self, newest_s: float) -> None:
+        """Apply the waiting bearings the odometry now covers."""
+        ready = [b for b in self._pending if b.stamp_s <= newest_s]
+        if ready:
+            self._pending = [b for b in self._pending if b.stamp_s > newest_s]
+            self.on_bearings(ready)
+
+    def _advance(self, from_s: float, from_pose: Pose2D, to_s: float, to_pose: Pose2D) -> None:
+        """Predict over one odometry step; a long silence of odometry (the robot may have slipped)
+        also grows the covariance with its duration."""
+        self.ekf.predict(between(from_pose, to_pose))
+        step_s = to_s - from_s
+        if step_s > self.config.odometry_gap_s:
+            duration_s = min(step_s, self.config.max_gap_inflation_s)
+            self.ekf.add_time_noise(self.config.gap_position_variance_m2_per_s * duration_s,
+                                    self.config.gap_heading_variance_rad2_per_s * duration_s)
+
+    def _motion_since(self, stamp_s: float) -> Pose2D | None:
+        """Odometry motion from stamp_s to the filter's instant (robot frame at stamp_s); None if unknown."""
+        latest = self.history.latest
+        if latest is None:
+            return (0.0, 0.0, 0.0)
+        then = self.history.pose_at(stamp_s)
+        return None if then is None else between(then, latest[1])
+
+    # -- bearings -------------------------------------------------------------------------------------
+    def on_bearing(self, stamp_s: float, beacon_id: int, bearing_rad: float,
+                   variance_rad2: float) -> BearingOutcome:
+        """Apply one bearing (sensor frame) at its own stamp."""
+        return self.on_bearings([Bearing(stamp_s, beacon_id, bearing_rad, variance_rad2)])[0]
+
+    def on_bearings(self, bearings: Sequence[Bearing]) -> list[BearingOutcome]:
+        """Apply bearings (typically one revolution's), each at its own stamp; outcomes in the given order.
+
+        The filter goes back to its state at the odometry sample before the earliest stamp, applies the
+        bearings of each odometry interval in stamp order (those already applied there again, so any
+        arrival order gives the same estimate), the turret where the interpolated odometry puts it at
+        the stamp, and predicts again through the later odometry samples. Applying a bearing at the
+        newest instant instead would let it shrink the covariance of the odometry noise accrued after
+        it was measured: the filter would become overconfident.
+        """
+        if not self.ekf.initialised:
+            return [self._count(_rejected("uninitialised")) for _ in bearings]
+        if len(self.history) == 0:  # no odometry: the robot is taken as still
+            return [self._count(self._apply(bearing, (0.0, 0.0, 0.0))) for bearing in bearings]
+        outcomes: dict[int, BearingOutcome] = {}
+        scheduled: dict[int, list[tuple[Bearing, int]]] = {}  # history index -> (bearing, input index)
+        first_state = self._first_state_index()
+        for n, bearing in enumerate(bearings):
+            index = self._replay_index(bearing.stamp_s, first_state)
+            if index is None and self._ahead_of_odometry(bearing.stamp_s):
+                outcomes[n] = self._defer(bearing)
+            elif index is None:
+                outcomes[n] = self._count(_rejected("outside_history"))
+            else:
+                scheduled.setdefault(index, []).append((bearing, n))
+        if scheduled:
+            self._replay(scheduled, outcomes)
+        return [outcomes[n] for n in range(len(bearings))]
+
+    def _ahead_of_odometry(self, stamp_s: float) -> bool:
+        """True for a stamp after the newest odometry (past extrapolation) but within the history span."""
+        newest_s = self.history.latest[0]
+        return newest_s < stamp_s <= newest_s + self.config.history_span_s
+
+    def _defer(self, bearing: Bearing) -> BearingOutcome:
+        """Keep a bearing until odometry reaches its stamp (the oldest goes when too many wait)."""
+        self._pending.append(bearing)
+        if len(self._pending) > MAX_PENDING_BEARINGS:
+            self._pending.pop(0)
+            self.stats.counts["bearings_dropped_pending"] += 1
+        return self._count(_rejected("deferred"))
+
+    def _replay_index(self, stamp_s: float, first_valid: int) -> int | None:
+        """History index (negative, from the newest) to apply a bearing at stamp_s, or None."""
+        if self.history.pose_at(stamp_s) is None:
+            return None
+        index = self.history.index_at_or_before(stamp_s)
+        # before the initialisation there is no state: use the first one (the turret lever spans the gap)
+        index = first_valid if index is None or index < first_valid else index
+        return index - len(self.history)
+
+    def _first_state_index(self) -> int:
+        """Index of the oldest history sample carrying a filter state."""
+        for index in range(len(self.history) - 1, -1, -1):
+            if self.history.sample(index)[2] is None:
+                return index + 1
+        return 0
+
+    def _replay(self, scheduled: dict[int, list[tuple[Bearing, int]]],
+                outcomes: dict[int, BearingOutcome]) -> None:
+        """Go back to the earliest scheduled sample and filter forward through the history."""
+        first = min(scheduled)
+        for index in range(first, 0):
+            t0, pose0, slot = self.history.sample(index)
+            if index == first:
+                self.ekf.restore(slot.state)
+            else:
+                t_prev, pose_prev, _ = self.history.sample(index - 1)
+                self._advance(t_prev, pose_prev, t0, pose0)
+                slot.state = self.ekf.state()
+            new = scheduled.get(index, [])
+            if not (new or slot.bearings):
+                continue
+            # the bearings already applied in this interval are applied again, without being counted
+            merged = [(b, None) for b in slot.bearings] + new
+            merged.sort(key=lambda item: item[0].stamp_s)
+            for bearing, n in merged:
+                outcome = self._apply(bearing, between(pose0, self.history.pose_at(bearing.stamp_s)))
+                if n is not None:
+                    outcomes[n] = self._count(outcome)
+                    self._track_gating(bearing, outcome)
+            slot.bearings = [bearing for bearing, _ in merged]
+
+    def _apply(self, bearing: Bearing, robot_then: Pose2D) -> BearingOutcome:
+        """Update with a bearing taken with the robot at `robot_then` in the current state's robot frame."""
+        lever = turret_pose(robot_then, self.ekf.sensor_offset_m)
+        return self.ekf.update_bearing(bearing.beacon_id, bearing.bearing_rad, bearing.variance_rad2, lever)
+
+    def _track_gating(self, bearing: Bearing, outcome: BearingOutcome) -> None:
+        """Count consecutive gated bearings (kidnap evidence) and the last accepted one."""
+        if outcome.accepted:
+            self._consecutive_gated = 0
+            self.stats.last_bearing_stamp_s = bearing.stamp_s
+        elif outcome.reason == "gated":
+            self._consecutive_gated += 1
+
+    def _count(self, outcome: BearingOutcome) -> BearingOutcome:
+        self.stats.counts["bearings_accepted" if outcome.accepted else f"bearings_{outcome.reason}"] += 1
+        return outcome
+
+    @property
+    def kidnap_suspected(self) -> bool:
+        """True when the last bearings were all gated out."""
+        return self._consecutive_gated >= self.config.kidnap_gated_bearings
+
+    # -- poses ----------------------------------------------------------------------------------------
+    def on_pose(self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, *, operator: bool) -> str:
+        """A pose from ToTal (operator=False) or an operator (True). Returns what it did.
+
+        An operator's pose always (re)initialises; ToTal's initialises a filter that has no estimate, and
+        re-initialises one that is lost (kidnap suspected and the fix far from the estimate).
+        """
+        if not (isfinite(stamp_s) and is_finite_pose(pose)):
+            self.stats.counts["poses_invalid"] += 1
+            return "invalid"
+        motion = self._motion_since(stamp_s)
+        # a pose older than the odometry history is still the best start we have
+        pose_now = pose if motion is None else compose(pose, motion)
+        if operator or not self.ekf.initialised:
+            return self._initialise(stamp_s, pose_now, covariance, "initialisations")
+        if self.kidnap_suspected and self._far_from_estimate(pose_now):
+            return self._initialise(stamp_s, pose_now, covariance, "kidnap_reinitialisations")
+        return "ignored"
+
+    def _far_from_estimate(self, pose: Pose2D) -> bool:
+        x, y, theta = self.ekf.pose
+        return (hypot(pose[0] - x, pose[1] - y) > self.config.kidnap_distance_m
+                or abs(wrap_angle(pose[2] - theta)) > self.config.kidnap_heading_rad)
+
+    def _initialise(self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, counter: str) -> str:
+        try:
+            self.ekf.initialise(pose, covariance)
+        except ValueError:
+            self.stats.counts["poses_invalid"] += 1
+            return "invalid"
+        self._consecutive_gated = 0
+        # the states kept for late bearings belong to the old estimate
+        for index in range(len(self.history)):
+            self.history.set_payload(index, None)
+        latest = self.history.latest
+        if latest is not None:
+            self.history.set_payload(-1, _Slot(self.ekf.state()))
+        self._stamp_s = latest[0] if latest is not None else stamp_s
+        self.stats.counts[counter] += 1
+        return counter
+
+    # -- output ---------------------------------------------------------------------------------------
+    def estimate(self) -> Estimate | None:
+        """The current estimate, or None before initialisation."""
+        if not self.ekf.initialised:
+            return None
+        stamp_s = self._stamp_s if self._stamp_s is not None else float("nan")
+        return Estimate(stamp_s, self.ekf.pose, self.ekf.covariance, self._odometry_twist())
+
+    def _odometry_twist(self) -> tuple[float, float, float]:
+        """Robot-frame velocity over the last odometry step (zero with fewer than two samples)."""
+        step = self.history.last_step()
+        if step is None:
+            return (0.0, 0.0, 0.0)
+        step_s, (dx, dy, dtheta) = step
+        return (dx / step_s, dy / step_s, dtheta / step_s)

@@ -1,0 +1,147 @@
+"""The EKF itself: measurement model and Jacobians, update, wrapping, gating, process noise."""
+
+from math import atan2, pi, sqrt
+
+import numpy as np
+import pytest
+
+from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise, gate_threshold, turret_pose
+from beams_ekf.odometry_history import compose, wrap_angle
+from beams_ekf.synthetic import EUROBOT_BEACONS_XY
+
+POSE = (1.2, 0.7, 0.4)
+OFFSET = (0.03, -0.02)
+
+
+def _filter(pose=POSE, sigma=(0.01, 0.01, 0.01), offset=OFFSET, **kwargs) -> BearingEkf:
+    ekf = BearingEkf(EUROBOT_BEACONS_XY, offset, **kwargs)
+    ekf.initialise(pose, np.diag(np.square(sigma)))
+    return ekf
+
+
+def _true_bearing(pose, beacon_id, offset=OFFSET) -> float:
+    sensor = compose(pose, (offset[0], offset[1], 0.0))
+    xb, yb = EUROBOT_BEACONS_XY[beacon_id]
+    return wrap_angle(atan2(yb - sensor[1], xb - sensor[0]) - pose[2])
+
+
+@pytest.mark.parametrize("beacon_id", [1, 2, 3])
+def test_predicted_bearing_matches_geometry_with_turret_offset(beacon_id):
+    expected, _ = _filter().predicted_bearing(beacon_id)
+    assert abs(wrap_angle(expected - _true_bearing(POSE, beacon_id))) < 1e-12
+
+
+@pytest.mark.parametrize("lever", [None, (0.05, -0.01, 0.2), (-0.1, 0.03, -1.0)])
+def test_measurement_jacobian_matches_finite_differences(lever):
+    ekf = _filter()
+    _, jacobian = ekf.predicted_bearing(2, lever)
+    step = 1e-6
+    numeric = []
+    for axis in range(3):
+        shifted = list(POSE)
+        shifted[axis] += step
+        plus, _ = _filter(tuple(shifted)).predicted_bearing(2, lever)
+        shifted[axis] -= 2 * step
+        minus, _ = _filter(tuple(shifted)).predicted_bearing(2, lever)
+        numeric.append(wrap_angle(plus - minus) / (2 * step))
+    np.testing.assert_allclose(jacobian[0], numeric, rtol=1e-6, atol=1e-8)
+
+
+def test_predict_moves_by_the_increment_and_grows_the_covariance():
+    ekf = _filter(sigma=(1e-3, 1e-3, 1e-3))
+    before = ekf.covariance
+    ekf.predict((0.1, 0.0, 0.2))
+    assert np.allclose(ekf.pose, compose(POSE, (0.1, 0.0, 0.2)))
+    # heading uncertainty couples into position when moving
+    assert np.trace(ekf.covariance) > np.trace(before)
+    assert ekf.covariance[0, 2] != 0.0
+
+
+def test_process_noise_grows_with_distance_and_rotation():
+    noise = ProcessNoise(1e-4, 2e-4, 3e-4, floor_variance=0.0)
+    assert noise.robot_frame_variances((0.0, 0.0, 0.0)) == (0.0, 0.0, 0.0)
+    along, across, heading = noise.robot_frame_variances((0.3, 0.4, -0.5))
+    assert along == across == pytest.approx(1e-4 * 0.5)
+    assert heading == pytest.approx(2e-4 * 0.5 + 3e-4 * 0.5)
+
+
+def test_process_noise_rejects_negative_values():
+    with pytest.raises(ValueError, match="translation"):
+        ProcessNoise(translation_m2_per_m=-1.0)
+
+
+def test_update_pulls_the_estimate_towards_the_truth_and_shrinks_the_innovation_variance():
+    truth = POSE
+    ekf = _filter(pose=(1.21, 0.69, 0.41), sigma=(0.02, 0.02, 0.02))
+    errors = []
+    for _ in range(20):
+        for beacon_id in (1, 2, 3):
+            outcome = ekf.update_bearing(beacon_id, _true_bearing(truth, beacon_id), 1e-8)
+            assert outcome.accepted
+        errors.append(np.hypot(ekf.pose[0] - truth[0], ekf.pose[1] - truth[1]))
+    assert errors[-1] < 1e-5 < 0.014
+    assert abs(wrap_angle(ekf.pose[2] - truth[2])) < 1e-5
+
+
+def test_residual_is_wrapped_across_pi():
+    # the robot faces away from beacon 3 so its bearing is near +-pi
+    pose = (2.0, 1.0, pi)
+    ekf = _filter(pose=pose, offset=(0.0, 0.0))
+    expected, _ = ekf.predicted_bearing(3)
+    assert abs(abs(expected) - pi) < 1e-3
+    measured = wrap_angle(expected + 2e-4)
+    outcome = ekf.update_bearing(3, measured, 1e-8)
+    assert outcome.accepted
+    assert abs(outcome.residual_rad - 2e-4) < 1e-9
+
+
+def test_gate_rejects_an_outlier_and_accepts_a_consistent_bearing():
+    ekf = _filter(sigma=(1e-3, 1e-3, 1e-3), gate_probability=0.99)
+    _, jacobian = ekf.predicted_bearing(1)
+    sigma = sqrt(float((jacobian @ ekf.covariance @ jacobian.T)[0, 0]) + 1e-7)
+    good = ekf.update_bearing(1, _true_bearing(POSE, 1) + 2.0 * sigma, 1e-7)
+    assert good.accepted and good.nis == pytest.approx(4.0, rel=1e-6)
+    before = ekf.pose
+    bad = ekf.update_bearing(2, _true_bearing(POSE, 2) + 0.2, 1e-7)
+    assert not bad.accepted and bad.reason == "gated" and bad.nis > gate_threshold(0.99)
+    assert ekf.pose == before
+
+
+def test_gate_threshold_is_the_chi_square_quantile():
+    assert gate_threshold(0.95) == pytest.approx(3.841458820694124)
+    with pytest.raises(ValueError):
+        gate_threshold(1.0)
+
+
+@pytest.mark.parametrize(
+    ("beacon_id", "bearing", "variance", "reason"),
+    [(9, 0.0, 1e-6, "unknown beacon"), (1, float("nan"), 1e-6, "invalid measurement"),
+     (1, 0.0, 0.0, "invalid measurement"), (1, 0.0, float("inf"), "invalid measurement")],
+)
+def test_invalid_bearings_are_refused_without_touching_the_state(beacon_id, bearing, variance, reason):
+    ekf = _filter()
+    before = ekf.pose
+    outcome = ekf.update_bearing(beacon_id, bearing, variance)
+    assert not outcome.accepted and outcome.reason == reason
+    assert ekf.pose == before
+
+
+def test_uninitialised_filter_refuses_bearings_and_initialise_validates():
+    ekf = BearingEkf(EUROBOT_BEACONS_XY)
+    assert ekf.update_bearing(1, 0.0, 1e-6).reason == "uninitialised"
+    with pytest.raises(ValueError, match="positive definite"):
+        ekf.initialise(POSE, np.diag([1.0, 1.0, 0.0]))
+    with pytest.raises(ValueError, match="finite"):
+        ekf.initialise((float("nan"), 0.0, 0.0), np.eye(3))
+
+
+def test_turret_pose_is_the_offset_on_the_robot():
+    assert np.allclose(turret_pose((1.0, 0.0, pi / 2), (0.1, 0.0)), (1.0, 0.1, pi / 2))
+
+
+def test_state_restore_round_trip():
+    ekf = _filter()
+    before, saved = ekf.pose, ekf.state()
+    ekf.predict((0.2, 0.0, 0.1))
+    ekf.restore(saved)
+    assert ekf.pose == before

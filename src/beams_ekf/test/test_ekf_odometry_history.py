@@ -1,0 +1,117 @@
+"""Pose algebra and the odometry history (interpolation, extrapolation, trimming, ordering)."""
+
+from math import pi
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from beams_ekf.odometry_history import (
+    OdometryHistory,
+    between,
+    compose,
+    heading_of,
+    interpolate,
+    inverse,
+    wrap_angle,
+)
+
+coordinate = st.floats(-10.0, 10.0)
+angle = st.floats(-3.0 * pi, 3.0 * pi)
+poses = st.tuples(coordinate, coordinate, angle)
+
+
+def _close(a, b, tolerance=1e-9) -> bool:
+    return (abs(a[0] - b[0]) < tolerance and abs(a[1] - b[1]) < tolerance
+            and abs(wrap_angle(a[2] - b[2])) < tolerance)
+
+
+@given(angle)
+def test_wrap_angle_range_and_equivalence(value):
+    wrapped = wrap_angle(value)
+    assert -pi < wrapped <= pi
+    assert abs(wrap_angle(wrapped - value)) < 1e-9
+
+
+def test_wrap_angle_maps_minus_pi_to_pi():
+    assert wrap_angle(-pi) == pi
+
+
+@given(poses, poses)
+def test_between_inverts_compose(a, b):
+    assert _close(between(a, compose(a, b)), b, 1e-8)
+    assert _close(compose(a, inverse(a)), (0.0, 0.0, 0.0), 1e-8)
+
+
+def test_compose_known_value():
+    # a robot at (1, 2) facing +y moving 1 m forward ends at (1, 3)
+    assert _close(compose((1.0, 2.0, pi / 2), (1.0, 0.0, 0.0)), (1.0, 3.0, pi / 2))
+
+
+def test_interpolation_takes_the_short_arc_across_pi():
+    middle = interpolate((0.0, 0.0, pi - 0.1), (2.0, 4.0, -pi + 0.1), 0.5)
+    assert _close(middle, (1.0, 2.0, pi))
+
+
+def test_heading_of_quaternion():
+    assert heading_of(0.0, 0.0, 0.0, 1.0) == 0.0
+    assert abs(heading_of(0.0, 0.0, 1.0, 0.0) - pi) < 1e-12
+    assert abs(heading_of(0.0, 0.0, 0.3826834323650898, 0.9238795325112867) - pi / 4) < 1e-12
+    # a roll of pi (robot upside down) about x keeps the yaw
+    assert abs(heading_of(0.9238795325112867, 0.3826834323650898, 0.0, 0.0) - pi / 4) < 1e-12
+
+
+def _history() -> OdometryHistory:
+    history = OdometryHistory(span_s=1.0, max_extrapolation_s=0.05)
+    for k in range(5):
+        history.append(0.02 * k, (0.01 * k, 0.0, 0.1 * k))
+    return history
+
+
+def test_pose_at_interpolates_between_samples():
+    pose = _history().pose_at(0.03)
+    assert _close(pose, (0.015, 0.0, 0.15))
+
+
+def test_pose_at_sample_time_returns_the_sample():
+    assert _close(_history().pose_at(0.04), (0.02, 0.0, 0.2))
+
+
+def test_pose_at_outside_the_history_is_none():
+    history = _history()
+    assert history.pose_at(-0.001) is None
+    assert history.pose_at(0.08 + 0.051) is None
+
+
+def test_pose_at_extrapolates_a_little_with_the_last_velocity():
+    assert _close(_history().pose_at(0.10), (0.05, 0.0, 0.5))
+
+
+def test_append_refuses_time_going_back():
+    history = _history()
+    with pytest.raises(ValueError, match="not after"):
+        history.append(0.08, (0.0, 0.0, 0.0))
+
+
+def test_history_keeps_only_its_span():
+    history = OdometryHistory(span_s=0.1)
+    for k in range(100):
+        history.append(0.01 * k, (0.0, 0.0, 0.0))
+    # one sample older than the span is kept so the span's start can be interpolated
+    assert 0.99 - 0.1 - 0.01 - 1e-9 <= history.oldest_time_s < 0.99 - 0.1
+    assert history.pose_at(0.99 - 0.1) is not None
+
+
+def test_last_step_and_index():
+    history = _history()
+    step_s, motion = history.last_step()
+    assert abs(step_s - 0.02) < 1e-12
+    assert abs(motion[2] - 0.1) < 1e-12
+    assert history.index_at_or_before(0.05) == 2
+    assert history.index_at_or_before(-1.0) is None
+
+
+@pytest.mark.parametrize(("span_s", "extrapolation_s"), [(0.0, 0.1), (1.0, -0.1)])
+def test_invalid_history_parameters(span_s, extrapolation_s):
+    with pytest.raises(ValueError):
+        OdometryHistory(span_s, extrapolation_s)

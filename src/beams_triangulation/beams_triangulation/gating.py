@@ -1,0 +1,286 @@
+"""From one revolution's bearings to a gated pose: triplet choice, ToTal, covariance and the two gates.
+
+A pose is accepted when ToTal's reliability measure 1/|D| (thesis 6.3.5, eq. 6.27) is below a threshold
+and the position standard deviation propagated from the bearing variances (`pose_covariance`) is below
+a limit. Defaults, from the error maps of the Eurobot layout (`error_map`, bearing sigma 0.1 deg as
+the driver's variance model gives): the position std stays under 5 cm on 94% of the table and grows
+without bound near the critical circumference, which crosses the table; 1/|D| < 2 m^-2 holds on 94%
+of it as well and catches the blow-up even when the published variances are wrong. Rejected poses keep
+their numbers and get the reason, so that `topic echo` shows why.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from beams_driver.beacon_map import BeaconMap
+from beams_triangulation.motion_compensation import (
+    motion_variance_rad2,
+    triangulate_compensated,
+    twist_between,
+)
+from beams_triangulation.pose_covariance import pose_covariance
+from beams_triangulation.total import ToTalFix, triangulate, triangulate_many
+
+DEFAULT_MAX_INVERSE_ABS_D = 2.0
+DEFAULT_MAX_POSITION_STD_M = 0.05
+REASON_NO_TRIPLET = "no beacon triplet gives a fix: robot on the critical circumference of every triplet"
+
+
+@dataclass(frozen=True)
+class GateConfig:
+    """The two acceptance gates: 1/|D| (m^-2) and sqrt(var x + var y) (m)."""
+
+    max_inverse_abs_d: float = DEFAULT_MAX_INVERSE_ABS_D
+    max_position_std_m: float = DEFAULT_MAX_POSITION_STD_M
+
+    def __post_init__(self) -> None:
+        if not (self.max_inverse_abs_d > 0.0 and self.max_position_std_m > 0.0):
+            raise ValueError(f"gate thresholds must be positive, got {self}")
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """A ToTal pose with its covariance (x, y, theta; 3x3) and the gate's verdict."""
+
+    x: float
+    y: float
+    heading: float
+    covariance: np.ndarray
+    inverse_abs_d: float
+    beacon_ids: tuple[int, int, int]
+    accepted: bool
+    reason: str
+
+    @property
+    def position_std_m(self) -> float:
+        """sqrt(var x + var y) (m), the quantity the position gate compares."""
+        return math.sqrt(self.covariance[0, 0] + self.covariance[1, 1])
+
+
+@dataclass(frozen=True)
+class NoPose:
+    """Why one revolution gave no pose at all (too few beacons, bad input, robot on the critical circle).
+
+    bad_input: the message itself was wrong (unknown or duplicated id, NaN, negative variance), as
+    opposed to what happens in normal operation (a beacon hidden, the critical circumference).
+    """
+
+    reason: str
+    bad_input: bool = False
+
+
+def gate(inverse_abs_d: float, covariance: np.ndarray, config: GateConfig) -> tuple[bool, str]:
+    """(accepted, reason): the 1/|D| gate first (the thesis's criterion), then the propagated std."""
+    if not inverse_abs_d < config.max_inverse_abs_d:
+        return False, f"1/|D| = {inverse_abs_d:.3g} m^-2 above the gate {config.max_inverse_abs_d:g}"
+    std = math.sqrt(covariance[0, 0] + covariance[1, 1])
+    if not std < config.max_position_std_m:
+        return False, f"position std {std:.3g} m above the gate {config.max_position_std_m:g} m"
+    return True, ""
+
+
+def best_triplet(beacons_xy: np.ndarray, bearings_rad: np.ndarray) -> tuple[int, int, int] | None:
+    """Indices of the triplet with the largest |D| (smallest 1/|D|), or None when no triplet gives a fix.
+
+    With more than three beacons every triplet is solved at once by the vectorised ToTal; 1/|D| being
+    proportional to the position error (eq. 6.27), the largest |D| is the triplet to trust.
+    """
+    triplets = np.array(list(itertools.combinations(range(len(bearings_rad)), 3)))
+    batch = triangulate_many(beacons_xy[triplets], bearings_rad[triplets])
+    if not batch.ok.any():
+        return None
+    return tuple(int(i) for i in triplets[int(np.argmin(batch.inverse_abs_d))])
+
+
+def _validate(beacon_ids: Sequence[int], bearings: np.ndarray, variances: np.ndarray,
+              beacon_map: BeaconMap) -> str:
+    """The reason the input cannot give a pose, or an empty string."""
+    unknown = [i for i in beacon_ids if i not in beacon_map]
+    if unknown:
+        return f"unknown beacon id(s) {unknown}: not on the beacon map {list(beacon_map.ids)}"
+    if len(set(beacon_ids)) != len(beacon_ids):
+        return f"duplicated beacon id in one revolution: {list(beacon_ids)}"
+    if not np.all(np.isfinite(bearings)):
+        return f"non-finite bearing in {bearings.tolist()}"
+    if not (np.all(np.isfinite(variances)) and np.all(variances >= 0.0)):
+        return f"invalid bearing variance in {variances.tolist()} (rad^2, must be finite and >= 0)"
+    return ""
+
+
+@dataclass(frozen=True)
+class Bearing:
+    """A bearing (rad, sensor frame) with its variance (rad^2) and instant (s): the BearingLike fields."""
+
+    beacon_id: int
+    bearing: float
+    variance: float
+    stamp_s: float = 0.0
+
+
+def estimate_pose(
+    beacon_ids: Sequence[int],
+    bearings_rad: Sequence[float],
+    variances_rad2: Sequence[float],
+    beacon_map: BeaconMap,
+    config: GateConfig = GateConfig(),
+    turret_offset_m: Sequence[float] = (0.0, 0.0),
+) -> PoseEstimate | NoPose:
+    """Bearings taken from one pose (sensor frame) to a gated robot pose in the map frame.
+
+    Three beacons: ToTal on them; more: the triplet with the largest |D|; fewer or bad input: NoPose.
+    The covariance propagates the bearing variances through the Jacobian of the solution.
+    """
+    if not len(beacon_ids) == len(bearings_rad) == len(variances_rad2):
+        counts = (len(beacon_ids), len(bearings_rad), len(variances_rad2))
+        return NoPose("{} ids, {} bearings and {} variances: the lists must match".format(*counts), True)
+    bearings = [Bearing(*values) for values in zip(beacon_ids, bearings_rad, variances_rad2, strict=True)]
+    return estimate_revolution(bearings, beacon_map, config, turret_offset_m).result
+
+
+def gated_estimate(fix: ToTalFix, beacons_xy: np.ndarray, variances_rad2: Sequence[float],
+                   beacon_ids: tuple[int, int, int], config: GateConfig,
+                   turret_offset_m: Sequence[float] = (0.0, 0.0)) -> PoseEstimate:
+    """Covariance and gate decision for one ToTal fix (the scalar path the benchmark times)."""
+    covariance = pose_covariance(beacons_xy, (fix.x, fix.y, fix.heading), variances_rad2, turret_offset_m)
+    accepted, reason = gate(fix.inverse_abs_d, covariance, config)
+    return PoseEstimate(x=fix.x, y=fix.y, heading=fix.heading, covariance=covariance,
+                        inverse_abs_d=fix.inverse_abs_d, beacon_ids=beacon_ids, accepted=accepted,
+                        reason=reason)
+
+
+class BearingLike(Protocol):
+    """What a revolution's bearing must offer (beams_driver.decoder.DecodedBearing, or a message adapter)."""
+
+    beacon_id: int
+    bearing: float
+    variance: float
+    stamp_s: float
+
+
+def drop_repeated_beacons(bearings: Sequence[BearingLike]) -> list[BearingLike]:
+    """One bearing per beacon: a beacon seen twice at different instants keeps the sighting closest in
+    time to the revolution's median instant.
+
+    A robot turning against the turret sees the beacon near the zero reference at the start and again
+    at the end of the same revolution (a few percent of the revolutions of a match): both sightings are
+    real, the closer one in time needs the least motion compensation. Two sightings at the same instant
+    are not physical and stay, for the validation to refuse.
+    """
+    median_s = float(np.median([b.stamp_s for b in bearings])) if bearings else 0.0
+    kept: dict[int, BearingLike] = {}
+    duplicates_at_one_instant = []
+    for bearing in bearings:
+        previous = kept.get(bearing.beacon_id)
+        if previous is None:
+            kept[bearing.beacon_id] = bearing
+        elif previous.stamp_s == bearing.stamp_s:
+            duplicates_at_one_instant.append(bearing)
+        elif abs(bearing.stamp_s - median_s) < abs(previous.stamp_s - median_s):
+            kept[bearing.beacon_id] = bearing
+    return [*kept.values(), *duplicates_at_one_instant]
+
+
+@dataclass(frozen=True)
+class RevolutionPose:
+    """The outcome of one revolution: the estimate (or why there is none), the instant it refers to,
+    and whether the bearings were motion-compensated with odometry."""
+
+    result: PoseEstimate | NoPose
+    stamp_s: float
+    compensated: bool
+
+
+def estimate_revolution(
+    bearings: Sequence[BearingLike],
+    beacon_map: BeaconMap,
+    config: GateConfig = GateConfig(),
+    turret_offset_m: Sequence[float] = (0.0, 0.0),
+    odometry_at: Callable[[float], Sequence[float] | None] | None = None,
+    motion: tuple[float, float] | None = None,
+) -> RevolutionPose:
+    """One revolution's bearings to a gated pose at the mean instant of the bearings used.
+
+    odometry_at(t) gives the odometry pose (odom frame) at instant t, or None outside its samples: with
+    it the bearings are brought to that instant before ToTal (`motion_compensation`). Without it (or
+    when it does not cover the bearings), motion=(speed m/s, yaw rate rad/s) seen between revolutions
+    inflates the bearing variances instead (`motion_variance_rad2`).
+    """
+    bearings = drop_repeated_beacons(bearings)
+    ids = [b.beacon_id for b in bearings]
+    angles = np.array([b.bearing for b in bearings], dtype=float)
+    variances = np.array([b.variance for b in bearings], dtype=float)
+    stamps = np.array([b.stamp_s for b in bearings], dtype=float)
+    mean_stamp = float(stamps.mean()) if len(stamps) else math.nan
+    problem = _validate(ids, angles, variances, beacon_map) or ("" if np.all(np.isfinite(stamps))
+                                                                 else "non-finite bearing stamp")
+    if problem:
+        return RevolutionPose(NoPose(problem, bad_input=True), mean_stamp, False)
+    if len(ids) < 3:
+        too_few = NoPose(f"{len(ids)} beacon(s) seen {ids}: ToTal needs three")
+        return RevolutionPose(too_few, mean_stamp, False)
+    beacons_xy = beacon_map.subset(ids)
+    chosen = (0, 1, 2) if len(ids) == 3 else best_triplet(beacons_xy, angles)
+    if chosen is None:
+        return RevolutionPose(NoPose(REASON_NO_TRIPLET), mean_stamp, False)
+    picked = list(chosen)
+    used_ids = tuple(ids[i] for i in picked)
+    target = float(stamps[picked].mean())
+    odometry = _odometry_at_stamps(odometry_at, stamps[picked], target)
+    if odometry is not None:
+        odom_at_bearings, odom_at_target = odometry
+        fix = triangulate_compensated(beacons_xy[picked], angles[picked], odom_at_bearings, odom_at_target,
+                                      turret_offset_m)
+    else:
+        fix = triangulate(beacons_xy[picked], angles[picked], turret_offset_m)
+    if not fix.ok:
+        return RevolutionPose(NoPose(fix.reason), target, odometry is not None)
+    used_variances = variances[picked]
+    if odometry is None and motion is not None:
+        ranges = np.hypot(beacons_xy[picked, 0] - fix.x, beacons_xy[picked, 1] - fix.y)
+        used_variances = used_variances + motion_variance_rad2(stamps[picked] - target, ranges, *motion)
+    estimate = gated_estimate(fix, beacons_xy[picked], used_variances, used_ids, config, turret_offset_m)
+    return RevolutionPose(estimate, target, odometry is not None)
+
+
+def _odometry_at_stamps(odometry_at, stamps: np.ndarray, target: float):
+    """(odometry poses at the stamps (k, 3), odometry pose at the target) or None if not all covered."""
+    if odometry_at is None:
+        return None
+    poses = [odometry_at(float(t)) for t in (*stamps, target)]
+    if any(p is None for p in poses):
+        return None
+    return np.array(poses[:-1], dtype=float), poses[-1]
+
+
+class RevolutionEstimator:
+    """`estimate_revolution` for a stream of revolutions, remembering the last pose so that, without
+    odometry, the motion seen between revolutions inflates the variances (what the node runs)."""
+
+    def __init__(self, beacon_map: BeaconMap, config: GateConfig = GateConfig(),
+                 turret_offset_m: Sequence[float] = (0.0, 0.0)) -> None:
+        self.beacon_map = beacon_map
+        self.config = config
+        self.turret_offset_m = (float(turret_offset_m[0]), float(turret_offset_m[1]))
+        self._last: tuple[tuple[float, float, float], float] | None = None
+
+    def update(self, bearings: Sequence[BearingLike],
+               odometry_at: Callable[[float], Sequence[float] | None] | None = None) -> RevolutionPose:
+        """The gated pose of one revolution (see `estimate_revolution`)."""
+        settings = (self.beacon_map, self.config, self.turret_offset_m)
+        outcome = estimate_revolution(bearings, *settings, odometry_at)
+        estimate = outcome.result
+        if isinstance(estimate, PoseEstimate) and not outcome.compensated and self._last is not None:
+            motion = twist_between(*self._last, (estimate.x, estimate.y, estimate.heading), outcome.stamp_s)
+            if motion is not None:  # same bearings again, now with the motion in their variances
+                outcome = estimate_revolution(bearings, *settings, None, motion)
+                estimate = outcome.result
+        if isinstance(estimate, PoseEstimate):
+            self._last = ((estimate.x, estimate.y, estimate.heading), outcome.stamp_s)
+        return outcome

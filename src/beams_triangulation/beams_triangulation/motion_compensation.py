@@ -1,0 +1,159 @@
+"""Bringing the bearings of one revolution to a single instant (thesis 5.7; Loevsky and Shimshoni).
+
+The turret takes 0.1 s per revolution: a robot turning at 2 rad/s sweeps 11 deg and at 0.5 m/s moves
+5 cm between the first and the last bearing. ToTal assumes the three bearings come from one pose, so
+each bearing is moved to the target instant with the odometry increment between its own stamp and
+that instant:
+
+- rotation (exact, needs no position): the turret turned by dtheta_i = theta_target - theta_i, so the
+  beacon's bearing at the target instant is phi_i - dtheta_i, to first order in the translation;
+- translation (needs the beacon's range, hence an approximate pose): the bearing changes by the
+  difference of the predicted bearings of the beacon from the two turret positions. Its error is of
+  second order in the pose error, so one ToTal pass on the rotation-corrected bearings is enough to
+  get it (`triangulate_compensated` iterates twice).
+
+Without odometry, the bearing variances are inflated by the motion estimated between revolutions
+(`motion_variance_rad2`), so that the gate and the covariance account for the motion they cannot undo.
+All functions are pure: poses are (x, y, theta) tuples or arrays, odometry poses are in the odom frame.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from beams_driver.angles import wrap_to_pi
+from beams_triangulation.total import ToTalFix, triangulate
+
+
+def compose(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float]:
+    """SE(2) composition a (+) b: pose b, given in frame a, expressed in a's parent frame."""
+    cos_a, sin_a = math.cos(a[2]), math.sin(a[2])
+    return (a[0] + cos_a * b[0] - sin_a * b[1], a[1] + sin_a * b[0] + cos_a * b[1], wrap_to_pi(a[2] + b[2]))
+
+
+def relative(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float]:
+    """SE(2) a^-1 (+) b: pose b expressed in the frame of pose a (the odometry increment from a to b)."""
+    cos_a, sin_a = math.cos(a[2]), math.sin(a[2])
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    return (cos_a * dx + sin_a * dy, -sin_a * dx + cos_a * dy, wrap_to_pi(b[2] - a[2]))
+
+
+def arc_increment(speed_mps: float, yaw_rate_rad_s: float, dt_s: float) -> tuple[float, float, float]:
+    """Pose increment (in the starting robot frame) after dt_s at constant speed and yaw rate (an arc)."""
+    turn = yaw_rate_rad_s * dt_s
+    # Chord of the arc: length 2 sin(turn/2)/turn of the arc, along the mid heading (exact, no 0/0).
+    chord = speed_mps * dt_s * (math.sin(turn / 2.0) / (turn / 2.0) if turn else 1.0)
+    return chord * math.cos(turn / 2.0), chord * math.sin(turn / 2.0), turn
+
+
+def interpolate_pose(stamps_s: ArrayLike, poses: ArrayLike, t: float) -> tuple[float, float, float] | None:
+    """Pose at instant t, linear between the two odometry samples around it (heading on the circle).
+
+    stamps_s (n,) increasing, poses (n, 3). None when t is outside the samples (no extrapolation: a
+    bearing older or newer than the odometry cannot be compensated honestly).
+    """
+    stamps = np.asarray(stamps_s, dtype=float)
+    samples = np.asarray(poses, dtype=float)
+    if stamps.size == 0 or not stamps[0] <= t <= stamps[-1]:
+        return None
+    upper = int(np.searchsorted(stamps, t, side="left"))
+    if stamps[upper] == t:
+        return tuple(float(v) for v in samples[upper])
+    lower = upper - 1
+    weight = (t - stamps[lower]) / (stamps[upper] - stamps[lower])
+    before, after = samples[lower], samples[upper]
+    x, y = before[:2] + weight * (after[:2] - before[:2])
+    return float(x), float(y), wrap_to_pi(before[2] + weight * wrap_to_pi(after[2] - before[2]))
+
+
+def _predicted_bearing(beacon: Sequence[float], robot_map: Sequence[float],
+                       turret_offset_m: Sequence[float]) -> float:
+    """Bearing of a beacon in the turret frame of a robot at robot_map (x, y, theta)."""
+    turret = compose(robot_map, (turret_offset_m[0], turret_offset_m[1], 0.0))
+    return math.atan2(beacon[1] - turret[1], beacon[0] - turret[0]) - robot_map[2]
+
+
+def compensate_bearings(
+    bearings_rad: ArrayLike,
+    odom_at_bearings: ArrayLike,
+    odom_at_target: Sequence[float],
+    beacons_xy: ArrayLike | None = None,
+    approx_pose_map: Sequence[float] | None = None,
+    turret_offset_m: Sequence[float] = (0.0, 0.0),
+) -> np.ndarray:
+    """Bearings (k,) measured at the odometry poses odom_at_bearings (k, 3), moved to odom_at_target.
+
+    Without approx_pose_map (the robot's map pose at the target instant, e.g. a first ToTal fix) only
+    the rotation is compensated; with it and beacons_xy (k, 2), the translation as well. Result wrapped
+    to (-pi, pi].
+    """
+    bearings = np.asarray(bearings_rad, dtype=float)
+    odometry = np.asarray(odom_at_bearings, dtype=float).reshape(-1, 3)
+    corrected = np.empty_like(bearings)
+    for i, (bearing, odom_pose) in enumerate(zip(bearings, odometry, strict=True)):
+        # Robot pose at the bearing's instant, in the robot frame at the target instant.
+        increment = relative(odom_at_target, odom_pose)
+        if approx_pose_map is None:
+            corrected[i] = bearing + increment[2]
+            continue
+        beacon = np.asarray(beacons_xy, dtype=float)[i]
+        then_map = compose(approx_pose_map, increment)
+        corrected[i] = bearing + (_predicted_bearing(beacon, approx_pose_map, turret_offset_m)
+                                  - _predicted_bearing(beacon, then_map, turret_offset_m))
+    return np.asarray(wrap_to_pi(corrected), dtype=float).reshape(bearings.shape)
+
+
+def triangulate_compensated(
+    beacons_xy: ArrayLike,
+    bearings_rad: ArrayLike,
+    odom_at_bearings: ArrayLike,
+    odom_at_target: Sequence[float],
+    turret_offset_m: Sequence[float] = (0.0, 0.0),
+    iterations: int = 2,
+) -> ToTalFix:
+    """ToTal on bearings brought to the target instant: rotation first, then `iterations` passes of the
+    full correction, each using the previous fix for the ranges. The fix refers to the target instant.
+    """
+    beacons = np.asarray(beacons_xy, dtype=float)
+    bearings = compensate_bearings(bearings_rad, odom_at_bearings, odom_at_target)
+    fix = triangulate(beacons, bearings, turret_offset_m)
+    for _ in range(iterations):
+        if not fix.ok:
+            break
+        bearings = compensate_bearings(bearings_rad, odom_at_bearings, odom_at_target, beacons,
+                                       (fix.x, fix.y, fix.heading), turret_offset_m)
+        fix = triangulate(beacons, bearings, turret_offset_m)
+    return fix
+
+
+def motion_variance_rad2(
+    time_offsets_s: ArrayLike,
+    ranges_m: ArrayLike,
+    speed_mps: float,
+    yaw_rate_rad_s: float,
+) -> np.ndarray:
+    """Variance (rad^2) to add to each bearing for the motion that could not be compensated.
+
+    A bearing taken tau seconds from the pose's instant is off by up to |omega| tau (rotation) plus
+    |v| tau / r (translation seen from range r); the square of that worst case is the variance added,
+    a conservative bound used when no odometry is available (speed and yaw rate then come from the
+    last two poses).
+    """
+    tau = np.abs(np.asarray(time_offsets_s, dtype=float))
+    ranges = np.maximum(np.asarray(ranges_m, dtype=float), 1e-3)
+    return (abs(yaw_rate_rad_s) * tau + abs(speed_mps) * tau / ranges) ** 2
+
+
+def twist_between(earlier: Sequence[float], earlier_stamp_s: float, later: Sequence[float],
+                  later_stamp_s: float) -> tuple[float, float] | None:
+    """(speed m/s, yaw rate rad/s) from two poses (x, y, theta), or None when their stamps do not
+    increase; the motion seen between revolutions that `motion_variance_rad2` needs without odometry."""
+    dt = later_stamp_s - earlier_stamp_s
+    if not dt > 0.0:
+        return None
+    speed = math.hypot(later[0] - earlier[0], later[1] - earlier[1]) / dt
+    return speed, wrap_to_pi(later[2] - earlier[2]) / dt
