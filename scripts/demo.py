@@ -18,8 +18,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import rclpy
-from beams_driver.angles import wrap_to_pi
-from beams_ekf.bag_io import BagRecorder, beams_typestore
 from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
@@ -27,6 +25,8 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import deserialize_message
 
+from beams_driver.angles import wrap_to_pi
+from beams_ekf.bag_io import BagRecorder, beams_typestore
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]

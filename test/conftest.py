@@ -131,12 +131,22 @@ class NodeProcess:
     name: str
     process: subprocess.Popen
     log_path: pathlib.Path
+    expected_exit: bool = False
 
     def log(self) -> str:
         return self.log_path.read_text(errors="replace")
 
+    def wait_exit(self, timeout_s: float) -> int:
+        """Wait (bounded) for a node the test expects to exit by itself; its exit status."""
+        self.expected_exit = True
+        try:
+            return self.process.wait(timeout=timeout_s)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"{self.name} still running after {timeout_s} s\n{self.log()}")
+
     def stop(self, sig: int = signal.SIGINT) -> int:
         """Send a signal and wait (bounded) for the exit status."""
+        self.expected_exit = True
         if self.process.poll() is None:
             self.process.send_signal(sig)
         try:
@@ -178,7 +188,7 @@ def start_node(ros_env: dict[str, str], tmp_path: pathlib.Path) -> Iterator[Call
             params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": params}}))
             command += ["--params-file", str(params_file)]
         if namespace:
-            command += ["-r", f"__ns:={namespace}"]
+            command += ["-r", f"__ns:=/{namespace.lstrip('/')}"]
         command += extra_args or []
         log_path = tmp_path / f"{executable}_{len(started)}.log"
         with open(log_path, "w") as log_file:
@@ -192,8 +202,11 @@ def start_node(ros_env: dict[str, str], tmp_path: pathlib.Path) -> Iterator[Call
     yield start
     failures = []
     for node in started:
+        if node.expected_exit:
+            continue  # the test stopped it, or waited for its exit, and asserted what it needed
         if node.process.poll() is not None:
-            continue  # the test stopped it and asserted what it needed
+            failures.append(f"{node.name} exited by itself with {node.process.returncode}:\n{node.log()}")
+            continue
         status = node.stop()
         output = node.log()
         if status != 0 or "Traceback" in output:

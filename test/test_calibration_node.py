@@ -136,6 +136,6 @@ def test_calibrate_service_writes_the_calibration_file(start_node, rclpy_node, t
 def test_an_unreadable_dataset_is_refused_at_start_up(start_node, tmp_path):
     (tmp_path / "dataset.yaml").write_text("configurations: [unclosed")
     node = start_node("beams_calibration", "calibration_node", _calibration_params(tmp_path))
-    assert node.process.wait(timeout=TIMEOUT_S) == 2
+    assert node.wait_exit(TIMEOUT_S) == 2
     log = node.log()
     assert "invalid parameters: dataset_file:" in log and "not valid YAML" in log and "Traceback" not in log

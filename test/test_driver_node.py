@@ -65,7 +65,7 @@ def test_missing_serial_device_is_a_clear_error(start_node):
     node = start_node(
         "beams_driver", "driver_node", params={"source": "serial", "device": "/dev/beams_nowhere"}
     )
-    status = node.process.wait(timeout=WAIT_S)
+    status = node.wait_exit(WAIT_S)
     output = node.log()
     assert status == 2, output
     assert "/dev/beams_nowhere" in output and "does not exist" in output and "Traceback" not in output

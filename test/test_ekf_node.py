@@ -172,6 +172,6 @@ def test_ekf_node_takes_an_operator_pose(start_node, rclpy_node, match):
 def test_ekf_node_refuses_a_bad_beacon_map(start_node):
     node = start_node("beams_ekf", "ekf_node", {"beacon_ids": [1, 2, 3], "beacon_x": [0.0, 1.0],
                                                 "beacon_y": [0.0, 1.0, 2.0]})
-    assert node.process.wait(timeout=20) == 2
+    assert node.wait_exit(20) == 2
     assert "invalid parameters" in node.log() and "beacon map" in node.log()
     assert "Traceback" not in node.log()

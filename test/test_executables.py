@@ -38,7 +38,7 @@ def test_executable_answers_and_exits_cleanly(rclpy_node, start_node, package, e
 
 def test_invalid_parameter_is_refused_with_a_clear_message(start_node):
     node = start_node("beams_driver", "driver_node", params={"variance_mode": "guess"})
-    status = node.process.wait(timeout=ANSWER_TIMEOUT_S)
+    status = node.wait_exit(ANSWER_TIMEOUT_S)
     output = node.log()
     assert status == 2, output
     assert "variance_mode" in output and "Traceback" not in output, output

@@ -92,6 +92,6 @@ def test_publishes_truth_and_perfect_odometry_at_50_hz_in_a_namespace(start_node
 )
 def test_refuses_bad_parameters_with_one_clear_line(start_node, params: dict, message: str) -> None:
     node = start_node("beams_driver", "sim_world_node", params)
-    assert node.process.wait(timeout=WAIT_S) == 2
+    assert node.wait_exit(WAIT_S) == 2
     log = node.log()
     assert message in log and "Traceback" not in log

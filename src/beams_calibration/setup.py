@@ -17,7 +17,9 @@ setup(
     zip_safe=True,
     maintainer="BeAMS ROS maintainers",
     maintainer_email="maintainers@beams-ros.org",
-    description="Chapter-7 calibration of BeAMS (power bias, rotation bias, turret offset, beacon coordinates) as ROS services.",
+    description=(
+        "Chapter-7 calibration of BeAMS as ROS services: power bias, rotation bias, turret offset, beacons."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

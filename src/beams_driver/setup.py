@@ -18,7 +18,9 @@ setup(
     zip_safe=True,
     maintainer="BeAMS ROS maintainers",
     maintainer_email="maintainers@beams-ros.org",
-    description="The BeAMS sensor: code family, exact bearing variance, edge decoder, edge-level device simulation, serial source, simulated robot.",
+    description=(
+        "The BeAMS sensor: codes, exact variance, decoder, device simulation, serial source, simulated robot."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -1,1 +1,1 @@
-"""Chapter-7 calibration of BeAMS (power bias, rotation bias, turret offset, beacon coordinates) as ROS services."""
+"""Chapter-7 calibration of BeAMS as ROS services: power bias, rotation bias, turret offset, beacons."""

@@ -1,1 +1,1 @@
-"""The BeAMS sensor: code family, exact bearing variance, edge decoder, edge-level device simulation, serial source, simulated robot."""
+"""The BeAMS sensor: codes, exact variance, decoder, device simulation, serial source, simulated robot."""

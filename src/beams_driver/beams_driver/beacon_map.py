@@ -9,7 +9,7 @@ import numpy as np
 COLLINEARITY_TOLERANCE_M = 1e-3
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class BeaconMap:
     """Beacon identifiers (the code index, 1..Nc) and their positions (n, 2) in the map frame."""
 
@@ -36,6 +36,14 @@ class BeaconMap:
             raise ValueError("beacon map: all beacons lie on one line; triangulation is impossible")
         xy.setflags(write=False)
         return cls(ids=tuple(int(i) for i in ids), xy=xy)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, BeaconMap):
+            return NotImplemented
+        return self.ids == other.ids and np.array_equal(self.xy, other.xy)
+
+    def __hash__(self) -> int:
+        return hash((self.ids, self.xy.tobytes()))
 
     def __contains__(self, beacon_id: object) -> bool:
         return beacon_id in self.ids

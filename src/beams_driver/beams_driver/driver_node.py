@@ -19,6 +19,7 @@ from rclpy.time import Time
 from beams_driver.angles import wrap_to_pi
 from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_driver.bearing_correction import BearingCorrection
+from beams_driver.calibration_file import load_calibration
 from beams_driver.codes import BIT_TIME_S, code_family, codes_from_strings, validate_codes
 from beams_driver.decoder import BearingDecoder, DecodedRevolution
 from beams_driver.edges import TURRET_PERIOD_S
@@ -30,6 +31,7 @@ from beams_driver.node_support import (
     run_node,
 )
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
+from beams_driver.serial_protocol import DEFAULT_BAUDRATE
 from beams_driver.serial_source import DeviceNotFoundError, DeviceOpenError, SerialEdgeSource
 from beams_driver.variance import VARIANCE_MODES, VarianceModel
 from beams_msgs.msg import BeaconBearing, BeaconBearingArray
@@ -214,6 +216,13 @@ class DriverNode(Node):
             minimum=0.0,
             maximum=10000.0,
         )
+        bias_file = declare_parameter(
+            self,
+            "sim_bias_file",
+            "",
+            "Calibration file whose power and rotation biases the simulated sensor injects (empty: none).",
+        )
+        injected = self._load_injected_biases(bias_file)
         seed = declare_parameter(
             self, "sim_seed", 1, "Seed of the simulated sensor's noise.", minimum=0, maximum=2**31
         )
@@ -222,6 +231,8 @@ class DriverNode(Node):
             config,
             beacons,
             np.random.default_rng(seed),
+            power_bias_rad=injected.power_bias if injected else None,
+            rotation_bias_rad=injected.rotation_bias if injected else None,
             turret_offset_m=(float(offset[0]), float(offset[1])),
             occlusion={int(i) for i in occluded if i >= 0},
         )
@@ -229,6 +240,14 @@ class DriverNode(Node):
         self.next_revolution_start_s: float | None = None
         self.create_subscription(Odometry, "beams/sim/ground_truth", self._on_ground_truth, 50)
         self.create_timer(TURRET_PERIOD_S, self._simulate_due_revolutions)
+
+    def _load_injected_biases(self, path: str) -> BearingCorrection | None:
+        if not path:
+            return None
+        try:
+            return load_calibration(path).bearing_correction
+        except (OSError, ValueError) as error:
+            raise ParameterValidationError(f"sim_bias_file: {error}") from None
 
     def _on_ground_truth(self, msg: Odometry) -> None:
         if not self.ground_truth.add(msg):
@@ -262,11 +281,16 @@ class DriverNode(Node):
     def _start_serial_source(self) -> None:
         device = declare_parameter(self, "device", "/dev/ttyUSB0", "Serial device of the BeAMS sensor.")
         baud_rate = declare_parameter(
-            self, "baud_rate", 921600, "Serial baud rate.", minimum=9600, maximum=12_000_000
+            self, "baud_rate", DEFAULT_BAUDRATE, "Serial baud rate.", minimum=9600, maximum=12_000_000
         )
         self.serial = SerialEdgeSource(
-            device, baud_rate, read_timeout_s=SERIAL_POLL_PERIOD_S / 2, log=self.get_logger().warning
+            device,
+            baud_rate,
+            read_timeout_s=SERIAL_POLL_PERIOD_S / 2,
+            clock=lambda: self.get_clock().now().nanoseconds * 1e-9,
+            log=self.get_logger().warning,
         )
+        self.serial_reconnections = 0
         try:
             self.serial.open()
         except (DeviceNotFoundError, DeviceOpenError) as error:
@@ -274,7 +298,12 @@ class DriverNode(Node):
         self.create_timer(SERIAL_POLL_PERIOD_S, self._read_serial)
 
     def _read_serial(self) -> None:
-        for edges in self.serial.read():
+        revolutions = self.serial.read()
+        if self.serial.reconnections != self.serial_reconnections:
+            # A window cut by the disconnection must not be joined to the new stream's first one.
+            self.serial_reconnections = self.serial.reconnections
+            self.decoder.reset()
+        for edges in revolutions:
             self._publish(self.decoder.decode(edges))
         for reason, count in self.serial.drops.items():
             self.diagnostics.set(f"serial_drops_{reason}", count)

@@ -83,14 +83,16 @@ def pose_covariance(
     pose is the fix (x, y, heading) as given by `total.triangulate` with the same turret offset.
     Entries are Inf-free only off the critical circle; callers gate on them (see `gating`).
     """
+    # Plain Python floats: arithmetic on numpy scalars would double the cost of this hot path.
     rows = beacons_xy.tolist() if isinstance(beacons_xy, np.ndarray) else beacons_xy
+    variances = [float(v) for v in variances_rad2]
     x, y, heading = pose
     if turret_offset_m[0] or turret_offset_m[1]:
         tx, ty, offset_map = _turret_position(x, y, math.cos(heading), math.sin(heading), turret_offset_m)
     else:  # the common case, without the trigonometry
         tx, ty, offset_map = x, y, (0.0, 0.0)
     try:
-        xx, xy, xt, yy, yt, tt = _covariance_entries(_jacobian_rows(rows, tx, ty, offset_map), variances_rad2)
+        xx, xy, xt, yy, yt, tt = _covariance_entries(_jacobian_rows(rows, tx, ty, offset_map), variances)
     except ZeroDivisionError:  # robot at a beacon or exactly on the critical circle
         return np.full((3, 3), math.inf)
     # fromiter of a flat tuple: half the cost of np.array on nested lists, on a path timed in microseconds.
