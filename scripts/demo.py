@@ -172,15 +172,39 @@ def progress_line(record: MatchRecord, elapsed_s: float) -> str:
     )
 
 
-def summary_table(record: MatchRecord) -> str:
+def odometry_in_map(odometry: np.ndarray, truth: np.ndarray) -> np.ndarray:
+    """Odometry (odom frame) placed in the map frame by the true pose at its first sample (map -> odom)."""
+    if len(odometry) == 0 or len(truth) == 0:
+        return odometry
+    t0, x0, y0, theta0 = odometry[0]
+    start_x, start_y = (np.interp(t0, truth[:, 0], truth[:, i]) for i in (1, 2))
+    rotation = np.interp(t0, truth[:, 0], np.unwrap(truth[:, 3])) - theta0
+    cos_r, sin_r = np.cos(rotation), np.sin(rotation)
+    dx, dy = odometry[:, 1] - x0, odometry[:, 2] - y0
+    placed = odometry.copy()
+    placed[:, 1] = start_x + cos_r * dx - sin_r * dy
+    placed[:, 2] = start_y + sin_r * dx + cos_r * dy
+    placed[:, 3] = wrap_to_pi(odometry[:, 3] + rotation)
+    return placed
+
+
+def tracks_in_map(record: MatchRecord) -> dict[str, np.ndarray]:
+    """Every track in the map frame, keyed by the name the table and the plot show."""
     truth = record.truth.array()
+    return {
+        "truth": truth,
+        "odometry": odometry_in_map(record.odometry.array(), truth),
+        "ToTal (accepted)": record.total.array(),
+        "EKF": record.ekf.array(),
+    }
+
+
+def summary_table(record: MatchRecord) -> str:
+    tracks = tracks_in_map(record)
+    truth = tracks.pop("truth")
     lines = ["| source | poses | RMS position (mm) | RMS heading (deg) |", "|---|---|---|---|"]
-    for name, track in (
-        ("odometry", record.odometry),
-        ("ToTal (accepted)", record.total),
-        ("EKF", record.ekf),
-    ):
-        position, heading = errors_against_truth(track.array(), truth)
+    for name, track in tracks.items():
+        position, heading = errors_against_truth(track, truth)
         lines.append(
             f"| {name} | {len(position)} | {1000 * rms(position):.1f} | {np.degrees(rms(heading)):.3f} |"
         )
@@ -199,14 +223,9 @@ def plot_trajectories(record: MatchRecord, path: pathlib.Path) -> None:
     import matplotlib.pyplot as plt
 
     figure, axes = plt.subplots(figsize=(9, 6.5))
-    styles = (
-        ("truth", record.truth, "k-"),
-        ("odometry", record.odometry, "C1--"),
-        ("ToTal", record.total, "C0."),
-        ("EKF", record.ekf, "C2-"),
-    )
-    for name, track, style in styles:
-        rows = track.array()
+    styles = {"truth": "k-", "odometry": "C1--", "ToTal (accepted)": "C0.", "EKF": "C2-"}
+    for name, rows in tracks_in_map(record).items():
+        style = styles[name]
         if len(rows):
             axes.plot(rows[:, 1], rows[:, 2], style, label=name, markersize=2, linewidth=1)
     axes.add_patch(plt.Rectangle((0, 0), 3, 2, fill=False, color="grey"))

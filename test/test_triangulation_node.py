@@ -3,6 +3,7 @@ verdict on beams/pose and beams/pose_cov, bad input ignored with the node alive,
 with odometry, and a refused beacon map (exit 2)."""
 
 import math
+import signal
 
 import numpy as np
 import pytest
@@ -84,6 +85,7 @@ def test_exact_pose_with_covariance_stamped_with_the_bearings(start_node, rclpy_
     assert list(message.beacon_ids) == [1, 2, 3]
     assert 0.0 < message.inverse_abs_d < 2.0
     np.testing.assert_array_equal(covariances[-1].pose.covariance, message.pose.covariance)
+    node.assert_clean_exit(signal.SIGTERM)
 
 
 def test_bad_input_is_logged_and_ignored_then_good_input_works(start_node, rclpy_node):
@@ -178,6 +180,6 @@ def test_odometry_brings_the_bearings_to_one_instant(start_node, rclpy_node):
 def test_collinear_beacon_map_is_refused_with_exit_status_2(start_node):
     node = start_node("beams_triangulation", "triangulation_node",
                       {"beacon_x": [0.0, 1.0, 2.0], "beacon_y": [0.0, 0.0, 0.0]})
-    assert node.process.wait(timeout=WAIT_S) == 2
+    assert node.wait_exit(WAIT_S) == 2
     assert "all beacons lie on one line" in node.log()
     assert "Traceback" not in node.log()

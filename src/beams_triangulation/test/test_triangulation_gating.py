@@ -18,6 +18,7 @@ from beams_triangulation.gating import (
     estimate_revolution,
     gate,
 )
+from beams_triangulation.pose_covariance import pose_covariance
 from beams_triangulation.total import expected_bearings, triangulate
 
 SIGMA_RAD = np.deg2rad(0.1)
@@ -75,19 +76,42 @@ def test_robot_on_the_critical_circle_gives_no_pose():
     assert "critical" in result.reason
 
 
-FOUR_BEACONS = BeaconMap.from_lists([1, 2, 3, 4], [-0.062, -0.062, 3.062, 3.062], [-0.062, 2.062, 1.0, 2.5])
+# The Eurobot beacons and a fourth one at the corner (3.062, -0.062).
+FOUR_BEACONS = BeaconMap.from_lists([1, 2, 3, 4], [-0.062, -0.062, 3.062, 3.062],
+                                    [-0.062, 2.062, 1.0, -0.062])
 
 
 @pytest.mark.parametrize("pose", [(1.0, 0.5, 0.3), (2.5, 1.8, -1.0), (0.4, 1.9, 2.0), (1.5, 1.0, 0.0)])
-def test_more_than_three_beacons_use_the_triplet_with_the_largest_abs_d(pose):
+def test_more_than_three_beacons_use_the_triplet_with_the_smallest_std(pose):
     bearings = _bearings(FOUR_BEACONS, pose)
-    chosen = best_triplet(FOUR_BEACONS.xy, bearings)
-    by_scalar = {t: triangulate(FOUR_BEACONS.xy[list(t)], bearings[list(t)]).inverse_abs_d
-                 for t in itertools.combinations(range(4), 3)}
-    assert chosen == min(by_scalar, key=by_scalar.get)
-    estimate = estimate_pose([1, 2, 3, 4], bearings, [SIGMA_RAD**2] * 4, FOUR_BEACONS)
+    variances = np.full(4, SIGMA_RAD**2)
+    triplets = list(itertools.combinations(range(4), 3))
+    fixes = {t: triangulate(FOUR_BEACONS.xy[list(t)], bearings[list(t)]) for t in triplets}
+    covariances = {t: pose_covariance(FOUR_BEACONS.xy[list(t)], (f.x, f.y, f.heading), variances[:3])
+                   for t, f in fixes.items()}
+    std = {t: c[0, 0] + c[1, 1] for t, c in covariances.items()}
+    inverse_abs_d = {t: f.inverse_abs_d for t, f in fixes.items()}
+    assert best_triplet(FOUR_BEACONS.xy, bearings, variances) == min(std, key=std.get)
+    assert best_triplet(FOUR_BEACONS.xy, bearings, variances, by="inverse_abs_d") == min(
+        inverse_abs_d, key=inverse_abs_d.get)
+    chosen = best_triplet(FOUR_BEACONS.xy, bearings, variances)
+    estimate = estimate_pose([1, 2, 3, 4], bearings, variances, FOUR_BEACONS)
     assert estimate.beacon_ids == tuple(FOUR_BEACONS.ids[i] for i in chosen)
     assert (estimate.x, estimate.y, estimate.heading) == pytest.approx(pose, abs=1e-9)
+
+
+def test_choosing_by_covariance_measures_better_than_by_inverse_abs_d():
+    rng = np.random.default_rng(3)
+    errors = {"covariance": [], "inverse_abs_d": []}
+    for _ in range(1500):
+        pose = (rng.uniform(0.1, 2.9), rng.uniform(0.1, 1.9), rng.uniform(-np.pi, np.pi))
+        bearings = _bearings(FOUR_BEACONS, pose) + rng.normal(0.0, SIGMA_RAD, 4)
+        for by, found in errors.items():
+            chosen = list(best_triplet(FOUR_BEACONS.xy, bearings, np.full(4, SIGMA_RAD**2), by=by))
+            fix = triangulate(FOUR_BEACONS.xy[chosen], bearings[chosen])
+            found.append(math.hypot(fix.x - pose[0], fix.y - pose[1]))
+    rms = {by: math.sqrt(np.mean(np.square(found))) for by, found in errors.items()}
+    assert rms["covariance"] < 0.9 * rms["inverse_abs_d"]
 
 
 def test_gate_rejects_on_inverse_abs_d_then_on_std_with_the_reason():

@@ -1,0 +1,685 @@
+"""replay_bag: the triangulation and the EKF (thesis fig. 8.1) over a recorded rosbag2 bag, offline.
+
+    replay_bag INPUT_BAG OUTPUT_BAG [--plot PNG] [--triangulation-params YAML] [--ekf-params YAML]
+
+Reads `beams/bearings`, `odom` and, when present, `beams/sim/ground_truth` from a bag (sqlite3 or MCAP,
+with the `rosbags` library, no ROS graph), feeds them to the same pure objects the nodes wrap
+(`gating.RevolutionEstimator` as triangulation_node does, `localiser.Localiser` as ekf_node does) as
+fast as the CPU allows, and writes `beams/pose`, `beams/pose_cov`, `beams/ekf/odometry` and
+`beams/ekf/pose` next to a copy of the inputs into a new bag (MCAP by default), plus a trajectory plot
+and a summary (RMS errors against the truth when the bag has it, agreement with the live nodes' outputs
+when the bag recorded them).
+
+Time is the messages' stamps, never their arrival: a revolution is due when it ends (header stamp, the
+revolution's start, plus its period: when the driver publishes it), odometry and truth at their stamp;
+messages are put back in that order within `REORDER_WINDOW_S`. Stamps going back by more than
+`TIME_JUMP_S` (a bag played in a loop, a restarted simulation) reset both pipelines. Bad input (NaN,
+unknown beacon ids, empty revolutions, undecodable messages) is counted and skipped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import heapq
+import itertools
+import math
+import pathlib
+import sys
+import time
+from collections import Counter
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import yaml
+from rosbags.rosbag2 import Reader
+
+from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_driver.calibration_file import load_calibration
+from beams_ekf.bag_io import BagRecorder, beams_typestore
+from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise
+from beams_ekf.localiser import Bearing, Estimate, Localiser, LocaliserConfig
+from beams_ekf.odometry_history import (
+    OdometryHistory,
+    Pose2D,
+    compose,
+    heading_of,
+    is_finite_pose,
+    wrap_angle,
+)
+from beams_triangulation.gating import Bearing as TriangulationBearing
+from beams_triangulation.gating import GateConfig, NoPose, PoseEstimate, RevolutionEstimator
+
+BEARINGS_TOPIC = "beams/bearings"
+ODOMETRY_TOPIC = "odom"
+TRUTH_TOPIC = "beams/sim/ground_truth"
+# Outputs of the live nodes, when the bag recorded them: what the replay is compared with.
+LIVE_POSE_TOPIC = "beams/pose"
+LIVE_EKF_TOPIC = "beams/ekf/odometry"
+ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
+BEARINGS_TYPE = "beams_msgs/msg/BeaconBearingArray"
+POSE_TYPE = "beams_msgs/msg/TriangulatedPose"
+POSE_COV_TYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
+# Processing order of messages due at the same instant: odometry first, so it covers the bearings.
+_TOPIC_ORDER = {TRUTH_TOPIC: 0, ODOMETRY_TOPIC: 1, BEARINGS_TOPIC: 2}
+# How far (s) a message may arrive after a later-stamped one and still be put back in stamp order.
+REORDER_WINDOW_S = 1.0
+# Stamps going back by more than this (s) are a new start (a bag loop): both pipelines reset.
+TIME_JUMP_S = 1.0
+# Rows/columns of x, y and yaw in ROS's row-major 6x6 (x, y, z, roll, pitch, yaw) covariance.
+_PLANAR = (0, 1, 5)
+# Variance triangulation_node reports for z, roll and pitch, which a planar fix says nothing about.
+_UNKNOWN_VARIANCE = 1e6
+_NS = 1_000_000_000
+
+
+# -- settings -----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ReplaySettings:
+    """What the two nodes take from their parameters (defaults: the nodes' defaults)."""
+
+    triangulation_map: BeaconMap = EUROBOT_BEACON_MAP
+    triangulation_offset_m: tuple[float, float] = (0.0, 0.0)
+    gates: GateConfig = field(default_factory=GateConfig)
+    use_odometry: bool = True
+    odometry_history_s: float = 2.0
+    max_odometry_extrapolation_s: float = 0.05
+    ekf_map: BeaconMap = EUROBOT_BEACON_MAP
+    ekf_offset_m: tuple[float, float] = (0.0, 0.0)
+    process_noise: ProcessNoise = field(default_factory=ProcessNoise)
+    gate_probability: float = 0.999
+    localiser: LocaliserConfig = field(default_factory=LocaliserConfig)
+    use_total_pose: bool = True
+    default_pose_sigma: tuple[float, float, float] = (0.05, 0.05, 0.1)
+
+
+def load_node_parameters(path: pathlib.Path | None) -> dict[str, Any]:
+    """The `ros__parameters` of a node's parameter YAML (its `/**` entry or its only node); {} for None."""
+    if path is None:
+        return {}
+    document = yaml.safe_load(pathlib.Path(path).read_text()) or {}
+    entry = document.get("/**") or next(iter(document.values()), {})
+    return dict(entry.get("ros__parameters", {}))
+
+
+def _geometry(parameters: Mapping[str, Any]) -> tuple[BeaconMap, tuple[float, float]]:
+    """Beacon map and turret offset: the calibration file when given, else the map parameters."""
+    if parameters.get("calibration_file"):
+        calibration = load_calibration(parameters["calibration_file"])
+        offset = calibration.turret_offset_m
+        return calibration.beacon_map, (float(offset[0]), float(offset[1]))
+    default = EUROBOT_BEACON_MAP
+    beacon_map = BeaconMap.from_lists(parameters.get("beacon_ids", list(default.ids)),
+                                      parameters.get("beacon_x", default.xy[:, 0].tolist()),
+                                      parameters.get("beacon_y", default.xy[:, 1].tolist()))
+    offset = parameters.get("turret_offset_m", [0.0, 0.0])
+    return beacon_map, (float(offset[0]), float(offset[1]))
+
+
+# ekf_node's parameter names of the process noise (ProcessNoise field, parameter) and of the localiser
+_NOISE_PARAMETERS = (("translation_m2_per_m", "translation_variance_m2_per_m"),
+                     ("rotation_rad2_per_rad", "rotation_variance_rad2_per_rad"),
+                     ("rotation_rad2_per_m", "rotation_variance_rad2_per_m"))
+_LOCALISER_PARAMETERS = ("history_span_s", "max_extrapolation_s", "odometry_gap_s",
+                         "gap_position_variance_m2_per_s", "gap_heading_variance_rad2_per_s",
+                         "kidnap_gated_bearings", "kidnap_distance_m", "kidnap_heading_rad")
+
+
+def settings_from_parameters(triangulation: Mapping[str, Any], ekf: Mapping[str, Any]) -> ReplaySettings:
+    """Settings from the two nodes' parameter dictionaries (names as in their config YAML files)."""
+    defaults = ReplaySettings()
+    tri_map, tri_offset = _geometry(triangulation)
+    ekf_map, ekf_offset = _geometry(ekf)
+    noise = ProcessNoise(**{name: float(ekf.get(parameter, getattr(defaults.process_noise, name)))
+                            for name, parameter in _NOISE_PARAMETERS})
+    localiser = LocaliserConfig(**{name: ekf.get(name, getattr(defaults.localiser, name))
+                                   for name in _LOCALISER_PARAMETERS})
+    gates = GateConfig(float(triangulation.get("max_inverse_abs_d", defaults.gates.max_inverse_abs_d)),
+                       float(triangulation.get("max_position_std_m", defaults.gates.max_position_std_m)))
+    return ReplaySettings(
+        triangulation_map=tri_map, triangulation_offset_m=tri_offset, gates=gates,
+        use_odometry=bool(triangulation.get("use_odometry", defaults.use_odometry)),
+        odometry_history_s=float(triangulation.get("odometry_history_s", defaults.odometry_history_s)),
+        max_odometry_extrapolation_s=float(triangulation.get("max_odometry_extrapolation_s",
+                                                             defaults.max_odometry_extrapolation_s)),
+        ekf_map=ekf_map, ekf_offset_m=ekf_offset, process_noise=noise,
+        gate_probability=float(ekf.get("gate_probability", defaults.gate_probability)),
+        localiser=localiser, use_total_pose=bool(ekf.get("use_total_pose", defaults.use_total_pose)),
+        default_pose_sigma=tuple(float(v) for v in ekf.get("default_pose_sigma",
+                                                            defaults.default_pose_sigma)),
+    )
+
+
+# -- message time ---------------------------------------------------------------------------------------
+def stamp_ns(stamp: Any) -> int:
+    """builtin_interfaces/Time in integer nanoseconds (exact, for ordering and matching)."""
+    return int(stamp.sec) * _NS + int(stamp.nanosec)
+
+
+def stamp_seconds(stamp: Any) -> float:
+    """builtin_interfaces/Time in seconds, computed as the nodes compute it (same float)."""
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+def due_ns(topic: str, message: Any) -> int:
+    """When a message is due (ns): a revolution when it ends (start + period), the others at their stamp."""
+    start_ns = stamp_ns(message.header.stamp)
+    if topic != BEARINGS_TOPIC:
+        return start_ns
+    period_s = float(message.period)
+    # a revolution with a nonsense period is due at its start: its bearings wait for odometry anyway
+    return start_ns + (round(period_s * 1e9) if math.isfinite(period_s) and 0.0 <= period_s <= 1.0 else 0)
+
+
+@dataclass(order=True)
+class Event:
+    """One input message, ordered by (due instant, topic order, position in the bag)."""
+
+    due_ns: int
+    topic_order: int
+    sequence: int
+    topic: str = field(compare=False)
+    bag_ns: int = field(compare=False)
+    msgtype: str = field(compare=False)
+    raw: bytes = field(compare=False, repr=False)
+    message: Any = field(compare=False, repr=False)
+
+
+# Marker yielded by `in_stamp_order` where the stamps went back: the pipelines start over.
+TIME_JUMP = None
+
+
+def in_stamp_order(events: Iterable[Event], window_ns: int = round(REORDER_WINDOW_S * _NS),
+                   jump_ns: int = round(TIME_JUMP_S * _NS)) -> Iterator[Event | None]:
+    """Events by due instant within a reorder window; TIME_JUMP where the stamps go back by > jump_ns.
+
+    A message later than the window is passed on late (the pipelines drop or absorb it as the nodes do).
+    """
+    pending: list[Event] = []
+    newest_ns: int | None = None
+    for event in events:
+        if newest_ns is not None and event.due_ns < newest_ns - jump_ns:
+            while pending:
+                yield heapq.heappop(pending)
+            yield TIME_JUMP
+            newest_ns = None
+        newest_ns = event.due_ns if newest_ns is None else max(newest_ns, event.due_ns)
+        heapq.heappush(pending, event)
+        while pending and pending[0].due_ns < newest_ns - window_ns:
+            yield heapq.heappop(pending)
+    while pending:
+        yield heapq.heappop(pending)
+
+
+def bag_topics(path: pathlib.Path) -> set[str]:
+    """The topics of a bag (leading slash removed)."""
+    with Reader(pathlib.Path(path)) as reader:
+        return {c.topic.lstrip("/") for c in reader.connections}
+
+
+def read_events(path: pathlib.Path, typestore: Any, counts: Counter) -> Iterator[Event]:
+    """The input messages of a bag in bag order; undecodable ones are counted and skipped."""
+    sequence = itertools.count()
+    with Reader(path) as reader:
+        connections = [c for c in reader.connections if c.topic.lstrip("/") in _TOPIC_ORDER]
+        # rosbags reads every connection when given none
+        for connection, bag_ns, raw in reader.messages(connections=connections) if connections else ():
+            topic = connection.topic.lstrip("/")
+            try:
+                message = typestore.deserialize_cdr(raw, connection.msgtype)
+                due = due_ns(topic, message)
+            except Exception:  # any corrupt message is bad input, never a crash
+                counts["messages_undecodable"] += 1
+                continue
+            counts[f"messages_{topic}"] += 1
+            yield Event(due, _TOPIC_ORDER[topic], next(sequence), topic, bag_ns, connection.msgtype, raw,
+                        message)
+
+
+# -- the pipelines --------------------------------------------------------------------------------------
+class _TriangulationOdometry:
+    """Odometry poses for motion compensation with the rules of triangulation_node's OdometryBuffer
+    (stale samples dropped, a clock going back by > 1 s clears it), on beams_ekf's OdometryHistory."""
+
+    def __init__(self, span_s: float, max_extrapolation_s: float) -> None:
+        self.history = OdometryHistory(span_s, max_extrapolation_s)
+
+    def add(self, stamp_s: float, pose: Pose2D) -> None:
+        if not (math.isfinite(stamp_s) and is_finite_pose(pose)):
+            return
+        latest = self.history.latest
+        if latest is not None and stamp_s <= latest[0]:
+            if stamp_s >= latest[0] - TIME_JUMP_S:
+                return
+            self.history.clear()
+        self.history.append(stamp_s, pose)
+
+    def pose_at(self, stamp_s: float) -> Pose2D | None:
+        return self.history.pose_at(stamp_s)
+
+
+def odometry_pose(message: Any) -> Pose2D:
+    """(x, y, yaw) of a nav_msgs/Odometry."""
+    q = message.pose.pose.orientation
+    return (message.pose.pose.position.x, message.pose.pose.position.y, heading_of(q.x, q.y, q.z, q.w))
+
+
+def usable_covariance(covariance: np.ndarray, default: np.ndarray) -> np.ndarray:
+    """The covariance when finite and positive definite, else the default (as ekf_node._offer_pose)."""
+    if np.all(np.isfinite(covariance)) and np.all(np.linalg.eigvalsh(covariance) > 0.0):
+        return covariance
+    return default
+
+
+class ReplayPipelines:
+    """triangulation_node's and ekf_node's message handling, without ROS: one call per input message."""
+
+    def __init__(self, settings: ReplaySettings) -> None:
+        self.settings = settings
+        beacons = dict(zip(settings.ekf_map.ids, map(tuple, settings.ekf_map.xy), strict=True))
+        self.localiser = Localiser(BearingEkf(beacons, settings.ekf_offset_m, settings.process_noise,
+                                              settings.gate_probability), settings.localiser)
+        self.default_covariance = np.diag(np.square(settings.default_pose_sigma))
+        self.counts: Counter = Counter()
+        # set when the bag has odometry: revolutions before the first odometry are then skipped
+        self.expect_odometry = False
+        self.first_odometry_s: float | None = None
+        self._new_triangulation()
+
+    def _new_triangulation(self) -> None:
+        s = self.settings
+        self.estimator = RevolutionEstimator(s.triangulation_map, s.gates, s.triangulation_offset_m)
+        self.odometry = _TriangulationOdometry(s.odometry_history_s, s.max_odometry_extrapolation_s)
+
+    def reset(self) -> None:
+        """A time jump: both pipelines start over (the EKF waits for a pose again)."""
+        self._new_triangulation()
+        self.first_odometry_s = None
+        self.localiser.reset("time_jump_resets")
+
+    def on_odometry(self, message: Any) -> Estimate | None:
+        """Odometry to both pipelines; the EKF estimate at this odometry's instant (None before a pose)."""
+        stamp_s, pose = stamp_seconds(message.header.stamp), odometry_pose(message)
+        if self.first_odometry_s is None and is_finite_pose(pose):
+            self.first_odometry_s = stamp_s
+        if self.settings.use_odometry:
+            self.odometry.add(stamp_s, pose)
+        outcome = self.localiser.on_odometry(stamp_s, pose)
+        estimate = self.localiser.estimate()
+        if outcome not in ("reference", "predicted") or estimate is None or estimate.stamp_s != stamp_s:
+            return None
+        return estimate
+
+    def on_bearings(self, message: Any) -> tuple[PoseEstimate | NoPose, float] | None:
+        """One revolution: ToTal (and its pose to the EKF when accepted), then every bearing to the EKF.
+
+        None for a revolution older than the first odometry of a bag that has odometry: a bag starts in
+        the middle of the streams, a case the nodes (started together) never meet; ToTal would place such
+        a revolution without motion compensation and the EKF could start from that poor pose.
+        """
+        first_odometry = self.first_odometry_s
+        if self.expect_odometry and (first_odometry is None
+                                     or stamp_seconds(message.header.stamp) < first_odometry):
+            self.counts["revolutions_before_odometry"] += 1
+            return None
+        self.counts["revolutions"] += 1
+        self.counts["bearings"] += len(message.bearings)
+        revolution_s = stamp_seconds(message.header.stamp)
+        # triangulation_node takes a zero bearing stamp as the revolution's; ekf_node takes it as it is
+        total_bearings = [TriangulationBearing(int(b.beacon_id), float(b.bearing), float(b.variance),
+                                               stamp_seconds(b.header.stamp) or revolution_s)
+                          for b in message.bearings]
+        outcome = self.estimator.update(total_bearings, self.odometry.pose_at if self.settings.use_odometry
+                                        else None)
+        self._count_total(outcome.result)
+        self.localiser.on_bearings([Bearing(stamp_seconds(b.header.stamp), int(b.beacon_id), b.bearing,
+                                            b.variance) for b in message.bearings])
+        result = outcome.result
+        if self.settings.use_total_pose and isinstance(result, PoseEstimate) and result.accepted:
+            self.localiser.on_pose(outcome.stamp_s, (result.x, result.y, result.heading),
+                                   usable_covariance(result.covariance, self.default_covariance),
+                                   operator=False)
+        return result, outcome.stamp_s
+
+    def _count_total(self, result: PoseEstimate | NoPose) -> None:
+        if isinstance(result, NoPose):
+            self.counts["total_bad_input" if result.bad_input else "total_no_pose"] += 1
+        else:
+            self.counts["total_accepted" if result.accepted else "total_rejected"] += 1
+
+
+# -- results --------------------------------------------------------------------------------------------
+@dataclass
+class Track:
+    """Poses of one source: rows (segment, stamp ns, x, y, theta); segment counts the time jumps."""
+
+    rows: list[tuple[int, int, float, float, float]] = field(default_factory=list)
+
+    def add(self, segment: int, stamp: int, pose: Pose2D) -> None:
+        self.rows.append((segment, stamp, float(pose[0]), float(pose[1]), float(pose[2])))
+
+    def array(self) -> np.ndarray:
+        """(k, 5) float array: segment, stamp (s), x, y, theta."""
+        return np.array([(s, t * 1e-9, x, y, th) for s, t, x, y, th in self.rows], dtype=float).reshape(-1, 5)
+
+    def by_stamp(self) -> dict[int, Pose2D]:
+        """Pose by stamp (ns); with a bag loop, the last pass wins."""
+        return {t: (x, y, th) for _, t, x, y, th in self.rows}
+
+
+@dataclass
+class ReplayResult:
+    """What a replay produced: the tracks, the counts and how fast it ran."""
+
+    truth: Track = field(default_factory=Track)
+    odometry: Track = field(default_factory=Track)
+    total: Track = field(default_factory=Track)
+    ekf: Track = field(default_factory=Track)
+    counts: Counter = field(default_factory=Counter)
+    messages_in: int = 0
+    messages_out: int = 0
+    wall_s: float = 0.0
+    span_s: float = 0.0
+
+    @property
+    def messages_per_s(self) -> float:
+        return self.messages_in / self.wall_s if self.wall_s > 0 else math.inf
+
+    @property
+    def real_time_factor(self) -> float:
+        """Stamp span of the bag over the replay's wall time (x real time)."""
+        return self.span_s / self.wall_s if self.wall_s > 0 else math.inf
+
+
+# -- output messages ------------------------------------------------------------------------------------
+class _OutputBuilder:
+    """rosbags message objects for the replay's outputs."""
+
+    def __init__(self, typestore: Any) -> None:
+        self.types = typestore.types
+
+    def header(self, stamp: int, frame_id: str) -> Any:
+        time_type = self.types["builtin_interfaces/msg/Time"]
+        return self.types["std_msgs/msg/Header"](stamp=time_type(sec=stamp // _NS, nanosec=stamp % _NS),
+                                                 frame_id=frame_id)
+
+    def pose_with_covariance(self, pose: Pose2D, covariance_6x6: np.ndarray) -> Any:
+        t = self.types
+        geometry = t["geometry_msgs/msg/Pose"](
+            position=t["geometry_msgs/msg/Point"](x=float(pose[0]), y=float(pose[1]), z=0.0),
+            orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(0.5 * pose[2]),
+                                                          w=math.cos(0.5 * pose[2])))
+        return t["geometry_msgs/msg/PoseWithCovariance"](pose=geometry,
+                                                         covariance=covariance_6x6.ravel().astype(float))
+
+    def triangulated_pose(self, estimate: PoseEstimate, stamp: int, frame_id: str) -> Any:
+        full = np.diag([0.0, 0.0, _UNKNOWN_VARIANCE, _UNKNOWN_VARIANCE, _UNKNOWN_VARIANCE, 0.0])
+        full[np.ix_(_PLANAR, _PLANAR)] = estimate.covariance
+        return self.types[POSE_TYPE](
+            header=self.header(stamp, frame_id),
+            pose=self.pose_with_covariance((estimate.x, estimate.y, estimate.heading), full),
+            inverse_abs_d=float(estimate.inverse_abs_d),
+            beacon_ids=np.array(estimate.beacon_ids, dtype=np.uint16), accepted=bool(estimate.accepted),
+            reason=estimate.reason)
+
+    def ekf_odometry(self, estimate: Estimate, stamp: int, odometry: Any, frame_id: str) -> Any:
+        full = np.zeros((6, 6))
+        full[np.ix_(_PLANAR, _PLANAR)] = estimate.covariance
+        return self.types[ODOMETRY_TYPE](header=self.header(stamp, frame_id),
+                                         child_frame_id=odometry.child_frame_id or "base_link",
+                                         pose=self.pose_with_covariance(estimate.pose, full),
+                                         twist=odometry.twist)
+
+    def stamped(self, header: Any, pose: Any) -> Any:
+        return self.types[POSE_COV_TYPE](header=header, pose=pose)
+
+
+# -- the replay -----------------------------------------------------------------------------------------
+@dataclass
+class _Run:
+    """The state of one replay: pipelines, output bag and result."""
+
+    pipelines: ReplayPipelines
+    recorder: BagRecorder
+    build: _OutputBuilder
+    typestore: Any
+    map_frame: str
+    result: ReplayResult = field(default_factory=ReplayResult)
+    segment: int = 0
+
+    def write(self, topic: str, msgtype: str, stamp: int, message: Any) -> None:
+        self.recorder.write(topic, msgtype, stamp, self.typestore.serialize_cdr(message, msgtype))
+        self.result.messages_out += 1
+
+    def handle(self, event: Event) -> None:
+        self.recorder.write(event.topic, event.msgtype, event.bag_ns, event.raw)  # the inputs, unchanged
+        self.result.messages_out += 1
+        stamp, message = stamp_ns(event.message.header.stamp), event.message
+        if event.topic == TRUTH_TOPIC:
+            self.result.truth.add(self.segment, stamp, odometry_pose(message))
+        elif event.topic == ODOMETRY_TOPIC:
+            self.result.odometry.add(self.segment, stamp, odometry_pose(message))
+            estimate = self.pipelines.on_odometry(message)
+            if estimate is not None:
+                self._write_ekf(estimate, stamp, message)
+        else:
+            outcome = self.pipelines.on_bearings(message)
+            if outcome is not None and isinstance(outcome[0], PoseEstimate):
+                self._write_total(*outcome, event.due_ns)
+
+    def _write_ekf(self, estimate: Estimate, stamp: int, odometry: Any) -> None:
+        self.result.ekf.add(self.segment, stamp, estimate.pose)
+        message = self.build.ekf_odometry(estimate, stamp, odometry, self.map_frame)
+        self.write(LIVE_EKF_TOPIC, ODOMETRY_TYPE, stamp, message)
+        self.write("beams/ekf/pose", POSE_COV_TYPE, stamp, self.build.stamped(message.header, message.pose))
+
+    def _write_total(self, estimate: PoseEstimate, stamp_s: float, due: int) -> None:
+        stamp = round(stamp_s * 1e9)  # triangulation_node's time_message rounding
+        message = self.build.triangulated_pose(estimate, stamp, self.map_frame)
+        self.write(LIVE_POSE_TOPIC, POSE_TYPE, due, message)
+        if estimate.accepted:
+            self.result.total.add(self.segment, stamp, (estimate.x, estimate.y, estimate.heading))
+            self.write("beams/pose_cov", POSE_COV_TYPE, due, self.build.stamped(message.header, message.pose))
+
+
+def replay_bag(input_bag: pathlib.Path, output_bag: pathlib.Path, settings: ReplaySettings | None = None,
+               *, typestore: Any = None, storage: str = "mcap", map_frame: str = "map") -> ReplayResult:
+    """Replay a bag through both pipelines and write the outputs (with the inputs) to a new bag."""
+    typestore = typestore if typestore is not None else beams_typestore()
+    pipelines = ReplayPipelines(settings or ReplaySettings())
+    pipelines.expect_odometry = pipelines.settings.use_odometry and ODOMETRY_TOPIC in bag_topics(input_bag)
+    started = time.perf_counter()
+    first_ns = last_ns = None
+    with BagRecorder(pathlib.Path(output_bag), typestore, storage) as recorder:
+        run = _Run(pipelines, recorder, _OutputBuilder(typestore), typestore, map_frame)
+        for event in in_stamp_order(read_events(pathlib.Path(input_bag), typestore, run.result.counts)):
+            if event is TIME_JUMP:
+                run.segment += 1
+                pipelines.reset()
+                continue
+            run.result.messages_in += 1
+            run.result.span_s += 0.0 if last_ns is None else max(0.0, (event.due_ns - last_ns) * 1e-9)
+            first_ns = first_ns if first_ns is not None else event.due_ns
+            last_ns = event.due_ns
+            run.handle(event)
+    result = run.result
+    result.wall_s = time.perf_counter() - started
+    result.counts.update(pipelines.counts)
+    result.counts.update({f"ekf_{k}": v for k, v in pipelines.localiser.stats.counts.items()})
+    return result
+
+
+# -- figures --------------------------------------------------------------------------------------------
+def errors_against_truth(track: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Position (m) and |heading| (rad) errors of a track against the truth of the same segment,
+    interpolated at the track's stamps (rows outside the truth's span are left out)."""
+    positions, headings = [], []
+    for segment in np.unique(track[:, 0]):
+        rows, reference = track[track[:, 0] == segment], truth[truth[:, 0] == segment]
+        if len(reference) < 2:
+            continue
+        rows = rows[(rows[:, 1] >= reference[0, 1]) & (rows[:, 1] <= reference[-1, 1])]
+        x = np.interp(rows[:, 1], reference[:, 1], reference[:, 2])
+        y = np.interp(rows[:, 1], reference[:, 1], reference[:, 3])
+        heading = np.interp(rows[:, 1], reference[:, 1], np.unwrap(reference[:, 4]))
+        positions.append(np.hypot(rows[:, 2] - x, rows[:, 3] - y))
+        headings.append(np.abs([wrap_angle(float(a)) for a in rows[:, 4] - heading]))
+    if not positions:
+        return np.empty(0), np.empty(0)
+    return np.concatenate(positions), np.concatenate(headings)
+
+
+def odometry_in_map(result: ReplayResult) -> np.ndarray:
+    """The odometry track placed in the map frame at the EKF's first estimate of each segment (dead
+    reckoning from there: what the robot would believe without BeAMS)."""
+    odometry, ekf = result.odometry.array(), result.ekf.array()
+    placed = []
+    for segment in np.unique(ekf[:, 0]):
+        rows = odometry[odometry[:, 0] == segment]
+        start = ekf[ekf[:, 0] == segment][0]
+        anchor = rows[np.argmin(np.abs(rows[:, 1] - start[1]))]
+        # map <- odom: the EKF pose composed with the inverse of the odometry pose at the same instant
+        c, s = math.cos(anchor[4]), math.sin(anchor[4])
+        inverse = (-c * anchor[2] - s * anchor[3], s * anchor[2] - c * anchor[3], -anchor[4])
+        map_from_odom = compose(tuple(start[2:5]), inverse)
+        later = rows[rows[:, 1] >= start[1]]
+        placed += [(segment, t, *compose(map_from_odom, (x, y, th))) for _, t, x, y, th in later]
+    return np.array(placed, dtype=float).reshape(-1, 5)
+
+
+def rms(values: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(values)))) if len(values) else math.nan
+
+
+@dataclass(frozen=True)
+class Agreement:
+    """Replayed against live poses at the same stamps (after `settle_s` from the first common stamp)."""
+
+    matched: int
+    max_position_m: float
+    max_heading_rad: float
+    rms_position_m: float
+
+
+def agreement(replayed: Track, live: Track, settle_s: float = 0.0) -> Agreement:
+    """Differences of two tracks at their common stamps (exact ns), from settle_s after the first one."""
+    live_poses = live.by_stamp()
+    pairs = sorted((t, pose, live_poses[t]) for t, pose in replayed.by_stamp().items() if t in live_poses)
+    if pairs:
+        start = pairs[0][0] + round(settle_s * _NS)
+        pairs = [p for p in pairs if p[0] >= start]
+    if not pairs:
+        return Agreement(0, math.nan, math.nan, math.nan)
+    position = np.array([math.hypot(a[0] - b[0], a[1] - b[1]) for _, a, b in pairs])
+    heading = np.array([abs(wrap_angle(a[2] - b[2])) for _, a, b in pairs])
+    return Agreement(len(pairs), float(position.max()), float(heading.max()), rms(position))
+
+
+def live_tracks(input_bag: pathlib.Path, typestore: Any) -> tuple[Track, Track]:
+    """(accepted ToTal poses, EKF estimates) the live nodes published, as recorded in the bag."""
+    total, ekf = Track(), Track()
+    with Reader(pathlib.Path(input_bag)) as reader:
+        wanted = [c for c in reader.connections if c.topic.lstrip("/") in (LIVE_POSE_TOPIC, LIVE_EKF_TOPIC)]
+        for connection, _, raw in reader.messages(connections=wanted) if wanted else ():
+            message = typestore.deserialize_cdr(raw, connection.msgtype)
+            stamp = stamp_ns(message.header.stamp)
+            if connection.topic.lstrip("/") == LIVE_EKF_TOPIC:
+                ekf.add(0, stamp, odometry_pose(message))
+            elif message.accepted:
+                total.add(0, stamp, odometry_pose(message))
+    return total, ekf
+
+
+def summary(result: ReplayResult, live: tuple[Track, Track] | None = None) -> str:
+    """The summary table: RMS errors against the truth, counts, speed, agreement with the live nodes."""
+    truth = result.truth.array()
+    lines = []
+    if len(truth):
+        lines += ["| source | poses | RMS position (mm) | RMS heading (deg) |", "|---|---|---|---|"]
+        for name, track in (("odometry (from the first EKF pose)", odometry_in_map(result)),
+                            ("ToTal (accepted)", result.total.array()), ("EKF", result.ekf.array())):
+            position, heading = errors_against_truth(track, truth)
+            lines.append(f"| {name} | {len(position)} | {1000 * rms(position):.1f} | "
+                         f"{math.degrees(rms(heading)):.3f} |")
+        lines.append("")
+    lines.append(", ".join(f"{key} {value}" for key, value in sorted(result.counts.items())))
+    lines.append(f"{result.messages_in} messages in {result.wall_s:.2f} s: {result.messages_per_s:.0f} "
+                 f"messages/s, {result.real_time_factor:.1f} x real time; {result.messages_out} written")
+    if live is not None:
+        for name, replayed, recorded in (("ToTal", result.total, live[0]), ("EKF", result.ekf, live[1])):
+            a = agreement(replayed, recorded)
+            if a.matched:
+                lines.append(f"replayed {name} vs live at {a.matched} common stamps: max "
+                             f"{1000 * a.max_position_m:.2f} mm, {math.degrees(a.max_heading_rad):.3f} deg "
+                             f"(RMS {1000 * a.rms_position_m:.2f} mm)")
+    return "\n".join(lines)
+
+
+def plot(result: ReplayResult, path: pathlib.Path) -> None:
+    """Trajectories in the map frame: truth, odometry (dead reckoning), ToTal and the EKF."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(figsize=(9, 6.5))
+    odometry = odometry_in_map(result) if result.ekf.rows else np.empty((0, 5))
+    for name, rows, style in (("truth", result.truth.array(), "k-"), ("odometry", odometry, "C1--"),
+                              ("ToTal", result.total.array(), "C0."), ("EKF", result.ekf.array(), "C2-")):
+        if len(rows):
+            axes.plot(rows[:, 2], rows[:, 3], style, label=name, markersize=2, linewidth=1)
+    axes.add_patch(plt.Rectangle((0, 0), 3, 2, fill=False, color="grey"))
+    axes.set_aspect("equal")
+    axes.set_xlabel("x (m, map)")
+    axes.set_ylabel("y (m, map)")
+    axes.set_title("BeAMS bag replay")
+    axes.legend(loc="upper right")
+    figure.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(figure)
+
+
+def _installed_config(package: str, name: str) -> pathlib.Path | None:
+    """A node's parameter file from its installed share directory, when ROS finds the package."""
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        path = pathlib.Path(get_package_share_directory(package)) / "config" / name
+    except Exception:  # no ament index: the nodes' defaults apply
+        return None
+    return path if path.exists() else None
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="replay_bag", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("input_bag", type=pathlib.Path, help="rosbag2 directory (sqlite3 or MCAP)")
+    parser.add_argument("output_bag", type=pathlib.Path, help="new bag directory (must not exist)")
+    parser.add_argument("--plot", type=pathlib.Path, help="trajectory plot (PNG)")
+    parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="output storage")
+    parser.add_argument("--triangulation-params", type=pathlib.Path,
+                        default=_installed_config("beams_triangulation", "triangulation_node.yaml"),
+                        help="triangulation_node parameter YAML (default: the installed one)")
+    parser.add_argument("--ekf-params", type=pathlib.Path,
+                        default=_installed_config("beams_ekf", "ekf_node.yaml"),
+                        help="ekf_node parameter YAML (default: the installed one)")
+    options = parser.parse_args(argv)
+    try:
+        settings = settings_from_parameters(load_node_parameters(options.triangulation_params),
+                                            load_node_parameters(options.ekf_params))
+        typestore = beams_typestore()
+        result = replay_bag(options.input_bag, options.output_bag, settings, typestore=typestore,
+                            storage=options.storage)
+        live = live_tracks(options.input_bag, typestore)
+    except (OSError, ValueError) as error:
+        print(f"replay_bag: {error}", file=sys.stderr)
+        return 2
+    if options.plot:
+        plot(result, options.plot)
+    print(summary(result, live))
+    print(f"bag: {options.output_bag}" + (f"; plot: {options.plot}" if options.plot else ""))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
