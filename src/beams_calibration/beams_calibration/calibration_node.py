@@ -51,9 +51,15 @@ from beams_calibration.dataset import (
     now_utc,
     save_dataset,
 )
-from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_driver.beacon_map import BeaconMap
 from beams_driver.calibration_file import save_calibration
-from beams_driver.node_support import Diagnostics, ParameterValidationError, declare_parameter, run_node
+from beams_driver.node_support import (
+    Diagnostics,
+    ParameterValidationError,
+    declare_beacon_map,
+    declare_parameter,
+    run_node,
+)
 from beams_msgs.msg import BeaconBearingArray
 from beams_msgs.srv import Calibrate, CaptureReference, ListConfigurations
 
@@ -87,7 +93,7 @@ class CalibrationNode(Node):
         self.plots_directory = declare_parameter(
             self, "plots_directory", "", "Directory for the PNG figures of each calibration; empty for none."
         )
-        self.prior_map = self._declare_beacon_map()
+        self.prior_map = declare_beacon_map(self, what="A-priori beacon")
         self.default_revolutions = declare_parameter(
             self,
             "default_revolutions",
@@ -161,19 +167,6 @@ class CalibrationNode(Node):
         )
 
     # ---- parameters ----
-
-    def _declare_beacon_map(self) -> BeaconMap:
-        ids = declare_parameter(self, "beacon_ids", list(EUROBOT_BEACON_MAP.ids), "A-priori beacon ids.")
-        xs = declare_parameter(
-            self, "beacon_x", EUROBOT_BEACON_MAP.xy[:, 0].tolist(), "A-priori beacon x, map frame (m)."
-        )
-        ys = declare_parameter(
-            self, "beacon_y", EUROBOT_BEACON_MAP.xy[:, 1].tolist(), "A-priori beacon y, map frame (m)."
-        )
-        try:
-            return BeaconMap.from_lists(ids, xs, ys)
-        except ValueError as error:
-            raise ParameterValidationError(f"beacon_*: {error}") from None
 
     def _check_dataset_file(self) -> None:
         """An existing but unreadable dataset is a start-up error, not something to overwrite later."""

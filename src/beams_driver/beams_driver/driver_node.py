@@ -17,7 +17,6 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.time import Time
 
 from beams_driver.angles import wrap_to_pi
-from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_driver.bearing_correction import BearingCorrection
 from beams_driver.calibration_file import load_calibration
 from beams_driver.codes import BIT_TIME_S, code_family, codes_from_strings, validate_codes
@@ -26,6 +25,7 @@ from beams_driver.edges import TURRET_PERIOD_S
 from beams_driver.node_support import (
     Diagnostics,
     ParameterValidationError,
+    declare_beacon_map,
     declare_parameter,
     load_calibration_parameter,
     run_node,
@@ -180,18 +180,11 @@ class DriverNode(Node):
     # ---- simulated source ----
 
     def _start_simulated_source(self) -> None:
-        ids = declare_parameter(self, "sim_beacon_ids", list(EUROBOT_BEACON_MAP.ids), "Simulated beacon ids.")
-        xs = declare_parameter(
-            self, "sim_beacon_x", EUROBOT_BEACON_MAP.xy[:, 0].tolist(), "True x of the simulated beacons (m)."
+        simulated_map = declare_beacon_map(
+            self, prefix="sim_beacon_", what="Simulated beacon (true position)"
         )
-        ys = declare_parameter(
-            self, "sim_beacon_y", EUROBOT_BEACON_MAP.xy[:, 1].tolist(), "True y of the simulated beacons (m)."
-        )
-        try:
-            beacons = beacons_from_map(BeaconMap.from_lists(ids, xs, ys))
-        except ValueError as error:
-            raise ParameterValidationError(f"sim_beacon_*: {error}") from None
-        unknown = sorted(set(ids) - {c.code_id for c in self.codes})
+        beacons = beacons_from_map(simulated_map)
+        unknown = sorted(set(simulated_map.ids) - {c.code_id for c in self.codes})
         if unknown:
             raise ParameterValidationError(f"sim_beacon_ids {unknown} have no code in the code list")
         self.static_pose = declare_parameter(

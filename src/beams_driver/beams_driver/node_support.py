@@ -3,6 +3,7 @@
 This is the only module of beams_driver besides the nodes that imports rclpy.
 """
 
+import math
 from collections.abc import Callable
 from typing import Any
 
@@ -13,6 +14,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 
+from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_driver.calibration_file import SensorCalibration, load_calibration
 
 EXIT_INVALID_PARAMETERS = 2
@@ -106,6 +108,41 @@ def load_calibration_parameter(node: Node) -> SensorCalibration | None:
         raise ParameterValidationError(f"calibration_file: {error}") from None
     node.get_logger().info(f"calibration loaded from {path}")
     return calibration
+
+
+def declare_beacon_map(node: Node, prefix: str = "beacon_", what: str = "Beacon") -> BeaconMap:
+    """The parameters <prefix>ids, <prefix>x, <prefix>y (map frame, m; the Eurobot table by default)."""
+    ids = declare_parameter(node, f"{prefix}ids", list(EUROBOT_BEACON_MAP.ids), f"{what} ids (their codes).")
+    xs = declare_parameter(
+        node, f"{prefix}x", EUROBOT_BEACON_MAP.xy[:, 0].tolist(), f"{what} x, map frame (m)."
+    )
+    ys = declare_parameter(
+        node, f"{prefix}y", EUROBOT_BEACON_MAP.xy[:, 1].tolist(), f"{what} y, map frame (m)."
+    )
+    try:
+        return BeaconMap.from_lists(ids, xs, ys)
+    except ValueError as error:
+        raise ParameterValidationError(f"{prefix}*: {error}") from None
+
+
+def declare_beacon_geometry(node: Node) -> tuple[BeaconMap, tuple[float, float]]:
+    """Beacon map and turret offset (base_link, m) from parameters; a calibration file replaces both."""
+    calibration = load_calibration_parameter(node)
+    beacon_map = declare_beacon_map(node)
+    offset = declare_parameter(
+        node,
+        "turret_offset_m",
+        [0.0, 0.0],
+        "Turret centre (x, y) in base_link (m); a calibration file overrides it.",
+    )
+    if calibration is not None:
+        return calibration.beacon_map, (
+            float(calibration.turret_offset_m[0]),
+            float(calibration.turret_offset_m[1]),
+        )
+    if len(offset) != 2 or not all(math.isfinite(v) for v in offset):
+        raise ParameterValidationError(f"turret_offset_m needs 2 finite values, got {offset}")
+    return beacon_map, (float(offset[0]), float(offset[1]))
 
 
 class Diagnostics:

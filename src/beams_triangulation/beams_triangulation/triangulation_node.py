@@ -25,12 +25,10 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from visualization_msgs.msg import Marker, MarkerArray
 
-from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_driver.node_support import (
     Diagnostics,
-    ParameterValidationError,
+    declare_beacon_geometry,
     declare_parameter,
-    load_calibration_parameter,
     run_node,
 )
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
@@ -119,7 +117,7 @@ class TriangulationNode(Node):
 
     def __init__(self) -> None:
         super().__init__("triangulation_node")
-        beacon_map, offset = self._declare_geometry()
+        beacon_map, offset = declare_beacon_geometry(self)
         config = self._declare_gates()
         self.map_frame = declare_parameter(self, "map_frame", "map", "Frame of the published poses.")
         self.use_odometry = declare_parameter(
@@ -149,24 +147,6 @@ class TriangulationNode(Node):
             f"odometry {'on' if self.use_odometry else 'off'}")
 
     # -- parameters -----------------------------------------------------------------------------------
-    def _declare_geometry(self) -> tuple[BeaconMap, tuple[float, float]]:
-        """Beacon map and turret offset: parameters, replaced by the calibration file when given."""
-        calibration = load_calibration_parameter(self)
-        ids = declare_parameter(self, "beacon_ids", list(EUROBOT_BEACON_MAP.ids), "Beacon ids (codes).")
-        xs = declare_parameter(self, "beacon_x", EUROBOT_BEACON_MAP.xy[:, 0].tolist(), "Beacon x (m, map).")
-        ys = declare_parameter(self, "beacon_y", EUROBOT_BEACON_MAP.xy[:, 1].tolist(), "Beacon y (m, map).")
-        offset = declare_parameter(self, "turret_offset_m", [0.0, 0.0],
-                                   "Turret centre (x, y) in base_link (m); a calibration file overrides it.")
-        if calibration is not None:
-            return calibration.beacon_map, tuple(float(v) for v in calibration.turret_offset_m)
-        try:
-            beacon_map = BeaconMap.from_lists(ids, xs, ys)
-        except ValueError as error:
-            raise ParameterValidationError(str(error)) from None
-        if len(offset) != 2 or not all(math.isfinite(v) for v in offset):
-            raise ParameterValidationError(f"turret_offset_m needs 2 finite values, got {offset}")
-        return beacon_map, (float(offset[0]), float(offset[1]))
-
     def _declare_gates(self) -> GateConfig:
         return GateConfig(
             max_inverse_abs_d=declare_parameter(
