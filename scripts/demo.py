@@ -26,6 +26,7 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import deserialize_message
 
 from beams_driver.angles import wrap_to_pi
+from beams_driver.ros_messages import pose2d_of, stamp_to_seconds
 from beams_ekf.bag_io import BagRecorder, beams_typestore
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 
@@ -56,19 +57,6 @@ def ros_type_name(msg_type: type) -> str:
     return f"{module[0]}/{module[1]}/{msg_type.__name__}"
 
 
-def stamp_s(header) -> float:
-    return header.stamp.sec + 1e-9 * header.stamp.nanosec
-
-
-def yaw_of(orientation) -> float:
-    return float(
-        np.arctan2(
-            2.0 * (orientation.w * orientation.z + orientation.x * orientation.y),
-            1.0 - 2.0 * (orientation.y**2 + orientation.z**2),
-        )
-    )
-
-
 @dataclass
 class Track:
     """Poses (t, x, y, theta) of one source, in arrival order."""
@@ -76,7 +64,7 @@ class Track:
     rows: list[tuple[float, float, float, float]] = field(default_factory=list)
 
     def add(self, t: float, pose) -> None:
-        self.rows.append((t, pose.position.x, pose.position.y, yaw_of(pose.orientation)))
+        self.rows.append((t, *pose2d_of(pose)))
 
     def array(self) -> np.ndarray:
         return np.array(self.rows, dtype=float).reshape(-1, 4)
@@ -95,18 +83,18 @@ class MatchRecord:
 
     def on_message(self, topic: str, msg) -> None:
         if topic == "beams/sim/ground_truth":
-            self.truth.add(stamp_s(msg.header), msg.pose.pose)
+            self.truth.add(stamp_to_seconds(msg.header.stamp), msg.pose.pose)
         elif topic == "odom":
-            self.odometry.add(stamp_s(msg.header), msg.pose.pose)
+            self.odometry.add(stamp_to_seconds(msg.header.stamp), msg.pose.pose)
         elif topic == "beams/ekf/odometry":
-            self.ekf.add(stamp_s(msg.header), msg.pose.pose)
+            self.ekf.add(stamp_to_seconds(msg.header.stamp), msg.pose.pose)
         elif topic == "beams/bearings":
             self.revolutions += 1
             self.bearings += len(msg.bearings)
             self.rejected_windows += msg.rejected_windows
         elif topic == "beams/pose":
             if msg.accepted:
-                self.total.add(stamp_s(msg.header), msg.pose.pose)
+                self.total.add(stamp_to_seconds(msg.header.stamp), msg.pose.pose)
             else:
                 self.poses_rejected += 1
 

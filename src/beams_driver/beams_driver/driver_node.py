@@ -14,7 +14,6 @@ import numpy as np
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
-from rclpy.time import Time
 
 from beams_driver.angles import wrap_to_pi
 from beams_driver.bearing_correction import BearingCorrection
@@ -30,6 +29,7 @@ from beams_driver.node_support import (
     load_calibration_parameter,
     run_node,
 )
+from beams_driver.ros_messages import pose2d_of, seconds_to_stamp, stamp_to_seconds
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
 from beams_driver.serial_protocol import DEFAULT_BAUDRATE
 from beams_driver.serial_source import DeviceNotFoundError, DeviceOpenError, SerialEdgeSource
@@ -42,10 +42,6 @@ MAX_POSE_EXTRAPOLATION_S = 0.25
 SERIAL_POLL_PERIOD_S = 0.01
 
 
-def stamp_seconds(stamp) -> float:
-    return stamp.sec + 1e-9 * stamp.nanosec
-
-
 class GroundTruthHistory:
     """The robot's recent true poses, interpolated at any instant of a revolution."""
 
@@ -54,14 +50,11 @@ class GroundTruthHistory:
 
     def add(self, msg: Odometry) -> bool:
         """Store a ground-truth message; False (and nothing stored) for a non-finite one."""
-        pose = msg.pose.pose
-        heading = float(
-            np.arctan2(2.0 * pose.orientation.w * pose.orientation.z, 1.0 - 2.0 * pose.orientation.z**2)
-        )
+        x, y, heading = pose2d_of(msg.pose.pose)
         row = (
-            stamp_seconds(msg.header.stamp),
-            pose.position.x,
-            pose.position.y,
+            stamp_to_seconds(msg.header.stamp),
+            x,
+            y,
             heading,
             msg.twist.twist.linear.x,
             msg.twist.twist.angular.z,
@@ -309,7 +302,7 @@ class DriverNode(Node):
 
     def _publish(self, decoded: DecodedRevolution) -> None:
         msg = BeaconBearingArray()
-        msg.header.stamp = Time(seconds=decoded.start_time_s).to_msg()
+        msg.header.stamp = seconds_to_stamp(decoded.start_time_s)
         msg.header.frame_id = self.frame_id
         msg.revolution = decoded.revolution % 2**32
         msg.period = decoded.period_s
@@ -324,7 +317,7 @@ class DriverNode(Node):
 
     def _bearing_message(self, decoded) -> BeaconBearing:
         msg = BeaconBearing()
-        msg.header.stamp = Time(seconds=decoded.stamp_s).to_msg()
+        msg.header.stamp = seconds_to_stamp(decoded.stamp_s)
         msg.header.frame_id = self.frame_id
         msg.beacon_id = decoded.beacon_id
         msg.bearing = float(wrap_to_pi(self.correction.correct(decoded.bearing, decoded.angular_window)))

@@ -14,11 +14,13 @@ best-effort (sensor-data) ones included.
 import math
 import sys
 
+import numpy as np
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.time import Time
 
 from beams_driver.node_support import Diagnostics, ParameterValidationError, declare_parameter, run_node
+from beams_driver.ros_messages import ros_covariance, set_pose2d
 from beams_driver.sim_world import EurobotTrajectory, MotionLimits, OdometryDrift, OdometrySimulator, Pose2D
 
 TRAJECTORY_KINDS = ("random", "waypoints", "static")
@@ -26,7 +28,6 @@ QUEUE_DEPTH = 10
 # Rough 1-sigma growth of odometry errors, for the covariance fields only (the EKF has its own model).
 POSITION_SIGMA_PER_M = 0.01
 HEADING_SIGMA_PER_RAD = 0.01
-UNUSED_VARIANCE = 1e6  # z, roll and pitch: a planar robot says nothing about them
 
 
 class SimWorldNode(Node):
@@ -201,11 +202,10 @@ class SimWorldNode(Node):
         )
         position_var = (POSITION_SIGMA_PER_M * travelled_m) ** 2 + 1e-8
         heading_var = (HEADING_SIGMA_PER_RAD * turned_rad) ** 2 + 1e-8
-        msg.pose.covariance = _planar_covariance(position_var, heading_var)
+        msg.pose.covariance = ros_covariance(np.diag([position_var, position_var, heading_var]))
         scale = max(abs(self.drift.left_scale_error), abs(self.drift.right_scale_error), self.drift.slip_std)
-        msg.twist.covariance = _planar_covariance(
-            (scale * twist[0]) ** 2 + 1e-8, (scale * twist[1]) ** 2 + 1e-8
-        )
+        linear_var, angular_var = (scale * twist[0]) ** 2 + 1e-8, (scale * twist[1]) ** 2 + 1e-8
+        msg.twist.covariance = ros_covariance(np.diag([linear_var, linear_var, angular_var]))
         self.odom_publisher.publish(msg)
 
 
@@ -222,18 +222,10 @@ def _odometry_message(
     msg.header.stamp = now.to_msg()
     msg.header.frame_id = frame
     msg.child_frame_id = child_frame
-    msg.pose.pose.position.x, msg.pose.pose.position.y = pose[0], pose[1]
-    msg.pose.pose.orientation.z = math.sin(0.5 * pose[2])
-    msg.pose.pose.orientation.w = math.cos(0.5 * pose[2])
+    set_pose2d(msg.pose.pose, pose)
     msg.twist.twist.linear.x = twist[0]
     msg.twist.twist.angular.z = twist[1]
     return msg
-
-
-def _planar_covariance(planar_var: float, yaw_var: float) -> list[float]:
-    """Row-major 6x6 covariance (x, y, z, roll, pitch, yaw) of a planar estimate."""
-    diagonal = [planar_var, planar_var, UNUSED_VARIANCE, UNUSED_VARIANCE, UNUSED_VARIANCE, yaw_var]
-    return [diagonal[i] if i == j else 0.0 for i in range(6) for j in range(6)]
 
 
 def main(args: list[str] | None = None) -> None:

@@ -272,6 +272,28 @@ def usable_covariance(covariance: np.ndarray, default: np.ndarray) -> np.ndarray
     return default
 
 
+@dataclass(frozen=True)
+class LiveStart:
+    """The live EKF's first recorded estimate: the replay's EKF starts from it at that odometry stamp
+    (ToTal's poses are not offered before), so that replay and live run from the same initial state."""
+
+    stamp: int
+    pose: Pose2D
+    covariance: np.ndarray
+
+
+def live_start(input_bag: pathlib.Path, typestore: Any) -> LiveStart | None:
+    """The first beams/ekf/odometry message of a bag as a LiveStart, None when the bag has none."""
+    with Reader(pathlib.Path(input_bag)) as reader:
+        wanted = [c for c in reader.connections if c.topic.lstrip("/") == LIVE_EKF_TOPIC]
+        for connection, _, raw in reader.messages(connections=wanted) if wanted else ():
+            message = typestore.deserialize_cdr(raw, connection.msgtype)
+            full = np.asarray(message.pose.covariance, dtype=float).reshape(6, 6)
+            return LiveStart(stamp_ns(message.header.stamp), odometry_pose(message),
+                             full[np.ix_(_PLANAR, _PLANAR)])
+    return None
+
+
 class ReplayPipelines:
     """triangulation_node's and ekf_node's message handling, without ROS: one call per input message."""
 
@@ -285,6 +307,8 @@ class ReplayPipelines:
         # set when the bag has odometry: revolutions before the first odometry are then skipped
         self.expect_odometry = False
         self.first_odometry_s: float | None = None
+        # the live EKF's first estimate to start from, until it is used (see `LiveStart`)
+        self.live_start: LiveStart | None = None
         self._new_triangulation()
 
     def _new_triangulation(self) -> None:
@@ -306,6 +330,11 @@ class ReplayPipelines:
         if self.settings.use_odometry:
             self.odometry.add(stamp_s, pose)
         outcome = self.localiser.on_odometry(stamp_s, pose)
+        start = self.live_start
+        if (start is not None and outcome in ("reference", "predicted")
+                and stamp_ns(message.header.stamp) >= start.stamp):
+            self.localiser.on_pose(stamp_s, start.pose, start.covariance, operator=True)
+            self.live_start = None
         estimate = self.localiser.estimate()
         if outcome not in ("reference", "predicted") or estimate is None or estimate.stamp_s != stamp_s:
             return None
@@ -336,7 +365,8 @@ class ReplayPipelines:
         self.localiser.on_bearings([Bearing(stamp_seconds(b.header.stamp), int(b.beacon_id), b.bearing,
                                             b.variance) for b in message.bearings])
         result = outcome.result
-        if self.settings.use_total_pose and isinstance(result, PoseEstimate) and result.accepted:
+        offer = self.settings.use_total_pose and self.live_start is None
+        if offer and isinstance(result, PoseEstimate) and result.accepted:
             self.localiser.on_pose(outcome.stamp_s, (result.x, result.y, result.heading),
                                    usable_covariance(result.covariance, self.default_covariance),
                                    operator=False)
@@ -484,11 +514,20 @@ class _Run:
 
 
 def replay_bag(input_bag: pathlib.Path, output_bag: pathlib.Path, settings: ReplaySettings | None = None,
-               *, typestore: Any = None, storage: str = "mcap", map_frame: str = "map") -> ReplayResult:
-    """Replay a bag through both pipelines and write the outputs (with the inputs) to a new bag."""
+               *, typestore: Any = None, storage: str = "mcap", map_frame: str = "map",
+               start_like_live: bool = False) -> ReplayResult:
+    """Replay a bag through both pipelines and write the outputs (with the inputs) to a new bag.
+
+    start_like_live: the EKF starts from the live EKF's first recorded estimate (`LiveStart`) instead
+    of ToTal's first pose, to compare the replay with a live run whose start the bag did not record.
+    """
     typestore = typestore if typestore is not None else beams_typestore()
     pipelines = ReplayPipelines(settings or ReplaySettings())
     pipelines.expect_odometry = pipelines.settings.use_odometry and ODOMETRY_TOPIC in bag_topics(input_bag)
+    if start_like_live:
+        pipelines.live_start = live_start(input_bag, typestore)
+        if pipelines.live_start is None:
+            raise ValueError(f"{input_bag} has no {LIVE_EKF_TOPIC} message to start from")
     started = time.perf_counter()
     first_ns = last_ns = None
     with BagRecorder(pathlib.Path(output_bag), typestore, storage) as recorder:
@@ -656,6 +695,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("input_bag", type=pathlib.Path, help="rosbag2 directory (sqlite3 or MCAP)")
     parser.add_argument("output_bag", type=pathlib.Path, help="new bag directory (must not exist)")
     parser.add_argument("--plot", type=pathlib.Path, help="trajectory plot (PNG)")
+    parser.add_argument("--start-like-live", action="store_true",
+                        help="start the EKF from the live EKF's first estimate recorded in the bag (to "
+                             "compare with the live run) instead of ToTal's first pose")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="output storage")
     parser.add_argument("--triangulation-params", type=pathlib.Path,
                         default=_installed_config("beams_triangulation", "triangulation_node.yaml"),
@@ -669,7 +711,7 @@ def main(argv: list[str] | None = None) -> int:
                                             load_node_parameters(options.ekf_params))
         typestore = beams_typestore()
         result = replay_bag(options.input_bag, options.output_bag, settings, typestore=typestore,
-                            storage=options.storage)
+                            storage=options.storage, start_like_live=options.start_like_live)
         live = live_tracks(options.input_bag, typestore)
     except (OSError, ValueError) as error:
         print(f"replay_bag: {error}", file=sys.stderr)

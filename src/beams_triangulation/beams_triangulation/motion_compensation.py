@@ -26,20 +26,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from beams_driver.angles import wrap_to_pi
+from beams_driver.pose2d import between, compose
 from beams_triangulation.total import ToTalFix, triangulate
-
-
-def compose(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float]:
-    """SE(2) composition a (+) b: pose b, given in frame a, expressed in a's parent frame."""
-    cos_a, sin_a = math.cos(a[2]), math.sin(a[2])
-    return (a[0] + cos_a * b[0] - sin_a * b[1], a[1] + sin_a * b[0] + cos_a * b[1], wrap_to_pi(a[2] + b[2]))
-
-
-def relative(a: Sequence[float], b: Sequence[float]) -> tuple[float, float, float]:
-    """SE(2) a^-1 (+) b: pose b expressed in the frame of pose a (the odometry increment from a to b)."""
-    cos_a, sin_a = math.cos(a[2]), math.sin(a[2])
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    return (cos_a * dx + sin_a * dy, -sin_a * dx + cos_a * dy, wrap_to_pi(b[2] - a[2]))
 
 
 def arc_increment(speed_mps: float, yaw_rate_rad_s: float, dt_s: float) -> tuple[float, float, float]:
@@ -96,7 +84,7 @@ def compensate_bearings(
     corrected = np.empty_like(bearings)
     for i, (bearing, odom_pose) in enumerate(zip(bearings, odometry, strict=True)):
         # Robot pose at the bearing's instant, in the robot frame at the target instant.
-        increment = relative(odom_at_target, odom_pose)
+        increment = between(odom_at_target, odom_pose)
         if approx_pose_map is None:
             corrected[i] = bearing + increment[2]
             continue

@@ -18,7 +18,7 @@ import math
 import sys
 
 import numpy as np
-from builtin_interfaces.msg import Duration, Time
+from builtin_interfaces.msg import Duration
 from geometry_msgs.msg import PoseWithCovariance, PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -31,6 +31,8 @@ from beams_driver.node_support import (
     declare_parameter,
     run_node,
 )
+from beams_driver.pose2d import compose
+from beams_driver.ros_messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_triangulation.gating import (
     DEFAULT_MAX_INVERSE_ABS_D,
@@ -41,41 +43,12 @@ from beams_triangulation.gating import (
     PoseEstimate,
     RevolutionEstimator,
 )
-from beams_triangulation.motion_compensation import arc_increment, compose, interpolate_pose
-
-# Rows/columns of x, y and yaw in ROS's row-major 6x6 (x, y, z, roll, pitch, yaw) covariance.
-_PLANAR = (0, 1, 5)
-# Variance reported for z, roll and pitch, which a planar fix says nothing about.
-_UNKNOWN_VARIANCE = 1e6
+from beams_triangulation.motion_compensation import arc_increment, interpolate_pose
 
 
-def stamp_seconds(stamp: Time) -> float:
-    """builtin_interfaces/Time in seconds."""
-    return stamp.sec + 1e-9 * stamp.nanosec
-
-
-def time_message(seconds: float) -> Time:
-    """Seconds to builtin_interfaces/Time (nanoseconds rounded)."""
-    nanoseconds = round(seconds * 1e9)
-    return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
-
-
-def yaw_of(orientation) -> float:
-    """Yaw (rad) of a geometry_msgs/Quaternion."""
-    q = orientation
-    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
-
-
-def pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
-    """The estimate as geometry_msgs/PoseWithCovariance (z, roll, pitch marked unknown)."""
-    message = PoseWithCovariance()
-    message.pose.position.x, message.pose.position.y = float(estimate.x), float(estimate.y)
-    message.pose.orientation.z = math.sin(estimate.heading / 2.0)
-    message.pose.orientation.w = math.cos(estimate.heading / 2.0)
-    full = np.diag([0.0, 0.0, _UNKNOWN_VARIANCE, _UNKNOWN_VARIANCE, _UNKNOWN_VARIANCE, 0.0])
-    full[np.ix_(_PLANAR, _PLANAR)] = estimate.covariance
-    message.covariance = full.ravel().tolist()
-    return message
+def estimate_pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
+    """The estimate as geometry_msgs/PoseWithCovariance."""
+    return pose_with_covariance((estimate.x, estimate.y, estimate.heading), estimate.covariance)
 
 
 class OdometryBuffer:
@@ -159,15 +132,15 @@ class TriangulationNode(Node):
 
     # -- inputs ---------------------------------------------------------------------------------------
     def _on_odometry(self, msg: Odometry) -> None:
-        pose = (msg.pose.pose.position.x, msg.pose.pose.position.y, yaw_of(msg.pose.pose.orientation))
-        self.odometry.add(stamp_seconds(msg.header.stamp), pose,
+        pose = pose2d_of(msg.pose.pose)
+        self.odometry.add(stamp_to_seconds(msg.header.stamp), pose,
                           (msg.twist.twist.linear.x, msg.twist.twist.angular.z))
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
         self.diagnostics.increment("revolutions")
-        revolution_s = stamp_seconds(msg.header.stamp)
+        revolution_s = stamp_to_seconds(msg.header.stamp)
         bearings = [Bearing(int(b.beacon_id), float(b.bearing), float(b.variance),
-                            stamp_seconds(b.header.stamp) or revolution_s) for b in msg.bearings]
+                            stamp_to_seconds(b.header.stamp) or revolution_s) for b in msg.bearings]
         outcome = self.estimator.update(bearings, self.odometry.pose_at if self.use_odometry else None)
         if isinstance(outcome.result, NoPose):
             self._report_no_pose(outcome.result, msg.revolution)
@@ -188,9 +161,9 @@ class TriangulationNode(Node):
     # -- outputs --------------------------------------------------------------------------------------
     def _publish(self, estimate: PoseEstimate, stamp_s: float, compensated: bool) -> None:
         message = TriangulatedPose()
-        message.header.stamp = time_message(stamp_s)
+        message.header.stamp = seconds_to_stamp(stamp_s)
         message.header.frame_id = self.map_frame
-        message.pose = pose_with_covariance(estimate)
+        message.pose = estimate_pose_with_covariance(estimate)
         message.inverse_abs_d = float(estimate.inverse_abs_d)
         message.beacon_ids = [int(i) for i in estimate.beacon_ids]
         message.accepted = bool(estimate.accepted)
@@ -224,7 +197,7 @@ class TriangulationNode(Node):
             markers.markers.append(beacon)
         colour = (0.1, 0.8, 0.1) if estimate.accepted else (0.9, 0.2, 0.1)
         arrow = self._marker(header, "pose", 0, Marker.ARROW, colour)
-        arrow.pose = pose_with_covariance(estimate).pose
+        arrow.pose = estimate_pose_with_covariance(estimate).pose
         arrow.scale.x, arrow.scale.y, arrow.scale.z = 0.2, 0.03, 0.03
         arrow.lifetime = lifetime
         markers.markers.append(arrow)
