@@ -4,13 +4,14 @@ This is the only module of beams_driver besides the nodes that imports rclpy.
 """
 
 import math
+import traceback
 from collections.abc import Callable
 from typing import Any
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 
@@ -35,21 +36,40 @@ def run_node(node_class: Callable[[], Node], args: list[str] | None = None) -> i
     node: Node | None = None
     try:
         node = node_class()
-        rclpy.spin(node)
+        _spin(node)
     except ParameterValidationError as error:
         rclpy.logging.get_logger("beams").fatal(f"invalid parameters: {error}")
         return EXIT_INVALID_PARAMETERS
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except _rclpy.RCLError:
-        # SIGTERM shuts the context down under the executor, which may then fail to build its wait set.
-        if rclpy.ok():
-            raise
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _spin(node: Node) -> None:
+    """Spin until shutdown, surviving rclpy's rare failure to convert a taken message (a lost message)."""
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    lost_messages = 0
+    while rclpy.ok():
+        try:
+            executor.spin_once(timeout_sec=0.5)
+        except (_rclpy.RCLError, RuntimeError) as error:
+            # A signal shuts the context down under the executor, which may then fail to build its
+            # wait set: that is a shutdown, not a fault.
+            if not rclpy.ok():
+                return
+            # Under load rclpy occasionally fails to convert a message it has taken (the frame is
+            # `_take_subscription`); the message is lost, the node must not die for it.
+            if traceback.extract_tb(error.__traceback__)[-1].name != "_take_subscription":
+                raise
+            lost_messages += 1
+            node.get_logger().warning(
+                f"rclpy could not convert a received message ({lost_messages} lost): {error}"
+            )
 
 
 def declare_parameter(

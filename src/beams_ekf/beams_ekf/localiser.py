@@ -6,18 +6,22 @@ the odometry samples of the last `history_span_s`; a bearing (stamped when the t
 beacon, so usually before the newest odometry) is applied at its own stamp by going back to the state
 of the odometry sample before it, the turret placed where the interpolated odometry puts it, and
 predicting again through the later samples (see `Localiser.on_bearings`); a pose (ToTal's accepted fix or an
-operator's /initialpose) initialises the filter, and re-initialises it when the robot was kidnapped
-(bearings consistently gated out while ToTal is confident of a pose far away: identified beacons make
-this possible, thesis ch. 8 "System deployment"). Time going backwards (a rosbag played in a loop)
-resets everything; odometry gaps inflate the covariance instead of freezing the filter.
+operator's /initialpose) initialises the filter, brought to the filter's instant by the odometry motion
+since its stamp (a ToTal fix is stamped at its revolution, ~0.1-0.2 s before it arrives, so a fix the
+odometry history does not cover is refused: taken as current, it put the live filter 0.2 m and 7 deg
+off, confidently), and re-initialises it when the robot was kidnapped or the filter is lost (most of the
+recent bearings gated out while ToTal is confident of a pose inconsistent with the estimate: identified
+beacons make this possible, thesis ch. 8 "System deployment"). Time going backwards (a rosbag played
+in a loop) resets everything; odometry gaps inflate the covariance instead of freezing the filter.
 """
 
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from math import hypot, isfinite
 
 import numpy as np
+from scipy.stats import chi2
 
 from beams_ekf.bearing_ekf import BearingEkf, BearingOutcome, turret_pose
 from beams_ekf.odometry_history import OdometryHistory, Pose2D, between, compose, is_finite_pose, wrap_angle
@@ -38,8 +42,13 @@ class LocaliserConfig:
     gap_heading_variance_rad2_per_s: float = 1.0e-3
     # a gap never inflates more than this long (the table bounds how lost the robot can be)
     max_gap_inflation_s: float = 10.0
-    # consecutive gated bearings after which a far ToTal fix re-initialises the filter
+    # the filter is "lost" when at least kidnap_gated_bearings of the last kidnap_window_bearings new
+    # bearings were gated out (a consistent filter gates 1 - gate_probability of them); a lost filter
+    # takes ToTal's fix when the fix is elsewhere: inconsistent with the estimate (chi-square, 3 dof,
+    # at kidnap_probability, the two covariances summed) or farther than the distance/heading below
     kidnap_gated_bearings: int = 6
+    kidnap_window_bearings: int = 12
+    kidnap_probability: float = 0.999
     kidnap_distance_m: float = 0.25
     kidnap_heading_rad: float = 0.35
     # odometry stamps going back by more than this reset the filter (smaller steps are dropped)
@@ -48,8 +57,11 @@ class LocaliserConfig:
     def __post_init__(self) -> None:
         if not (self.history_span_s > 0.0 and self.max_extrapolation_s >= 0.0 and self.odometry_gap_s > 0.0):
             raise ValueError("history_span_s and odometry_gap_s must be > 0, max_extrapolation_s >= 0")
-        if self.kidnap_gated_bearings < 1:
-            raise ValueError(f"kidnap_gated_bearings must be >= 1, got {self.kidnap_gated_bearings}")
+        if not 1 <= self.kidnap_gated_bearings <= self.kidnap_window_bearings:
+            raise ValueError(f"need 1 <= kidnap_gated_bearings <= kidnap_window_bearings, got "
+                             f"{self.kidnap_gated_bearings} and {self.kidnap_window_bearings}")
+        if not 0.0 < self.kidnap_probability < 1.0:
+            raise ValueError(f"kidnap_probability must be in (0, 1), got {self.kidnap_probability}")
 
 
 @dataclass(frozen=True)
@@ -102,7 +114,9 @@ class Localiser:
         self.config = config or LocaliserConfig()
         self.history = OdometryHistory(self.config.history_span_s, self.config.max_extrapolation_s)
         self.stats = LocaliserCounters()
-        self._consecutive_gated = 0
+        # gated (True) or accepted (False), for the last new bearings: the kidnap evidence
+        self._recent_gated: deque[bool] = deque(maxlen=self.config.kidnap_window_bearings)
+        self._kidnap_threshold = float(chi2.ppf(self.config.kidnap_probability, df=3))
         self._stamp_s: float | None = None
         # bearings stamped after the newest odometry, waiting for the odometry that covers them
         self._pending: list[Bearing] = []
@@ -116,7 +130,7 @@ class Localiser:
         """Forget the estimate and the odometry; the filter waits for a pose."""
         self.ekf.reset()
         self.history.clear()
-        self._consecutive_gated = 0
+        self._recent_gated.clear()
         self._stamp_s = None
         self._pending.clear()
         self.stats.counts[reason] += 1
@@ -267,12 +281,11 @@ class Localiser:
         return self.ekf.update_bearing(bearing.beacon_id, bearing.bearing_rad, bearing.variance_rad2, lever)
 
     def _track_gating(self, bearing: Bearing, outcome: BearingOutcome) -> None:
-        """Count consecutive gated bearings (kidnap evidence) and the last accepted one."""
+        """Record whether a new bearing was gated (kidnap evidence) and the last accepted one."""
         if outcome.accepted:
-            self._consecutive_gated = 0
             self.stats.last_bearing_stamp_s = bearing.stamp_s
-        elif outcome.reason == "gated":
-            self._consecutive_gated += 1
+        if outcome.accepted or outcome.reason == "gated":
+            self._recent_gated.append(not outcome.accepted)
 
     def _count(self, outcome: BearingOutcome) -> BearingOutcome:
         self.stats.counts["bearings_accepted" if outcome.accepted else f"bearings_{outcome.reason}"] += 1
@@ -280,32 +293,48 @@ class Localiser:
 
     @property
     def kidnap_suspected(self) -> bool:
-        """True when the last bearings were all gated out."""
-        return self._consecutive_gated >= self.config.kidnap_gated_bearings
+        """True when at least kidnap_gated_bearings of the last kidnap_window_bearings were gated out
+        (a filter initialised a little wrong, and overconfident, still accepts some bearings in between)."""
+        return sum(self._recent_gated) >= self.config.kidnap_gated_bearings
 
     # -- poses ----------------------------------------------------------------------------------------
     def on_pose(self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, *, operator: bool) -> str:
         """A pose from ToTal (operator=False) or an operator (True). Returns what it did.
 
-        An operator's pose always (re)initialises; ToTal's initialises a filter that has no estimate, and
-        re-initialises one that is lost (kidnap suspected and the fix far from the estimate).
+        An operator's pose always (re)initialises (one older than the odometry history is taken as
+        current: it has no meaningful stamp); ToTal's initialises a filter that has no estimate, and
+        re-initialises one that is lost (kidnap suspected and the fix elsewhere), provided the odometry
+        history covers its stamp ("outside_history" otherwise: the next fix will be covered).
         """
         if not (isfinite(stamp_s) and is_finite_pose(pose)):
             self.stats.counts["poses_invalid"] += 1
             return "invalid"
-        motion = self._motion_since(stamp_s)
-        # a pose older than the odometry history is still the best start we have
+        motion = self._motion_since(stamp_s) if len(self.history) else None
+        if motion is None and not operator:
+            # the robot moved since the fix by an unknown amount (up to 0.1 m at 0.5 m/s)
+            self.stats.counts["poses_outside_history"] += 1
+            return "outside_history"
         pose_now = pose if motion is None else compose(pose, motion)
         if operator or not self.ekf.initialised:
             return self._initialise(stamp_s, pose_now, covariance, "initialisations")
-        if self.kidnap_suspected and self._far_from_estimate(pose_now):
+        if self.kidnap_suspected and self._far_from_estimate(pose_now, covariance):
             return self._initialise(stamp_s, pose_now, covariance, "kidnap_reinitialisations")
         return "ignored"
 
-    def _far_from_estimate(self, pose: Pose2D) -> bool:
+    def _far_from_estimate(self, pose: Pose2D, covariance: np.ndarray) -> bool:
+        """True when `pose` (of `covariance`) is inconsistent with the estimate or beyond the absolute
+        thresholds: the squared Mahalanobis distance of the difference, under the sum of the two
+        covariances, above the chi-square (3 dof) quantile at kidnap_probability."""
         x, y, theta = self.ekf.pose
-        return (hypot(pose[0] - x, pose[1] - y) > self.config.kidnap_distance_m
-                or abs(wrap_angle(pose[2] - theta)) > self.config.kidnap_heading_rad)
+        difference = np.array([pose[0] - x, pose[1] - y, wrap_angle(pose[2] - theta)])
+        combined = self.ekf.covariance + np.asarray(covariance, dtype=float).reshape(3, 3)
+        try:
+            distance2 = float(difference @ np.linalg.solve(combined, difference))
+        except np.linalg.LinAlgError:
+            distance2 = float("inf")
+        return (not distance2 <= self._kidnap_threshold
+                or hypot(difference[0], difference[1]) > self.config.kidnap_distance_m
+                or abs(difference[2]) > self.config.kidnap_heading_rad)
 
     def _initialise(self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, counter: str) -> str:
         try:
@@ -313,7 +342,7 @@ class Localiser:
         except ValueError:
             self.stats.counts["poses_invalid"] += 1
             return "invalid"
-        self._consecutive_gated = 0
+        self._recent_gated.clear()
         # the states kept for late bearings belong to the old estimate
         for index in range(len(self.history)):
             self.history.set_payload(index, None)

@@ -8,21 +8,24 @@ import numpy as np
 import pytest
 
 from beams_driver.simulated_match import SimulatedMatch, simulate_match
-from beams_ekf.bag_io import BagRecorder, beams_typestore, read_messages
+from beams_ekf.bag_io import beams_typestore, read_messages
 from beams_ekf.bag_replay import (
     BEARINGS_TYPE,
     ODOMETRY_TYPE,
+    MessageBuilder,
     ReplayResult,
     errors_against_truth,
     main,
     odometry_in_map,
     replay_bag,
     rms,
+    simulated_messages,
+    write_bag,
 )
 
 BEAMS_MSGS = pathlib.Path(__file__).resolve().parents[2] / "beams_msgs"
 # Stamps on the ROS epoch scale (float seconds lose precision there, as on a robot).
-EPOCH_S = 1_795_000_000
+EPOCH_NS = 1_795_000_000 * 10**9
 MATCH_S = 12.0
 
 
@@ -37,85 +40,12 @@ def match() -> SimulatedMatch:
 
 
 def _ns(match_s: float) -> int:
-    return EPOCH_S * 1_000_000_000 + round(match_s * 1e9)
-
-
-class MessageFactory:
-    """rosbags messages of the three input topics."""
-
-    def __init__(self, typestore) -> None:
-        self.t = typestore.types
-
-    def header(self, match_s: float, frame: str):
-        ns = _ns(match_s)
-        return self.t["std_msgs/msg/Header"](
-            stamp=self.t["builtin_interfaces/msg/Time"](sec=ns // 10**9, nanosec=ns % 10**9), frame_id=frame)
-
-    def odometry(self, match_s: float, frame: str, pose, speed_mps: float, yaw_rate_radps: float):
-        t = self.t
-        geometry = t["geometry_msgs/msg/Pose"](
-            position=t["geometry_msgs/msg/Point"](x=float(pose[0]), y=float(pose[1]), z=0.0),
-            orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(pose[2] / 2),
-                                                          w=math.cos(pose[2] / 2)))
-        twist = t["geometry_msgs/msg/Twist"](linear=t["geometry_msgs/msg/Vector3"](x=speed_mps, y=0.0, z=0.0),
-                                             angular=t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0,
-                                                                                    z=yaw_rate_radps))
-        return t[ODOMETRY_TYPE](
-            header=self.header(match_s, frame), child_frame_id="base_link",
-            pose=t["geometry_msgs/msg/PoseWithCovariance"](pose=geometry, covariance=np.zeros(36)),
-            twist=t["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=np.zeros(36)))
-
-    def bearings(self, start_s: float, period_s: float, bearings, revolution: int):
-        """bearings: (stamp s, beacon id, bearing rad, variance rad^2) tuples."""
-        t = self.t
-        bearing_type = t["beams_msgs/msg/BeaconBearing"]
-        items = [bearing_type(header=self.header(stamp, "beams_sensor"), beacon_id=beacon,
-                              bearing=float(angle), variance=float(variance), angular_window=0.0,
-                              rising_angle=0.0, falling_angle=0.0, codes_seen=1)
-                 for stamp, beacon, angle, variance in bearings]
-        return t[BEARINGS_TYPE](header=self.header(start_s, "beams_sensor"), revolution=revolution,
-                                period=period_s, bearings=items, rejected_windows=0)
-
-
-def match_messages(match: SimulatedMatch, typestore) -> list[tuple[float, str, str, object]]:
-    """(when the live system would publish it (s), topic, type, message) for the whole match."""
-    make = MessageFactory(typestore)
-    g, o = match.ground_truth, match.odometry
-    messages = []
-    for k, t in enumerate(o.stamp_s):
-        truth = (g.x_m[k], g.y_m[k], g.theta_rad[k])
-        messages.append((t, "beams/sim/ground_truth", ODOMETRY_TYPE,
-                         make.odometry(t, "map", truth, g.speed_mps[k], g.yaw_rate_radps[k])))
-        messages.append((t, "odom", ODOMETRY_TYPE,
-                         make.odometry(t, "odom", o.pose(k), o.speed_mps[k], o.yaw_rate_radps[k])))
-    for r in match.revolutions:
-        bearings = [(b.stamp_s, b.beacon_id, b.bearing, b.variance) for b in r.bearings]
-        messages.append((r.start_time_s + r.period_s, "beams/bearings", BEARINGS_TYPE,
-                         make.bearings(r.start_time_s, r.period_s, bearings, r.revolution)))
-    return messages
-
-
-def write_bag(path: pathlib.Path, messages, typestore, *, storage: str = "mcap", passes: int = 1,
-              jitter_s: float = 0.0, seed: int = 0) -> pathlib.Path:
-    """A bag of the messages, recorded at their publication time plus a random delivery delay in
-    [0, jitter_s) (so that bag order is not stamp order); `passes` > 1 plays them again (a loop)."""
-    rng = np.random.default_rng(seed)
-    records = []
-    for n in range(passes):
-        for when_s, topic, msgtype, message in messages:
-            raw = message if isinstance(message, bytes) else typestore.serialize_cdr(message, msgtype)
-            arrival_s = n * (MATCH_S + 1.0) + when_s + jitter_s * rng.random()
-            records.append((_ns(arrival_s), topic, msgtype, raw))
-    records.sort(key=lambda record: record[0])
-    with BagRecorder(path, typestore, storage) as recorder:
-        for arrival_ns, topic, msgtype, raw in records:
-            recorder.write(topic, msgtype, arrival_ns, raw)
-    return path
+    return EPOCH_NS + round(match_s * 1e9)
 
 
 @pytest.fixture(scope="module")
 def messages(match, typestore):
-    return match_messages(match, typestore)
+    return simulated_messages(match, typestore, EPOCH_NS)
 
 
 @pytest.fixture(scope="module")
@@ -177,7 +107,8 @@ def test_stamps_not_arrival_order(tmp_path, messages, typestore, replayed):
 def test_loop_resets_cleanly(tmp_path, messages, typestore, replayed):
     """The bag played twice (stamps jump back 12 s): one reset, and the second pass gives exactly the
     estimates of the first (nothing of the first pass leaks into the second)."""
-    bag = write_bag(tmp_path / "input", messages, typestore, passes=2)
+    loop_ns = round((MATCH_S + 1.0) * 1e9)
+    bag = write_bag(tmp_path / "input", messages, typestore, passes=2, pass_period_ns=loop_ns)
     looped = replay_bag(bag, tmp_path / "output", typestore=typestore)
     assert looped.counts["ekf_time_jump_resets"] == 1
     first = [row[1:] for row in looped.ekf.rows if row[0] == 0]
@@ -188,19 +119,19 @@ def test_loop_resets_cleanly(tmp_path, messages, typestore, replayed):
 def test_bad_input_is_counted_and_skipped(tmp_path, messages, typestore, replayed, match):
     """NaN bearings, unknown beacon ids, empty revolutions, a NaN odometry pose and undecodable bytes:
     each counted, none changes an estimate."""
-    make = MessageFactory(typestore)
+    make = MessageBuilder(typestore)
     bad = []
     for k, revolution in enumerate(match.revolutions[20:80:10]):
         start_s = revolution.start_time_s + 0.05
-        nan_bearings = [(start_s + 0.01 * i, 1 + i, math.nan, 1e-6) for i in range(3)]
-        unknown_ids = [(start_s + 0.01 * i, 9 + i, 0.1, 1e-6) for i in range(3)]
+        nan_bearings = [(_ns(start_s + 0.01 * i), 1 + i, math.nan, 1e-6) for i in range(3)]
+        unknown_ids = [(_ns(start_s + 0.01 * i), 9 + i, 0.1, 1e-6) for i in range(3)]
         variants = (nan_bearings, unknown_ids, [])
-        revolution = make.bearings(start_s, 0.1, variants[k % 3], 9000 + k)
-        bad.append((start_s + 0.1, "beams/bearings", BEARINGS_TYPE, revolution))
-    nan_pose_s = float(match.odometry.stamp_s[300]) + 0.005
-    nan_pose = make.odometry(nan_pose_s, "odom", (math.nan, 0.0, 0.0), 0.0, 0.0)
-    bad.append((nan_pose_s, "odom", ODOMETRY_TYPE, nan_pose))
-    bad.append((nan_pose_s, "odom", ODOMETRY_TYPE, b"\x00\x01\x00\x00garbage"))
+        revolution = make.bearing_array(_ns(start_s), 0.1, variants[k % 3], 9000 + k)
+        bad.append((_ns(start_s + 0.1), "beams/bearings", BEARINGS_TYPE, revolution))
+    nan_pose_ns = _ns(float(match.odometry.stamp_s[300]) + 0.005)
+    nan_pose = make.odometry(nan_pose_ns, "odom", (math.nan, 0.0, 0.0), 0.0, 0.0)
+    bad.append((nan_pose_ns, "odom", ODOMETRY_TYPE, nan_pose))
+    bad.append((nan_pose_ns, "odom", ODOMETRY_TYPE, b"\x00\x01\x00\x00garbage"))
     bag = write_bag(tmp_path / "input", messages + bad, typestore)
     result = replay_bag(bag, tmp_path / "output", typestore=typestore)
     counts = result.counts
