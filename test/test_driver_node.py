@@ -129,3 +129,44 @@ def test_serial_source_through_a_pseudo_terminal(rclpy_node, start_node, tmp_pat
     assert rclpy_node.spin_until(drops_reported, WAIT_S), node.log()
     os.close(master)
     os.close(slave)
+
+
+def test_reloaded_calibration_corrects_the_published_bearings(rclpy_node, start_node, tmp_path):
+    """A calibration file written while the driver runs is applied on `~/reload_calibration` (issue 6)."""
+    from std_srvs.srv import Trigger
+
+    from beams_driver.bearing_correction import BearingCorrection
+    from beams_driver.calibration_file import SensorCalibration, save_calibration
+
+    path = tmp_path / "calibration.yaml"
+    save_calibration(SensorCalibration(beacon_map=EUROBOT_BEACON_MAP), path)
+    start_node(
+        "beams_driver",
+        "driver_node",
+        params={"sim_static_pose": list(STATIC_POSE), "calibration_file": str(path)},
+    )
+
+    def mean_error(revolutions) -> float:
+        return float(
+            np.mean(
+                [
+                    math.remainder(b.bearing - true_bearing(b.beacon_id, STATIC_POSE), 2 * math.pi)
+                    for revolution in revolutions[-20:]
+                    for b in revolution.bearings
+                ]
+            )
+        )
+
+    before = mean_error(collect_revolutions(rclpy_node, 20))
+    constant_power_bias_rad = 0.01  # d, the constant of eq. 7.19's cubic: every bearing moves by -d
+    correction = BearingCorrection(power_bias_coefficients=(0.0, 0.0, 0.0, constant_power_bias_rad))
+    save_calibration(SensorCalibration(beacon_map=EUROBOT_BEACON_MAP, bearing_correction=correction), path)
+    reply = rclpy_node.call(Trigger, "/driver_node/reload_calibration", Trigger.Request(), WAIT_S)
+    assert reply.success, reply.message
+    rclpy_node.received.clear()
+    after = mean_error(collect_revolutions(rclpy_node, 20))
+    assert after - before == pytest.approx(-constant_power_bias_rad, abs=0.002)
+
+    path.unlink()
+    refused = rclpy_node.call(Trigger, "/driver_node/reload_calibration", Trigger.Request(), WAIT_S)
+    assert not refused.success and "calibration.yaml" in refused.message

@@ -17,7 +17,7 @@ from rclpy.qos import qos_profile_sensor_data
 
 from beams_driver.angles import wrap_to_pi
 from beams_driver.bearing_correction import BearingCorrection
-from beams_driver.calibration_file import load_calibration
+from beams_driver.calibration_file import SensorCalibration, load_calibration
 from beams_driver.codes import BIT_TIME_S, code_family, codes_from_strings, validate_codes
 from beams_driver.decoder import BearingDecoder, DecodedRevolution
 from beams_driver.edges import TURRET_PERIOD_S
@@ -28,6 +28,7 @@ from beams_driver.node_support import (
     declare_parameter,
     load_calibration_parameter,
     run_node,
+    serve_calibration_reload,
 )
 from beams_driver.ros_messages import pose2d_of, seconds_to_stamp, stamp_to_seconds
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
@@ -91,6 +92,44 @@ class GroundTruthHistory:
         )
 
 
+class OcclusionSchedule:
+    """Beacons the simulated sensor cannot see: always, or during windows of time since the simulation
+    started (a robot or a hand in front of a beacon), as the sensor simulator's occlusion callable."""
+
+    def __init__(self, always: set[int], windows: list[tuple[int, float, float]]) -> None:
+        self.always = always
+        self.windows = windows
+        self.origin_s = 0.0
+
+    @classmethod
+    def from_parameters(cls, occluded: list[int], flat_windows: list[float]) -> "OcclusionSchedule":
+        """[-1] and [-1.0] mean none; windows come as [beacon_id, start_s, end_s, ...]."""
+        always = {int(i) for i in occluded if i >= 0}
+        if list(flat_windows) == [-1.0]:
+            return cls(always, [])
+        if len(flat_windows) % 3:
+            raise ParameterValidationError(
+                f"sim_occlusion_windows needs triples [beacon_id, start_s, end_s], got {list(flat_windows)}"
+            )
+        windows = [
+            (int(flat_windows[k]), float(flat_windows[k + 1]), float(flat_windows[k + 2]))
+            for k in range(0, len(flat_windows), 3)
+        ]
+        if any(not 0.0 <= start < end for _, start, end in windows):
+            raise ParameterValidationError(f"sim_occlusion_windows: need 0 <= start_s < end_s, got {windows}")
+        return cls(always, windows)
+
+    @property
+    def ids(self) -> set[int]:
+        return self.always | {beacon_id for beacon_id, _, _ in self.windows}
+
+    def __call__(self, beacon_id: int, time_s: float) -> bool:
+        since_s = time_s - self.origin_s
+        return beacon_id in self.always or any(
+            beacon_id == hidden and start_s <= since_s < end_s for hidden, start_s, end_s in self.windows
+        )
+
+
 class DriverNode(Node):
     def __init__(self) -> None:
         super().__init__("driver_node")
@@ -105,6 +144,7 @@ class DriverNode(Node):
         self.decoder = BearingDecoder(self.codes, self._declare_variance_model())
         calibration = load_calibration_parameter(self)
         self.correction = calibration.bearing_correction if calibration else BearingCorrection()
+        serve_calibration_reload(self, self._apply_calibration)
         self.publisher = self.create_publisher(BeaconBearingArray, "beams/bearings", qos_profile_sensor_data)
         if self.source == "sim":
             self._start_simulated_source()
@@ -170,6 +210,10 @@ class DriverNode(Node):
             min_burst_fraction=SensorSimConfig().min_burst_fraction,
         )
 
+    def _apply_calibration(self, calibration: SensorCalibration) -> str:
+        self.correction = calibration.bearing_correction
+        return "power and rotation bias corrections replaced"
+
     # ---- simulated source ----
 
     def _start_simulated_source(self) -> None:
@@ -194,6 +238,14 @@ class DriverNode(Node):
         occluded = declare_parameter(
             self, "sim_occluded_beacons", [-1], "Beacons the simulation hides ([-1]: none)."
         )
+        occlusion_windows = declare_parameter(
+            self,
+            "sim_occlusion_windows",
+            [-1.0],
+            "Beacons hidden for a while: [beacon_id, start_s, end_s, ...], seconds since the first "
+            "simulated revolution ([-1.0]: none).",
+        )
+        self.occlusion = OcclusionSchedule.from_parameters(occluded, occlusion_windows)
         spurious_rate = declare_parameter(
             self,
             "sim_stray_ir_rate_hz",
@@ -220,7 +272,7 @@ class DriverNode(Node):
             power_bias_rad=injected.power_bias if injected else None,
             rotation_bias_rad=injected.rotation_bias if injected else None,
             turret_offset_m=(float(offset[0]), float(offset[1])),
-            occlusion={int(i) for i in occluded if i >= 0},
+            occlusion=self.occlusion,
         )
         self.ground_truth = GroundTruthHistory()
         self.next_revolution_start_s: float | None = None
@@ -251,6 +303,7 @@ class DriverNode(Node):
         if start_s is None or start_s > now_s or now_s - start_s > 1.0:
             # First revolution, or the clock jumped (bag loop, sim time reset): restart from now.
             self.next_revolution_start_s = now_s - TURRET_PERIOD_S
+            self.occlusion.origin_s = now_s - TURRET_PERIOD_S
             return
         while start_s + TURRET_PERIOD_S <= now_s:
             end_s = start_s + TURRET_PERIOD_S

@@ -14,6 +14,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
+from std_srvs.srv import Trigger
 
 from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_driver.calibration_file import SensorCalibration, load_calibration
@@ -128,6 +129,30 @@ def load_calibration_parameter(node: Node) -> SensorCalibration | None:
         raise ParameterValidationError(f"calibration_file: {error}") from None
     node.get_logger().info(f"calibration loaded from {path}")
     return calibration
+
+
+def serve_calibration_reload(node: Node, apply: Callable[[SensorCalibration], str]) -> None:
+    """Service `~/reload_calibration` (std_srvs/Trigger): read the `calibration_file` again and apply it.
+
+    `apply` installs the new calibration and returns what changed; a missing or malformed file is refused
+    with its reason and the calibration in use stays.
+    """
+
+    def reload(_request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        path = node.get_parameter("calibration_file").value
+        try:
+            if not path:
+                raise ValueError("the calibration_file parameter is empty")
+            response.message = apply(load_calibration(path))
+            response.success = True
+            node.get_logger().info(f"calibration reloaded from {path}: {response.message}")
+        except (OSError, ValueError) as error:
+            response.success = False
+            response.message = f"calibration not reloaded, the one in use stays: {error}"
+            node.get_logger().error(response.message)
+        return response
+
+    node.create_service(Trigger, "~/reload_calibration", reload)
 
 
 def declare_beacon_map(node: Node, prefix: str = "beacon_", what: str = "Beacon") -> BeaconMap:

@@ -48,6 +48,17 @@ class SimWorldNode(Node):
         self.wheel_base_m = declare_parameter(
             self, "wheel_base_m", 0.3, "Nominal wheel base of the robot (m).", minimum=0.05, maximum=2.0
         )
+        self.odometry_dropout_s = declare_parameter(
+            self,
+            "odometry_dropout_s",
+            [0.0, 0.0],
+            "Match time window [start_s, end_s) with no odometry published (the encoders still count).",
+        )
+        dropout = self.odometry_dropout_s
+        if len(dropout) != 2 or not dropout[0] <= dropout[1]:
+            raise ParameterValidationError(
+                f"odometry_dropout_s must be [start_s, end_s] with start_s <= end_s, got {dropout}"
+            )
         self.truth_publisher = self.create_publisher(Odometry, "beams/sim/ground_truth", QUEUE_DEPTH)
         self.odom_publisher = self.create_publisher(Odometry, "odom", QUEUE_DEPTH)
         self.start_s: float | None = None
@@ -206,6 +217,10 @@ class SimWorldNode(Node):
         scale = max(abs(self.drift.left_scale_error), abs(self.drift.right_scale_error), self.drift.slip_std)
         linear_var, angular_var = (scale * twist[0]) ** 2 + 1e-8, (scale * twist[1]) ** 2 + 1e-8
         msg.twist.covariance = ros_covariance(np.diag([linear_var, linear_var, angular_var]))
+        start_s, end_s = self.odometry_dropout_s
+        if start_s <= match_s < end_s:
+            self.diagnostics.increment("odometry_dropped")  # a rehearsed fault: the encoders' link is down
+            return
         self.odom_publisher.publish(msg)
 
 

@@ -25,11 +25,13 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from visualization_msgs.msg import Marker, MarkerArray
 
+from beams_driver.calibration_file import SensorCalibration
 from beams_driver.node_support import (
     Diagnostics,
     declare_beacon_geometry,
     declare_parameter,
     run_node,
+    serve_calibration_reload,
 )
 from beams_driver.pose2d import compose
 from beams_driver.ros_messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
@@ -103,6 +105,7 @@ class TriangulationNode(Node):
             minimum=0.0, maximum=1.0)
         self.publish_markers = declare_parameter(self, "publish_markers", True, "Publish RViz markers.")
         self.estimator = RevolutionEstimator(beacon_map, config, offset)
+        serve_calibration_reload(self, self._apply_calibration)
         self.odometry = OdometryBuffer(span_s, extrapolation_s)
         self.diagnostics = Diagnostics(self, "triangulation")
         self.diagnostics.set_level("warn", "waiting for bearings")
@@ -120,6 +123,11 @@ class TriangulationNode(Node):
             f"odometry {'on' if self.use_odometry else 'off'}")
 
     # -- parameters -----------------------------------------------------------------------------------
+    def _apply_calibration(self, calibration: SensorCalibration) -> str:
+        offset = calibration.turret_offset_m
+        self.estimator = RevolutionEstimator(calibration.beacon_map, self.estimator.config, offset)
+        return f"beacons {list(calibration.beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
+
     def _declare_gates(self) -> GateConfig:
         return GateConfig(
             max_inverse_abs_d=declare_parameter(
