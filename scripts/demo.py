@@ -24,6 +24,7 @@ from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import deserialize_message
+from visualization_msgs.msg import MarkerArray
 
 from beams_driver.angles import wrap_to_pi
 from beams_driver.ros_messages import pose2d_of, stamp_to_seconds
@@ -46,6 +47,8 @@ TOPICS = {
     "beams/pose": TriangulatedPose,
     "beams/pose_cov": PoseWithCovarianceStamped,
     "beams/ekf/odometry": Odometry,
+    "beams/ekf/pose": PoseWithCovarianceStamped,
+    "beams/markers": MarkerArray,
     "/diagnostics": DiagnosticArray,
 }
 PROGRESS_PERIOD_S = 5.0
@@ -145,17 +148,18 @@ def stop_nodes(processes: list[subprocess.Popen]) -> list[int]:
     return statuses
 
 
-def progress_line(record: MatchRecord, elapsed_s: float) -> str:
+def progress_line(record: MatchRecord, elapsed_s: float, bearings_per_s: float) -> str:
     truth = record.truth.array()
     ekf_position, ekf_heading = errors_against_truth(record.ekf.array(), truth)
     total_position, _ = errors_against_truth(record.total.array(), truth)
-    rate = record.bearings / elapsed_s if elapsed_s > 0 else 0.0
-    last_position = ekf_position[-1] if len(ekf_position) else np.nan
-    last_heading = ekf_heading[-1] if len(ekf_heading) else np.nan
+    ekf = (
+        f"EKF error {1000 * ekf_position[-1]:6.1f} mm {np.degrees(ekf_heading[-1]):5.2f} deg"
+        if len(ekf_position)
+        else "EKF waiting for its first pose"
+    )
+    total = f"ToTal RMS {1000 * rms(total_position):6.1f} mm" if len(total_position) else "ToTal no pose yet"
     return (
-        f"t={elapsed_s:5.1f} s  EKF error {1000 * last_position:6.1f} mm {np.degrees(last_heading):5.2f} deg"
-        " | ToTal RMS "
-        f"{1000 * rms(total_position):6.1f} mm | {rate:5.1f} bearings/s | "
+        f"t={elapsed_s:5.1f} s  {ekf} | {total} | {bearings_per_s:5.1f} bearings/s | "
         f"{record.rejected_windows} rejected windows | {record.poses_rejected} poses gated out"
     )
 
@@ -266,10 +270,13 @@ def main() -> int:
                 node.create_subscription(msg_type, topic, on_raw, qos, raw=True)
             started = time.monotonic()
             next_progress = started + PROGRESS_PERIOD_S
+            bearings_at_last_line = 0
             while time.monotonic() - started < options.duration + 1.0:
                 executor.spin_once(timeout_sec=0.05)
                 if time.monotonic() >= next_progress:
-                    print(progress_line(record, time.monotonic() - started), flush=True)
+                    rate = (record.bearings - bearings_at_last_line) / PROGRESS_PERIOD_S
+                    bearings_at_last_line = record.bearings
+                    print(progress_line(record, time.monotonic() - started, rate), flush=True)
                     next_progress += PROGRESS_PERIOD_S
                 if not record.truth.rows and time.monotonic() - started > START_TIMEOUT_S:
                     print("demo: no ground truth after 30 s; see the node logs in", output, file=sys.stderr)
