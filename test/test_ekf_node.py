@@ -53,11 +53,11 @@ def _revolution(bearings):
     return msg
 
 
-def _total_pose(pose):
+def _total_pose(t: float, pose):
     from beams_msgs.msg import TriangulatedPose
 
     msg = TriangulatedPose(accepted=True)
-    msg.header.stamp = _time(T0_S)
+    msg.header.stamp = _time(T0_S + t)
     msg.header.frame_id = "map"
     msg.pose.pose.position.x, msg.pose.pose.position.y = pose[0] + 0.01, pose[1] - 0.01
     msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(pose[2] / 2), math.cos(pose[2] / 2)
@@ -126,7 +126,8 @@ def test_ekf_node_tracks_and_resets(start_node, rclpy_node, match):
 
     feeder.play(match, until_s=0.3)
     assert outputs == [], "published before any pose initialised the filter"
-    feeder.total.publish(_total_pose(match.truth_at(0.3)))
+    # stamped at its revolution, as ToTal's: the odometry since then brings it to the present
+    feeder.total.publish(_total_pose(0.25, match.truth_at(0.25)))
     rclpy_node.spin_for(0.3)
     feeder.play(match, start_s=0.3, until_s=3.0)
     assert rclpy_node.spin_until(lambda: len(outputs) > 20, 10.0), "no estimate published"
@@ -169,9 +170,13 @@ def test_ekf_node_takes_an_operator_pose(start_node, rclpy_node, match):
     assert _error_m(outputs[-1], match) < 0.01
 
 
-def test_ekf_node_refuses_a_bad_beacon_map(start_node):
-    node = start_node("beams_ekf", "ekf_node", {"beacon_ids": [1, 2, 3], "beacon_x": [0.0, 1.0],
-                                                "beacon_y": [0.0, 1.0, 2.0]})
+@pytest.mark.parametrize(("params", "named"), [
+    ({"beacon_ids": [1, 2, 3], "beacon_x": [0.0, 1.0], "beacon_y": [0.0, 1.0, 2.0]}, "beacon map"),
+    # each in range, but more gated bearings than the window holds: the filter could never be "lost"
+    ({"kidnap_gated_bearings": 13, "kidnap_window_bearings": 12}, "kidnap_gated_bearings"),
+])
+def test_ekf_node_refuses_bad_parameters(start_node, params, named):
+    node = start_node("beams_ekf", "ekf_node", params)
     assert node.wait_exit(20) == 2
-    assert "invalid parameters" in node.log() and "beacon map" in node.log()
+    assert "invalid parameters" in node.log() and named in node.log()
     assert "Traceback" not in node.log()

@@ -1,6 +1,7 @@
 """replay_bag: the triangulation and the EKF (thesis fig. 8.1) over a recorded rosbag2 bag, offline.
 
-    replay_bag INPUT_BAG OUTPUT_BAG [--plot PNG] [--triangulation-params YAML] [--ekf-params YAML]
+    replay_bag INPUT_BAG OUTPUT_BAG [--plot PNG] [--storage mcap|sqlite3] [--start-like-live]
+               [--triangulation-params YAML] [--ekf-params YAML]
 
 Reads `beams/bearings`, `odom` and, when present, `beams/sim/ground_truth` from a bag (sqlite3 or MCAP,
 with the `rosbags` library, no ROS graph), feeds them to the same pure objects the nodes wrap
@@ -14,7 +15,9 @@ Time is the messages' stamps, never their arrival: a revolution is due when it e
 revolution's start, plus its period: when the driver publishes it), odometry and truth at their stamp;
 messages are put back in that order within `REORDER_WINDOW_S`. Stamps going back by more than
 `TIME_JUMP_S` (a bag played in a loop, a restarted simulation) reset both pipelines. Bad input (NaN,
-unknown beacon ids, empty revolutions, undecodable messages) is counted and skipped.
+unknown beacon ids, empty revolutions, undecodable messages) is counted and skipped. Revolutions older
+than the bag's first odometry are skipped (a recording starts in the middle of the streams).
+The parameters are the nodes' (their installed YAML files by default).
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Iterable, Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -63,6 +66,7 @@ POSE_TYPE = "beams_msgs/msg/TriangulatedPose"
 POSE_COV_TYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 # Processing order of messages due at the same instant: odometry first, so it covers the bearings.
 _TOPIC_ORDER = {TRUTH_TOPIC: 0, ODOMETRY_TOPIC: 1, BEARINGS_TOPIC: 2}
+_TOPIC_TYPES = {TRUTH_TOPIC: ODOMETRY_TYPE, ODOMETRY_TOPIC: ODOMETRY_TYPE, BEARINGS_TOPIC: BEARINGS_TYPE}
 # How far (s) a message may arrive after a later-stamped one and still be put back in stamp order.
 REORDER_WINDOW_S = 1.0
 # Stamps going back by more than this (s) are a new start (a bag loop): both pipelines reset.
@@ -117,13 +121,11 @@ def _geometry(parameters: Mapping[str, Any]) -> tuple[BeaconMap, tuple[float, fl
     return beacon_map, (float(offset[0]), float(offset[1]))
 
 
-# ekf_node's parameter names of the process noise (ProcessNoise field, parameter) and of the localiser
+# ekf_node's parameter names of the process noise (ProcessNoise field, parameter); those of the
+# localiser are LocaliserConfig's field names
 _NOISE_PARAMETERS = (("translation_m2_per_m", "translation_variance_m2_per_m"),
                      ("rotation_rad2_per_rad", "rotation_variance_rad2_per_rad"),
                      ("rotation_rad2_per_m", "rotation_variance_rad2_per_m"))
-_LOCALISER_PARAMETERS = ("history_span_s", "max_extrapolation_s", "odometry_gap_s",
-                         "gap_position_variance_m2_per_s", "gap_heading_variance_rad2_per_s",
-                         "kidnap_gated_bearings", "kidnap_distance_m", "kidnap_heading_rad")
 
 
 def settings_from_parameters(triangulation: Mapping[str, Any], ekf: Mapping[str, Any]) -> ReplaySettings:
@@ -133,8 +135,7 @@ def settings_from_parameters(triangulation: Mapping[str, Any], ekf: Mapping[str,
     ekf_map, ekf_offset = _geometry(ekf)
     noise = ProcessNoise(**{name: float(ekf.get(parameter, getattr(defaults.process_noise, name)))
                             for name, parameter in _NOISE_PARAMETERS})
-    localiser = LocaliserConfig(**{name: ekf.get(name, getattr(defaults.localiser, name))
-                                   for name in _LOCALISER_PARAMETERS})
+    localiser = LocaliserConfig(**{f.name: ekf[f.name] for f in fields(LocaliserConfig) if f.name in ekf})
     gates = GateConfig(float(triangulation.get("max_inverse_abs_d", defaults.gates.max_inverse_abs_d)),
                        float(triangulation.get("max_position_std_m", defaults.gates.max_position_std_m)))
     return ReplaySettings(
@@ -223,6 +224,10 @@ def read_events(path: pathlib.Path, typestore: Any, counts: Counter) -> Iterator
     sequence = itertools.count()
     with Reader(path) as reader:
         connections = [c for c in reader.connections if c.topic.lstrip("/") in _TOPIC_ORDER]
+        wrong_type = [c for c in connections if c.msgtype != _TOPIC_TYPES[c.topic.lstrip("/")]]
+        if wrong_type:
+            counts["messages_wrong_type"] += sum(c.msgcount for c in wrong_type)
+        connections = [c for c in connections if c not in wrong_type]
         # rosbags reads every connection when given none
         for connection, bag_ns, raw in reader.messages(connections=connections) if connections else ():
             topic = connection.topic.lstrip("/")
@@ -240,7 +245,9 @@ def read_events(path: pathlib.Path, typestore: Any, counts: Counter) -> Iterator
 # -- the pipelines --------------------------------------------------------------------------------------
 class _TriangulationOdometry:
     """Odometry poses for motion compensation with the rules of triangulation_node's OdometryBuffer
-    (stale samples dropped, a clock going back by > 1 s clears it), on beams_ekf's OdometryHistory."""
+    (stale samples dropped, a clock going back by > 1 s clears it), on beams_ekf's OdometryHistory: it
+    extrapolates along the last step where OdometryBuffer follows the last twist's arc (the same within
+    max_extrapolation_s at these speeds). OdometryBuffer should move to a pure module and serve here."""
 
     def __init__(self, span_s: float, max_extrapolation_s: float) -> None:
         self.history = OdometryHistory(span_s, max_extrapolation_s)
@@ -274,24 +281,25 @@ def usable_covariance(covariance: np.ndarray, default: np.ndarray) -> np.ndarray
 
 @dataclass(frozen=True)
 class LiveStart:
-    """The live EKF's first recorded estimate: the replay's EKF starts from it at that odometry stamp
-    (ToTal's poses are not offered before), so that replay and live run from the same initial state."""
+    """A live EKF estimate recorded in the bag: the replay's EKF can start from it at the odometry of the
+    same stamp (ToTal's poses are not offered before), so that replay and live share the initial state."""
 
-    stamp: int
     pose: Pose2D
     covariance: np.ndarray
 
 
-def live_start(input_bag: pathlib.Path, typestore: Any) -> LiveStart | None:
-    """The first beams/ekf/odometry message of a bag as a LiveStart, None when the bag has none."""
+def live_estimates(input_bag: pathlib.Path, typestore: Any) -> dict[int, LiveStart]:
+    """The live EKF's estimates (beams/ekf/odometry) of a bag by stamp (ns), each stamped exactly with the
+    odometry message it followed."""
+    estimates = {}
     with Reader(pathlib.Path(input_bag)) as reader:
         wanted = [c for c in reader.connections if c.topic.lstrip("/") == LIVE_EKF_TOPIC]
         for connection, _, raw in reader.messages(connections=wanted) if wanted else ():
             message = typestore.deserialize_cdr(raw, connection.msgtype)
             full = np.asarray(message.pose.covariance, dtype=float).reshape(6, 6)
-            return LiveStart(stamp_ns(message.header.stamp), odometry_pose(message),
-                             full[np.ix_(_PLANAR, _PLANAR)])
-    return None
+            estimates[stamp_ns(message.header.stamp)] = LiveStart(odometry_pose(message),
+                                                                  full[np.ix_(_PLANAR, _PLANAR)])
+    return estimates
 
 
 class ReplayPipelines:
@@ -307,8 +315,8 @@ class ReplayPipelines:
         # set when the bag has odometry: revolutions before the first odometry are then skipped
         self.expect_odometry = False
         self.first_odometry_s: float | None = None
-        # the live EKF's first estimate to start from, until it is used (see `LiveStart`)
-        self.live_start: LiveStart | None = None
+        # live EKF estimates by stamp: the EKF starts from the first one at an odometry stamp of the bag
+        self.live_start: dict[int, LiveStart] | None = None
         self._new_triangulation()
 
     def _new_triangulation(self) -> None:
@@ -330,9 +338,8 @@ class ReplayPipelines:
         if self.settings.use_odometry:
             self.odometry.add(stamp_s, pose)
         outcome = self.localiser.on_odometry(stamp_s, pose)
-        start = self.live_start
-        if (start is not None and outcome in ("reference", "predicted")
-                and stamp_ns(message.header.stamp) >= start.stamp):
+        start = None if self.live_start is None else self.live_start.get(stamp_ns(message.header.stamp))
+        if start is not None and outcome in ("reference", "predicted"):
             self.localiser.on_pose(stamp_s, start.pose, start.covariance, operator=True)
             self.live_start = None
         estimate = self.localiser.estimate()
@@ -367,7 +374,10 @@ class ReplayPipelines:
         result = outcome.result
         offer = self.settings.use_total_pose and self.live_start is None
         if offer and isinstance(result, PoseEstimate) and result.accepted:
-            self.localiser.on_pose(outcome.stamp_s, (result.x, result.y, result.heading),
+            # ekf_node reads the stamp from the message, rounded to nanoseconds
+            message_stamp = round(outcome.stamp_s * 1e9)
+            message_stamp_s = message_stamp // _NS + 1e-9 * (message_stamp % _NS)
+            self.localiser.on_pose(message_stamp_s, (result.x, result.y, result.heading),
                                    usable_covariance(result.covariance, self.default_covariance),
                                    operator=False)
         return result, outcome.stamp_s
@@ -586,18 +596,19 @@ def replay_bag(input_bag: pathlib.Path, output_bag: pathlib.Path, settings: Repl
                start_like_live: bool = False) -> ReplayResult:
     """Replay a bag through both pipelines and write the outputs (with the inputs) to a new bag.
 
-    start_like_live: the EKF starts from the live EKF's first recorded estimate (`LiveStart`) instead
-    of ToTal's first pose, to compare the replay with a live run whose start the bag did not record.
+    start_like_live: the EKF starts from the live EKF's first recorded estimate at an odometry stamp of
+    the bag (`LiveStart`) instead of ToTal's first pose, to compare the replay with a live run whose start
+    the bag did not record.
     """
     typestore = typestore if typestore is not None else beams_typestore()
     pipelines = ReplayPipelines(settings or ReplaySettings())
     pipelines.expect_odometry = pipelines.settings.use_odometry and ODOMETRY_TOPIC in bag_topics(input_bag)
     if start_like_live:
-        pipelines.live_start = live_start(input_bag, typestore)
-        if pipelines.live_start is None:
+        pipelines.live_start = live_estimates(input_bag, typestore)
+        if not pipelines.live_start:
             raise ValueError(f"{input_bag} has no {LIVE_EKF_TOPIC} message to start from")
     started = time.perf_counter()
-    first_ns = last_ns = None
+    last_ns: int | None = None
     with BagRecorder(pathlib.Path(output_bag), typestore, storage) as recorder:
         run = _Run(pipelines, recorder, MessageBuilder(typestore), typestore, map_frame)
         for event in in_stamp_order(read_events(pathlib.Path(input_bag), typestore, run.result.counts)):
@@ -607,7 +618,6 @@ def replay_bag(input_bag: pathlib.Path, output_bag: pathlib.Path, settings: Repl
                 continue
             run.result.messages_in += 1
             run.result.span_s += 0.0 if last_ns is None else max(0.0, (event.due_ns - last_ns) * 1e-9)
-            first_ns = first_ns if first_ns is not None else event.due_ns
             last_ns = event.due_ns
             run.handle(event)
     result = run.result

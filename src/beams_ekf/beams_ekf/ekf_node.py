@@ -119,7 +119,7 @@ class EkfNode(Node):
         gate = declare_parameter(self, "gate_probability", 0.999,
                                  "Chi-square (1 dof) probability of the per-bearing validation gate.",
                                  minimum=0.5, maximum=0.999999)
-        config = LocaliserConfig(
+        timing = dict(
             history_span_s=declare_parameter(self, "history_span_s", 1.0,
                                              "Odometry kept to apply late bearings (s).", minimum=0.1,
                                              maximum=10.0),
@@ -135,13 +135,27 @@ class EkfNode(Node):
             gap_heading_variance_rad2_per_s=self._non_negative(
                 "gap_heading_variance_rad2_per_s", 1.0e-3, "Heading variance added per second of gap."),
             kidnap_gated_bearings=declare_parameter(
-                self, "kidnap_gated_bearings", 6, "Consecutive gated bearings before a far ToTal pose "
-                "re-initialises the filter.", minimum=1, maximum=1000),
+                self, "kidnap_gated_bearings", 6, "Gated bearings, among the last kidnap_window_bearings, "
+                "that make the filter lost (a ToTal pose elsewhere then re-initialises it).",
+                minimum=1, maximum=1000),
+            kidnap_window_bearings=declare_parameter(
+                self, "kidnap_window_bearings", 12,
+                "Number of recent bearings judged for kidnap_gated_bearings.", minimum=1, maximum=1000),
+            kidnap_probability=declare_parameter(
+                self, "kidnap_probability", 0.999, "Chi-square (3 dof) probability beyond which a ToTal pose "
+                "is inconsistent with the estimate (their covariances summed), i.e. 'elsewhere'.",
+                minimum=0.5, maximum=0.999999),
             kidnap_distance_m=self._non_negative(
-                "kidnap_distance_m", 0.25, "Distance (m) from the estimate that makes a ToTal pose 'far'."),
-            kidnap_heading_rad=self._non_negative("kidnap_heading_rad", 0.35,
-                                                  "Heading difference (rad) that makes a ToTal pose 'far'."),
+                "kidnap_distance_m", 0.25, "Distance (m) from the estimate that always makes a ToTal pose "
+                "'elsewhere'."),
+            kidnap_heading_rad=self._non_negative(
+                "kidnap_heading_rad", 0.35, "Heading difference (rad) that always makes a ToTal pose "
+                "'elsewhere'."),
         )
+        try:
+            config = LocaliserConfig(**timing)
+        except ValueError as error:  # parameters valid one by one but not together
+            raise ParameterValidationError(str(error)) from None
         beacons = dict(zip(beacon_map.ids, map(tuple, beacon_map.xy), strict=True))
         self.localiser = Localiser(BearingEkf(beacons, offset, noise, gate), config)
 
@@ -246,6 +260,7 @@ class EkfNode(Node):
             self.diagnostics.set_level("warn", "waiting for an initial pose (beams/pose or /initialpose)")
             return
         self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
+        self.diagnostics.set("recent_gated_bearings", self.localiser.recent_gated_bearings)
         since_s = (estimate.stamp_s - stats.last_bearing_stamp_s if stats.last_bearing_stamp_s is not None
                    else float("inf"))
         self.diagnostics.set("time_since_last_bearing_s", since_s)

@@ -179,10 +179,11 @@ class Localiser:
                                     self.config.gap_heading_variance_rad2_per_s * duration_s)
 
     def _motion_since(self, stamp_s: float) -> Pose2D | None:
-        """Odometry motion from stamp_s to the filter's instant (robot frame at stamp_s); None if unknown."""
+        """Odometry motion from stamp_s to the filter's instant (robot frame at stamp_s); None if unknown
+        (stamp_s outside the history, or no odometry yet)."""
         latest = self.history.latest
         if latest is None:
-            return (0.0, 0.0, 0.0)
+            return None
         then = self.history.pose_at(stamp_s)
         return None if then is None else between(then, latest[1])
 
@@ -292,10 +293,15 @@ class Localiser:
         return outcome
 
     @property
+    def recent_gated_bearings(self) -> int:
+        """Gated bearings among the last kidnap_window_bearings new ones (a diagnostic)."""
+        return sum(self._recent_gated)
+
+    @property
     def kidnap_suspected(self) -> bool:
         """True when at least kidnap_gated_bearings of the last kidnap_window_bearings were gated out
         (a filter initialised a little wrong, and overconfident, still accepts some bearings in between)."""
-        return sum(self._recent_gated) >= self.config.kidnap_gated_bearings
+        return self.recent_gated_bearings >= self.config.kidnap_gated_bearings
 
     # -- poses ----------------------------------------------------------------------------------------
     def on_pose(self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, *, operator: bool) -> str:
@@ -309,9 +315,9 @@ class Localiser:
         if not (isfinite(stamp_s) and is_finite_pose(pose)):
             self.stats.counts["poses_invalid"] += 1
             return "invalid"
-        motion = self._motion_since(stamp_s) if len(self.history) else None
+        motion = self._motion_since(stamp_s)
         if motion is None and not operator:
-            # the robot moved since the fix by an unknown amount (up to 0.1 m at 0.5 m/s)
+            # the robot moved since the fix by an unknown amount (0.1 m in 0.2 s at 0.5 m/s)
             self.stats.counts["poses_outside_history"] += 1
             return "outside_history"
         pose_now = pose if motion is None else compose(pose, motion)

@@ -15,10 +15,12 @@ from beams_ekf.bag_replay import (
     MessageBuilder,
     ReplayResult,
     errors_against_truth,
+    load_node_parameters,
     main,
     odometry_in_map,
     replay_bag,
     rms,
+    settings_from_parameters,
     simulated_messages,
     write_bag,
 )
@@ -161,3 +163,20 @@ def test_command_line(tmp_path, messages, typestore, capsys, monkeypatch):
     assert "| EKF |" in out and "x real time" in out
     assert (tmp_path / "plot.png").stat().st_size > 10_000
     assert main([str(bag), str(tmp_path / "output")]) == 2
+
+
+def test_settings_come_from_the_nodes_parameter_files():
+    """The replay reads the nodes' own YAML files: every value there reaches the pipelines."""
+    src = pathlib.Path(__file__).resolve().parents[2]
+    triangulation = load_node_parameters(src / "beams_triangulation" / "config" / "triangulation_node.yaml")
+    ekf = load_node_parameters(src / "beams_ekf" / "config" / "ekf_node.yaml")
+    settings = settings_from_parameters({**triangulation, "max_position_std_m": 0.07},
+                                        {**ekf, "history_span_s": 1.5, "turret_offset_m": [0.02, -0.01]})
+    assert settings.gates.max_inverse_abs_d == triangulation["max_inverse_abs_d"]
+    assert settings.gates.max_position_std_m == 0.07
+    assert settings.max_odometry_extrapolation_s == triangulation["max_odometry_extrapolation_s"]
+    assert settings.localiser.history_span_s == 1.5
+    assert settings.localiser.kidnap_gated_bearings == ekf["kidnap_gated_bearings"]
+    assert settings.process_noise.translation_m2_per_m == ekf["translation_variance_m2_per_m"]
+    assert settings.ekf_offset_m == (0.02, -0.01)
+    assert settings.ekf_map.ids == tuple(ekf["beacon_ids"])
