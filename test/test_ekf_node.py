@@ -82,8 +82,8 @@ class _Feeder:
         self.odom = node.create_publisher(Odometry, "odom", 50)
         self.bearings = node.create_publisher(BeaconBearingArray, "beams/bearings", 20)
         self.total = node.create_publisher(TriangulatedPose, "beams/pose", 10)
-        self.set_pose = node.create_publisher(PoseWithCovarianceStamped, "beams/ekf/set_pose", 10)
-        publishers = (self.odom, self.bearings, self.total, self.set_pose)
+        self.initial_pose = node.create_publisher(PoseWithCovarianceStamped, "/initialpose", 10)
+        publishers = (self.odom, self.bearings, self.total, self.initial_pose)
         assert graph.spin_until(lambda: all(p.get_subscription_count() > 0 for p in publishers), 20.0), \
             "ekf_node did not subscribe to its inputs within 20 s"
 
@@ -154,6 +154,8 @@ def test_ekf_node_takes_an_operator_pose(start_node, rclpy_node, match):
     from geometry_msgs.msg import PoseWithCovarianceStamped
     from nav_msgs.msg import Odometry
 
+    from beams_msgs.srv import SetPose
+
     start_node("beams_ekf", "ekf_node", _params())
     outputs = rclpy_node.subscribe(Odometry, "beams/ekf/odometry")
     feeder = _Feeder(rclpy_node)
@@ -163,11 +165,16 @@ def test_ekf_node_takes_an_operator_pose(start_node, rclpy_node, match):
     x, y, theta = match.truth_at(0.18)
     pose.pose.pose.position.x, pose.pose.pose.position.y = x, y
     pose.pose.pose.orientation.z, pose.pose.pose.orientation.w = math.sin(theta / 2), math.cos(theta / 2)
-    feeder.set_pose.publish(pose)
-    rclpy_node.spin_for(0.3)
+    reply = rclpy_node.call(SetPose, "beams/ekf/set_pose", SetPose.Request(pose=pose), 10.0)
+    assert reply.success, reply.message
     feeder.play(match, start_s=0.2, until_s=2.0)
     assert rclpy_node.spin_until(lambda: len(outputs) > 10, 10.0), "no estimate after set_pose"
     assert _error_m(outputs[-1], match) < 0.01
+
+    wrong_frame = SetPose.Request(pose=pose)
+    wrong_frame.pose.header.frame_id = "odom"
+    refused = rclpy_node.call(SetPose, "beams/ekf/set_pose", wrong_frame, 10.0)
+    assert not refused.success and "odom" in refused.message
 
 
 @pytest.mark.parametrize(("params", "named"), [

@@ -55,6 +55,10 @@ class BeaconMap:
         except ValueError:
             raise KeyError(f"beacon {beacon_id} is not on the beacon map {list(self.ids)}") from None
 
+    def as_dict(self) -> dict[int, tuple[float, float]]:
+        """{beacon id: (x, y)} with Python floats."""
+        return {beacon_id: (float(x), float(y)) for beacon_id, (x, y) in zip(self.ids, self.xy, strict=True)}
+
     def subset(self, beacon_ids: Sequence[int]) -> np.ndarray:
         """Positions (k, 2) of the given beacons, in the given order."""
         return np.array([self.position(i) for i in beacon_ids], dtype=float).reshape(-1, 2)

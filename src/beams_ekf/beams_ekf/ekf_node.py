@@ -2,10 +2,12 @@
 
 Subscribes (relative names): `odom` (nav_msgs/Odometry, odom frame), `beams/bearings`
 (beams_msgs/BeaconBearingArray), `beams/pose` (beams_msgs/TriangulatedPose, accepted fixes initialise
-the filter or re-initialise it after a kidnapping), `beams/ekf/set_pose` and `/initialpose`
-(geometry_msgs/PoseWithCovarianceStamped, an operator's pose: always re-initialises).
+the filter or re-initialise it after a kidnapping), `/initialpose`
+(geometry_msgs/PoseWithCovarianceStamped, an operator's pose: always re-initialises; the service
+`beams/ekf/set_pose` (beams_msgs/SetPose) does the same).
 Publishes `beams/ekf/odometry` (nav_msgs/Odometry, map -> base_link, pose and twist with covariance)
-and `beams/ekf/pose` (PoseWithCovarianceStamped) at `publish_rate_hz`, plus `/diagnostics`.
+and `beams/ekf/pose` (PoseWithCovarianceStamped) after each revolution's bearings and at
+`publish_rate_hz` as odometry moves it, plus `/diagnostics`.
 Service `beams/ekf/reset` (std_srvs/Trigger) forgets the estimate until the next pose.
 All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
 """
@@ -21,45 +23,27 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from std_srvs.srv import Trigger
 
-from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_driver.calibration_file import SensorCalibration
 from beams_driver.node_support import (
     Diagnostics,
     ParameterValidationError,
+    declare_beacon_geometry,
     declare_parameter,
-    load_calibration_parameter,
     run_node,
+    serve_calibration_reload,
+)
+from beams_driver.ros_messages import (
+    planar_covariance,
+    pose2d_of,
+    ros_covariance,
+    seconds_to_stamp,
+    set_pose2d,
+    stamp_to_seconds,
 )
 from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise
 from beams_ekf.localiser import Bearing, Estimate, Localiser, LocaliserConfig
-from beams_ekf.odometry_history import heading_of
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
-
-# rows/columns of x, y and yaw in ROS's 6x6 (x, y, z, roll, pitch, yaw) covariance
-_PLANAR = (0, 1, 5)
-
-
-def stamp_seconds(stamp) -> float:
-    """builtin_interfaces/Time in seconds."""
-    return stamp.sec + 1e-9 * stamp.nanosec
-
-
-def planar_covariance(covariance_6x6) -> np.ndarray:
-    """The (x, y, yaw) 3x3 block of a row-major 6x6 ROS covariance."""
-    full = np.asarray(covariance_6x6, dtype=float).reshape(6, 6)
-    return full[np.ix_(_PLANAR, _PLANAR)]
-
-
-def ros_covariance(planar: np.ndarray) -> list[float]:
-    """Row-major 6x6 ROS covariance holding a (x, y, yaw) 3x3 block (z, roll, pitch not estimated: 0)."""
-    full = np.zeros((6, 6))
-    full[np.ix_(_PLANAR, _PLANAR)] = planar
-    return full.ravel().tolist()
-
-
-def pose_of(pose_msg) -> tuple[float, float, float]:
-    """(x, y, yaw) of a geometry_msgs/Pose."""
-    q = pose_msg.orientation
-    return (pose_msg.position.x, pose_msg.position.y, heading_of(q.x, q.y, q.z, q.w))
+from beams_msgs.srv import SetPose
 
 
 class EkfNode(Node):
@@ -87,6 +71,7 @@ class EkfNode(Node):
         # the newest odometry header stamp, republished exactly (a float loses nanoseconds at epoch scale)
         self._last_odometry_stamp: tuple[float, Time] | None = None
         self._published_stamp_s: float | None = None
+        self._changed = False  # a bearing or pose changed the estimate since the last publication
 
         self.odometry_publisher = self.create_publisher(Odometry, "beams/ekf/odometry", 10)
         self.pose_publisher = self.create_publisher(PoseWithCovarianceStamped, "beams/ekf/pose", 10)
@@ -94,9 +79,10 @@ class EkfNode(Node):
         self.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings,
                                  qos_profile_sensor_data)
         self.create_subscription(TriangulatedPose, "beams/pose", self._on_total_pose, 10)
-        for topic in ("beams/ekf/set_pose", "/initialpose"):
-            self.create_subscription(PoseWithCovarianceStamped, topic, self._on_operator_pose, 10)
+        self.create_subscription(PoseWithCovarianceStamped, "/initialpose", self._on_initial_pose, 10)
+        self.create_service(SetPose, "beams/ekf/set_pose", self._on_set_pose)
         self.create_service(Trigger, "beams/ekf/reset", self._on_reset)
+        serve_calibration_reload(self, self._apply_calibration)
         self.create_timer(1.0 / rate_hz, self._publish)
         self.get_logger().info(f"ekf_node ready: {len(self.localiser.ekf.beacons_xy)} beacons, turret offset "
                                f"{self.localiser.ekf.sensor_offset_m} m, gate {self.localiser.ekf.gate:.2f}")
@@ -104,10 +90,7 @@ class EkfNode(Node):
     # -- parameters -----------------------------------------------------------------------------------
     def _declare_filter(self) -> None:
         """Beacon map and turret offset (calibration file first), process noise, gating, timing."""
-        calibration = load_calibration_parameter(self)
-        beacon_map, offset = self._declare_geometry()
-        if calibration is not None:
-            beacon_map, offset = calibration.beacon_map, calibration.turret_offset_m
+        beacon_map, offset = declare_beacon_geometry(self)
         noise = ProcessNoise(
             translation_m2_per_m=self._non_negative("translation_variance_m2_per_m", 3.0e-5,
                                                     "Odometry position variance per metre travelled."),
@@ -156,30 +139,15 @@ class EkfNode(Node):
             config = LocaliserConfig(**timing)
         except ValueError as error:  # parameters valid one by one but not together
             raise ParameterValidationError(str(error)) from None
-        beacons = dict(zip(beacon_map.ids, map(tuple, beacon_map.xy), strict=True))
-        self.localiser = Localiser(BearingEkf(beacons, offset, noise, gate), config)
-
-    def _declare_geometry(self) -> tuple[BeaconMap, tuple[float, float]]:
-        ids = declare_parameter(self, "beacon_ids", list(EUROBOT_BEACON_MAP.ids), "Beacon ids (codes).")
-        xs = declare_parameter(self, "beacon_x", EUROBOT_BEACON_MAP.xy[:, 0].tolist(), "Beacon x (m, map).")
-        ys = declare_parameter(self, "beacon_y", EUROBOT_BEACON_MAP.xy[:, 1].tolist(), "Beacon y (m, map).")
-        offset = declare_parameter(self, "turret_offset_m", [0.0, 0.0],
-                                   "Turret centre (x, y) in base_link (m); a calibration file overrides it.")
-        try:
-            beacon_map = BeaconMap.from_lists(ids, xs, ys)
-        except ValueError as error:
-            raise ParameterValidationError(str(error)) from None
-        if len(offset) != 2 or not all(math.isfinite(v) for v in offset):
-            raise ParameterValidationError(f"turret_offset_m needs 2 finite values, got {offset}")
-        return beacon_map, (float(offset[0]), float(offset[1]))
+        self.localiser = Localiser(BearingEkf(beacon_map.as_dict(), offset, noise, gate), config)
 
     def _non_negative(self, name: str, default: float, description: str) -> float:
         return float(declare_parameter(self, name, default, description, minimum=0.0, maximum=1.0e3))
 
     # -- inputs ---------------------------------------------------------------------------------------
     def _on_odometry(self, msg: Odometry) -> None:
-        stamp_s = stamp_seconds(msg.header.stamp)
-        outcome = self.localiser.on_odometry(stamp_s, pose_of(msg.pose.pose))
+        stamp_s = stamp_to_seconds(msg.header.stamp)
+        outcome = self.localiser.on_odometry(stamp_s, pose2d_of(msg.pose.pose))
         if outcome in ("reference", "predicted"):
             self._last_twist = msg.twist
             self._last_odometry_stamp = (stamp_s, msg.header.stamp)
@@ -187,34 +155,52 @@ class EkfNode(Node):
             self._published_stamp_s = None
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
-        bearings = [Bearing(stamp_seconds(b.header.stamp), int(b.beacon_id), b.bearing, b.variance)
+        bearings = [Bearing(stamp_to_seconds(b.header.stamp), int(b.beacon_id), b.bearing, b.variance)
                     for b in msg.bearings]
         self.localiser.on_bearings(bearings)
+        self._changed = True
+        self._publish()  # at once: the end-to-end latency from a revolution to the estimate stays small
 
     def _on_total_pose(self, msg: TriangulatedPose) -> None:
         if not (self.use_total and msg.accepted):
             return
         self._offer_pose(msg.header.stamp, msg.pose, operator=False)
 
-    def _on_operator_pose(self, msg: PoseWithCovarianceStamped) -> None:
+    def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
+        self._operator_pose(msg)
+
+    def _on_set_pose(self, request: SetPose.Request, response: SetPose.Response) -> SetPose.Response:
+        response.success, response.message = self._operator_pose(request.pose)
+        return response
+
+    def _operator_pose(self, msg: PoseWithCovarianceStamped) -> tuple[bool, str]:
+        """An operator's pose (RViz /initialpose or the set_pose service): (taken, what happened)."""
         if msg.header.frame_id and msg.header.frame_id != self.map_frame:
-            self.get_logger().warn(
-                f"pose in frame {msg.header.frame_id!r} ignored (expected {self.map_frame!r})")
             self.diagnostics.increment("poses_wrong_frame")
-            return
+            message = f"pose in frame {msg.header.frame_id!r} ignored (expected {self.map_frame!r})"
+            self.get_logger().warn(message)
+            return False, message
         what = self._offer_pose(msg.header.stamp, msg.pose, operator=True)
         self.get_logger().info(f"operator pose: {what}")
+        self._publish()
+        return self.localiser.estimate() is not None, f"operator pose: {what}"
+
+    def _apply_calibration(self, calibration: SensorCalibration) -> str:
+        beacon_map, offset = calibration.beacon_map, calibration.turret_offset_m
+        self.localiser.ekf.beacons_xy = beacon_map.as_dict()
+        self.localiser.ekf.sensor_offset_m = (float(offset[0]), float(offset[1]))
+        return f"beacons {list(beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
 
     def _offer_pose(self, stamp, pose_with_covariance, *, operator: bool) -> str:
         covariance = planar_covariance(pose_with_covariance.covariance)
         if not (np.all(np.isfinite(covariance)) and np.all(np.linalg.eigvalsh(covariance) > 0.0)):
             covariance = self.default_covariance
         # an operator's pose has no meaningful stamp in the odometry's past: take it as "now"
-        stamp_s = stamp_seconds(stamp)
+        stamp_s = stamp_to_seconds(stamp)
         latest = self.localiser.history.latest
         if operator and latest is not None and (stamp_s == 0.0 or stamp_s > latest[0]):
             stamp_s = latest[0]
-        return self.localiser.on_pose(stamp_s, pose_of(pose_with_covariance.pose), covariance,
+        return self.localiser.on_pose(stamp_s, pose2d_of(pose_with_covariance.pose), covariance,
                                       operator=operator)
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
@@ -231,13 +217,14 @@ class EkfNode(Node):
         self._update_diagnostics(estimate)
         if estimate is None or not math.isfinite(estimate.stamp_s):
             return
-        if estimate.stamp_s == self._published_stamp_s:  # nothing new since the last message
+        if estimate.stamp_s == self._published_stamp_s and not self._changed:  # nothing new since
             return
         self._published_stamp_s = estimate.stamp_s
+        self._changed = False
         odometry = Odometry()
         exact = self._last_odometry_stamp
         same = exact is not None and exact[0] == estimate.stamp_s
-        odometry.header.stamp = exact[1] if same else _time_msg(estimate.stamp_s)
+        odometry.header.stamp = exact[1] if same else seconds_to_stamp(estimate.stamp_s)
         odometry.header.frame_id = self.map_frame
         odometry.child_frame_id = self.base_frame
         _fill_pose(odometry.pose, estimate)
@@ -272,18 +259,8 @@ class EkfNode(Node):
             self.diagnostics.set_level("ok", "tracking")
 
 
-def _time_msg(stamp_s: float) -> Time:
-    """builtin_interfaces/Time from seconds."""
-    seconds = math.floor(stamp_s)
-    return Time(sec=int(seconds), nanosec=min(round((stamp_s - seconds) * 1e9), 999_999_999))
-
-
 def _fill_pose(pose_with_covariance, estimate: Estimate) -> None:
-    x, y, theta = estimate.pose
-    pose_with_covariance.pose.position.x = x
-    pose_with_covariance.pose.position.y = y
-    pose_with_covariance.pose.orientation.z = math.sin(0.5 * theta)
-    pose_with_covariance.pose.orientation.w = math.cos(0.5 * theta)
+    set_pose2d(pose_with_covariance.pose, estimate.pose)
     pose_with_covariance.covariance = ros_covariance(estimate.covariance)
 
 
