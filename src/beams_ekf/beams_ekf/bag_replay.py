@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 import yaml
-from rosbags.rosbag2 import Reader
+from rosbags.rosbag2 import Reader, ReaderError, WriterError
 
 from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_driver.calibration_file import load_calibration
@@ -48,6 +48,7 @@ from beams_ekf.odometry_history import (
     Pose2D,
     compose,
     heading_of,
+    inverse,
     is_finite_pose,
     wrap_angle,
 )
@@ -657,9 +658,7 @@ def odometry_in_map(result: ReplayResult) -> np.ndarray:
         start = ekf[ekf[:, 0] == segment][0]
         anchor = rows[np.argmin(np.abs(rows[:, 1] - start[1]))]
         # map <- odom: the EKF pose composed with the inverse of the odometry pose at the same instant
-        c, s = math.cos(anchor[4]), math.sin(anchor[4])
-        inverse = (-c * anchor[2] - s * anchor[3], s * anchor[2] - c * anchor[3], -anchor[4])
-        map_from_odom = compose(tuple(start[2:5]), inverse)
+        map_from_odom = compose(tuple(start[2:5]), inverse(tuple(anchor[2:5])))
         later = rows[rows[:, 1] >= start[1]]
         placed += [(segment, t, *compose(map_from_odom, (x, y, th))) for _, t, x, y, th in later]
     return np.array(placed, dtype=float).reshape(-1, 5)
@@ -791,7 +790,7 @@ def main(argv: list[str] | None = None) -> int:
         result = replay_bag(options.input_bag, options.output_bag, settings, typestore=typestore,
                             storage=options.storage, start_like_live=options.start_like_live)
         live = live_tracks(options.input_bag, typestore)
-    except (OSError, ValueError) as error:
+    except (OSError, ValueError, ReaderError, WriterError) as error:
         print(f"replay_bag: {error}", file=sys.stderr)
         return 2
     if options.plot:

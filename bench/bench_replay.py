@@ -1,0 +1,66 @@
+"""Bag replay benchmark (issue 7, "Rosbag replay"): how fast `replay_bag` runs the triangulation and the
+EKF over a recorded match, as input messages per second and as a multiple of real time.
+
+The bag is a simulated 90 s Eurobot match (beams_driver.simulated_match: truth and odometry at 50 Hz,
+one revolution of bearings at 10 Hz, so 110 input messages per second of match), written as MCAP and
+as sqlite3; the replay reads it, runs both pipelines and writes the outputs with the inputs.
+
+Usage: python bench/bench_replay.py [--duration S] [--seed N]
+(`rows()` is what bench/run_all.py collects.)
+"""
+
+import argparse
+import pathlib
+import sys
+import tempfile
+
+from beams_driver.simulated_match import simulate_match
+from beams_ekf.bag_io import beams_typestore
+from beams_ekf.bag_replay import ReplayResult, replay_bag, simulated_messages, write_bag
+
+DEFAULT_DURATION_S = 90.0
+DEFAULT_SEED = 3
+BEAMS_MSGS = pathlib.Path(__file__).resolve().parents[1] / "src" / "beams_msgs"
+# the suite's live input rate: truth 50 Hz + odometry 50 Hz + bearings 10 Hz
+LIVE_MESSAGES_PER_S = 110.0
+
+
+def replay_once(duration_s: float, seed: int, storage: str) -> ReplayResult:
+    """Write the match to a bag of the given storage and replay it into another (same storage)."""
+    typestore = beams_typestore(BEAMS_MSGS)
+    messages = simulated_messages(simulate_match(duration_s, seed=seed), typestore, 1_795_000_000 * 10**9)
+    with tempfile.TemporaryDirectory() as directory:
+        bag = write_bag(pathlib.Path(directory) / "input", messages, typestore, storage=storage)
+        return replay_bag(bag, pathlib.Path(directory) / "output", typestore=typestore, storage=storage)
+
+
+def rows(duration_s: float = DEFAULT_DURATION_S,
+         seed: int = DEFAULT_SEED) -> list[tuple[str, float, str, str]]:
+    table = []
+    for storage in ("mcap", "sqlite3"):
+        result = replay_once(duration_s, seed, storage)
+        table += [
+            (f"replay_bag speed, {duration_s:.0f} s match, {storage}", result.messages_per_s, "messages/s",
+             f"{LIVE_MESSAGES_PER_S:.0f} messages/s live"),
+            (f"replay_bag speed, {duration_s:.0f} s match, {storage}", result.real_time_factor, "x real time",
+             "1 x (the live nodes)"),
+        ]
+    table.append((f"replay_bag outputs written per input message ({duration_s:.0f} s match)",
+                  result.messages_out / result.messages_in, "messages", "1 (inputs copied) + outputs"))
+    return table
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--duration", type=float, default=DEFAULT_DURATION_S, help="match duration (s)")
+    parser.add_argument("--seed", type=int, default=DEFAULT_SEED, help="simulated match seed")
+    options = parser.parse_args()
+    print("| figure | value | unit | compared with |\n|---|---|---|---|")
+    for figure, value, unit, compared in rows(options.duration, options.seed):
+        print(f"| {figure} | {value:.4g} | {unit} | {compared} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
