@@ -14,12 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from beams_driver.angles import wrap_to_pi
+from beams_driver.pose2d import compose
 from beams_driver.sensor_sim import SensorSimConfig
 from beams_driver.simulated_match import SimulatedMatch, simulate_match
 from beams_driver.variance import VarianceModel
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Bearing, Localiser
-from beams_ekf.odometry_history import compose, wrap_angle
 from beams_ekf.replay import Accuracy, ReplayResult, accuracy, bearing_events, replay
 
 DEFAULT_SEED = 1
@@ -74,7 +75,7 @@ def odometry_alone(match: SimulatedMatch) -> tuple[float, float, np.ndarray]:
     poses = np.array([compose(match.initial_pose, tuple(p)) for p in _odometry_array(match)])
     truth = match.ground_truth
     position = np.hypot(poses[:, 0] - truth.x_m, poses[:, 1] - truth.y_m)
-    heading = np.array([wrap_angle(float(a)) for a in poses[:, 2] - truth.theta_rad])
+    heading = np.array([wrap_to_pi(float(a)) for a in poses[:, 2] - truth.theta_rad])
     return float(np.sqrt(np.mean(position**2))), float(np.sqrt(np.mean(heading**2))), poses
 
 
@@ -93,7 +94,7 @@ def total_alone(match: SimulatedMatch) -> tuple[float, float, float, np.ndarray]
         if not fix.ok:
             continue
         x, y, theta = match.truth_at(float(np.mean([by_id[i].stamp_s for i in ids])))
-        errors.append((math.hypot(fix.x - x, fix.y - y), wrap_angle(fix.heading - theta)))
+        errors.append((math.hypot(fix.x - x, fix.y - y), wrap_to_pi(fix.heading - theta)))
         fixes.append((fix.x, fix.y))
     errors_array = np.array(errors)
     # outliers (a wrongly stamped bearing) are part of ToTal alone's performance: no gate here

@@ -3,6 +3,8 @@
 import math
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from beams_driver.angles import wrap_to_pi
 from beams_driver.pose2d import between, compose, interpolate, inverse, yaw_of_quaternion
@@ -14,6 +16,21 @@ def test_compose_and_between_are_inverse():
     assert compose(A, between(A, B)) == pytest.approx(B, abs=1e-12)
     assert between(A, compose(A, B)) == pytest.approx(B, abs=1e-12)
     assert compose(A, inverse(A)) == pytest.approx((0.0, 0.0, 0.0), abs=1e-12)
+
+
+coordinate = st.floats(-10.0, 10.0)
+poses = st.tuples(coordinate, coordinate, st.floats(-3.0 * math.pi, 3.0 * math.pi))
+
+
+@given(poses, poses)
+def test_between_inverts_compose_everywhere(a, b):
+    assert between(a, compose(a, b))[:2] == pytest.approx(b[:2], abs=1e-8)
+    assert abs(wrap_to_pi(between(a, compose(a, b))[2] - b[2])) < 1e-8
+
+
+def test_compose_known_value():
+    # a robot at (1, 2) facing +y moving 1 m forward ends at (1, 3)
+    assert compose((1.0, 2.0, math.pi / 2), (1.0, 0.0, 0.0)) == pytest.approx((1.0, 3.0, math.pi / 2))
 
 
 def test_interpolation_takes_the_short_arc_across_pi():

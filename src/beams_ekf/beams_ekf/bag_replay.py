@@ -38,20 +38,14 @@ import numpy as np
 import yaml
 from rosbags.rosbag2 import Reader, ReaderError, WriterError
 
+from beams_driver.angles import wrap_to_pi
 from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_driver.calibration_file import load_calibration
+from beams_driver.pose2d import Pose2D, compose, inverse, is_finite_pose, yaw_of_quaternion
 from beams_ekf.bag_io import BagRecorder, beams_typestore
 from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise
 from beams_ekf.localiser import Bearing, Estimate, Localiser, LocaliserConfig
-from beams_ekf.odometry_history import (
-    OdometryHistory,
-    Pose2D,
-    compose,
-    heading_of,
-    inverse,
-    is_finite_pose,
-    wrap_angle,
-)
+from beams_ekf.odometry_history import OdometryHistory
 from beams_triangulation.gating import Bearing as TriangulationBearing
 from beams_triangulation.gating import GateConfig, NoPose, PoseEstimate, RevolutionEstimator
 
@@ -270,7 +264,7 @@ class _TriangulationOdometry:
 def odometry_pose(message: Any) -> Pose2D:
     """(x, y, yaw) of a nav_msgs/Odometry."""
     q = message.pose.pose.orientation
-    return (message.pose.pose.position.x, message.pose.pose.position.y, heading_of(q.x, q.y, q.z, q.w))
+    return (message.pose.pose.position.x, message.pose.pose.position.y, yaw_of_quaternion(q.x, q.y, q.z, q.w))
 
 
 def usable_covariance(covariance: np.ndarray, default: np.ndarray) -> np.ndarray:
@@ -642,7 +636,7 @@ def errors_against_truth(track: np.ndarray, truth: np.ndarray) -> tuple[np.ndarr
         y = np.interp(rows[:, 1], reference[:, 1], reference[:, 3])
         heading = np.interp(rows[:, 1], reference[:, 1], np.unwrap(reference[:, 4]))
         positions.append(np.hypot(rows[:, 2] - x, rows[:, 3] - y))
-        headings.append(np.abs([wrap_angle(float(a)) for a in rows[:, 4] - heading]))
+        headings.append(np.abs([wrap_to_pi(float(a)) for a in rows[:, 4] - heading]))
     if not positions:
         return np.empty(0), np.empty(0)
     return np.concatenate(positions), np.concatenate(headings)
@@ -688,7 +682,7 @@ def agreement(replayed: Track, live: Track, settle_s: float = 0.0) -> Agreement:
     if not pairs:
         return Agreement(0, math.nan, math.nan, math.nan)
     position = np.array([math.hypot(a[0] - b[0], a[1] - b[1]) for _, a, b in pairs])
-    heading = np.array([abs(wrap_angle(a[2] - b[2])) for _, a, b in pairs])
+    heading = np.array([abs(wrap_to_pi(a[2] - b[2])) for _, a, b in pairs])
     return Agreement(len(pairs), float(position.max()), float(heading.max()), rms(position))
 
 

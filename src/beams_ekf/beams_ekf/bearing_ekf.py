@@ -24,7 +24,8 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2
 
-from beams_ekf.odometry_history import Pose2D, compose, wrap_angle
+from beams_driver.angles import wrap_to_pi
+from beams_driver.pose2d import Pose2D, compose
 
 
 @dataclass(frozen=True)
@@ -133,7 +134,7 @@ class BearingEkf:
             raise ValueError("initial pose and covariance must be finite")
         if np.any(np.linalg.eigvalsh(0.5 * (covariance + covariance.T)) <= 0.0):
             raise ValueError("initial covariance must be positive definite")
-        self._ekf.x = np.array([[pose[0]], [pose[1]], [wrap_angle(pose[2])]])
+        self._ekf.x = np.array([[pose[0]], [pose[1]], [wrap_to_pi(pose[2])]])
         self._ekf.P = 0.5 * (covariance + covariance.T)
         self._initialised = True
 
@@ -188,7 +189,7 @@ class BearingEkf:
         # d(xs)/d(theta) = -s lx - c ly and d(ys)/d(theta) = c lx - s ly
         d_theta = (dy * (-s * lx - c * ly) - dx * (c * lx - s * ly)) / q - 1.0
         jacobian = np.array([[dy / q, -dx / q, d_theta]])
-        return wrap_angle(atan2(dy, dx) - theta - lth), jacobian
+        return wrap_to_pi(atan2(dy, dx) - theta - lth), jacobian
 
     def update_bearing(
         self, beacon_id: int, bearing_rad: float, variance_rad2: float, lever: Pose2D | None = None
@@ -204,7 +205,7 @@ class BearingEkf:
             expected, jacobian = self.predicted_bearing(beacon_id, lever)
         except ZeroDivisionError:
             return BearingOutcome(False, float("nan"), float("nan"), "sensor on beacon")
-        residual = wrap_angle(bearing_rad - expected)
+        residual = wrap_to_pi(bearing_rad - expected)
         innovation_variance = float((jacobian @ self._ekf.P @ jacobian.T)[0, 0]) + variance_rad2
         nis = residual * residual / innovation_variance
         if nis > self.gate:
@@ -217,7 +218,7 @@ class BearingEkf:
             R=np.array([[variance_rad2]]),
             residual=lambda _z, _hx: np.array([[residual]]),
         )
-        self._ekf.x[2, 0] = wrap_angle(float(self._ekf.x[2, 0]))
+        self._ekf.x[2, 0] = wrap_to_pi(float(self._ekf.x[2, 0]))
         return BearingOutcome(True, nis, residual)
 
     def position_sigma_m(self) -> float:

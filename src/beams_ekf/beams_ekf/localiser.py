@@ -23,8 +23,10 @@ from math import hypot, isfinite
 import numpy as np
 from scipy.stats import chi2
 
+from beams_driver.angles import wrap_to_pi
+from beams_driver.pose2d import Pose2D, between, compose, is_finite_pose
 from beams_ekf.bearing_ekf import BearingEkf, BearingOutcome, turret_pose
-from beams_ekf.odometry_history import OdometryHistory, Pose2D, between, compose, is_finite_pose, wrap_angle
+from beams_ekf.odometry_history import OdometryHistory
 
 # bearings waiting for odometry beyond this many are dropped, oldest first (a dead odometry source)
 MAX_PENDING_BEARINGS = 64
@@ -332,7 +334,7 @@ class Localiser:
         thresholds: the squared Mahalanobis distance of the difference, under the sum of the two
         covariances, above the chi-square (3 dof) quantile at kidnap_probability."""
         x, y, theta = self.ekf.pose
-        difference = np.array([pose[0] - x, pose[1] - y, wrap_angle(pose[2] - theta)])
+        difference = np.array([pose[0] - x, pose[1] - y, wrap_to_pi(pose[2] - theta)])
         combined = self.ekf.covariance + np.asarray(covariance, dtype=float).reshape(3, 3)
         try:
             distance2 = float(difference @ np.linalg.solve(combined, difference))

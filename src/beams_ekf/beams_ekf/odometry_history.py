@@ -1,4 +1,4 @@
-"""Planar pose algebra and a short history of odometry poses (thesis fig. 8.1, the odometry branch).
+"""A short history of odometry poses (thesis fig. 8.1, the odometry branch).
 
 The EKF state lives at the instant of the newest odometry sample, while each BeAMS bearing is stamped
 with the instant the turret pointed at its beacon (earlier, since a revolution is published when it
@@ -10,55 +10,8 @@ Poses are (x, y, theta) tuples: x, y in metres, theta in radians, REP-103.
 
 from bisect import bisect_right
 from collections import deque
-from math import atan2, cos, isfinite, pi, sin
 
-Pose2D = tuple[float, float, float]
-
-_TWO_PI = 2.0 * pi
-
-
-def wrap_angle(angle_rad: float) -> float:
-    """Wrap a scalar angle to (-pi, pi] (scalar twin of beams_driver.angles.wrap_to_pi, 20x faster)."""
-    wrapped = pi - (pi - angle_rad) % _TWO_PI
-    return wrapped
-
-
-def compose(a: Pose2D, b: Pose2D) -> Pose2D:
-    """Pose composition a (+) b: b expressed in a's frame, returned in a's parent frame."""
-    c, s = cos(a[2]), sin(a[2])
-    return (a[0] + c * b[0] - s * b[1], a[1] + s * b[0] + c * b[1], wrap_angle(a[2] + b[2]))
-
-
-def inverse(a: Pose2D) -> Pose2D:
-    """Inverse pose (-)a, so that compose(a, inverse(a)) is the identity."""
-    c, s = cos(a[2]), sin(a[2])
-    return (-c * a[0] - s * a[1], s * a[0] - c * a[1], wrap_angle(-a[2]))
-
-
-def between(a: Pose2D, b: Pose2D) -> Pose2D:
-    """Relative motion from a to b expressed in a's frame: (-)a (+) b."""
-    c, s = cos(a[2]), sin(a[2])
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    return (c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[2] - a[2]))
-
-
-def interpolate(a: Pose2D, b: Pose2D, fraction: float) -> Pose2D:
-    """Pose a fraction of the way from a to b (linear in position, shortest arc in heading)."""
-    return (
-        a[0] + fraction * (b[0] - a[0]),
-        a[1] + fraction * (b[1] - a[1]),
-        wrap_angle(a[2] + fraction * wrap_angle(b[2] - a[2])),
-    )
-
-
-def is_finite_pose(pose: Pose2D) -> bool:
-    """True when the three components are finite numbers."""
-    return isfinite(pose[0]) and isfinite(pose[1]) and isfinite(pose[2])
-
-
-def heading_of(qx: float, qy: float, qz: float, qw: float) -> float:
-    """Yaw (rad) of a unit quaternion (the z-y-x Euler angle)."""
-    return atan2(2.0 * (qw * qz + qx * qy), 1.0 - 2.0 * (qy * qy + qz * qz))
+from beams_driver.pose2d import Pose2D, between, interpolate
 
 
 class OdometryHistory:

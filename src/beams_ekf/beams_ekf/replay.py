@@ -9,8 +9,9 @@ from itertools import groupby
 import numpy as np
 from scipy.stats import chi2
 
+from beams_driver.angles import wrap_to_pi
+from beams_driver.pose2d import Pose2D
 from beams_ekf.localiser import Localiser
-from beams_ekf.odometry_history import Pose2D, wrap_angle
 from beams_ekf.synthetic import BearingEvent
 
 
@@ -27,7 +28,7 @@ class ReplayResult:
     def errors(self) -> np.ndarray:
         """(k, 3) estimate - truth, heading wrapped."""
         errors = self.estimates - self.truths
-        errors[:, 2] = [wrap_angle(float(a)) for a in errors[:, 2]]
+        errors[:, 2] = [wrap_to_pi(float(a)) for a in errors[:, 2]]
         return errors
 
 

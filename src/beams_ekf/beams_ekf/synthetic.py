@@ -10,7 +10,8 @@ from math import atan2, cos, hypot, pi, sin
 
 import numpy as np
 
-from beams_ekf.odometry_history import Pose2D, between, compose, wrap_angle
+from beams_driver.angles import wrap_to_pi
+from beams_driver.pose2d import Pose2D, between, compose
 
 # Eurobot beacons (map frame, m): the table spans x in [0, 3], y in [0, 2]
 EUROBOT_BEACONS_XY: dict[int, tuple[float, float]] = {
@@ -45,7 +46,7 @@ class SyntheticMatch:
         x = float(np.interp(stamp_s, self.times_s, self.truth[:, 0]))
         y = float(np.interp(stamp_s, self.times_s, self.truth[:, 1]))
         heading = float(np.interp(stamp_s, self.times_s, np.unwrap(self.truth[:, 2])))
-        return (x, y, wrap_angle(heading))
+        return (x, y, wrap_to_pi(heading))
 
 
 def lissajous_pose(t_s: float) -> Pose2D:
@@ -76,7 +77,7 @@ def _drifting_odometry(truth: np.ndarray, rng: np.random.Generator, scale_error:
 def _sensor_bearing(pose: Pose2D, beacon_xy: tuple[float, float], offset_m: tuple[float, float]) -> float:
     """Bearing of a beacon from the turret at `offset_m` on the robot, in the sensor frame."""
     sensor = compose(pose, (offset_m[0], offset_m[1], 0.0))
-    return wrap_angle(atan2(beacon_xy[1] - sensor[1], beacon_xy[0] - sensor[0]) - pose[2])
+    return wrap_to_pi(atan2(beacon_xy[1] - sensor[1], beacon_xy[0] - sensor[0]) - pose[2])
 
 
 def _pointing_time(revolution_start_s: float, period_s: float, bearing_at) -> float:
@@ -106,7 +107,7 @@ def synthetic_match(duration_s: float = 30.0, seed: int = 1, *, bearing_sigma_ra
                                      lambda t, xy=xy: _sensor_bearing(lissajous_pose(t), xy, sensor_offset_m))
             measured = _sensor_bearing(lissajous_pose(stamp_s), xy, sensor_offset_m)
             bearings.append(BearingEvent(float(start_s) + revolution_period_s, stamp_s, beacon_id,
-                                         wrap_angle(measured + bearing_sigma_rad * rng.standard_normal()),
+                                         wrap_to_pi(measured + bearing_sigma_rad * rng.standard_normal()),
                                          bearing_sigma_rad**2))
     return SyntheticMatch(times_s, truth, odometry, bearings)
 

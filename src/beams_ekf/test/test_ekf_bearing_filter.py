@@ -5,8 +5,9 @@ from math import atan2, pi, sqrt
 import numpy as np
 import pytest
 
+from beams_driver.angles import wrap_to_pi
+from beams_driver.pose2d import compose
 from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise, gate_threshold, turret_pose
-from beams_ekf.odometry_history import compose, wrap_angle
 from beams_ekf.synthetic import EUROBOT_BEACONS_XY
 
 POSE = (1.2, 0.7, 0.4)
@@ -22,13 +23,13 @@ def _filter(pose=POSE, sigma=(0.01, 0.01, 0.01), offset=OFFSET, **kwargs) -> Bea
 def _true_bearing(pose, beacon_id, offset=OFFSET) -> float:
     sensor = compose(pose, (offset[0], offset[1], 0.0))
     xb, yb = EUROBOT_BEACONS_XY[beacon_id]
-    return wrap_angle(atan2(yb - sensor[1], xb - sensor[0]) - pose[2])
+    return wrap_to_pi(atan2(yb - sensor[1], xb - sensor[0]) - pose[2])
 
 
 @pytest.mark.parametrize("beacon_id", [1, 2, 3])
 def test_predicted_bearing_matches_geometry_with_turret_offset(beacon_id):
     expected, _ = _filter().predicted_bearing(beacon_id)
-    assert abs(wrap_angle(expected - _true_bearing(POSE, beacon_id))) < 1e-12
+    assert abs(wrap_to_pi(expected - _true_bearing(POSE, beacon_id))) < 1e-12
 
 
 @pytest.mark.parametrize("lever", [None, (0.05, -0.01, 0.2), (-0.1, 0.03, -1.0)])
@@ -43,7 +44,7 @@ def test_measurement_jacobian_matches_finite_differences(lever):
         plus, _ = _filter(tuple(shifted)).predicted_bearing(2, lever)
         shifted[axis] -= 2 * step
         minus, _ = _filter(tuple(shifted)).predicted_bearing(2, lever)
-        numeric.append(wrap_angle(plus - minus) / (2 * step))
+        numeric.append(wrap_to_pi(plus - minus) / (2 * step))
     np.testing.assert_allclose(jacobian[0], numeric, rtol=1e-6, atol=1e-8)
 
 
@@ -80,7 +81,7 @@ def test_update_pulls_the_estimate_towards_the_truth_and_shrinks_the_innovation_
             assert outcome.accepted
         errors.append(np.hypot(ekf.pose[0] - truth[0], ekf.pose[1] - truth[1]))
     assert errors[-1] < 1e-5 < 0.014
-    assert abs(wrap_angle(ekf.pose[2] - truth[2])) < 1e-5
+    assert abs(wrap_to_pi(ekf.pose[2] - truth[2])) < 1e-5
 
 
 def test_residual_is_wrapped_across_pi():
@@ -89,7 +90,7 @@ def test_residual_is_wrapped_across_pi():
     ekf = _filter(pose=pose, offset=(0.0, 0.0))
     expected, _ = ekf.predicted_bearing(3)
     assert abs(abs(expected) - pi) < 1e-3
-    measured = wrap_angle(expected + 2e-4)
+    measured = wrap_to_pi(expected + 2e-4)
     outcome = ekf.update_bearing(3, measured, 1e-8)
     assert outcome.accepted
     assert abs(outcome.residual_rad - 2e-4) < 1e-9

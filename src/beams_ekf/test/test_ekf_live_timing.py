@@ -11,9 +11,10 @@ from math import hypot
 import numpy as np
 import pytest
 
+from beams_driver.angles import wrap_to_pi
+from beams_driver.pose2d import Pose2D
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Bearing, Localiser, LocaliserConfig
-from beams_ekf.odometry_history import Pose2D, wrap_angle
 from beams_ekf.synthetic import EUROBOT_BEACONS_XY, SyntheticMatch, synthetic_match
 
 OFFSET = (0.03, -0.01)
@@ -80,7 +81,7 @@ def feed(localiser: Localiser, stream: list[Arrival], start_s: float, stop_s: fl
 
 
 def _error(pose: Pose2D, truth: Pose2D) -> tuple[float, float]:
-    return hypot(pose[0] - truth[0], pose[1] - truth[1]), abs(wrap_angle(pose[2] - truth[2]))
+    return hypot(pose[0] - truth[0], pose[1] - truth[1]), abs(wrap_to_pi(pose[2] - truth[2]))
 
 
 def _localiser() -> Localiser:

@@ -9,9 +9,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from beams_driver.angles import wrap_to_pi
+from beams_driver.pose2d import compose
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Bearing, Localiser, LocaliserConfig
-from beams_ekf.odometry_history import compose, wrap_angle
 from beams_ekf.replay import accuracy, replay
 from beams_ekf.synthetic import EUROBOT_BEACONS_XY, SyntheticMatch, synthetic_match
 
@@ -188,7 +189,7 @@ def test_heading_error_stays_small_through_a_wrap_of_pi(match):
     assert np.any(np.abs(np.diff(headings)) > np.pi)
     result = replay(_localiser(), match.times_s, match.odometry, match.bearings, match.truth_at,
                     tuple(match.truth[0]), START_COVARIANCE)
-    assert max(abs(wrap_angle(float(e))) for e in result.errors()[:, 2]) < np.radians(0.5)
+    assert max(abs(wrap_to_pi(float(e))) for e in result.errors()[:, 2]) < np.radians(0.5)
 
 
 _events = st.lists(

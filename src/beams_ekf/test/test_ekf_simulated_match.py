@@ -7,10 +7,10 @@ import math
 import numpy as np
 import pytest
 
+from beams_driver.pose2d import compose
 from beams_driver.simulated_match import SimulatedMatch, simulate_match
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Localiser
-from beams_ekf.odometry_history import compose
 from beams_ekf.replay import Accuracy, ReplayResult, accuracy, bearing_events, replay
 
 
