@@ -36,8 +36,9 @@ demo: build
 	$(ROS_ENV) python scripts/demo.py $(DEMO_ARGS)
 
 ## bench: every benchmark under bench/, one table (the one BENCHMARKS.md records)
+BENCH_ARGS ?=
 bench: build
-	$(ROS_ENV) python bench/run_all.py
+	$(ROS_ENV) python bench/run_all.py $(BENCH_ARGS)
 
 lint: $(VENV)/.installed
 	$(VENV)/bin/ruff check src test bench scripts

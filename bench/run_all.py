@@ -1,7 +1,8 @@
 """Run every benchmark under bench/ and print one table: the table BENCHMARKS.md records.
 
 Each bench/bench_<area>.py module has `rows() -> list[(figure, value, unit, compared with)]`.
-Usage (through `make bench`): python bench/run_all.py [--only AREA ...] [--markdown PATH]
+Usage (through `make bench`): python bench/run_all.py [--only AREA ...] [--record BENCHMARKS.md]
+With --record, the table replaces what stands between the markers BEGIN_MARK and END_MARK of that file.
 """
 
 import argparse
@@ -26,10 +27,24 @@ def format_value(value: float) -> str:
     return f"{value:.4g}" if isinstance(value, float) else str(value)
 
 
+BEGIN_MARK = "<!-- make bench: table begins -->"
+END_MARK = "<!-- make bench: table ends -->"
+
+
+def record_table(path: pathlib.Path, table: str) -> None:
+    """Replace the table between the markers of a Markdown file, keeping the text around it."""
+    text = path.read_text()
+    if BEGIN_MARK not in text or END_MARK not in text:
+        raise SystemExit(f"{path} has no {BEGIN_MARK} / {END_MARK} markers")
+    head, rest = text.split(BEGIN_MARK, 1)
+    _, tail = rest.split(END_MARK, 1)
+    path.write_text(f"{head}{BEGIN_MARK}\n{table}\n{END_MARK}{tail}")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--only", nargs="*", default=None, help="areas to run (bench_<area>.py)")
-    parser.add_argument("--markdown", type=pathlib.Path, help="also write the table to this file")
+    parser.add_argument("--record", type=pathlib.Path, help="also put the table into this file (its markers)")
     options = parser.parse_args()
     paths = sorted(BENCH_DIR.glob("bench_*.py"))
     if options.only:
@@ -57,8 +72,8 @@ def main() -> int:
         print(f"{path.name}: {len(rows)} figures in {time.monotonic() - started:.1f} s", file=sys.stderr)
     table = "\n".join(lines)
     print(table)
-    if options.markdown:
-        options.markdown.write_text(table + "\n")
+    if options.record:
+        record_table(options.record, table)
     return 1 if failures else 0
 
 
