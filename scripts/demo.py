@@ -14,7 +14,7 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import rclpy
@@ -26,9 +26,10 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import deserialize_message
 from visualization_msgs.msg import MarkerArray
 
-from beams_driver.angles import wrap_to_pi
-from beams_driver.ros_messages import pose2d_of, stamp_to_seconds
+from beams_driver.ros_messages import pose2d_of
 from beams_ekf.bag_io import BagRecorder, beams_typestore
+from beams_ekf.bag_replay import stamp_ns
+from beams_ekf.trajectory_metrics import RunTracks, errors_against_truth, plot_trajectories, rms, rms_table
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -61,61 +62,27 @@ def ros_type_name(msg_type: type) -> str:
 
 
 @dataclass
-class Track:
-    """Poses (t, x, y, theta) of one source, in arrival order."""
+class MatchRecord(RunTracks):
+    """The tracks of the live match and the counts the progress lines show."""
 
-    rows: list[tuple[float, float, float, float]] = field(default_factory=list)
-
-    def add(self, t: float, pose) -> None:
-        self.rows.append((t, *pose2d_of(pose)))
-
-    def array(self) -> np.ndarray:
-        return np.array(self.rows, dtype=float).reshape(-1, 4)
-
-
-@dataclass
-class MatchRecord:
-    truth: Track = field(default_factory=Track)
-    odometry: Track = field(default_factory=Track)
-    total: Track = field(default_factory=Track)
-    ekf: Track = field(default_factory=Track)
     bearings: int = 0
     revolutions: int = 0
     rejected_windows: int = 0
     poses_rejected: int = 0
 
     def on_message(self, topic: str, msg) -> None:
-        if topic == "beams/sim/ground_truth":
-            self.truth.add(stamp_to_seconds(msg.header.stamp), msg.pose.pose)
-        elif topic == "odom":
-            self.odometry.add(stamp_to_seconds(msg.header.stamp), msg.pose.pose)
-        elif topic == "beams/ekf/odometry":
-            self.ekf.add(stamp_to_seconds(msg.header.stamp), msg.pose.pose)
+        tracks = {"beams/sim/ground_truth": self.truth, "odom": self.odometry, "beams/ekf/odometry": self.ekf}
+        if topic in tracks:
+            tracks[topic].add(0, stamp_ns(msg.header.stamp), pose2d_of(msg.pose.pose))
         elif topic == "beams/bearings":
             self.revolutions += 1
             self.bearings += len(msg.bearings)
             self.rejected_windows += msg.rejected_windows
         elif topic == "beams/pose":
             if msg.accepted:
-                self.total.add(stamp_to_seconds(msg.header.stamp), msg.pose.pose)
+                self.total.add(0, stamp_ns(msg.header.stamp), pose2d_of(msg.pose.pose))
             else:
                 self.poses_rejected += 1
-
-
-def errors_against_truth(track: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Position (m) and heading (rad) errors of a track against the truth interpolated at its stamps."""
-    if len(track) == 0 or len(truth) < 2:
-        return np.empty(0), np.empty(0)
-    inside = (track[:, 0] >= truth[0, 0]) & (track[:, 0] <= truth[-1, 0])
-    track = track[inside]
-    x = np.interp(track[:, 0], truth[:, 0], truth[:, 1])
-    y = np.interp(track[:, 0], truth[:, 0], truth[:, 2])
-    heading = np.interp(track[:, 0], truth[:, 0], np.unwrap(truth[:, 3]))
-    return np.hypot(track[:, 1] - x, track[:, 2] - y), np.abs(wrap_to_pi(track[:, 3] - heading))
-
-
-def rms(values: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(values**2))) if len(values) else float("nan")
 
 
 def start_nodes(output: pathlib.Path, duration_s: float, env: dict[str, str]) -> list[subprocess.Popen]:
@@ -164,70 +131,16 @@ def progress_line(record: MatchRecord, elapsed_s: float, bearings_per_s: float) 
     )
 
 
-def odometry_in_map(odometry: np.ndarray, truth: np.ndarray) -> np.ndarray:
-    """Odometry (odom frame) placed in the map frame by the true pose at its first sample (map -> odom)."""
-    if len(odometry) == 0 or len(truth) == 0:
-        return odometry
-    t0, x0, y0, theta0 = odometry[0]
-    start_x, start_y = (np.interp(t0, truth[:, 0], truth[:, i]) for i in (1, 2))
-    rotation = np.interp(t0, truth[:, 0], np.unwrap(truth[:, 3])) - theta0
-    cos_r, sin_r = np.cos(rotation), np.sin(rotation)
-    dx, dy = odometry[:, 1] - x0, odometry[:, 2] - y0
-    placed = odometry.copy()
-    placed[:, 1] = start_x + cos_r * dx - sin_r * dy
-    placed[:, 2] = start_y + sin_r * dx + cos_r * dy
-    placed[:, 3] = wrap_to_pi(odometry[:, 3] + rotation)
-    return placed
-
-
-def tracks_in_map(record: MatchRecord) -> dict[str, np.ndarray]:
-    """Every track in the map frame, keyed by the name the table and the plot show."""
-    truth = record.truth.array()
-    return {
-        "truth": truth,
-        "odometry": odometry_in_map(record.odometry.array(), truth),
-        "ToTal (accepted)": record.total.array(),
-        "EKF": record.ekf.array(),
-    }
-
-
 def summary_table(record: MatchRecord) -> str:
-    tracks = tracks_in_map(record)
-    truth = tracks.pop("truth")
-    lines = ["| source | poses | RMS position (mm) | RMS heading (deg) |", "|---|---|---|---|"]
-    for name, track in tracks.items():
-        position, heading = errors_against_truth(track, truth)
-        lines.append(
-            f"| {name} | {len(position)} | {1000 * rms(position):.1f} | {np.degrees(rms(heading)):.3f} |"
-        )
+    tracks = record.in_map("truth")  # dead reckoning from the true start
+    rows = (("odometry", tracks["odometry"]), ("ToTal (accepted)", tracks["ToTal"]), ("EKF", tracks["EKF"]))
+    lines = rms_table(rows, tracks["truth"])
     lines += [
         "",
         f"revolutions {record.revolutions}, bearings {record.bearings}, "
         f"rejected windows {record.rejected_windows}, ToTal poses gated out {record.poses_rejected}",
     ]
     return "\n".join(lines)
-
-
-def plot_trajectories(record: MatchRecord, path: pathlib.Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    figure, axes = plt.subplots(figsize=(9, 6.5))
-    styles = {"truth": "k-", "odometry": "C1--", "ToTal (accepted)": "C0.", "EKF": "C2-"}
-    for name, rows in tracks_in_map(record).items():
-        style = styles[name]
-        if len(rows):
-            axes.plot(rows[:, 1], rows[:, 2], style, label=name, markersize=2, linewidth=1)
-    axes.add_patch(plt.Rectangle((0, 0), 3, 2, fill=False, color="grey"))
-    axes.set_aspect("equal")
-    axes.set_xlabel("x (m, map)")
-    axes.set_ylabel("y (m, map)")
-    axes.set_title("BeAMS demo: simulated Eurobot match")
-    axes.legend(loc="upper right")
-    figure.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(figure)
 
 
 def main() -> int:
@@ -294,7 +207,8 @@ def main() -> int:
 
     table = summary_table(record)
     (output / "summary.md").write_text(table + "\n")
-    plot_trajectories(record, output / "trajectory.png")
+    plot_trajectories(record.in_map("truth"), output / "trajectory.png",
+                      "BeAMS demo: simulated Eurobot match")
     print()
     print(table)
     print(f"\nbag: {output / 'bag'} ({recorder.messages_written} messages, MCAP)")

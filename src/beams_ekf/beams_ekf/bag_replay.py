@@ -5,7 +5,7 @@
 
 Reads `beams/bearings`, `odom` and, when present, `beams/sim/ground_truth` from a bag (sqlite3 or MCAP,
 with the `rosbags` library, no ROS graph), feeds them to the same pure objects the nodes wrap
-(`gating.RevolutionEstimator` as triangulation_node does, `localiser.Localiser` as ekf_node does) as
+(`gating.TriangulationPipeline` as triangulation_node does, `localiser.Localiser` as ekf_node does) as
 fast as the CPU allows, and writes `beams/pose`, `beams/pose_cov`, `beams/ekf/odometry` and
 `beams/ekf/pose` next to a copy of the inputs into a new bag (MCAP by default), plus a trajectory plot
 and a summary (RMS errors against the truth when the bag has it, agreement with the live nodes' outputs
@@ -31,7 +31,7 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Iterable, Iterator, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -41,13 +41,28 @@ from rosbags.rosbag2 import Reader, ReaderError, WriterError
 from beams_driver.angles import wrap_to_pi
 from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_driver.calibration_file import load_calibration
-from beams_driver.pose2d import Pose2D, compose, inverse, is_finite_pose, yaw_of_quaternion
+from beams_driver.pose2d import Pose2D, is_finite_pose
+from beams_driver.ros_messages import (
+    planar_covariance,
+    pose2d_of,
+    ros_covariance,
+    seconds_to_stamp,
+    stamp_to_seconds,
+)
+from beams_ekf import localiser as ekf_inputs
 from beams_ekf.bag_io import BagRecorder, beams_typestore
-from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise
-from beams_ekf.localiser import Bearing, Estimate, Localiser, LocaliserConfig
-from beams_ekf.odometry_history import OdometryHistory
-from beams_triangulation.gating import Bearing as TriangulationBearing
-from beams_triangulation.gating import GateConfig, NoPose, PoseEstimate, RevolutionEstimator
+from beams_ekf.localiser import Estimate, FilterSettings, build_localiser, filter_settings
+from beams_ekf.trajectory_metrics import RunTracks, Track, plot_trajectories, rms, rms_table
+from beams_triangulation import gating
+from beams_triangulation.gating import (
+    NoPose,
+    PoseEstimate,
+    RevolutionPose,
+    TriangulationPipeline,
+    TriangulationSettings,
+    triangulation_settings,
+)
+from beams_triangulation.motion_compensation import ODOMETRY_TIME_JUMP_S
 
 BEARINGS_TOPIC = "beams/bearings"
 ODOMETRY_TOPIC = "odom"
@@ -65,11 +80,7 @@ _TOPIC_TYPES = {TRUTH_TOPIC: ODOMETRY_TYPE, ODOMETRY_TOPIC: ODOMETRY_TYPE, BEARI
 # How far (s) a message may arrive after a later-stamped one and still be put back in stamp order.
 REORDER_WINDOW_S = 1.0
 # Stamps going back by more than this (s) are a new start (a bag loop): both pipelines reset.
-TIME_JUMP_S = 1.0
-# Rows/columns of x, y and yaw in ROS's row-major 6x6 (x, y, z, roll, pitch, yaw) covariance.
-_PLANAR = (0, 1, 5)
-# Variance triangulation_node reports for z, roll and pitch, which a planar fix says nothing about.
-_UNKNOWN_VARIANCE = 1e6
+TIME_JUMP_S = ODOMETRY_TIME_JUMP_S
 _NS = 1_000_000_000
 
 
@@ -80,17 +91,10 @@ class ReplaySettings:
 
     triangulation_map: BeaconMap = EUROBOT_BEACON_MAP
     triangulation_offset_m: tuple[float, float] = (0.0, 0.0)
-    gates: GateConfig = field(default_factory=GateConfig)
-    use_odometry: bool = True
-    odometry_history_s: float = 2.0
-    max_odometry_extrapolation_s: float = 0.05
+    triangulation: TriangulationSettings = field(default_factory=TriangulationSettings)
     ekf_map: BeaconMap = EUROBOT_BEACON_MAP
     ekf_offset_m: tuple[float, float] = (0.0, 0.0)
-    process_noise: ProcessNoise = field(default_factory=ProcessNoise)
-    gate_probability: float = 0.999
-    localiser: LocaliserConfig = field(default_factory=LocaliserConfig)
-    use_total_pose: bool = True
-    default_pose_sigma: tuple[float, float, float] = (0.05, 0.05, 0.1)
+    ekf: FilterSettings = field(default_factory=FilterSettings)
 
 
 def load_node_parameters(path: pathlib.Path | None) -> dict[str, Any]:
@@ -116,46 +120,20 @@ def _geometry(parameters: Mapping[str, Any]) -> tuple[BeaconMap, tuple[float, fl
     return beacon_map, (float(offset[0]), float(offset[1]))
 
 
-# ekf_node's parameter names of the process noise (ProcessNoise field, parameter); those of the
-# localiser are LocaliserConfig's field names
-_NOISE_PARAMETERS = (("translation_m2_per_m", "translation_variance_m2_per_m"),
-                     ("rotation_rad2_per_rad", "rotation_variance_rad2_per_rad"),
-                     ("rotation_rad2_per_m", "rotation_variance_rad2_per_m"))
-
-
 def settings_from_parameters(triangulation: Mapping[str, Any], ekf: Mapping[str, Any]) -> ReplaySettings:
-    """Settings from the two nodes' parameter dictionaries (names as in their config YAML files)."""
-    defaults = ReplaySettings()
+    """Settings from the two nodes' parameter dictionaries (names as in their config YAML files), mapped
+    by the functions the nodes use (`gating.triangulation_settings`, `localiser.filter_settings`)."""
     tri_map, tri_offset = _geometry(triangulation)
     ekf_map, ekf_offset = _geometry(ekf)
-    noise = ProcessNoise(**{name: float(ekf.get(parameter, getattr(defaults.process_noise, name)))
-                            for name, parameter in _NOISE_PARAMETERS})
-    localiser = LocaliserConfig(**{f.name: ekf[f.name] for f in fields(LocaliserConfig) if f.name in ekf})
-    gates = GateConfig(float(triangulation.get("max_inverse_abs_d", defaults.gates.max_inverse_abs_d)),
-                       float(triangulation.get("max_position_std_m", defaults.gates.max_position_std_m)))
-    return ReplaySettings(
-        triangulation_map=tri_map, triangulation_offset_m=tri_offset, gates=gates,
-        use_odometry=bool(triangulation.get("use_odometry", defaults.use_odometry)),
-        odometry_history_s=float(triangulation.get("odometry_history_s", defaults.odometry_history_s)),
-        max_odometry_extrapolation_s=float(triangulation.get("max_odometry_extrapolation_s",
-                                                             defaults.max_odometry_extrapolation_s)),
-        ekf_map=ekf_map, ekf_offset_m=ekf_offset, process_noise=noise,
-        gate_probability=float(ekf.get("gate_probability", defaults.gate_probability)),
-        localiser=localiser, use_total_pose=bool(ekf.get("use_total_pose", defaults.use_total_pose)),
-        default_pose_sigma=tuple(float(v) for v in ekf.get("default_pose_sigma",
-                                                            defaults.default_pose_sigma)),
-    )
+    return ReplaySettings(triangulation_map=tri_map, triangulation_offset_m=tri_offset,
+                          triangulation=triangulation_settings(triangulation), ekf_map=ekf_map,
+                          ekf_offset_m=ekf_offset, ekf=filter_settings(ekf))
 
 
 # -- message time ---------------------------------------------------------------------------------------
 def stamp_ns(stamp: Any) -> int:
     """builtin_interfaces/Time in integer nanoseconds (exact, for ordering and matching)."""
     return int(stamp.sec) * _NS + int(stamp.nanosec)
-
-
-def stamp_seconds(stamp: Any) -> float:
-    """builtin_interfaces/Time in seconds, computed as the nodes compute it (same float)."""
-    return stamp.sec + 1e-9 * stamp.nanosec
 
 
 def due_ns(topic: str, message: Any) -> int:
@@ -238,42 +216,6 @@ def read_events(path: pathlib.Path, typestore: Any, counts: Counter) -> Iterator
 
 
 # -- the pipelines --------------------------------------------------------------------------------------
-class _TriangulationOdometry:
-    """Odometry poses for motion compensation with the rules of triangulation_node's OdometryBuffer
-    (stale samples dropped, a clock going back by > 1 s clears it), on beams_ekf's OdometryHistory: it
-    extrapolates along the last step where OdometryBuffer follows the last twist's arc (the same within
-    max_extrapolation_s at these speeds). OdometryBuffer should move to a pure module and serve here."""
-
-    def __init__(self, span_s: float, max_extrapolation_s: float) -> None:
-        self.history = OdometryHistory(span_s, max_extrapolation_s)
-
-    def add(self, stamp_s: float, pose: Pose2D) -> None:
-        if not (math.isfinite(stamp_s) and is_finite_pose(pose)):
-            return
-        latest = self.history.latest
-        if latest is not None and stamp_s <= latest[0]:
-            if stamp_s >= latest[0] - TIME_JUMP_S:
-                return
-            self.history.clear()
-        self.history.append(stamp_s, pose)
-
-    def pose_at(self, stamp_s: float) -> Pose2D | None:
-        return self.history.pose_at(stamp_s)
-
-
-def odometry_pose(message: Any) -> Pose2D:
-    """(x, y, yaw) of a nav_msgs/Odometry."""
-    q = message.pose.pose.orientation
-    return (message.pose.pose.position.x, message.pose.pose.position.y, yaw_of_quaternion(q.x, q.y, q.z, q.w))
-
-
-def usable_covariance(covariance: np.ndarray, default: np.ndarray) -> np.ndarray:
-    """The covariance when finite and positive definite, else the default (as ekf_node._offer_pose)."""
-    if np.all(np.isfinite(covariance)) and np.all(np.linalg.eigvalsh(covariance) > 0.0):
-        return covariance
-    return default
-
-
 @dataclass(frozen=True)
 class LiveStart:
     """A live EKF estimate recorded in the bag: the replay's EKF can start from it at the odometry of the
@@ -291,9 +233,8 @@ def live_estimates(input_bag: pathlib.Path, typestore: Any) -> dict[int, LiveSta
         wanted = [c for c in reader.connections if c.topic.lstrip("/") == LIVE_EKF_TOPIC]
         for connection, _, raw in reader.messages(connections=wanted) if wanted else ():
             message = typestore.deserialize_cdr(raw, connection.msgtype)
-            full = np.asarray(message.pose.covariance, dtype=float).reshape(6, 6)
-            estimates[stamp_ns(message.header.stamp)] = LiveStart(odometry_pose(message),
-                                                                  full[np.ix_(_PLANAR, _PLANAR)])
+            estimates[stamp_ns(message.header.stamp)] = LiveStart(pose2d_of(message.pose.pose),
+                                                                  planar_covariance(message.pose.covariance))
     return estimates
 
 
@@ -302,10 +243,7 @@ class ReplayPipelines:
 
     def __init__(self, settings: ReplaySettings) -> None:
         self.settings = settings
-        beacons = dict(zip(settings.ekf_map.ids, map(tuple, settings.ekf_map.xy), strict=True))
-        self.localiser = Localiser(BearingEkf(beacons, settings.ekf_offset_m, settings.process_noise,
-                                              settings.gate_probability), settings.localiser)
-        self.default_covariance = np.diag(np.square(settings.default_pose_sigma))
+        self.localiser = build_localiser(settings.ekf_map.as_dict(), settings.ekf_offset_m, settings.ekf)
         self.counts: Counter = Counter()
         # set when the bag has odometry: revolutions before the first odometry are then skipped
         self.expect_odometry = False
@@ -316,66 +254,69 @@ class ReplayPipelines:
 
     def _new_triangulation(self) -> None:
         s = self.settings
-        self.estimator = RevolutionEstimator(s.triangulation_map, s.gates, s.triangulation_offset_m)
-        self.odometry = _TriangulationOdometry(s.odometry_history_s, s.max_odometry_extrapolation_s)
+        self.triangulation = TriangulationPipeline(s.triangulation_map, s.triangulation,
+                                                   s.triangulation_offset_m)
 
     def reset(self) -> None:
-        """A time jump: both pipelines start over (the EKF waits for a pose again)."""
+        """A time jump: both pipelines start over (the EKF waits for a pose again); `flush` first."""
         self._new_triangulation()
         self.first_odometry_s = None
         self.localiser.reset("time_jump_resets")
 
-    def on_odometry(self, message: Any) -> Estimate | None:
-        """Odometry to both pipelines; the EKF estimate at this odometry's instant (None before a pose)."""
-        stamp_s, pose = stamp_seconds(message.header.stamp), odometry_pose(message)
+    def flush(self) -> list[RevolutionPose]:
+        """The revolution ToTal still waits odometry for, estimated now (the streams ended or jumped)."""
+        return self._total_poses(self.triangulation.flush())
+
+    def on_odometry(self, message: Any) -> tuple[Estimate | None, list[RevolutionPose]]:
+        """Odometry to both pipelines: the EKF estimate at this odometry's instant (None before a pose)
+        and the revolutions ToTal completed (those that waited for this odometry)."""
+        stamp_s, pose = stamp_to_seconds(message.header.stamp), pose2d_of(message.pose.pose)
         if self.first_odometry_s is None and is_finite_pose(pose):
             self.first_odometry_s = stamp_s
-        if self.settings.use_odometry:
-            self.odometry.add(stamp_s, pose)
+        twist = (message.twist.twist.linear.x, message.twist.twist.angular.z)
+        completed = self.triangulation.on_odometry(stamp_s, pose, twist)
         outcome = self.localiser.on_odometry(stamp_s, pose)
         start = None if self.live_start is None else self.live_start.get(stamp_ns(message.header.stamp))
         if start is not None and outcome in ("reference", "predicted"):
             self.localiser.on_pose(stamp_s, start.pose, start.covariance, operator=True)
             self.live_start = None
         estimate = self.localiser.estimate()
+        poses = self._total_poses(completed)  # after the odometry, as ekf_node receives them
         if outcome not in ("reference", "predicted") or estimate is None or estimate.stamp_s != stamp_s:
-            return None
-        return estimate
+            return None, poses
+        return estimate, poses
 
-    def on_bearings(self, message: Any) -> tuple[PoseEstimate | NoPose, float] | None:
-        """One revolution: ToTal (and its pose to the EKF when accepted), then every bearing to the EKF.
+    def on_bearings(self, message: Any) -> list[RevolutionPose]:
+        """One revolution to ToTal and every bearing to the EKF; the revolutions ToTal completed (this one,
+        unless it waits for odometry, and the one that waited), their accepted poses offered to the EKF.
 
-        None for a revolution older than the first odometry of a bag that has odometry: a bag starts in
-        the middle of the streams, a case the nodes (started together) never meet; ToTal would place such
-        a revolution without motion compensation and the EKF could start from that poor pose.
+        A revolution older than the first odometry of a bag that has odometry is skipped: a bag starts in
+        the middle of the streams, a case the nodes (started together) never meet.
         """
         first_odometry = self.first_odometry_s
         if self.expect_odometry and (first_odometry is None
-                                     or stamp_seconds(message.header.stamp) < first_odometry):
+                                     or stamp_to_seconds(message.header.stamp) < first_odometry):
             self.counts["revolutions_before_odometry"] += 1
-            return None
+            return []
         self.counts["revolutions"] += 1
         self.counts["bearings"] += len(message.bearings)
-        revolution_s = stamp_seconds(message.header.stamp)
-        # triangulation_node takes a zero bearing stamp as the revolution's; ekf_node takes it as it is
-        total_bearings = [TriangulationBearing(int(b.beacon_id), float(b.bearing), float(b.variance),
-                                               stamp_seconds(b.header.stamp) or revolution_s)
-                          for b in message.bearings]
-        outcome = self.estimator.update(total_bearings, self.odometry.pose_at if self.settings.use_odometry
-                                        else None)
-        self._count_total(outcome.result)
-        self.localiser.on_bearings([Bearing(stamp_seconds(b.header.stamp), int(b.beacon_id), b.bearing,
-                                            b.variance) for b in message.bearings])
-        result = outcome.result
-        offer = self.settings.use_total_pose and self.live_start is None
-        if offer and isinstance(result, PoseEstimate) and result.accepted:
-            # ekf_node reads the stamp from the message, rounded to nanoseconds
-            message_stamp = round(outcome.stamp_s * 1e9)
-            message_stamp_s = message_stamp // _NS + 1e-9 * (message_stamp % _NS)
-            self.localiser.on_pose(message_stamp_s, (result.x, result.y, result.heading),
-                                   usable_covariance(result.covariance, self.default_covariance),
-                                   operator=False)
-        return result, outcome.stamp_s
+        completed = self.triangulation.on_revolution(None, gating.message_bearings(message, stamp_to_seconds))
+        self.localiser.on_bearings(ekf_inputs.message_bearings(message, stamp_to_seconds))
+        return self._total_poses(completed)
+
+    def _total_poses(self, completed: list[tuple[Any, RevolutionPose]]) -> list[RevolutionPose]:
+        """Count ToTal's outcomes and offer its accepted poses to the EKF (as ekf_node takes beams/pose)."""
+        for _, outcome in completed:
+            result = outcome.result
+            self._count_total(result)
+            offer = self.settings.ekf.use_total_pose and self.live_start is None
+            if offer and isinstance(result, PoseEstimate) and result.accepted:
+                # ekf_node reads the stamp from the message, rounded to nanoseconds
+                message_stamp_s = stamp_to_seconds(seconds_to_stamp(outcome.stamp_s))
+                self.localiser.offer_pose(message_stamp_s, (result.x, result.y, result.heading),
+                                          result.covariance, self.settings.ekf.default_pose_covariance,
+                                          operator=False)
+        return [outcome for _, outcome in completed]
 
     def _count_total(self, result: PoseEstimate | NoPose) -> None:
         if isinstance(result, NoPose):
@@ -386,31 +327,9 @@ class ReplayPipelines:
 
 # -- results --------------------------------------------------------------------------------------------
 @dataclass
-class Track:
-    """Poses of one source: rows (segment, stamp ns, x, y, theta); segment counts the time jumps."""
-
-    rows: list[tuple[int, int, float, float, float]] = field(default_factory=list)
-
-    def add(self, segment: int, stamp: int, pose: Pose2D) -> None:
-        self.rows.append((segment, stamp, float(pose[0]), float(pose[1]), float(pose[2])))
-
-    def array(self) -> np.ndarray:
-        """(k, 5) float array: segment, stamp (s), x, y, theta."""
-        return np.array([(s, t * 1e-9, x, y, th) for s, t, x, y, th in self.rows], dtype=float).reshape(-1, 5)
-
-    def by_stamp(self) -> dict[int, Pose2D]:
-        """Pose by stamp (ns); with a bag loop, the last pass wins."""
-        return {t: (x, y, th) for _, t, x, y, th in self.rows}
-
-
-@dataclass
-class ReplayResult:
+class ReplayResult(RunTracks):
     """What a replay produced: the tracks, the counts and how fast it ran."""
 
-    truth: Track = field(default_factory=Track)
-    odometry: Track = field(default_factory=Track)
-    total: Track = field(default_factory=Track)
-    ekf: Track = field(default_factory=Track)
     counts: Counter = field(default_factory=Counter)
     messages_in: int = 0
     messages_out: int = 0
@@ -471,8 +390,7 @@ class MessageBuilder:
                                          period=float(period_s), bearings=items, rejected_windows=0)
 
     def triangulated_pose(self, estimate: PoseEstimate, stamp: int, frame_id: str) -> Any:
-        full = np.diag([0.0, 0.0, _UNKNOWN_VARIANCE, _UNKNOWN_VARIANCE, _UNKNOWN_VARIANCE, 0.0])
-        full[np.ix_(_PLANAR, _PLANAR)] = estimate.covariance
+        full = np.asarray(ros_covariance(estimate.covariance))
         return self.types[POSE_TYPE](
             header=self.header(stamp, frame_id),
             pose=self.pose_with_covariance((estimate.x, estimate.y, estimate.heading), full),
@@ -481,8 +399,7 @@ class MessageBuilder:
             reason=estimate.reason)
 
     def ekf_odometry(self, estimate: Estimate, stamp: int, odometry: Any, frame_id: str) -> Any:
-        full = np.zeros((6, 6))
-        full[np.ix_(_PLANAR, _PLANAR)] = estimate.covariance
+        full = np.asarray(ros_covariance(estimate.covariance))
         return self.types[ODOMETRY_TYPE](header=self.header(stamp, frame_id),
                                          child_frame_id=odometry.child_frame_id or "base_link",
                                          pose=self.pose_with_covariance(estimate.pose, full),
@@ -560,16 +477,21 @@ class _Run:
         self.result.messages_out += 1
         stamp, message = stamp_ns(event.message.header.stamp), event.message
         if event.topic == TRUTH_TOPIC:
-            self.result.truth.add(self.segment, stamp, odometry_pose(message))
+            self.result.truth.add(self.segment, stamp, pose2d_of(message.pose.pose))
         elif event.topic == ODOMETRY_TOPIC:
-            self.result.odometry.add(self.segment, stamp, odometry_pose(message))
-            estimate = self.pipelines.on_odometry(message)
+            self.result.odometry.add(self.segment, stamp, pose2d_of(message.pose.pose))
+            estimate, poses = self.pipelines.on_odometry(message)
             if estimate is not None:
                 self._write_ekf(estimate, stamp, message)
+            self.write_total(poses, event.due_ns)
         else:
-            outcome = self.pipelines.on_bearings(message)
-            if outcome is not None and isinstance(outcome[0], PoseEstimate):
-                self._write_total(*outcome, event.due_ns)
+            self.write_total(self.pipelines.on_bearings(message), event.due_ns)
+
+    def write_total(self, poses: list[RevolutionPose], due: int) -> None:
+        """ToTal's poses (those of a revolution that gave none are not published)."""
+        for outcome in poses:
+            if isinstance(outcome.result, PoseEstimate):
+                self._write_total(outcome.result, outcome.stamp_s, due)
 
     def _write_ekf(self, estimate: Estimate, stamp: int, odometry: Any) -> None:
         self.result.ekf.add(self.segment, stamp, estimate.pose)
@@ -597,7 +519,8 @@ def replay_bag(input_bag: pathlib.Path, output_bag: pathlib.Path, settings: Repl
     """
     typestore = typestore if typestore is not None else beams_typestore()
     pipelines = ReplayPipelines(settings or ReplaySettings())
-    pipelines.expect_odometry = pipelines.settings.use_odometry and ODOMETRY_TOPIC in bag_topics(input_bag)
+    use_odometry = pipelines.settings.triangulation.use_odometry
+    pipelines.expect_odometry = use_odometry and ODOMETRY_TOPIC in bag_topics(input_bag)
     if start_like_live:
         pipelines.live_start = live_estimates(input_bag, typestore)
         if not pipelines.live_start:
@@ -608,6 +531,7 @@ def replay_bag(input_bag: pathlib.Path, output_bag: pathlib.Path, settings: Repl
         run = _Run(pipelines, recorder, MessageBuilder(typestore), typestore, map_frame)
         for event in in_stamp_order(read_events(pathlib.Path(input_bag), typestore, run.result.counts)):
             if event is TIME_JUMP:
+                run.write_total(pipelines.flush(), last_ns)
                 run.segment += 1
                 pipelines.reset()
                 continue
@@ -615,6 +539,7 @@ def replay_bag(input_bag: pathlib.Path, output_bag: pathlib.Path, settings: Repl
             run.result.span_s += 0.0 if last_ns is None else max(0.0, (event.due_ns - last_ns) * 1e-9)
             last_ns = event.due_ns
             run.handle(event)
+        run.write_total(pipelines.flush(), last_ns)
     result = run.result
     result.wall_s = time.perf_counter() - started
     result.counts.update(pipelines.counts)
@@ -623,45 +548,6 @@ def replay_bag(input_bag: pathlib.Path, output_bag: pathlib.Path, settings: Repl
 
 
 # -- figures --------------------------------------------------------------------------------------------
-def errors_against_truth(track: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Position (m) and |heading| (rad) errors of a track against the truth of the same segment,
-    interpolated at the track's stamps (rows outside the truth's span are left out)."""
-    positions, headings = [], []
-    for segment in np.unique(track[:, 0]):
-        rows, reference = track[track[:, 0] == segment], truth[truth[:, 0] == segment]
-        if len(reference) < 2:
-            continue
-        rows = rows[(rows[:, 1] >= reference[0, 1]) & (rows[:, 1] <= reference[-1, 1])]
-        x = np.interp(rows[:, 1], reference[:, 1], reference[:, 2])
-        y = np.interp(rows[:, 1], reference[:, 1], reference[:, 3])
-        heading = np.interp(rows[:, 1], reference[:, 1], np.unwrap(reference[:, 4]))
-        positions.append(np.hypot(rows[:, 2] - x, rows[:, 3] - y))
-        headings.append(np.abs([wrap_to_pi(float(a)) for a in rows[:, 4] - heading]))
-    if not positions:
-        return np.empty(0), np.empty(0)
-    return np.concatenate(positions), np.concatenate(headings)
-
-
-def odometry_in_map(result: ReplayResult) -> np.ndarray:
-    """The odometry track placed in the map frame at the EKF's first estimate of each segment (dead
-    reckoning from there: what the robot would believe without BeAMS)."""
-    odometry, ekf = result.odometry.array(), result.ekf.array()
-    placed = []
-    for segment in np.unique(ekf[:, 0]):
-        rows = odometry[odometry[:, 0] == segment]
-        start = ekf[ekf[:, 0] == segment][0]
-        anchor = rows[np.argmin(np.abs(rows[:, 1] - start[1]))]
-        # map <- odom: the EKF pose composed with the inverse of the odometry pose at the same instant
-        map_from_odom = compose(tuple(start[2:5]), inverse(tuple(anchor[2:5])))
-        later = rows[rows[:, 1] >= start[1]]
-        placed += [(segment, t, *compose(map_from_odom, (x, y, th))) for _, t, x, y, th in later]
-    return np.array(placed, dtype=float).reshape(-1, 5)
-
-
-def rms(values: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(values)))) if len(values) else math.nan
-
-
 @dataclass(frozen=True)
 class Agreement:
     """Replayed against live poses at the same stamps (after `settle_s` from the first common stamp)."""
@@ -695,23 +581,21 @@ def live_tracks(input_bag: pathlib.Path, typestore: Any) -> tuple[Track, Track]:
             message = typestore.deserialize_cdr(raw, connection.msgtype)
             stamp = stamp_ns(message.header.stamp)
             if connection.topic.lstrip("/") == LIVE_EKF_TOPIC:
-                ekf.add(0, stamp, odometry_pose(message))
+                ekf.add(0, stamp, pose2d_of(message.pose.pose))
             elif message.accepted:
-                total.add(0, stamp, odometry_pose(message))
+                total.add(0, stamp, pose2d_of(message.pose.pose))
     return total, ekf
 
 
 def summary(result: ReplayResult, live: tuple[Track, Track] | None = None) -> str:
     """The summary table: RMS errors against the truth, counts, speed, agreement with the live nodes."""
-    truth = result.truth.array()
+    tracks = result.in_map("ekf")  # dead reckoning from the EKF's first estimate
+    truth = tracks["truth"]
     lines = []
     if len(truth):
-        lines += ["| source | poses | RMS position (mm) | RMS heading (deg) |", "|---|---|---|---|"]
-        for name, track in (("odometry (from the first EKF pose)", odometry_in_map(result)),
-                            ("ToTal (accepted)", result.total.array()), ("EKF", result.ekf.array())):
-            position, heading = errors_against_truth(track, truth)
-            lines.append(f"| {name} | {len(position)} | {1000 * rms(position):.1f} | "
-                         f"{math.degrees(rms(heading)):.3f} |")
+        names = (("odometry (from the first EKF pose)", "odometry"), ("ToTal (accepted)", "ToTal"),
+                 ("EKF", "EKF"))
+        lines += rms_table(((label, tracks[name]) for label, name in names), truth)
         lines.append("")
     lines.append(", ".join(f"{key} {value}" for key, value in sorted(result.counts.items())))
     lines.append(f"{result.messages_in} messages in {result.wall_s:.2f} s: {result.messages_per_s:.0f} "
@@ -728,25 +612,7 @@ def summary(result: ReplayResult, live: tuple[Track, Track] | None = None) -> st
 
 def plot(result: ReplayResult, path: pathlib.Path) -> None:
     """Trajectories in the map frame: truth, odometry (dead reckoning), ToTal and the EKF."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    figure, axes = plt.subplots(figsize=(9, 6.5))
-    odometry = odometry_in_map(result) if result.ekf.rows else np.empty((0, 5))
-    for name, rows, style in (("truth", result.truth.array(), "k-"), ("odometry", odometry, "C1--"),
-                              ("ToTal", result.total.array(), "C0."), ("EKF", result.ekf.array(), "C2-")):
-        if len(rows):
-            axes.plot(rows[:, 2], rows[:, 3], style, label=name, markersize=2, linewidth=1)
-    axes.add_patch(plt.Rectangle((0, 0), 3, 2, fill=False, color="grey"))
-    axes.set_aspect("equal")
-    axes.set_xlabel("x (m, map)")
-    axes.set_ylabel("y (m, map)")
-    axes.set_title("BeAMS bag replay")
-    axes.legend(loc="upper right")
-    figure.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(figure)
+    plot_trajectories(result.in_map("ekf"), path, "BeAMS bag replay")
 
 
 def _installed_config(package: str, name: str) -> pathlib.Path | None:

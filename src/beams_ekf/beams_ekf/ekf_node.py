@@ -40,10 +40,42 @@ from beams_driver.ros_messages import (
     set_pose2d,
     stamp_to_seconds,
 )
-from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise
-from beams_ekf.localiser import Bearing, Estimate, Localiser, LocaliserConfig
+from beams_ekf.localiser import (
+    Estimate,
+    build_localiser,
+    filter_parameter_defaults,
+    filter_settings,
+    message_bearings,
+)
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_msgs.srv import SetPose
+
+# The filter's parameters: (name, description, minimum, maximum); defaults from FilterSettings.
+FILTER_PARAMETERS = (
+    ("translation_variance_m2_per_m", "Odometry position variance per metre travelled.", 0.0, 1.0e3),
+    ("rotation_variance_rad2_per_rad", "Odometry heading variance per radian turned.", 0.0, 1.0e3),
+    ("rotation_variance_rad2_per_m", "Odometry heading variance per metre travelled.", 0.0, 1.0e3),
+    ("gate_probability", "Chi-square (1 dof) probability of the per-bearing validation gate.", 0.5, 0.999999),
+    ("history_span_s", "Odometry kept to apply late bearings (s).", 0.1, 10.0),
+    ("max_extrapolation_s", "Bearings up to this far (s) past the newest odometry are applied at once; "
+     "later ones wait for odometry.", 0.0, 1.0),
+    ("odometry_gap_s", "Odometry silence (s) treated as a gap (covariance grows).", 0.001, 10.0),
+    ("gap_position_variance_m2_per_s", "Position variance added per second of gap.", 0.0, 1.0e3),
+    ("gap_heading_variance_rad2_per_s", "Heading variance added per second of gap.", 0.0, 1.0e3),
+    ("kidnap_gated_bearings", "Gated bearings, among the last kidnap_window_bearings, that make the filter "
+     "lost (a ToTal pose elsewhere then re-initialises it).", 1, 1000),
+    ("kidnap_window_bearings", "Number of recent bearings judged for kidnap_gated_bearings.", 1, 1000),
+    ("kidnap_probability", "Chi-square (3 dof) probability beyond which a ToTal pose is inconsistent with "
+     "the estimate (their covariances summed), i.e. 'elsewhere'.", 0.5, 0.999999),
+    ("kidnap_distance_m", "Distance (m) from the estimate that always makes a ToTal pose 'elsewhere'.",
+     0.0, 1.0e3),
+    ("kidnap_heading_rad", "Heading difference (rad) that always makes a ToTal pose 'elsewhere'.",
+     0.0, 1.0e3),
+    ("use_total_pose", "Initialise (and re-initialise after a kidnapping) from ToTal's accepted poses on "
+     "beams/pose.", None, None),
+    ("default_pose_sigma", "Standard deviations (m, m, rad) of a pose without a usable covariance.",
+     1e-6, 100.0),
+)
 
 
 class EkfNode(Node):
@@ -56,15 +88,6 @@ class EkfNode(Node):
         self.base_frame = declare_parameter(self, "base_frame", "base_link", "The robot's frame (child).")
         rate_hz = declare_parameter(self, "publish_rate_hz", 20.0, "Rate of the published estimate (Hz).",
                                     minimum=0.1, maximum=1000.0)
-        self.use_total = declare_parameter(self, "use_total_pose", True,
-                                           "Initialise (and re-initialise after a kidnapping) from ToTal's "
-                                           "accepted poses on beams/pose.")
-        sigma = declare_parameter(self, "default_pose_sigma", [0.05, 0.05, 0.1],
-                                  "Standard deviations (m, m, rad) of a pose without a usable covariance.",
-                                  minimum=1e-6, maximum=100.0)
-        if len(sigma) != 3:
-            raise ParameterValidationError(f"default_pose_sigma needs 3 values (x, y, yaw), got {sigma}")
-        self.default_covariance = np.diag(np.square(sigma))
         self.diagnostics = Diagnostics(self, "ekf")
         self.diagnostics.set_level("warn", "waiting for an initial pose (beams/pose or /initialpose)")
         self._last_twist = None
@@ -89,60 +112,17 @@ class EkfNode(Node):
 
     # -- parameters -----------------------------------------------------------------------------------
     def _declare_filter(self) -> None:
-        """Beacon map and turret offset (calibration file first), process noise, gating, timing."""
+        """Beacon map and turret offset (calibration file first), then the filter's parameters (defaults:
+        FilterSettings'), mapped by `localiser.filter_settings` as the offline replay maps them."""
         beacon_map, offset = declare_beacon_geometry(self)
-        noise = ProcessNoise(
-            translation_m2_per_m=self._non_negative("translation_variance_m2_per_m", 3.0e-5,
-                                                    "Odometry position variance per metre travelled."),
-            rotation_rad2_per_rad=self._non_negative("rotation_variance_rad2_per_rad", 3.0e-5,
-                                                     "Odometry heading variance per radian turned."),
-            rotation_rad2_per_m=self._non_negative("rotation_variance_rad2_per_m", 3.0e-5,
-                                                   "Odometry heading variance per metre travelled."),
-        )
-        gate = declare_parameter(self, "gate_probability", 0.999,
-                                 "Chi-square (1 dof) probability of the per-bearing validation gate.",
-                                 minimum=0.5, maximum=0.999999)
-        timing = dict(
-            history_span_s=declare_parameter(self, "history_span_s", 1.0,
-                                             "Odometry kept to apply late bearings (s).", minimum=0.1,
-                                             maximum=10.0),
-            max_extrapolation_s=declare_parameter(
-                self, "max_extrapolation_s", 0.05,
-                "Bearings up to this far (s) past the newest odometry are applied at once; later ones wait "
-                "for odometry.", minimum=0.0, maximum=1.0),
-            odometry_gap_s=declare_parameter(self, "odometry_gap_s", 0.25,
-                                             "Odometry silence (s) treated as a gap (covariance grows).",
-                                             minimum=0.001, maximum=10.0),
-            gap_position_variance_m2_per_s=self._non_negative(
-                "gap_position_variance_m2_per_s", 1.0e-3, "Position variance added per second of gap."),
-            gap_heading_variance_rad2_per_s=self._non_negative(
-                "gap_heading_variance_rad2_per_s", 1.0e-3, "Heading variance added per second of gap."),
-            kidnap_gated_bearings=declare_parameter(
-                self, "kidnap_gated_bearings", 6, "Gated bearings, among the last kidnap_window_bearings, "
-                "that make the filter lost (a ToTal pose elsewhere then re-initialises it).",
-                minimum=1, maximum=1000),
-            kidnap_window_bearings=declare_parameter(
-                self, "kidnap_window_bearings", 12,
-                "Number of recent bearings judged for kidnap_gated_bearings.", minimum=1, maximum=1000),
-            kidnap_probability=declare_parameter(
-                self, "kidnap_probability", 0.999, "Chi-square (3 dof) probability beyond which a ToTal pose "
-                "is inconsistent with the estimate (their covariances summed), i.e. 'elsewhere'.",
-                minimum=0.5, maximum=0.999999),
-            kidnap_distance_m=self._non_negative(
-                "kidnap_distance_m", 0.25, "Distance (m) from the estimate that always makes a ToTal pose "
-                "'elsewhere'."),
-            kidnap_heading_rad=self._non_negative(
-                "kidnap_heading_rad", 0.35, "Heading difference (rad) that always makes a ToTal pose "
-                "'elsewhere'."),
-        )
+        defaults = filter_parameter_defaults()
+        values = {name: declare_parameter(self, name, defaults[name], description, minimum=low, maximum=high)
+                  for name, description, low, high in FILTER_PARAMETERS}
         try:
-            config = LocaliserConfig(**timing)
+            self.settings = filter_settings(values)
         except ValueError as error:  # parameters valid one by one but not together
             raise ParameterValidationError(str(error)) from None
-        self.localiser = Localiser(BearingEkf(beacon_map.as_dict(), offset, noise, gate), config)
-
-    def _non_negative(self, name: str, default: float, description: str) -> float:
-        return float(declare_parameter(self, name, default, description, minimum=0.0, maximum=1.0e3))
+        self.localiser = build_localiser(beacon_map.as_dict(), offset, self.settings)
 
     # -- inputs ---------------------------------------------------------------------------------------
     def _on_odometry(self, msg: Odometry) -> None:
@@ -155,14 +135,12 @@ class EkfNode(Node):
             self._published_stamp_s = None
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
-        bearings = [Bearing(stamp_to_seconds(b.header.stamp), int(b.beacon_id), b.bearing, b.variance)
-                    for b in msg.bearings]
-        self.localiser.on_bearings(bearings)
+        self.localiser.on_bearings(message_bearings(msg, stamp_to_seconds))
         self._changed = True
         self._publish()  # at once: the end-to-end latency from a revolution to the estimate stays small
 
     def _on_total_pose(self, msg: TriangulatedPose) -> None:
-        if not (self.use_total and msg.accepted):
+        if not (self.settings.use_total_pose and msg.accepted):
             return
         self._offer_pose(msg.header.stamp, msg.pose, operator=False)
 
@@ -192,16 +170,9 @@ class EkfNode(Node):
         return f"beacons {list(beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
 
     def _offer_pose(self, stamp, pose_with_covariance, *, operator: bool) -> str:
-        covariance = planar_covariance(pose_with_covariance.covariance)
-        if not (np.all(np.isfinite(covariance)) and np.all(np.linalg.eigvalsh(covariance) > 0.0)):
-            covariance = self.default_covariance
-        # an operator's pose has no meaningful stamp in the odometry's past: take it as "now"
-        stamp_s = stamp_to_seconds(stamp)
-        latest = self.localiser.history.latest
-        if operator and latest is not None and (stamp_s == 0.0 or stamp_s > latest[0]):
-            stamp_s = latest[0]
-        return self.localiser.on_pose(stamp_s, pose2d_of(pose_with_covariance.pose), covariance,
-                                      operator=operator)
+        return self.localiser.offer_pose(stamp_to_seconds(stamp), pose2d_of(pose_with_covariance.pose),
+                                         planar_covariance(pose_with_covariance.covariance),
+                                         self.settings.default_pose_covariance, operator=operator)
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self.localiser.reset("manual_resets")

@@ -13,19 +13,24 @@ off, confidently), and re-initialises it when the robot was kidnapped or the fil
 recent bearings gated out while ToTal is confident of a pose inconsistent with the estimate: identified
 beacons make this possible, thesis ch. 8 "System deployment"). Time going backwards (a rosbag played
 in a loop) resets everything; odometry gaps inflate the covariance instead of freezing the filter.
+
+ekf_node and the offline replay (`bag_replay`) share what lies between their inputs and the filter:
+`filter_settings` (parameter values to the filter's settings), `build_localiser`, `message_bearings`,
+and `Localiser.offer_pose` with its rules (`usable_covariance`, `operator_pose_stamp_s`).
 """
 
 from collections import Counter, deque
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, fields
 from math import hypot, isfinite
+from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
 
 from beams_driver.angles import wrap_to_pi
 from beams_driver.pose2d import Pose2D, between, compose, is_finite_pose
-from beams_ekf.bearing_ekf import BearingEkf, BearingOutcome, turret_pose
+from beams_ekf.bearing_ekf import BearingEkf, BearingOutcome, ProcessNoise, turret_pose
 from beams_ekf.odometry_history import OdometryHistory
 
 # bearings waiting for odometry beyond this many are dropped, oldest first (a dead odometry source)
@@ -66,6 +71,76 @@ class LocaliserConfig:
             raise ValueError(f"kidnap_probability must be in (0, 1), got {self.kidnap_probability}")
 
 
+# ekf_node's parameter name of each ProcessNoise field (those of LocaliserConfig are its field names)
+PROCESS_NOISE_PARAMETERS = {"translation_m2_per_m": "translation_variance_m2_per_m",
+                            "rotation_rad2_per_rad": "rotation_variance_rad2_per_rad",
+                            "rotation_rad2_per_m": "rotation_variance_rad2_per_m"}
+
+
+@dataclass(frozen=True)
+class FilterSettings:
+    """What ekf_node takes from its parameters (besides the beacon geometry)."""
+
+    process_noise: ProcessNoise = field(default_factory=ProcessNoise)
+    # chi-square (1 dof) probability of the per-bearing gate
+    gate_probability: float = 0.999
+    localiser: LocaliserConfig = field(default_factory=LocaliserConfig)
+    # initialise (and re-initialise after a kidnapping) from ToTal's accepted poses
+    use_total_pose: bool = True
+    # standard deviations (m, m, rad) of a pose without a usable covariance
+    default_pose_sigma: tuple[float, float, float] = (0.05, 0.05, 0.1)
+
+    @property
+    def default_pose_covariance(self) -> np.ndarray:
+        """The 3x3 covariance of default_pose_sigma."""
+        return np.diag(np.square(self.default_pose_sigma))
+
+
+def filter_parameter_defaults() -> dict[str, Any]:
+    """ekf_node's filter parameters by name with their defaults (FilterSettings'), for declaring them."""
+    defaults = FilterSettings()
+    values: dict[str, Any] = {parameter: getattr(defaults.process_noise, name)
+                              for name, parameter in PROCESS_NOISE_PARAMETERS.items()}
+    values.update({f.name: getattr(defaults.localiser, f.name) for f in fields(LocaliserConfig)})
+    values.update(gate_probability=defaults.gate_probability, use_total_pose=defaults.use_total_pose,
+                  default_pose_sigma=list(defaults.default_pose_sigma))
+    return values
+
+
+def filter_settings(parameters: Mapping[str, Any]) -> FilterSettings:
+    """Settings from ekf_node's parameter values by name (a missing one takes its default).
+
+    Raises ValueError for values the settings refuse, alone or together (kidnap counts, sigma length).
+    """
+    defaults = FilterSettings()
+    noise = ProcessNoise(**{name: float(parameters.get(parameter, getattr(defaults.process_noise, name)))
+                            for name, parameter in PROCESS_NOISE_PARAMETERS.items()})
+    config = LocaliserConfig(**{f.name: parameters[f.name] for f in fields(LocaliserConfig)
+                                if f.name in parameters})
+    sigma = tuple(float(v) for v in parameters.get("default_pose_sigma", defaults.default_pose_sigma))
+    if len(sigma) != 3:
+        raise ValueError(f"default_pose_sigma needs 3 values (x, y, yaw), got {list(sigma)}")
+    return FilterSettings(noise, float(parameters.get("gate_probability", defaults.gate_probability)),
+                          config, bool(parameters.get("use_total_pose", defaults.use_total_pose)), sigma)
+
+
+def usable_covariance(covariance: np.ndarray, default: np.ndarray) -> np.ndarray:
+    """A pose's 3x3 covariance when finite and positive definite, else the default (RViz's /initialpose
+    and the set_pose service may send zeros)."""
+    covariance = np.asarray(covariance, dtype=float)
+    if np.all(np.isfinite(covariance)) and np.all(np.linalg.eigvalsh(covariance) > 0.0):
+        return covariance
+    return default
+
+
+def operator_pose_stamp_s(stamp_s: float, newest_odometry_s: float | None) -> float:
+    """The instant an operator's pose is taken at: "now" (the newest odometry) when it is stamped zero or
+    after the odometry, since an operator's stamp has no meaning in the odometry's past."""
+    if newest_odometry_s is not None and (stamp_s == 0.0 or stamp_s > newest_odometry_s):
+        return newest_odometry_s
+    return stamp_s
+
+
 @dataclass(frozen=True)
 class Bearing:
     """One bearing of the driver: sensor frame, at the instant the turret pointed at the beacon."""
@@ -74,6 +149,13 @@ class Bearing:
     beacon_id: int
     bearing_rad: float
     variance_rad2: float
+
+
+def message_bearings(message: Any, seconds: Callable[[Any], float]) -> list[Bearing]:
+    """The bearings of a beams_msgs/BeaconBearingArray (an rclpy or a rosbags message), seconds(stamp)
+    converting their stamps."""
+    return [Bearing(seconds(b.header.stamp), int(b.beacon_id), float(b.bearing), float(b.variance))
+            for b in message.bearings]
 
 
 @dataclass
@@ -207,12 +289,21 @@ class Localiser:
         """
         if not self.ekf.initialised:
             return [self._count(_rejected("uninitialised")) for _ in bearings]
-        if len(self.history) == 0:  # no odometry: the robot is taken as still
-            return [self._count(self._apply(bearing, (0.0, 0.0, 0.0))) for bearing in bearings]
         outcomes: dict[int, BearingOutcome] = {}
+        valid: list[tuple[int, Bearing]] = []
+        for n, bearing in enumerate(bearings):
+            # refused before scheduling: a bad bearing must not make the filter go back and re-filter
+            problem = self._invalid_reason(bearing)
+            if problem:
+                outcomes[n] = self._count(_rejected(problem))
+            else:
+                valid.append((n, bearing))
+        if len(self.history) == 0:  # no odometry: the robot is taken as still
+            outcomes.update((n, self._count(self._apply(b, (0.0, 0.0, 0.0)))) for n, b in valid)
+            return [outcomes[n] for n in range(len(bearings))]
         scheduled: dict[int, list[tuple[Bearing, int]]] = {}  # history index -> (bearing, input index)
         first_state = self._first_state_index()
-        for n, bearing in enumerate(bearings):
+        for n, bearing in valid:
             index = self._replay_index(bearing.stamp_s, first_state)
             if index is None and self._ahead_of_odometry(bearing.stamp_s):
                 outcomes[n] = self._defer(bearing)
@@ -223,6 +314,15 @@ class Localiser:
         if scheduled:
             self._replay(scheduled, outcomes)
         return [outcomes[n] for n in range(len(bearings))]
+
+    def _invalid_reason(self, bearing: Bearing) -> str:
+        """Why the filter can never use a bearing (BearingEkf's reasons), or an empty string."""
+        if bearing.beacon_id not in self.ekf.beacons_xy:
+            return "unknown beacon"
+        values = (bearing.stamp_s, bearing.bearing_rad, bearing.variance_rad2)
+        if not (all(map(isfinite, values)) and bearing.variance_rad2 > 0.0):
+            return "invalid measurement"
+        return ""
 
     def _ahead_of_odometry(self, stamp_s: float) -> bool:
         """True for a stamp after the newest odometry (past extrapolation) but within the history span."""
@@ -329,6 +429,16 @@ class Localiser:
             return self._initialise(stamp_s, pose_now, covariance, "kidnap_reinitialisations")
         return "ignored"
 
+    def offer_pose(self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, default_covariance: np.ndarray,
+                   *, operator: bool) -> str:
+        """`on_pose` for a pose from a message: an unusable covariance replaced by the default
+        (`usable_covariance`), an operator's stamp by "now" (`operator_pose_stamp_s`)."""
+        if operator:
+            latest = self.history.latest
+            stamp_s = operator_pose_stamp_s(stamp_s, None if latest is None else latest[0])
+        usable = usable_covariance(covariance, default_covariance)
+        return self.on_pose(stamp_s, pose, usable, operator=operator)
+
     def _far_from_estimate(self, pose: Pose2D, covariance: np.ndarray) -> bool:
         """True when `pose` (of `covariance`) is inconsistent with the estimate or beyond the absolute
         thresholds: the squared Mahalanobis distance of the difference, under the sum of the two
@@ -376,3 +486,10 @@ class Localiser:
             return (0.0, 0.0, 0.0)
         step_s, (dx, dy, dtheta) = step
         return (dx / step_s, dy / step_s, dtheta / step_s)
+
+
+def build_localiser(beacons_xy: Mapping[int, Sequence[float]], sensor_offset_m: tuple[float, float],
+                    settings: FilterSettings) -> Localiser:
+    """The Localiser of a beacon map ({id: (x, y)}), a turret offset (m) and the filter settings."""
+    ekf = BearingEkf(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability)
+    return Localiser(ekf, settings.localiser)

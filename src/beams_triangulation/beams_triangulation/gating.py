@@ -6,21 +6,28 @@ a limit. Defaults, from the error maps of the Eurobot layout (`error_map`, beari
 the driver's variance model gives): the position std stays under 5 cm on 94% of the table and grows
 without bound near the critical circumference, which crosses the table; 1/|D| < 2 m^-2 holds on 94%
 of it as well and catches the blow-up even when the published variances are wrong. Rejected poses keep
-their numbers and get the reason, so that `topic echo` shows why.
+their numbers and get the reason, so that `topic echo` shows why. With odometry in use, a revolution the
+odometry does not cover (at start-up, before the first odometry, or when odometry stops) is not
+motion-compensated: its pose is published rejected (a robot turning at 2 rad/s makes it centimetres
+off while its covariance says millimetres).
+
+`triangulation_settings` maps triangulation_node's parameter values to the settings, and
+`TriangulationPipeline` is what the node runs on its two inputs: the offline replay runs both too.
 """
 
 from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
-from typing import Protocol
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
 from beams_driver.beacon_map import BeaconMap
 from beams_triangulation.motion_compensation import (
+    OdometryBuffer,
     motion_variance_rad2,
     triangulate_compensated,
     twist_between,
@@ -31,6 +38,7 @@ from beams_triangulation.total import ToTalFix, triangulate, triangulate_many
 DEFAULT_MAX_INVERSE_ABS_D = 2.0
 DEFAULT_MAX_POSITION_STD_M = 0.05
 REASON_NO_TRIPLET = "no beacon triplet gives a fix: robot on the critical circumference of every triplet"
+REASON_NOT_COMPENSATED = "odometry does not cover the revolution: bearings not motion-compensated"
 
 
 @dataclass(frozen=True)
@@ -43,6 +51,34 @@ class GateConfig:
     def __post_init__(self) -> None:
         if not (self.max_inverse_abs_d > 0.0 and self.max_position_std_m > 0.0):
             raise ValueError(f"gate thresholds must be positive, got {self}")
+
+
+@dataclass(frozen=True)
+class TriangulationSettings:
+    """What triangulation_node takes from its parameters (besides the beacon geometry)."""
+
+    gates: GateConfig = field(default_factory=GateConfig)
+    # bring each revolution's bearings to one instant with `odom` (and refuse the uncovered ones)
+    use_odometry: bool = True
+    odometry_history_s: float = 2.0
+    max_odometry_extrapolation_s: float = 0.05
+
+
+def triangulation_settings(parameters: Mapping[str, Any]) -> TriangulationSettings:
+    """Settings from triangulation_node's parameter values by name (a missing one takes its default).
+
+    Raises ValueError for values the settings refuse (non-positive gates).
+    """
+    defaults, value = TriangulationSettings(), parameters.get
+    gates = GateConfig(float(value("max_inverse_abs_d", defaults.gates.max_inverse_abs_d)),
+                       float(value("max_position_std_m", defaults.gates.max_position_std_m)))
+    return TriangulationSettings(
+        gates=gates,
+        use_odometry=bool(value("use_odometry", defaults.use_odometry)),
+        odometry_history_s=float(value("odometry_history_s", defaults.odometry_history_s)),
+        max_odometry_extrapolation_s=float(value("max_odometry_extrapolation_s",
+                                                 defaults.max_odometry_extrapolation_s)),
+    )
 
 
 @dataclass(slots=True)
@@ -137,6 +173,14 @@ class Bearing:
     stamp_s: float = 0.0
 
 
+def message_bearings(message: Any, seconds: Callable[[Any], float]) -> list[Bearing]:
+    """The bearings of a beams_msgs/BeaconBearingArray (an rclpy or a rosbags message), seconds(stamp)
+    converting its stamps; a bearing stamped zero takes the revolution's stamp."""
+    revolution_s = seconds(message.header.stamp)
+    return [Bearing(int(b.beacon_id), float(b.bearing), float(b.variance),
+                    seconds(b.header.stamp) or revolution_s) for b in message.bearings]
+
+
 def estimate_pose(
     beacon_ids: Sequence[int],
     bearings_rad: Sequence[float],
@@ -221,9 +265,10 @@ def estimate_revolution(
     """One revolution's bearings to a gated pose at the mean instant of the bearings used.
 
     odometry_at(t) gives the odometry pose (odom frame) at instant t, or None outside its samples: with
-    it the bearings are brought to that instant before ToTal (`motion_compensation`). Without it (or
-    when it does not cover the bearings), motion=(speed m/s, yaw rate rad/s) seen between revolutions
-    inflates the bearing variances instead (`motion_variance_rad2`).
+    it the bearings are brought to that instant before ToTal (`motion_compensation`); when it does not
+    cover them, the pose is rejected (REASON_NOT_COMPENSATED). Without odometry (or when it does not
+    cover the bearings), motion=(speed m/s, yaw rate rad/s) seen between revolutions inflates the
+    bearing variances (`motion_variance_rad2`).
     """
     bearings = drop_repeated_beacons(bearings)
     ids = [b.beacon_id for b in bearings]
@@ -259,7 +304,15 @@ def estimate_revolution(
         ranges = np.hypot(beacons_xy[picked, 0] - fix.x, beacons_xy[picked, 1] - fix.y)
         used_variances = used_variances + motion_variance_rad2(stamps[picked] - target, ranges, *motion)
     estimate = gated_estimate(fix, beacons_xy[picked], used_variances, used_ids, config, turret_offset_m)
+    if odometry_at is not None and odometry is None:
+        _reject_uncompensated(estimate)
     return RevolutionPose(estimate, target, odometry is not None)
+
+
+def _reject_uncompensated(estimate: PoseEstimate) -> None:
+    """Reject a pose that odometry in use could not motion-compensate (the gate's reason kept first)."""
+    estimate.reason = "; ".join(filter(None, (estimate.reason, REASON_NOT_COMPENSATED)))
+    estimate.accepted = False
 
 
 def _odometry_at_stamps(odometry_at, stamps: np.ndarray, target: float):
@@ -292,8 +345,68 @@ class RevolutionEstimator:
         if isinstance(estimate, PoseEstimate) and not outcome.compensated and self._last is not None:
             motion = twist_between(*self._last, (estimate.x, estimate.y, estimate.heading), outcome.stamp_s)
             if motion is not None:  # same bearings again, now with the motion in their variances
-                outcome = estimate_revolution(bearings, *settings, None, motion)
+                outcome = estimate_revolution(bearings, *settings, odometry_at, motion)
                 estimate = outcome.result
         if isinstance(estimate, PoseEstimate):
             self._last = ((estimate.x, estimate.y, estimate.heading), outcome.stamp_s)
         return outcome
+
+
+Tag = Any  # what the caller attaches to a revolution (its number live, its due instant offline)
+
+
+class TriangulationPipeline:
+    """triangulation_node's logic on its two inputs, without ROS (the offline replay runs it as well):
+    odometry into an `OdometryBuffer`, each revolution through a `RevolutionEstimator` with it.
+
+    With odometry in use, a revolution whose last bearing is newer than the newest odometry waits for the
+    odometry that covers it, at most until the next revolution: its bearings are then interpolated
+    between odometry samples rather than extrapolated, whatever order the two streams arrive in (over
+    DDS live, by stamp offline), so the node and the replay give the same poses. Each call returns the
+    (tag, outcome) pairs of the revolutions it completed, oldest first.
+    """
+
+    def __init__(self, beacon_map: BeaconMap, settings: TriangulationSettings = TriangulationSettings(),
+                 turret_offset_m: Sequence[float] = (0.0, 0.0)) -> None:
+        self.settings = settings
+        self.estimator = RevolutionEstimator(beacon_map, settings.gates, turret_offset_m)
+        self.odometry = OdometryBuffer(settings.odometry_history_s, settings.max_odometry_extrapolation_s)
+        self._pending: tuple[Tag, list[BearingLike]] | None = None
+
+    def on_odometry(self, stamp_s: float, pose: Sequence[float],
+                    twist: tuple[float, float]) -> list[tuple[Tag, RevolutionPose]]:
+        """An odometry sample (odom frame; speed m/s, yaw rate rad/s); ignored without use_odometry."""
+        if not self.settings.use_odometry:
+            return []
+        self.odometry.add(stamp_s, tuple(pose), twist)
+        if self._pending is not None and self._covered(self._pending[1]):
+            return self.flush()
+        return []
+
+    def on_revolution(self, tag: Tag, bearings: Sequence[BearingLike]) -> list[tuple[Tag, RevolutionPose]]:
+        """A revolution's bearings: the waiting revolution goes first, with the odometry there is."""
+        completed = self.flush()
+        if self.settings.use_odometry and not self._covered(bearings):
+            self._pending = (tag, list(bearings))
+            return completed
+        return [*completed, (tag, self._estimate(bearings))]
+
+    def flush(self) -> list[tuple[Tag, RevolutionPose]]:
+        """The waiting revolution (if any), estimated now (when the streams stop or time jumps)."""
+        if self._pending is None:
+            return []
+        tag, bearings = self._pending
+        self._pending = None
+        return [(tag, self._estimate(bearings))]
+
+    def _covered(self, bearings: Sequence[BearingLike]) -> bool:
+        """True when no odometry can still help: the newest odometry is at or after every bearing, or
+        the stamps are not usable (bad input is reported at once)."""
+        stamps = [b.stamp_s for b in bearings]
+        if not (stamps and all(map(math.isfinite, stamps))):
+            return True
+        newest_s = self.odometry.newest_stamp_s
+        return newest_s is not None and newest_s >= max(stamps)
+
+    def _estimate(self, bearings: Sequence[BearingLike]) -> RevolutionPose:
+        return self.estimator.update(bearings, self.odometry.pose_at if self.settings.use_odometry else None)

@@ -14,11 +14,14 @@ that instant:
 
 Without odometry, the bearing variances are inflated by the motion estimated between revolutions
 (`motion_variance_rad2`), so that the gate and the covariance account for the motion they cannot undo.
-All functions are pure: poses are (x, y, theta) tuples or arrays, odometry poses are in the odom frame.
+`OdometryBuffer` keeps the recent odometry poses by stamp for the compensation (the live node and the
+offline replay both feed it). All of it is pure: poses are (x, y, theta) tuples or arrays, odometry poses
+are in the odom frame.
 """
 
 from __future__ import annotations
 
+import collections
 import math
 from collections.abc import Sequence
 
@@ -26,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from beams_driver.angles import wrap_to_pi
-from beams_driver.pose2d import between, compose
+from beams_driver.pose2d import Pose2D, between, compose, is_finite_pose
 from beams_triangulation.total import ToTalFix, triangulate
 
 
@@ -145,3 +148,58 @@ def twist_between(earlier: Sequence[float], earlier_stamp_s: float, later: Seque
         return None
     speed = math.hypot(later[0] - earlier[0], later[1] - earlier[1]) / dt
     return speed, wrap_to_pi(later[2] - earlier[2]) / dt
+
+
+# Odometry stamps going back by more than this (s) are a new start (a bag loop, a restarted simulation).
+ODOMETRY_TIME_JUMP_S = 1.0
+
+
+class OdometryBuffer:
+    """Recent odometry poses (odom frame) by stamp, extrapolated along the last twist's arc for a short
+    while past the newest sample (a revolution may end a little after the last odometry message).
+
+    Non-finite samples are ignored; a sample not after the newest is dropped, unless the stamps went
+    back by more than `time_jump_s`, which starts the buffer over.
+    """
+
+    def __init__(self, span_s: float, max_extrapolation_s: float,
+                 time_jump_s: float = ODOMETRY_TIME_JUMP_S) -> None:
+        self.span_s = span_s
+        self.max_extrapolation_s = max_extrapolation_s
+        self.time_jump_s = time_jump_s
+        self._samples: collections.deque[tuple[float, Pose2D]] = collections.deque()
+        self._twist = (0.0, 0.0)
+
+    def __len__(self) -> int:
+        return len(self._samples)
+
+    @property
+    def newest_stamp_s(self) -> float | None:
+        """Stamp of the newest sample, or None when empty."""
+        return self._samples[-1][0] if self._samples else None
+
+    def add(self, stamp_s: float, pose: Pose2D, twist: tuple[float, float]) -> None:
+        """A sample: pose (x, y, theta) and twist (speed m/s, yaw rate rad/s) at stamp_s."""
+        if not (math.isfinite(stamp_s) and is_finite_pose(pose) and all(map(math.isfinite, twist))):
+            return
+        if self._samples and stamp_s <= self._samples[-1][0]:
+            if stamp_s >= self._samples[-1][0] - self.time_jump_s:
+                return
+            self._samples.clear()
+        self._samples.append((stamp_s, pose))
+        self._twist = (float(twist[0]), float(twist[1]))
+        while self._samples and self._samples[0][0] < stamp_s - self.span_s:
+            self._samples.popleft()
+
+    def pose_at(self, t: float) -> Pose2D | None:
+        """Odometry pose at t, or None when t is older than the buffer or too far past its end."""
+        if not self._samples:
+            return None
+        newest_s, newest = self._samples[-1]
+        if t > newest_s:
+            dt = t - newest_s
+            if dt > self.max_extrapolation_s:
+                return None
+            return compose(newest, arc_increment(self._twist[0], self._twist[1], dt))
+        stamps = [s for s, _ in self._samples]
+        return interpolate_pose(stamps, [p for _, p in self._samples], t)

@@ -6,14 +6,14 @@ message, each bearing stamped with its own instant) and, when `use_odometry` is 
 Publishes `beams/pose` (beams_msgs/TriangulatedPose, every pose, rejected ones with `accepted = false`
 and the reason), `beams/pose_cov` (geometry_msgs/PoseWithCovarianceStamped, accepted poses only), both
 stamped with the bearings' mean instant in the map frame; `beams/markers` (visualization_msgs/
-MarkerArray: beacons, pose arrow, 2-sigma covariance ellipse) and `/diagnostics`.
+MarkerArray: beacons, pose arrow, 2-sigma covariance ellipse) and `/diagnostics`. A revolution the
+odometry does not cover yet waits for it, at most until the next revolution (`gating.TriangulationPipeline`).
 Bad input (unknown beacon id, NaN bearing, duplicated beacon, fewer than three beacons) gives a log line
 and no pose. The beacon map and turret offset come from the calibration file when one is given.
 """
 
 from __future__ import annotations
 
-import collections
 import math
 import sys
 
@@ -28,24 +28,24 @@ from visualization_msgs.msg import Marker, MarkerArray
 from beams_driver.calibration_file import SensorCalibration
 from beams_driver.node_support import (
     Diagnostics,
+    ParameterValidationError,
     declare_beacon_geometry,
     declare_parameter,
     run_node,
     serve_calibration_reload,
 )
-from beams_driver.pose2d import compose
 from beams_driver.ros_messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_triangulation.gating import (
-    DEFAULT_MAX_INVERSE_ABS_D,
-    DEFAULT_MAX_POSITION_STD_M,
-    Bearing,
-    GateConfig,
     NoPose,
     PoseEstimate,
     RevolutionEstimator,
+    RevolutionPose,
+    TriangulationPipeline,
+    TriangulationSettings,
+    message_bearings,
+    triangulation_settings,
 )
-from beams_triangulation.motion_compensation import arc_increment, interpolate_pose
 
 
 def estimate_pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
@@ -53,60 +53,19 @@ def estimate_pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
     return pose_with_covariance((estimate.x, estimate.y, estimate.heading), estimate.covariance)
 
 
-class OdometryBuffer:
-    """Recent odometry poses (odom frame) by stamp, with a short extrapolation by the last twist."""
-
-    def __init__(self, span_s: float, max_extrapolation_s: float) -> None:
-        self.span_s = span_s
-        self.max_extrapolation_s = max_extrapolation_s
-        self._samples: collections.deque[tuple[float, tuple[float, float, float]]] = collections.deque()
-        self._twist = (0.0, 0.0)
-
-    def add(self, stamp_s: float, pose: tuple[float, float, float], twist: tuple[float, float]) -> None:
-        if self._samples and stamp_s <= self._samples[-1][0]:
-            if stamp_s < self._samples[-1][0] - 1.0:  # the clock went back (bag or simulation restarted)
-                self._samples.clear()
-            else:
-                return
-        self._samples.append((stamp_s, pose))
-        self._twist = twist
-        while self._samples and self._samples[0][0] < stamp_s - self.span_s:
-            self._samples.popleft()
-
-    def pose_at(self, t: float) -> tuple[float, float, float] | None:
-        """Odometry pose at t, or None when t is older than the buffer or too far past its end."""
-        if not self._samples:
-            return None
-        newest_s, newest = self._samples[-1]
-        if t > newest_s:
-            dt = t - newest_s
-            if dt > self.max_extrapolation_s:
-                return None
-            return compose(newest, arc_increment(self._twist[0], self._twist[1], dt))
-        stamps = [s for s, _ in self._samples]
-        return interpolate_pose(stamps, [p for _, p in self._samples], t)
-
-
 class TriangulationNode(Node):
-    """ROS wiring of `gating.RevolutionEstimator` (see the module docstring)."""
+    """ROS wiring of `gating.TriangulationPipeline` (see the module docstring)."""
 
     def __init__(self) -> None:
         super().__init__("triangulation_node")
         beacon_map, offset = declare_beacon_geometry(self)
-        config = self._declare_gates()
+        settings = self._declare_settings()
+        config = settings.gates
         self.map_frame = declare_parameter(self, "map_frame", "map", "Frame of the published poses.")
-        self.use_odometry = declare_parameter(
-            self, "use_odometry", True, "Bring each revolution's bearings to one instant with `odom`.")
-        span_s = declare_parameter(self, "odometry_history_s", 2.0, "Odometry kept for compensation (s).",
-                                   minimum=0.1, maximum=60.0)
-        extrapolation_s = declare_parameter(
-            self, "max_odometry_extrapolation_s", 0.05,
-            "How far past the newest odometry a bearing may be and still be compensated (s).",
-            minimum=0.0, maximum=1.0)
+        self.use_odometry = settings.use_odometry
         self.publish_markers = declare_parameter(self, "publish_markers", True, "Publish RViz markers.")
-        self.estimator = RevolutionEstimator(beacon_map, config, offset)
+        self.pipeline = TriangulationPipeline(beacon_map, settings, offset)
         serve_calibration_reload(self, self._apply_calibration)
-        self.odometry = OdometryBuffer(span_s, extrapolation_s)
         self.diagnostics = Diagnostics(self, "triangulation")
         self.diagnostics.set_level("warn", "waiting for bearings")
 
@@ -125,35 +84,55 @@ class TriangulationNode(Node):
     # -- parameters -----------------------------------------------------------------------------------
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
         offset = calibration.turret_offset_m
-        self.estimator = RevolutionEstimator(calibration.beacon_map, self.estimator.config, offset)
+        gates = self.pipeline.settings.gates
+        self.pipeline.estimator = RevolutionEstimator(calibration.beacon_map, gates, offset)
         return f"beacons {list(calibration.beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
 
-    def _declare_gates(self) -> GateConfig:
-        return GateConfig(
-            max_inverse_abs_d=declare_parameter(
-                self, "max_inverse_abs_d", DEFAULT_MAX_INVERSE_ABS_D,
+    def _declare_settings(self) -> TriangulationSettings:
+        """Declare the gate and odometry parameters (defaults: TriangulationSettings') and map them with
+        `gating.triangulation_settings`, as the offline replay does."""
+        defaults = TriangulationSettings()
+        values = {
+            "max_inverse_abs_d": declare_parameter(
+                self, "max_inverse_abs_d", defaults.gates.max_inverse_abs_d,
                 "Gate on ToTal's reliability measure 1/|D| (m^-2).", minimum=1e-9, maximum=1e12),
-            max_position_std_m=declare_parameter(
-                self, "max_position_std_m", DEFAULT_MAX_POSITION_STD_M,
+            "max_position_std_m": declare_parameter(
+                self, "max_position_std_m", defaults.gates.max_position_std_m,
                 "Gate on the propagated position std sqrt(var x + var y) (m).", minimum=1e-9, maximum=1e3),
-        )
+            "use_odometry": declare_parameter(
+                self, "use_odometry", defaults.use_odometry,
+                "Bring each revolution's bearings to one instant with `odom`; a revolution the odometry "
+                "does not cover is then published rejected."),
+            "odometry_history_s": declare_parameter(
+                self, "odometry_history_s", defaults.odometry_history_s,
+                "Odometry kept for compensation (s).", minimum=0.1, maximum=60.0),
+            "max_odometry_extrapolation_s": declare_parameter(
+                self, "max_odometry_extrapolation_s", defaults.max_odometry_extrapolation_s,
+                "How far past the newest odometry a bearing may be and still be compensated (s).",
+                minimum=0.0, maximum=1.0),
+        }
+        try:
+            return triangulation_settings(values)
+        except ValueError as error:  # parameters valid one by one but not together
+            raise ParameterValidationError(str(error)) from None
 
     # -- inputs ---------------------------------------------------------------------------------------
     def _on_odometry(self, msg: Odometry) -> None:
-        pose = pose2d_of(msg.pose.pose)
-        self.odometry.add(stamp_to_seconds(msg.header.stamp), pose,
-                          (msg.twist.twist.linear.x, msg.twist.twist.angular.z))
+        twist = (msg.twist.twist.linear.x, msg.twist.twist.angular.z)
+        self._handle(self.pipeline.on_odometry(stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose),
+                                               twist))
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
         self.diagnostics.increment("revolutions")
-        revolution_s = stamp_to_seconds(msg.header.stamp)
-        bearings = [Bearing(int(b.beacon_id), float(b.bearing), float(b.variance),
-                            stamp_to_seconds(b.header.stamp) or revolution_s) for b in msg.bearings]
-        outcome = self.estimator.update(bearings, self.odometry.pose_at if self.use_odometry else None)
-        if isinstance(outcome.result, NoPose):
-            self._report_no_pose(outcome.result, msg.revolution)
-            return
-        self._publish(outcome.result, outcome.stamp_s, outcome.compensated)
+        self._handle(self.pipeline.on_revolution(msg.revolution, message_bearings(msg, stamp_to_seconds)))
+
+    def _handle(self, completed: list[tuple[int, RevolutionPose]]) -> None:
+        """Publish the revolutions the pipeline completed (or say why they gave no pose)."""
+        for revolution, outcome in completed:
+            if isinstance(outcome.result, NoPose):
+                self._report_no_pose(outcome.result, revolution)
+            else:
+                self._publish(outcome.result, outcome.stamp_s, outcome.compensated)
 
     def _report_no_pose(self, no_pose: NoPose, revolution: int) -> None:
         reason = no_pose.reason
@@ -198,7 +177,7 @@ class TriangulationNode(Node):
         """Beacons (spheres), the pose (arrow) and its 2-sigma position ellipse (flat cylinder)."""
         markers = MarkerArray()
         lifetime = Duration(sec=1)
-        for index, (x, y) in enumerate(self.estimator.beacon_map.xy):
+        for index, (x, y) in enumerate(self.pipeline.estimator.beacon_map.xy):
             beacon = self._marker(header, "beacons", index, Marker.SPHERE, (0.2, 0.4, 1.0))
             beacon.pose.position.x, beacon.pose.position.y = float(x), float(y)
             beacon.scale.x = beacon.scale.y = beacon.scale.z = 0.08
