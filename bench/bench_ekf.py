@@ -193,9 +193,9 @@ def rows(seed: int = DEFAULT_SEED, duration_s: float = DEFAULT_DURATION_S,
          "bearings", f"of {sum(len(r.bearings) for r in match.revolutions)}"),
         ("odometry alone RMS position", 1000 * odometry_position, "mm", "EKF row above"),
         ("odometry alone RMS heading", math.degrees(odometry_heading), "deg", "EKF row above"),
-        ("ToTal alone RMS position (per revolution)", 1000 * total_position, "mm", "EKF row above"),
-        ("ToTal alone RMS heading (per revolution)", math.degrees(total_heading), "deg", "EKF row above"),
-        ("ToTal alone median position error", 1000 * total_median, "mm", "EKF row above"),
+        ("ToTal alone, uncompensated, RMS position", 1000 * total_position, "mm", "EKF row above"),
+        ("ToTal alone, uncompensated, RMS heading", math.degrees(total_heading), "deg", "EKF row above"),
+        ("ToTal alone, uncompensated, median error", 1000 * total_median, "mm", "EKF row above"),
     ]
     cost = timings_us()
     table += [
