@@ -2,7 +2,7 @@
 
 Each bench/bench_<area>.py module has `rows() -> list[(figure, value, unit, compared with)]`.
 Usage (through `make bench`): python bench/run_all.py [--only AREA ...] [--record BENCHMARKS.md]
-With --record, the table replaces what stands between the markers BEGIN_MARK and END_MARK of that file.
+With --record, the table replaces what stands between the file's two "make bench: table" markers.
 """
 
 import argparse
