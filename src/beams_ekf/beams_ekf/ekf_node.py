@@ -78,6 +78,9 @@ FILTER_PARAMETERS = (
 )
 
 
+WAITING_FOR_POSE = "waiting for an initial pose (beams/pose, /initialpose or the set_pose service)"
+
+
 class EkfNode(Node):
     """ROS wiring of `Localiser` (see the module docstring)."""
 
@@ -89,7 +92,7 @@ class EkfNode(Node):
         rate_hz = declare_parameter(self, "publish_rate_hz", 20.0, "Rate of the published estimate (Hz).",
                                     minimum=0.1, maximum=1000.0)
         self.diagnostics = Diagnostics(self, "ekf")
-        self.diagnostics.set_level("warn", "waiting for an initial pose (beams/pose, /initialpose or the set_pose service)")
+        self.diagnostics.set_level("warn", WAITING_FOR_POSE)
         self._last_twist = None
         # the newest odometry header stamp, republished exactly (a float loses nanoseconds at epoch scale)
         self._last_odometry_stamp: tuple[float, Time] | None = None
@@ -215,7 +218,7 @@ class EkfNode(Node):
         for key, value in stats.counts.items():
             self.diagnostics.set(key, value)
         if estimate is None:
-            self.diagnostics.set_level("warn", "waiting for an initial pose (beams/pose, /initialpose or the set_pose service)")
+            self.diagnostics.set_level("warn", WAITING_FOR_POSE)
             return
         self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
         self.diagnostics.set("recent_gated_bearings", self.localiser.recent_gated_bearings)
