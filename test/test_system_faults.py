@@ -8,8 +8,11 @@ one after the other (the test budget of a 2-core machine); each fault's interval
 (bearings without the hidden beacon, the gap in `odom`), never assumed, and after each one the EKF's pose
 error against the simulator's truth must come back within its bound.
 
-The helpers at the top (`robot_parameters`, `RobotProbe`, `errors_against_truth`) also serve
-test_system_multi_robot.py.
+A second system drives a robot where two beacons are almost aligned (compound windows, thesis 2.4.5),
+and the fault parameters added for these tests are checked to refuse bad values.
+
+The helpers at the top (`robot_parameters`, `start_robot`, `RobotProbe`, `errors_against_truth`) also
+serve test_system_multi_robot.py.
 """
 
 import math
@@ -37,11 +40,15 @@ RECOVERY_BOUND_S = 5.0
 START_TIMEOUT_S = 40.0
 # Let the filter settle this long after a fault ends before its error counts again.
 SETTLE_S = 2.0
-# Fault schedule. Beacon 3 is hidden for 10 s of the driver's time (the issue's figure; the robot keeps
-# moving, so the EKF runs on two beacons and odometry); the odometry is silent for 2 s of match time.
+# While a beacon is hidden the EKF (two beacons and odometry) must not drift beyond the position std that
+# the triangulation's gate accepts (max_position_std_m, 5 cm): measured 2.3 to 2.8 cm at most here.
+HIDDEN_MAX_ERROR_M = 0.05
+# Fault schedule, after the restarts (about 15 to 25 s from the start here). Beacon 3 is hidden for 10 s
+# of the driver's time (the issue's figure; the robot keeps moving, so the EKF runs on two beacons and
+# odometry); the odometry is silent for 2 s of match time.
 OCCLUDED_BEACON = 3
-OCCLUSION_S = (30.0, 40.0)
-ODOMETRY_DROPOUT_S = (48.0, 50.0)
+OCCLUSION_S = (32.0, 42.0)
+ODOMETRY_DROPOUT_S = (50.0, 52.0)
 MATCH_S = 120.0
 
 
@@ -116,6 +123,8 @@ class RobotProbe:
     ekf_arrivals: list[float] = field(default_factory=list)
     total: list[tuple[float, float, float, float]] = field(default_factory=list)
     total_arrivals: list[float] = field(default_factory=list)
+    # ToTal poses (accepted or not) with a non-finite coordinate
+    total_non_finite: int = 0
     odometry_stamps: list[float] = field(default_factory=list)
     # (revolution stamp, beacon ids seen)
     revolutions: list[tuple[float, tuple[int, ...]]] = field(default_factory=list)
@@ -149,6 +158,8 @@ class RobotProbe:
         self.ekf_arrivals.append(time.monotonic())
 
     def _on_total(self, msg) -> None:
+        if not all(math.isfinite(v) for v in pose_row(msg.header.stamp, msg.pose.pose)):
+            self.total_non_finite += 1
         if msg.accepted:
             self.total.append(pose_row(msg.header.stamp, msg.pose.pose))
             self.total_arrivals.append(time.monotonic())
@@ -267,91 +278,117 @@ def publish_burst(graph, count: int, spacing_s: float) -> None:
         graph.spin_for(spacing_s)
 
 
+def assert_ekf_back(probe: RobotProbe, since_s: float, until_s: float, what: str) -> float:
+    """The EKF's errors over outputs stamped in [since, until) are within issue 5's bounds; the RMS (m)."""
+    position, heading = probe.ekf_errors(since_s, until_s)
+    assert len(position) > 20, f"only {len(position)} EKF outputs to judge the recovery after {what}"
+    assert rms(position) < EKF_RMS_BOUND_M, f"EKF RMS {rms(position):.4f} m after {what}"
+    assert rms(heading) < EKF_HEADING_RMS_BOUND_RAD, f"EKF heading RMS {rms(heading):.5f} rad after {what}"
+    return rms(position)
+
+
+def check_restarts(graph, start_node, nodes, parameters, probe: RobotProbe) -> dict[str, float]:
+    """kill -9 then restart the triangulation, then the EKF: each output is back within the bound of its
+    start-up, the new EKF reports its initialisation and is accurate again once settled."""
+    ready = restart_after_kill(graph, start_node, nodes, "triangulation", parameters,
+                               "triangulation_node ready")
+    graph.spin_until(lambda: first_after(probe.total_arrivals, ready) < math.inf, 10.0)
+    total_back_s = first_after(probe.total_arrivals, ready) - ready
+    assert total_back_s <= RECOVERY_BOUND_S, f"ToTal back {total_back_s:.2f} s after its restart"
+
+    ready = restart_after_kill(graph, start_node, nodes, "ekf", parameters, "ekf_node ready")
+    graph.spin_until(lambda: first_after(probe.ekf_arrivals, ready) < math.inf, 10.0)
+    ekf_back_s = first_after(probe.ekf_arrivals, ready) - ready
+    assert ekf_back_s <= RECOVERY_BOUND_S, f"EKF back {ekf_back_s:.2f} s after its restart"
+    # the killed process cannot report any more: what arrives after `ready` is the new one's
+    assert graph.spin_until(lambda: probe.counter("ekf", "initialisations", since=ready) == 1, 5.0), \
+        "the restarted EKF did not report its initialisation in /diagnostics"
+    restarted_s = probe.ekf[-1][0]
+    graph.spin_until(lambda: probe.latest_truth_stamp() > restarted_s + 2 * SETTLE_S, 15.0)
+    rms_m = assert_ekf_back(probe, restarted_s + SETTLE_S, restarted_s + 2 * SETTLE_S, "its restart")
+    return {"ToTal back after restart (s)": total_back_s, "EKF back after restart (s)": ekf_back_s,
+            "EKF RMS after restart (m)": rms_m, "restarts over at (stamp s)": restarted_s + 2 * SETTLE_S}
+
+
+def check_occlusion(graph, probe: RobotProbe) -> tuple[float, dict[str, float]]:
+    """Beacon 3 hidden for 10 s: ToTal has two beacons and says so, the EKF goes on. The hidden span
+    comes from the bearings (revolutions without beacon 3); returns its end and the figures."""
+    def hidden() -> tuple[float, float] | None:
+        return interval_without([t for t, ids in probe.revolutions if OCCLUDED_BEACON in ids], 1.0)
+
+    assert graph.spin_until(lambda: hidden() is not None, START_TIMEOUT_S + OCCLUSION_S[1]), \
+        "beacon 3 never disappeared"
+    hidden_from, hidden_to = hidden()
+    assert hidden_to - hidden_from == pytest.approx(OCCLUSION_S[1] - OCCLUSION_S[0], abs=0.3)
+    no_pose = probe.counter("triangulation", "no_pose")
+    assert no_pose >= 50, f"the triangulation reported only {no_pose} revolutions without a pose"
+    during, _ = probe.ekf_errors(hidden_from, hidden_to)
+    assert len(during) > 100, "the EKF stopped publishing while a beacon was hidden"
+    assert max(during) < HIDDEN_MAX_ERROR_M, f"the EKF drifted {max(during):.3f} m while a beacon was hidden"
+    return hidden_to, {"EKF RMS while hidden (m)": rms(during), "EKF max while hidden (m)": max(during)}
+
+
+def check_odometry_dropout(graph, probe: RobotProbe) -> tuple[float, float]:
+    """Odometry silent for 2 s: sim_world counts the dropped samples, the EKF a gap. Returns the silence."""
+    assert graph.spin_until(lambda: interval_without(probe.odometry_stamps, 1.0) is not None, 30.0), \
+        "the odometry never stopped"
+    silent_from, silent_to = interval_without(probe.odometry_stamps, 1.0)
+    assert silent_to - silent_from == pytest.approx(ODOMETRY_DROPOUT_S[1] - ODOMETRY_DROPOUT_S[0], abs=0.1)
+    assert graph.spin_until(lambda: probe.counter("sim_world", "odometry_dropped") >= 90, 3.0)
+    assert graph.spin_until(lambda: probe.counter("ekf", "odometry_gaps") >= 1, 5.0)
+    return silent_from, silent_to
+
+
+def check_malformed_burst(graph, probe: RobotProbe) -> float:
+    """A burst of malformed messages on every input: each node that reads them counts them in
+    /diagnostics. Returns the stamp the burst started at."""
+    keys = (("triangulation", "bad_input"), ("ekf", "bearings_invalid measurement"),
+            ("ekf", "bearings_unknown beacon"), ("ekf", "odometry_invalid"),
+            ("driver", "ground_truth_rejected_non_finite"))
+    before = {key: probe.counter(*key) for key in keys}
+    burst_from = probe.latest_truth_stamp()
+    publish_burst(graph, count=20, spacing_s=0.05)
+    for tag, key in keys:  # diagnostics come once a second
+        assert graph.spin_until(lambda tag=tag, key=key: probe.counter(tag, key) > before[tag, key], 3.0), \
+            f"{tag} did not report the malformed messages ({key})"
+    return burst_from
+
+
 def test_system_survives_faults(start_node, rclpy_node):
+    graph = rclpy_node
     parameters = robot_parameters(
         seed=7,
         sim_world={"odometry_dropout_s": list(ODOMETRY_DROPOUT_S)},
         driver={"sim_occlusion_windows": [float(OCCLUDED_BEACON), *OCCLUSION_S]},
     )
     probe = RobotProbe("")
-    probe.attach(rclpy_node)
+    probe.attach(graph)
     nodes = start_robot(start_node, parameters)
-    graph = rclpy_node
     assert graph.spin_until(lambda: len(probe.ekf) > 20, START_TIMEOUT_S), "no EKF estimate at start-up"
 
-    # --- kill -9 and restart the triangulation: ToTal poses again within 2 s of its start-up ---
-    ready = restart_after_kill(graph, start_node, nodes, "triangulation", parameters,
-                               "triangulation_node ready")
-    graph.spin_until(lambda: first_after(probe.total_arrivals, ready) < math.inf, 10.0)
-    total_recovery_s = first_after(probe.total_arrivals, ready) - ready
-    assert total_recovery_s <= RECOVERY_BOUND_S, f"ToTal back {total_recovery_s:.2f} s after its restart"
-
-    # --- kill -9 and restart the EKF: it re-initialises from ToTal and says so ---
-    ready = restart_after_kill(graph, start_node, nodes, "ekf", parameters, "ekf_node ready")
-    graph.spin_until(lambda: first_after(probe.ekf_arrivals, ready) < math.inf, 10.0)
-    ekf_recovery_s = first_after(probe.ekf_arrivals, ready) - ready
-    assert ekf_recovery_s <= RECOVERY_BOUND_S, f"EKF back {ekf_recovery_s:.2f} s after its restart"
-    restarted_s = probe.ekf[-1][0]
-    # the killed process cannot report any more: what arrives after `ready` is the new one's
-    assert graph.spin_until(lambda: probe.counter("ekf", "initialisations", since=ready) == 1, 5.0), \
-        "the restarted EKF did not report its initialisation in /diagnostics"
-    # ...and is accurate again once settled
-    graph.spin_until(lambda: probe.latest_truth_stamp() > restarted_s + 2 * SETTLE_S, 15.0)
-    position, _ = probe.ekf_errors(restarted_s + SETTLE_S)
-    assert len(position) > 20 and rms(position) < EKF_RMS_BOUND_M, \
-        f"EKF RMS {rms(position):.4f} m over {len(position)} poses after its restart"
-
-    # --- beacon 3 hidden for 10 s: ToTal stops (two beacons), the EKF goes on ---
-    def occlusion_seen() -> tuple[float, float] | None:
-        with_beacon = [t for t, ids in probe.revolutions if OCCLUDED_BEACON in ids]
-        return interval_without(with_beacon, 1.0)
-
-    timeout_s = START_TIMEOUT_S + OCCLUSION_S[1]
-    assert graph.spin_until(lambda: occlusion_seen() is not None, timeout_s), "beacon 3 never disappeared"
-    hidden_from, hidden_to = occlusion_seen()
-    assert hidden_to - hidden_from == pytest.approx(OCCLUSION_S[1] - OCCLUSION_S[0], abs=0.3)
-    no_pose = probe.counter("triangulation", "no_pose")
-    assert no_pose >= 50, f"the triangulation reported only {no_pose} revolutions without a pose"
-    during, _ = probe.ekf_errors(hidden_from, hidden_to)
-    assert len(during) > 100, "the EKF stopped publishing while a beacon was hidden"
-
-    # --- odometry silent for 2 s: the EKF and the triangulation notice, the EKF recovers ---
-    assert graph.spin_until(lambda: interval_without(probe.odometry_stamps, 1.0) is not None, 30.0), \
-        "the odometry never stopped"
-    silent_from, silent_to = interval_without(probe.odometry_stamps, 1.0)
-    assert silent_to - silent_from == pytest.approx(2.0, abs=0.1)
-    assert graph.spin_until(lambda: probe.counter("sim_world", "odometry_dropped") >= 90, 3.0)
-    assert graph.spin_until(lambda: probe.counter("ekf", "odometry_gaps") >= 1, 5.0)
-    after_occlusion, _ = probe.ekf_errors(hidden_to + SETTLE_S, silent_from)
-    assert len(after_occlusion) > 20 and rms(after_occlusion) < EKF_RMS_BOUND_M, \
-        f"EKF RMS {rms(after_occlusion):.4f} m after the occlusion"
-
-    # --- a burst of malformed messages on every input: each node counts them, none dies ---
+    figures = check_restarts(graph, start_node, nodes, parameters, probe)
+    restarts_over_s = figures.pop("restarts over at (stamp s)")
+    hidden_to, occlusion = check_occlusion(graph, probe)
+    hidden_from = hidden_to - (OCCLUSION_S[1] - OCCLUSION_S[0])
+    assert hidden_from > restarts_over_s, "the restarts took so long that they overlapped the occlusion"
+    silent_from, silent_to = check_odometry_dropout(graph, probe)
+    figures |= occlusion
+    figures["EKF RMS after occlusion (m)"] = assert_ekf_back(probe, hidden_to + SETTLE_S, silent_from,
+                                                             "the occlusion")
     graph.spin_until(lambda: probe.latest_truth_stamp() > silent_to + 2 * SETTLE_S, 10.0)
-    before = {key: probe.counter(*key) for key in (
-        ("triangulation", "bad_input"), ("ekf", "bearings_invalid measurement"),
-        ("ekf", "bearings_unknown beacon"), ("ekf", "odometry_invalid"),
-        ("driver", "ground_truth_rejected_non_finite"))}
-    burst_from = probe.latest_truth_stamp()
-    after_dropout, _ = probe.ekf_errors(silent_to + SETTLE_S, burst_from)
-    publish_burst(graph, count=20, spacing_s=0.05)
-    graph.spin_for(2.5)  # diagnostics come once a second
-    for (tag, key), count in before.items():
-        assert probe.counter(tag, key) > count, f"{tag} did not report the malformed messages ({key})"
+    burst_from = check_malformed_burst(graph, probe)
+    figures["EKF RMS after dropout (m)"] = assert_ekf_back(probe, silent_to + SETTLE_S, burst_from,
+                                                           "the odometry dropout")
     graph.spin_until(lambda: probe.latest_truth_stamp() > burst_from + 2 * SETTLE_S, 10.0)
-    after_burst, _ = probe.ekf_errors(burst_from + SETTLE_S)
+    figures["EKF RMS after burst (m)"] = assert_ekf_back(probe, burst_from + SETTLE_S, math.inf,
+                                                         "the malformed burst")
     for name, node in nodes.items():
         assert node.process.poll() is None, f"{name} died:\n{node.log()}"
-    for what, errors in (("odometry dropout", after_dropout), ("malformed burst", after_burst)):
-        assert len(errors) > 20 and rms(errors) < EKF_RMS_BOUND_M, \
-            f"EKF RMS {rms(errors):.4f} m after the {what}"
     total_position, total_heading = probe.total_errors()
-    figures = {"ToTal back (s)": total_recovery_s, "EKF back (s)": ekf_recovery_s,
-               "RMS after EKF restart (m)": rms(position), "RMS while hidden (m)": rms(during),
-               "max while hidden (m)": float(during.max()), "RMS after occlusion (m)": rms(after_occlusion),
-               "RMS after dropout (m)": rms(after_dropout), "RMS after burst (m)": rms(after_burst)}
-    print("system faults: " + ", ".join(f"{k} {v:.4g}" for k, v in figures.items()))
+    assert np.all(np.isfinite(probe.total)), "ToTal accepted a non-finite pose"
     assert rms(total_position) < TOTAL_RMS_BOUND_M and rms(total_heading) < TOTAL_HEADING_RMS_BOUND_RAD
+    figures["non-finite ToTal poses (rejected)"] = probe.total_non_finite
+    print("system faults: " + ", ".join(f"{k} {v:.4g}" for k, v in figures.items()))
 
 
 # Beacons 3 and 4 on the right side of the table: driving down to the bottom-right corner, the robot
@@ -393,7 +430,17 @@ def test_system_rides_through_compound_windows(start_node, rclpy_node):
     assert probe.counter("triangulation", "no_pose") >= len(merged) // 2
     during, _ = probe.ekf_errors(merged[0], merged[-1])
     assert len(during) > 10, "the EKF stopped publishing during the compound windows"
-    after, heading_after = probe.ekf_errors(merged[-1] + SETTLE_S)
-    assert len(after) > 50 and rms(after) < EKF_RMS_BOUND_M and rms(heading_after) < EKF_HEADING_RMS_BOUND_RAD
+    after_m = assert_ekf_back(probe, merged[-1] + SETTLE_S, math.inf, "the compound windows")
     print(f"compound windows: {len(merged)} revolutions over {merged[-1] - merged[0]:.1f} s, EKF RMS during "
-          f"{rms(during):.4f} m (max {during.max():.4f}), after {rms(after):.4f} m")
+          f"{rms(during):.4f} m (max {during.max():.4f}), after {after_m:.4f} m")
+
+
+@pytest.mark.parametrize(("package", "executable", "parameters", "message"), [
+    ("beams_driver", "driver_node", {"sim_occlusion_windows": [3.0, 5.0]}, "triples"),
+    ("beams_driver", "driver_node", {"sim_occlusion_windows": [3.0, 5.0, 2.0]}, "start_s < end_s"),
+    ("beams_driver", "sim_world_node", {"odometry_dropout_s": [5.0, 1.0]}, "start_s <= end_s"),
+])
+def test_fault_parameters_are_validated(start_node, package, executable, parameters, message):
+    node = start_node(package, executable, parameters)
+    assert node.wait_exit(20) == 2
+    assert message in node.log() and "Traceback" not in node.log()
