@@ -155,7 +155,7 @@ def main() -> int:
     output = options.output or ROOT / "out" / f"demo-{datetime.datetime.now():%Y%m%d-%H%M%S}"
     output.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
-    env.setdefault("ROS_DOMAIN_ID", "42")
+    env.setdefault("ROS_DOMAIN_ID", "0")  # ROS 2's default: `ros2 topic echo` in another shell sees the demo
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     print(f"demo: {options.duration:.0f} s match, domain {env['ROS_DOMAIN_ID']}, output in {output}")

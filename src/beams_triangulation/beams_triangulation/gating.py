@@ -371,6 +371,7 @@ class TriangulationPipeline:
         self.settings = settings
         self.estimator = RevolutionEstimator(beacon_map, settings.gates, turret_offset_m)
         self.odometry = OdometryBuffer(settings.odometry_history_s, settings.max_odometry_extrapolation_s)
+        self.rejected_odometry = 0  # non-finite samples dropped
         self._pending: tuple[Tag, list[BearingLike]] | None = None
 
     def on_odometry(self, stamp_s: float, pose: Sequence[float],
@@ -378,7 +379,9 @@ class TriangulationPipeline:
         """An odometry sample (odom frame; speed m/s, yaw rate rad/s); ignored without use_odometry."""
         if not self.settings.use_odometry:
             return []
-        self.odometry.add(stamp_s, tuple(pose), twist)
+        if not self.odometry.add(stamp_s, tuple(pose), twist):
+            self.rejected_odometry += 1
+            return []
         if self._pending is not None and self._covered(self._pending[1]):
             return self.flush()
         return []

@@ -178,18 +178,22 @@ class OdometryBuffer:
         """Stamp of the newest sample, or None when empty."""
         return self._samples[-1][0] if self._samples else None
 
-    def add(self, stamp_s: float, pose: Pose2D, twist: tuple[float, float]) -> None:
-        """A sample: pose (x, y, theta) and twist (speed m/s, yaw rate rad/s) at stamp_s."""
+    def add(self, stamp_s: float, pose: Pose2D, twist: tuple[float, float]) -> bool:
+        """A sample: pose (x, y, theta) and twist (speed m/s, yaw rate rad/s) at stamp_s.
+
+        False for a non-finite sample, which is dropped; a stale one is ignored (True).
+        """
         if not (math.isfinite(stamp_s) and is_finite_pose(pose) and all(map(math.isfinite, twist))):
-            return
+            return False
         if self._samples and stamp_s <= self._samples[-1][0]:
             if stamp_s >= self._samples[-1][0] - self.time_jump_s:
-                return
+                return True
             self._samples.clear()
         self._samples.append((stamp_s, pose))
         self._twist = (float(twist[0]), float(twist[1]))
         while self._samples and self._samples[0][0] < stamp_s - self.span_s:
             self._samples.popleft()
+        return True
 
     def pose_at(self, t: float) -> Pose2D | None:
         """Odometry pose at t, or None when t is older than the buffer or too far past its end."""

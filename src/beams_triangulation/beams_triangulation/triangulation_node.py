@@ -121,6 +121,7 @@ class TriangulationNode(Node):
         twist = (msg.twist.twist.linear.x, msg.twist.twist.angular.z)
         self._handle(self.pipeline.on_odometry(stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose),
                                                twist))
+        self.diagnostics.set("odometry_rejected_non_finite", self.pipeline.rejected_odometry)
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
         self.diagnostics.increment("revolutions")

@@ -174,3 +174,17 @@ def test_pipeline_waits_at_most_until_the_next_revolution():
     assert without.on_odometry(*_odometry_messages(0.0, 0.0)[0]) == []
     [(tag, outcome)] = without.on_revolution(3, _revolution(0.55))
     assert tag == 3 and outcome.result.accepted and not outcome.compensated
+
+
+def test_pipeline_counts_non_finite_odometry_and_keeps_the_rest():
+    import math
+
+    from beams_driver.beacon_map import EUROBOT_BEACON_MAP
+    from beams_triangulation.gating import TriangulationPipeline, triangulation_settings
+
+    pipeline = TriangulationPipeline(EUROBOT_BEACON_MAP, triangulation_settings({}), (0.0, 0.0))
+    pipeline.on_odometry(1.0, (0.5, 0.5, 0.0), (0.1, 0.0))
+    pipeline.on_odometry(1.02, (math.nan, 0.5, 0.0), (0.1, 0.0))
+    pipeline.on_odometry(1.04, (0.504, 0.5, 0.0), (0.1, 0.0))
+    assert pipeline.rejected_odometry == 1
+    assert pipeline.odometry.pose_at(1.02) == pytest.approx((0.502, 0.5, 0.0))
