@@ -69,6 +69,17 @@ class RosGraph:
         self.node.create_subscription(msg_type, topic, messages.append, qos)
         return messages
 
+    def diagnostic_values(self, name_part: str) -> dict[str, str]:
+        """Latest key/value pairs the /diagnostics statuses whose name holds name_part reported
+        (subscribe to /diagnostics first)."""
+        return {
+            kv.key: kv.value
+            for msg in self.received.get("/diagnostics", [])
+            for status in msg.status
+            if name_part in status.name
+            for kv in status.values
+        }
+
     def spin_until(self, predicate: Callable[[], bool], timeout_s: float) -> bool:
         """Spin until predicate() is true or timeout_s passes; returns predicate()."""
         deadline = time.monotonic() + timeout_s

@@ -99,7 +99,7 @@ def test_serial_source_through_a_pseudo_terminal(rclpy_node, start_node, tmp_pat
             os.write(master, chunk)
             time.sleep(config.period_s)
 
-    diagnostics = rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
+    rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
     node = start_node("beams_driver", "driver_node", params={"source": "serial", "device": os.ttyname(slave)})
     writer = threading.Thread(target=device, daemon=True)
     writer.start()
@@ -117,13 +117,7 @@ def test_serial_source_through_a_pseudo_terminal(rclpy_node, start_node, tmp_pat
     assert np.sqrt(np.mean(np.square(errors))) < math.radians(0.2)
 
     def drops_reported() -> bool:
-        values = {
-            kv.key: kv.value
-            for msg in diagnostics
-            for status in msg.status
-            if "driver" in status.name
-            for kv in status.values
-        }
+        values = rclpy_node.diagnostic_values("driver")
         return any(key.startswith("serial_drops_") and int(value) > 0 for key, value in values.items())
 
     assert rclpy_node.spin_until(drops_reported, WAIT_S), node.log()
