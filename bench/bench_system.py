@@ -132,7 +132,6 @@ class Probe:
         import rclpy
         from nav_msgs.msg import Odometry
         from rclpy.executors import SingleThreadedExecutor
-        from rclpy.qos import qos_profile_sensor_data
 
         from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 
@@ -142,13 +141,11 @@ class Probe:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.arrivals = Arrivals()
-        self.node.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings,
-                                      qos_profile_sensor_data)
+        self.node.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings, 10)
         self.node.create_subscription(Odometry, "beams/ekf/odometry",
                                       lambda _: self.arrivals.ekf.append(time.monotonic()), 50)
         self.node.create_subscription(TriangulatedPose, "beams/pose", self._on_total, 50)
-        self.flood_publisher = self.node.create_publisher(BeaconBearingArray, "beams/bearings",
-                                                          qos_profile_sensor_data)
+        self.flood_publisher = self.node.create_publisher(BeaconBearingArray, "beams/bearings", 10)
         self.flooding = False
 
     def _on_bearings(self, msg) -> None:

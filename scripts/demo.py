@@ -22,10 +22,10 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
-from rclpy.qos import qos_profile_sensor_data
 from rclpy.serialization import deserialize_message
 from visualization_msgs.msg import MarkerArray
 
+from beams_driver.node_support import BEARINGS_QOS
 from beams_driver.ros_messages import pose2d_of
 from beams_ekf.bag_io import BagRecorder, beams_typestore
 from beams_ekf.bag_replay import stamp_ns
@@ -179,7 +179,7 @@ def main() -> int:
                     recorder.write(topic, ros_type_name(msg_type), stamp_ns, raw)
                     record.on_message(topic, msg)
 
-                qos = qos_profile_sensor_data if topic in ("beams/bearings",) else 50
+                qos = BEARINGS_QOS if topic == "beams/bearings" else 50
                 node.create_subscription(msg_type, topic, on_raw, qos, raw=True)
             started = time.monotonic()
             next_progress = started + PROGRESS_PERIOD_S

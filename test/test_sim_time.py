@@ -80,7 +80,6 @@ def _position_error_m(msg, match) -> float:
 def test_nodes_follow_sim_time_and_reset_when_the_bag_loops(rclpy_node, start_node, match):
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
-    from rclpy.qos import qos_profile_sensor_data
     from rosgraph_msgs.msg import Clock
 
     from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
@@ -91,7 +90,7 @@ def test_nodes_follow_sim_time_and_reset_when_the_bag_loops(rclpy_node, start_no
     publishers = (
         node.create_publisher(Clock, "/clock", 10),
         node.create_publisher(Odometry, "odom", 50),
-        node.create_publisher(BeaconBearingArray, "beams/bearings", qos_profile_sensor_data),
+        node.create_publisher(BeaconBearingArray, "beams/bearings", 10),
     )
     poses = rclpy_node.subscribe(TriangulatedPose, "beams/pose")
     estimates = rclpy_node.subscribe(Odometry, "beams/ekf/odometry")

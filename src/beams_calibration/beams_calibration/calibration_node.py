@@ -27,7 +27,6 @@ from typing import Any
 from rclpy.callback_groups import ReentrantCallbackGroup
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 from rclpy.task import Future
 from std_srvs.srv import Trigger
 
@@ -54,6 +53,7 @@ from beams_calibration.dataset import (
 from beams_driver.beacon_map import BeaconMap
 from beams_driver.calibration_file import save_calibration
 from beams_driver.node_support import (
+    BEARINGS_QOS,
     Diagnostics,
     ParameterValidationError,
     declare_beacon_map,
@@ -153,7 +153,7 @@ class CalibrationNode(Node):
         self._busy = False
         self._steady_clock = Clock(clock_type=ClockType.STEADY_TIME)
         self.create_subscription(
-            BeaconBearingArray, "beams/bearings", self._on_bearings, qos_profile_sensor_data
+            BeaconBearingArray, "beams/bearings", self._on_bearings, BEARINGS_QOS
         )
         services = ReentrantCallbackGroup()
         self.create_service(CaptureReference, "capture_reference", self._on_capture, callback_group=services)

@@ -13,7 +13,6 @@ from collections import deque
 import numpy as np
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 
 from beams_driver.angles import wrap_to_pi
 from beams_driver.bearing_correction import BearingCorrection
@@ -22,6 +21,7 @@ from beams_driver.codes import BIT_TIME_S, code_family, codes_from_strings, vali
 from beams_driver.decoder import BearingDecoder, DecodedRevolution
 from beams_driver.edges import TURRET_PERIOD_S
 from beams_driver.node_support import (
+    BEARINGS_QOS,
     Diagnostics,
     ParameterValidationError,
     declare_beacon_map,
@@ -145,7 +145,7 @@ class DriverNode(Node):
         calibration = load_calibration_parameter(self)
         self.correction = calibration.bearing_correction if calibration else BearingCorrection()
         serve_calibration_reload(self, self._apply_calibration)
-        self.publisher = self.create_publisher(BeaconBearingArray, "beams/bearings", qos_profile_sensor_data)
+        self.publisher = self.create_publisher(BeaconBearingArray, "beams/bearings", BEARINGS_QOS)
         if self.source == "sim":
             self._start_simulated_source()
         else:

@@ -25,6 +25,7 @@ from std_srvs.srv import Trigger
 
 from beams_driver.calibration_file import SensorCalibration
 from beams_driver.node_support import (
+    BEARINGS_QOS,
     Diagnostics,
     ParameterValidationError,
     declare_beacon_geometry,
@@ -103,7 +104,7 @@ class EkfNode(Node):
         self.pose_publisher = self.create_publisher(PoseWithCovarianceStamped, "beams/ekf/pose", 10)
         self.create_subscription(Odometry, "odom", self._on_odometry, qos_profile_sensor_data)
         self.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings,
-                                 qos_profile_sensor_data)
+                                 BEARINGS_QOS)
         self.create_subscription(TriangulatedPose, "beams/pose", self._on_total_pose, 10)
         self.create_subscription(PoseWithCovarianceStamped, "/initialpose", self._on_initial_pose, 10)
         self.create_service(SetPose, "beams/ekf/set_pose", self._on_set_pose)

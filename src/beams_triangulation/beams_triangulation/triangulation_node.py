@@ -27,6 +27,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 
 from beams_driver.calibration_file import SensorCalibration
 from beams_driver.node_support import (
+    BEARINGS_QOS,
     Diagnostics,
     ParameterValidationError,
     declare_beacon_geometry,
@@ -73,7 +74,7 @@ class TriangulationNode(Node):
         self.pose_cov_publisher = self.create_publisher(PoseWithCovarianceStamped, "beams/pose_cov", 10)
         self.marker_publisher = self.create_publisher(MarkerArray, "beams/markers", 10)
         self.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings,
-                                 qos_profile_sensor_data)
+                                 BEARINGS_QOS)
         if self.use_odometry:
             self.create_subscription(Odometry, "odom", self._on_odometry, qos_profile_sensor_data)
         self.get_logger().info(
