@@ -360,8 +360,9 @@ class OdometryDrift:
 
 
 @dataclass(frozen=True)
-class OdometrySamples:
-    """Odometry at successive instants: pose in the odom frame and measured twist in base_link."""
+class PoseTwistSamples:
+    """Poses and twists at successive instants: odometry (pose in odom, measured twist in base_link) or
+    ground truth (pose in map, true twist in base_link)."""
 
     stamp_s: np.ndarray
     x_m: np.ndarray
@@ -404,19 +405,19 @@ class OdometrySimulator:
         """The latest odometry pose in the odom frame."""
         return (float(self._pose[0]), float(self._pose[1]), float(self._pose[2]))
 
-    def advance(self, t: float) -> OdometrySamples:
+    def advance(self, t: float) -> PoseTwistSamples:
         """Integrate the odometry up to instant t (>= the previous one); one sample."""
         if t < self._t:
             raise ValueError(f"odometry time went backwards: {t} after {self._t}")
         return self._integrate(np.array([self._t, t]))
 
-    def run(self, rate_hz: float = 50.0, until_s: float | None = None) -> OdometrySamples:
+    def run(self, rate_hz: float = 50.0, until_s: float | None = None) -> PoseTwistSamples:
         """Samples at rate_hz from the current instant to until_s (default: the trajectory's end)."""
         end = self.trajectory.duration_s if until_s is None else until_s
         count = math.floor((end - self._t) * rate_hz + 1e-9)
         return self._integrate(self._t + np.arange(count + 1) / rate_hz)
 
-    def _integrate(self, times: np.ndarray) -> OdometrySamples:
+    def _integrate(self, times: np.ndarray) -> PoseTwistSamples:
         """Samples at times[1:], integrating from times[0] (the current state)."""
         states = self.trajectory.states_at(times)
         distance, turn = np.diff(states[:, 3]), np.diff(states[:, 2])
@@ -435,7 +436,7 @@ class OdometrySimulator:
         with np.errstate(divide="ignore", invalid="ignore"):
             speed = np.where(step_s > 0, reported_distance / step_s, 0.0)
             yaw_rate = np.where(step_s > 0, reported_turn / step_s, 0.0)
-        return OdometrySamples(times[1:], x, y, np.asarray(wrap_to_pi(theta)), speed, yaw_rate)
+        return PoseTwistSamples(times[1:], x, y, np.asarray(wrap_to_pi(theta)), speed, yaw_rate)
 
     def _wheel_measurements(self, distance: np.ndarray, turn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(reported distance, reported heading change) per step, from the true ones."""

@@ -42,25 +42,13 @@ from beams_driver.sim_world import (
     MATCH_DURATION_S,
     EurobotTrajectory,
     OdometryDrift,
-    OdometrySamples,
     OdometrySimulator,
     Pose2D,
+    PoseTwistSamples,
 )
 from beams_driver.variance import VarianceModel
 
 ODOMETRY_RATE_HZ = 50.0
-
-
-@dataclass(frozen=True)
-class GroundTruth:
-    """True pose (map frame) and twist (base_link) at successive instants."""
-
-    stamp_s: np.ndarray
-    x_m: np.ndarray
-    y_m: np.ndarray
-    theta_rad: np.ndarray
-    speed_mps: np.ndarray
-    yaw_rate_radps: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -72,8 +60,8 @@ class SimulatedMatch:
     true_beacons: tuple[SimulatedBeacon, ...]
     turret_offset_m: tuple[float, float]
     initial_pose: Pose2D
-    ground_truth: GroundTruth
-    odometry: OdometrySamples
+    ground_truth: PoseTwistSamples
+    odometry: PoseTwistSamples
     revolutions: list[DecodedRevolution]
     edges: list[RevolutionEdges] | None
 
@@ -194,9 +182,9 @@ def _run_sensor(
     return decoded, kept
 
 
-def _ground_truth(trajectory: EurobotTrajectory, stamps_s: np.ndarray) -> GroundTruth:
+def _ground_truth(trajectory: EurobotTrajectory, stamps_s: np.ndarray) -> PoseTwistSamples:
     states = trajectory.states_at(stamps_s)
-    return GroundTruth(
+    return PoseTwistSamples(
         stamp_s=stamps_s,
         x_m=states[:, 0],
         y_m=states[:, 1],
@@ -206,9 +194,9 @@ def _ground_truth(trajectory: EurobotTrajectory, stamps_s: np.ndarray) -> Ground
     )
 
 
-def _concatenate(first: OdometrySamples, rest: OdometrySamples) -> OdometrySamples:
+def _concatenate(first: PoseTwistSamples, rest: PoseTwistSamples) -> PoseTwistSamples:
     fields = ("stamp_s", "x_m", "y_m", "theta_rad", "speed_mps", "yaw_rate_radps")
-    return OdometrySamples(**{f: np.concatenate([getattr(first, f), getattr(rest, f)]) for f in fields})
+    return PoseTwistSamples(**{f: np.concatenate([getattr(first, f), getattr(rest, f)]) for f in fields})
 
 
 def _as_int(sequence: np.random.SeedSequence) -> int:
