@@ -25,6 +25,7 @@ from beams_driver.node_support import (
     Diagnostics,
     ParameterValidationError,
     declare_beacon_map,
+    declare_choice,
     declare_parameter,
     load_calibration_parameter,
     run_node,
@@ -135,11 +136,9 @@ class DriverNode(Node):
         super().__init__("driver_node")
         self.diagnostics = Diagnostics(self, "driver")
         self.frame_id = declare_parameter(self, "frame_id", "beams_sensor", "Frame of the turret (sensor).")
-        self.source = declare_parameter(
-            self, "source", "sim", "Edge source: sim (simulated sensor) or serial."
+        self.source = declare_choice(
+            self, "source", "sim", ("sim", "serial"), "Edge source: simulated sensor or serial device."
         )
-        if self.source not in ("sim", "serial"):
-            raise ParameterValidationError(f"source must be 'sim' or 'serial', got {self.source!r}")
         self.codes = self._declare_codes()
         self.decoder = BearingDecoder(self.codes, self._declare_variance_model())
         calibration = load_calibration_parameter(self)
@@ -179,13 +178,7 @@ class DriverNode(Node):
         return codes
 
     def _declare_variance_model(self) -> VarianceModel:
-        mode = declare_parameter(
-            self, "variance_mode", "exact", f"Bearing variance model, one of {list(VARIANCE_MODES)}."
-        )
-        if mode not in VARIANCE_MODES:
-            raise ParameterValidationError(
-                f"variance_mode must be one of {list(VARIANCE_MODES)}, got {mode!r}"
-            )
+        mode = declare_choice(self, "variance_mode", "exact", VARIANCE_MODES, "Bearing variance model.")
         natural = declare_parameter(
             self,
             "natural_variance_rad2",

@@ -5,7 +5,7 @@ This is the only module of beams_driver besides the nodes that imports rclpy.
 
 import math
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import rclpy
@@ -105,6 +105,14 @@ def declare_parameter(
     except Exception as error:  # rclpy raises several types for out-of-range or mistyped overrides
         raise ParameterValidationError(f"{name}: {error}") from None
     _check_range(name, value, minimum, maximum)
+    return value
+
+
+def declare_choice(node: Node, name: str, default: str, choices: Sequence[str], description: str) -> str:
+    """A string parameter that must be one of `choices`; ParameterValidationError names them otherwise."""
+    value = declare_parameter(node, name, default, f"{description} One of {list(choices)}.")
+    if value not in choices:
+        raise ParameterValidationError(f"{name} must be one of {list(choices)}, got {value!r}")
     return value
 
 

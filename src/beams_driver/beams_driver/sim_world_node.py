@@ -19,7 +19,13 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.time import Time
 
-from beams_driver.node_support import Diagnostics, ParameterValidationError, declare_parameter, run_node
+from beams_driver.node_support import (
+    Diagnostics,
+    ParameterValidationError,
+    declare_choice,
+    declare_parameter,
+    run_node,
+)
 from beams_driver.ros_messages import ros_covariance, set_pose2d
 from beams_driver.sim_world import EurobotTrajectory, MotionLimits, OdometryDrift, OdometrySimulator, Pose2D
 
@@ -75,13 +81,7 @@ class SimWorldNode(Node):
     # ---- parameters ----
 
     def _declare_trajectory(self) -> EurobotTrajectory:
-        kind = declare_parameter(
-            self, "trajectory", "random", f"Robot motion, one of {list(TRAJECTORY_KINDS)}."
-        )
-        if kind not in TRAJECTORY_KINDS:
-            raise ParameterValidationError(
-                f"trajectory must be one of {list(TRAJECTORY_KINDS)}, got {kind!r}"
-            )
+        kind = declare_choice(self, "trajectory", "random", TRAJECTORY_KINDS, "Robot motion.")
         duration_s = declare_parameter(
             self,
             "duration_s",
