@@ -124,25 +124,39 @@ class BearingDecoder:
         self.min_codes_seen = int(min_codes_seen)
         self._patterns = [_pattern(c) for c in self.codes]
         self._open: _OpenWindow | None = None
+        # the last revolution decoded: a window at the start of the next one may have begun in it
+        self._last_revolution: int | None = None
 
     def decode(self, edges: RevolutionEdges) -> DecodedRevolution:
         """Bearings and rejections of the windows that closed during this revolution.
 
         Revolutions must come in order: a window still open at the end of a revolution (it may
-        straddle the zero reference) is carried into the next one and decoded there.
+        straddle the zero reference) is carried into the next one and decoded there. A window opening
+        within the timeout of the zero reference of a revolution that does not follow the last one
+        decoded (the first, or after a gap) is rejected as truncated: its head was not seen.
         """
         result = DecodedRevolution(edges.revolution, edges.start_time_s, edges.period_s)
         omega = edges.turret_speed_rad_s
         timeout_rad = self.timeout_bits * self.bit_time_s * omega
         angles, rising = edges.edge_angles_rad, edges.edge_rising
         carried, self._open = self._open, None
-        if carried is not None and carried.revolution == edges.revolution - 1:
+        follows_previous = self._last_revolution == edges.revolution - 1
+        self._last_revolution = edges.revolution
+        if carried is not None and follows_previous:
             angles = np.concatenate([carried.angles - _TWO_PI, angles])
             rising = np.concatenate([carried.rising, rising])
         elif carried is not None:
             where = float(wrap_to_pi(carried.angles[-1]))
             result.rejections.append(Rejection("truncated: the next revolution is missing", where))
         windows = _split(angles, rising, timeout_rad)
+        if windows and not follows_previous and (windows[0][0][0] <= timeout_rad or not windows[0][1][0]):
+            # Its head may lie in the revolution before, never decoded (a burst in progress at the zero
+            # reference, or one within the timeout before it): decoded, the bearing would be biased by
+            # half the missing part (1.4 deg on a driver's first revolution).
+            where = float(wrap_to_pi(0.5 * (windows[0][0][0] + windows[0][0][-1])))
+            result.rejections.append(Rejection("truncated: the window began before the first decoded "
+                                               "revolution", where))
+            windows.pop(0)
         if windows and (windows[-1][1][-1] or _TWO_PI - windows[-1][0][-1] <= timeout_rad):
             last_angles, last_rising = windows.pop()
             if last_angles[-1] - last_angles[0] < _TWO_PI:
@@ -164,6 +178,7 @@ class BearingDecoder:
     def reset(self) -> None:
         """Forget the window carried over from the last revolution (after a gap in the stream)."""
         self._open = None
+        self._last_revolution = None
 
     def _decode_window(
         self, angles: np.ndarray, rising: np.ndarray, omega: float
@@ -171,7 +186,7 @@ class BearingDecoder:
         """(code, complete codes seen) for a clean window, else a Rejection."""
         where = float(wrap_to_pi(0.5 * (angles[0] + angles[-1])))
         if not rising[0]:
-            return Rejection("truncated: the window began before the first decoded revolution", where)
+            return Rejection("malformed: the window opens with a falling edge", where)
         if angles.size < 2 or angles.size % 2 or not (np.all(rising[0::2]) and not np.any(rising[1::2])):
             return Rejection(f"malformed: {angles.size} edges do not alternate rising/falling", where)
         bit_rad = self.bit_time_s * omega

@@ -8,7 +8,6 @@ Both go through the same decoder and variance model; the calibration file's bear
 """
 
 import sys
-from collections import deque
 
 import numpy as np
 from nav_msgs.msg import Odometry
@@ -35,62 +34,11 @@ from beams_driver.ros_messages import pose2d_of, seconds_to_stamp, stamp_to_seco
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
 from beams_driver.serial_protocol import DEFAULT_BAUDRATE
 from beams_driver.serial_source import DeviceNotFoundError, DeviceOpenError, SerialEdgeSource
+from beams_driver.sim_world import TruthHistory
 from beams_driver.variance import VARIANCE_MODES, VarianceModel
 from beams_msgs.msg import BeaconBearing, BeaconBearingArray
 
-GROUND_TRUTH_HISTORY_S = 2.0
-# A pose older than this cannot stand for the robot during a revolution: skip it and say so.
-MAX_POSE_EXTRAPOLATION_S = 0.25
 SERIAL_POLL_PERIOD_S = 0.01
-
-
-class GroundTruthHistory:
-    """The robot's recent true poses, interpolated at any instant of a revolution."""
-
-    def __init__(self) -> None:
-        self._samples: deque[tuple[float, float, float, float, float, float]] = deque()
-
-    def add(self, msg: Odometry) -> bool:
-        """Store a ground-truth message; False (and nothing stored) for a non-finite one."""
-        x, y, heading = pose2d_of(msg.pose.pose)
-        row = (
-            stamp_to_seconds(msg.header.stamp),
-            x,
-            y,
-            heading,
-            msg.twist.twist.linear.x,
-            msg.twist.twist.angular.z,
-        )
-        if not all(np.isfinite(row)):
-            return False
-        if self._samples and row[0] < self._samples[-1][0]:
-            self._samples.clear()  # time went backwards (a bag replayed in a loop)
-        self._samples.append(row)
-        while self._samples and row[0] - self._samples[0][0] > GROUND_TRUTH_HISTORY_S:
-            self._samples.popleft()
-        return True
-
-    def covers(self, t: float) -> bool:
-        return (
-            bool(self._samples)
-            and self._samples[0][0] <= t <= self._samples[-1][0] + MAX_POSE_EXTRAPOLATION_S
-        )
-
-    def pose_at(self, t: float) -> tuple[float, float, float]:
-        """Pose (x, y, theta) at t: interpolated in the history, extrapolated with the last twist after it."""
-        samples = np.array(self._samples)
-        if t >= samples[-1, 0]:
-            t_last, x, y, theta, speed, yaw_rate = samples[-1]
-            dt = t - t_last
-            heading = theta + 0.5 * yaw_rate * dt
-            return (x + speed * dt * np.cos(heading), y + speed * dt * np.sin(heading), theta + yaw_rate * dt)
-        times = samples[:, 0]
-        theta = np.unwrap(samples[:, 3])
-        return (
-            float(np.interp(t, times, samples[:, 1])),
-            float(np.interp(t, times, samples[:, 2])),
-            float(np.interp(t, times, theta)),
-        )
 
 
 class OcclusionSchedule:
@@ -267,7 +215,7 @@ class DriverNode(Node):
             turret_offset_m=(float(offset[0]), float(offset[1])),
             occlusion=self.occlusion,
         )
-        self.ground_truth = GroundTruthHistory()
+        self.ground_truth = TruthHistory()
         self.next_revolution_start_s: float | None = None
         self.create_subscription(Odometry, "beams/sim/ground_truth", self._on_ground_truth, 50)
         self.create_timer(TURRET_PERIOD_S, self._simulate_due_revolutions)
@@ -281,7 +229,10 @@ class DriverNode(Node):
             raise ParameterValidationError(f"sim_bias_file: {error}") from None
 
     def _on_ground_truth(self, msg: Odometry) -> None:
-        if not self.ground_truth.add(msg):
+        x, y, heading = pose2d_of(msg.pose.pose)
+        sample = (stamp_to_seconds(msg.header.stamp), x, y, heading, msg.twist.twist.linear.x,
+                  msg.twist.twist.angular.z)
+        if not self.ground_truth.add(*sample):
             self.diagnostics.increment("ground_truth_rejected_non_finite")
 
     def _pose_source(self):
@@ -297,12 +248,14 @@ class DriverNode(Node):
             # First revolution, or the clock jumped (bag loop, sim time reset): restart from now.
             self.next_revolution_start_s = now_s - TURRET_PERIOD_S
             self.occlusion.origin_s = now_s - TURRET_PERIOD_S
+            self.decoder.reset()
             return
         while start_s + TURRET_PERIOD_S <= now_s:
             end_s = start_s + TURRET_PERIOD_S
-            if len(self.static_pose) == 1 and not self.ground_truth.covers(end_s):
+            if len(self.static_pose) == 1 and not self.ground_truth.covers(start_s, end_s):
                 self.diagnostics.set_level("warn", "waiting for beams/sim/ground_truth")
                 self.diagnostics.increment("revolutions_skipped_no_pose")
+                self.decoder.reset()  # the next revolution does not follow the last one decoded
             else:
                 self._publish(self.decoder.decode(self.simulator.revolution(self._pose_source(), start_s)))
             start_s = end_s

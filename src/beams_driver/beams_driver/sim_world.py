@@ -18,12 +18,14 @@ the truth to a fraction of a millimetre over a match.
 """
 
 import math
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from beams_driver.angles import wrap_to_pi
+from beams_driver.edges import TURRET_PERIOD_S
 
 TABLE_LENGTH_M = 3.0
 TABLE_WIDTH_M = 2.0
@@ -452,3 +454,53 @@ class OdometrySimulator:
         reported = wheels * scale * (1.0 + slip) + noise
         left, right = reported[:, 0], reported[:, 1]
         return 0.5 * (left + right), (right - left) / self.wheel_base_m
+
+
+class TruthHistory:
+    """The robot's recent true poses as they arrive (the driver's simulated source follows
+    beams/sim/ground_truth), interpolated at any instant of a revolution."""
+
+    # seconds of poses kept
+    SPAN_S = 2.0
+    # a pose older than this cannot stand for the robot during a revolution (extrapolated with its twist)
+    MAX_EXTRAPOLATION_S = 0.25
+    # the history must start this long before a revolution: a beacon near the zero reference is seen
+    # around the revolution's start, and before the first sample the pose would be frozen at it
+    LEAD_S = 0.5 * TURRET_PERIOD_S
+
+    def __init__(self) -> None:
+        self._samples: deque[tuple[float, float, float, float, float, float]] = deque()
+
+    def add(self, stamp_s: float, x: float, y: float, theta: float, speed_mps: float,
+            yaw_rate_radps: float) -> bool:
+        """Store a true pose and twist; False (and nothing stored) for a non-finite one."""
+        row = (stamp_s, x, y, theta, speed_mps, yaw_rate_radps)
+        if not all(np.isfinite(row)):
+            return False
+        if self._samples and stamp_s < self._samples[-1][0]:
+            self._samples.clear()  # time went backwards (a bag replayed in a loop)
+        self._samples.append(row)
+        while stamp_s - self._samples[0][0] > self.SPAN_S:
+            self._samples.popleft()
+        return True
+
+    def covers(self, start_s: float, end_s: float) -> bool:
+        """True when every instant of the revolution [start_s, end_s] has a pose: the history starts
+        LEAD_S before it (a pose taken as constant before the first sample put the first fix of a
+        driver started on a moving robot 3 cm off) and ends at most MAX_EXTRAPOLATION_S before its end."""
+        return (bool(self._samples) and self._samples[0][0] <= start_s - self.LEAD_S
+                and end_s <= self._samples[-1][0] + self.MAX_EXTRAPOLATION_S)
+
+    def pose_at(self, t: float) -> Pose2D:
+        """Pose (x, y, theta) at t: interpolated in the history, extrapolated with the last twist after it."""
+        samples = np.array(self._samples)
+        if t >= samples[-1, 0]:
+            t_last, x, y, theta, speed, yaw_rate = samples[-1]
+            dt = t - t_last
+            heading = theta + 0.5 * yaw_rate * dt
+            return (float(x + speed * dt * np.cos(heading)), float(y + speed * dt * np.sin(heading)),
+                    float(theta + yaw_rate * dt))
+        theta = np.unwrap(samples[:, 3])
+        times = samples[:, 0]
+        return (float(np.interp(t, times, samples[:, 1])), float(np.interp(t, times, samples[:, 2])),
+                float(np.interp(t, times, theta)))

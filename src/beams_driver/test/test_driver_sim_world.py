@@ -14,6 +14,7 @@ from beams_driver.sim_world import (
     MotionLimits,
     OdometryDrift,
     OdometrySimulator,
+    TruthHistory,
 )
 from beams_driver.simulated_match import SimulatedMatch, simulate_match
 
@@ -256,3 +257,38 @@ def test_rotating_robot_bearings_near_the_zero_reference() -> None:
     match = simulate_match(10.0, seed=0, trajectory=spinning)
     worst = max(np.abs(e).max() for e in match.bearing_errors().values())
     assert worst < math.radians(1.0)
+
+
+def test_truth_history_covers_a_revolution_only_from_before_its_start(
+    match_trajectory: EurobotTrajectory,
+) -> None:
+    """The driver's simulated sensor follows the ground truth as it arrives: a revolution that starts
+    before the first pose received is not covered (its pose was frozen at that sample: the first fix of a
+    driver started on a moving robot came out 3 cm off), and the pose between samples is the truth's."""
+    history = TruthHistory()
+    t_first = 10.0
+    stamps = t_first + 0.02 * np.arange(50)
+    for t in stamps:
+        (x, y, theta), (speed, yaw_rate) = match_trajectory.pose_at(t), match_trajectory.twist_at(t)
+        assert history.add(t, x, y, theta, speed, yaw_rate)
+    assert not history.covers(t_first, t_first + 0.1)
+    assert not history.covers(t_first + TruthHistory.LEAD_S - 0.001, t_first + 0.1)
+    assert history.covers(t_first + TruthHistory.LEAD_S, t_first + 0.1)
+    # extrapolated with the last twist at most MAX_EXTRAPOLATION_S past the newest sample
+    newest = stamps[-1]
+    assert history.covers(newest - 0.1, newest + TruthHistory.MAX_EXTRAPOLATION_S - 1e-6)
+    assert not history.covers(newest - 0.1, newest + TruthHistory.MAX_EXTRAPOLATION_S + 0.001)
+    # 50 Hz samples interpolated: within 0.1 mm and 0.03 deg of the truth (h^2/8 of the angular acceleration)
+    for t in (t_first + 0.31, t_first + 0.555):
+        x, y, theta = history.pose_at(t)
+        tx, ty, ttheta = match_trajectory.pose_at(t)
+        assert math.hypot(x - tx, y - ty) < 1e-4 and abs(wrap_to_pi(theta - ttheta)) < math.radians(0.03)
+    # extrapolation 20 ms past the newest sample: within 1 mm of the truth
+    x, y, _ = history.pose_at(newest + 0.02)
+    tx, ty, _ = match_trajectory.pose_at(newest + 0.02)
+    assert math.hypot(x - tx, y - ty) < 1e-3
+    # non-finite samples are refused; time going back starts the history again
+    assert not history.add(t_first + 2.0, math.nan, 0.0, 0.0, 0.0, 0.0)
+    assert history.add(1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
+    assert history.pose_at(1.0) == (1.0, 1.0, 0.0)
+    assert not history.covers(t_first + 0.5, t_first + 0.6) and not history.covers(1.0, 1.1)
