@@ -49,6 +49,7 @@ from beams_driver.ros_messages import (
     seconds_to_stamp,
     stamp_to_seconds,
 )
+from beams_driver.time_jumps import StampOrder, TimeJumpDetector
 from beams_ekf import localiser as ekf_inputs
 from beams_ekf.bag_io import BagRecorder, beams_typestore
 from beams_ekf.localiser import Estimate, FilterSettings, build_localiser, filter_settings
@@ -166,14 +167,17 @@ TIME_JUMP = None
 
 def in_stamp_order(events: Iterable[Event], window_ns: int = round(REORDER_WINDOW_S * _NS),
                    jump_ns: int = round(TIME_JUMP_S * _NS)) -> Iterator[Event | None]:
-    """Events by due instant within a reorder window; TIME_JUMP where the stamps go back by > jump_ns.
+    """Events by due instant within a reorder window; TIME_JUMP where the stamps go back by > jump_ns
+    in two consecutive messages (a bag loop; one stray message is not: `beams_driver.time_jumps`).
 
     A message later than the window is passed on late (the pipelines drop or absorb it as the nodes do).
     """
     pending: list[Event] = []
     newest_ns: int | None = None
+    time_jumps = TimeJumpDetector(jump_ns * 1e-9)
     for event in events:
-        if newest_ns is not None and event.due_ns < newest_ns - jump_ns:
+        order = time_jumps.classify(event.due_ns * 1e-9, None if newest_ns is None else newest_ns * 1e-9)
+        if order is StampOrder.JUMP:
             while pending:
                 yield heapq.heappop(pending)
             yield TIME_JUMP

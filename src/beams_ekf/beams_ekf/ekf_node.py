@@ -72,6 +72,8 @@ FILTER_PARAMETERS = (
      0.0, 1.0e3),
     ("kidnap_heading_rad", "Heading difference (rad) that always makes a ToTal pose 'elsewhere'.",
      0.0, 1.0e3),
+    ("time_jump_confirmations", "Consecutive odometry messages stamped in the past that make a time jump "
+     "(a bag loop: the filter resets); fewer are stray messages, dropped.", 1, 100),
     ("use_total_pose", "Initialise (and re-initialise after a kidnapping) from ToTal's accepted poses on "
      "beams/pose.", None, None),
     ("default_pose_sigma", "Standard deviations (m, m, rad) of a pose without a usable covariance.",

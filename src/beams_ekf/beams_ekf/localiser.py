@@ -12,7 +12,8 @@ odometry history does not cover is refused: taken as current, it put the live fi
 off, confidently), and re-initialises it when the robot was kidnapped or the filter is lost (most of the
 recent bearings gated out while ToTal is confident of a pose inconsistent with the estimate: identified
 beacons make this possible, thesis ch. 8 "System deployment"). Time going backwards (a rosbag played
-in a loop) resets everything; odometry gaps inflate the covariance instead of freezing the filter.
+in a loop: consecutive odometry messages in the past, not one stray; `beams_driver.time_jumps`) resets
+everything; odometry gaps inflate the covariance instead of freezing the filter.
 
 ekf_node and the offline replay (`bag_replay`) share what lies between their inputs and the filter:
 `filter_settings` (parameter values to the filter's settings), `build_localiser`, `message_bearings`,
@@ -30,6 +31,7 @@ from scipy.stats import chi2
 
 from beams_driver.angles import wrap_to_pi
 from beams_driver.pose2d import Pose2D, between, compose, is_finite_pose
+from beams_driver.time_jumps import StampOrder, TimeJumpDetector
 from beams_ekf.bearing_ekf import BearingEkf, BearingOutcome, ProcessNoise, turret_pose
 from beams_ekf.odometry_history import OdometryHistory
 
@@ -58,8 +60,10 @@ class LocaliserConfig:
     kidnap_probability: float = 0.999
     kidnap_distance_m: float = 0.25
     kidnap_heading_rad: float = 0.35
-    # odometry stamps going back by more than this reset the filter (smaller steps are dropped)
+    # odometry stamps going back by more than this, in time_jump_confirmations consecutive messages,
+    # reset the filter (a bag loop); smaller steps, and a single stray old message, are dropped
     time_jump_tolerance_s: float = 0.0
+    time_jump_confirmations: int = 2
 
     def __post_init__(self) -> None:
         if not (self.history_span_s > 0.0 and self.max_extrapolation_s >= 0.0 and self.odometry_gap_s > 0.0):
@@ -67,6 +71,8 @@ class LocaliserConfig:
         if not 1 <= self.kidnap_gated_bearings <= self.kidnap_window_bearings:
             raise ValueError(f"need 1 <= kidnap_gated_bearings <= kidnap_window_bearings, got "
                              f"{self.kidnap_gated_bearings} and {self.kidnap_window_bearings}")
+        if self.time_jump_confirmations < 1:
+            raise ValueError(f"time_jump_confirmations must be >= 1, got {self.time_jump_confirmations}")
         if not 0.0 < self.kidnap_probability < 1.0:
             raise ValueError(f"kidnap_probability must be in (0, 1), got {self.kidnap_probability}")
 
@@ -200,6 +206,8 @@ class Localiser:
         self.stats = LocaliserCounters()
         # gated (True) or accepted (False), for the last new bearings: the kidnap evidence
         self._recent_gated: deque[bool] = deque(maxlen=self.config.kidnap_window_bearings)
+        self._time_jumps = TimeJumpDetector(self.config.time_jump_tolerance_s,
+                                            self.config.time_jump_confirmations)
         self._kidnap_threshold = float(chi2.ppf(self.config.kidnap_probability, df=3))
         self._stamp_s: float | None = None
         # bearings stamped after the newest odometry, waiting for the odometry that covers them
@@ -217,6 +225,7 @@ class Localiser:
         self._recent_gated.clear()
         self._stamp_s = None
         self._pending.clear()
+        self._time_jumps.clear()
         self.stats.counts[reason] += 1
 
     # -- odometry -------------------------------------------------------------------------------------
@@ -226,10 +235,12 @@ class Localiser:
             self.stats.counts["odometry_invalid"] += 1
             return "invalid"
         latest = self.history.latest
-        if latest is not None and stamp_s <= latest[0]:
-            if stamp_s >= latest[0] - self.config.time_jump_tolerance_s:
-                self.stats.counts["odometry_stale"] += 1
-                return "stale"
+        order = self._time_jumps.classify(stamp_s, None if latest is None else latest[0])
+        if order in (StampOrder.STALE, StampOrder.HELD):
+            # held: stamped far in the past, a stray message unless the next ones confirm a jump
+            self.stats.counts["odometry_stale" if order is StampOrder.STALE else "odometry_back_in_time"] += 1
+            return order.value
+        if order is StampOrder.JUMP:
             self.reset("time_jump_resets")
             latest = None
         self.stats.counts["odometry"] += 1

@@ -145,13 +145,31 @@ def test_time_going_backwards_resets_cleanly(match):
     localiser = _localiser()
     localiser.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
     _drive(localiser, match, 0.0, 5.0)
-    # the bag loops: odometry starts again at t = 0
-    assert localiser.on_odometry(0.0, tuple(match.odometry[0])) == "reference"
+    # the bag loops: odometry starts again at t = 0 (the first message back is held: it may be a stray)
+    assert localiser.on_odometry(0.0, tuple(match.odometry[0])) == "held"
+    assert localiser.estimate() is not None
+    assert localiser.on_odometry(float(match.times_s[1]), tuple(match.odometry[1])) == "reference"
     assert localiser.stats.counts["time_jump_resets"] == 1
     assert localiser.estimate() is None
     assert len(localiser.history) == 1
     _drive(localiser, match, 0.0, 5.0, pose_source=match.truth_at)
     assert localiser.stats.counts["initialisations"] == 2
+    assert _position_error(localiser, match.truth_at) < 0.005
+
+
+def test_one_stray_odometry_message_from_the_past_changes_nothing(match):
+    """A message stamped 3 s in the past between good ones (a second publisher, a late retransmission)
+    is dropped and counted; the estimate goes on as if it had never come."""
+    localiser, undisturbed = _localiser(), _localiser()
+    for each in (localiser, undisturbed):
+        each.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
+        _drive(each, match, 0.0, 5.0)
+    assert localiser.on_odometry(2.0, (9.0, 9.0, 3.0)) == "held"
+    for each in (localiser, undisturbed):
+        _drive(each, match, 5.0, 8.0)
+    assert localiser.stats.counts["odometry_back_in_time"] == 1
+    assert localiser.stats.counts["time_jump_resets"] == 0
+    assert localiser.estimate().pose == undisturbed.estimate().pose
     assert _position_error(localiser, match.truth_at) < 0.005
 
 

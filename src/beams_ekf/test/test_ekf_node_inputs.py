@@ -135,7 +135,7 @@ def test_declared_defaults_are_the_settings_and_the_documented_ones():
     assert filter_settings(defaults) == FilterSettings()
     documented = yaml.safe_load(CONFIG.read_text())["/**"]["ros__parameters"]
     shared = set(defaults) & set(documented)
-    assert len(shared) == 16
+    assert len(shared) == 17
     assert {name: defaults[name] for name in shared} == {name: documented[name] for name in shared}
 
 

@@ -30,6 +30,7 @@ from numpy.typing import ArrayLike
 
 from beams_driver.angles import wrap_to_pi
 from beams_driver.pose2d import Pose2D, between, compose, is_finite_pose
+from beams_driver.time_jumps import StampOrder, TimeJumpDetector
 from beams_triangulation.total import ToTalFix, triangulate
 
 
@@ -159,14 +160,15 @@ class OdometryBuffer:
     while past the newest sample (a revolution may end a little after the last odometry message).
 
     Non-finite samples are ignored; a sample not after the newest is dropped, unless the stamps went
-    back by more than `time_jump_s`, which starts the buffer over.
+    back by more than `time_jump_s` in `time_jump_confirmations` consecutive samples (a bag loop, not a
+    stray message: `beams_driver.time_jumps`), which starts the buffer over.
     """
 
     def __init__(self, span_s: float, max_extrapolation_s: float,
-                 time_jump_s: float = ODOMETRY_TIME_JUMP_S) -> None:
+                 time_jump_s: float = ODOMETRY_TIME_JUMP_S, time_jump_confirmations: int = 2) -> None:
         self.span_s = span_s
         self.max_extrapolation_s = max_extrapolation_s
-        self.time_jump_s = time_jump_s
+        self._time_jumps = TimeJumpDetector(time_jump_s, time_jump_confirmations)
         self._samples: collections.deque[tuple[float, Pose2D]] = collections.deque()
         self._twist = (0.0, 0.0)
 
@@ -185,9 +187,10 @@ class OdometryBuffer:
         """
         if not (math.isfinite(stamp_s) and is_finite_pose(pose) and all(map(math.isfinite, twist))):
             return False
-        if self._samples and stamp_s <= self._samples[-1][0]:
-            if stamp_s >= self._samples[-1][0] - self.time_jump_s:
-                return True
+        order = self._time_jumps.classify(stamp_s, self.newest_stamp_s)
+        if order in (StampOrder.STALE, StampOrder.HELD):
+            return True
+        if order is StampOrder.JUMP:
             self._samples.clear()
         self._samples.append((stamp_s, pose))
         self._twist = (float(twist[0]), float(twist[1]))

@@ -74,17 +74,23 @@ def test_buffer_interpolates_and_extrapolates_along_the_arc():
     assert odometry.pose_at(-0.001) is None
 
 
-def test_buffer_drops_stale_and_non_finite_samples_and_restarts_on_a_clock_jump():
+def test_buffer_drops_stale_and_non_finite_samples_and_restarts_on_a_clock_jump_not_a_stray():
     odometry = _buffer(10.0, 11.0, span_s=0.5)
     assert odometry.pose_at(10.4) is None  # older than the span
     newest = odometry.pose_at(11.0)
     odometry.add(10.99, (9.0, 9.0, 0.0), (0.0, 0.0))  # late: dropped
     odometry.add(11.02, (math.nan, 0.0, 0.0), (0.0, 0.0))  # not finite: ignored
     assert odometry.pose_at(11.0) == newest and odometry.pose_at(11.01) is not None
-    odometry.add(2.0, (1.0, 2.0, 0.5), (0.0, 0.0))  # 9 s back: a new start
+    odometry.add(2.0, (1.0, 2.0, 0.5), (0.0, 0.0))  # 9 s back, alone: a stray message, dropped
+    odometry.add(11.03, (7.0, 7.0, 0.0), (0.0, 0.0))
+    assert odometry.pose_at(11.0) == pytest.approx(newest, abs=1e-9)
+    assert odometry.pose_at(11.03) == (7.0, 7.0, 0.0)
+    odometry.add(2.0, (1.0, 2.0, 0.5), (0.0, 0.0))  # 9 s back, and again: a new start (a bag loop)
+    assert odometry.pose_at(11.0) is not None
+    odometry.add(2.02, (1.0, 2.0, 0.5), (0.0, 0.0))
     assert len(odometry) == 1
     assert odometry.pose_at(11.0) is None
-    assert odometry.pose_at(2.0) == (1.0, 2.0, 0.5)
+    assert odometry.pose_at(2.02) == (1.0, 2.0, 0.5)
 
 
 def test_covered_revolution_is_compensated_and_accepted():
