@@ -42,3 +42,20 @@ def test_invalid_parameter_is_refused_with_a_clear_message(start_node):
     output = node.log()
     assert status == 2, output
     assert "variance_mode" in output and "Traceback" not in output, output
+
+
+def test_executor_choice_falls_back_and_refuses_nonsense(rclpy_node, start_node, ros_env):
+    """BEAMS_EXECUTOR=single_threaded runs a streaming node on rclpy's SingleThreadedExecutor (the
+    fallback from the EventsExecutor); an unknown value is refused at start-up with a clear message."""
+    from nav_msgs.msg import Odometry
+    from rclpy.qos import qos_profile_sensor_data
+
+    ros_env["BEAMS_EXECUTOR"] = "single_threaded"
+    odometry = rclpy_node.subscribe(Odometry, "odom", qos_profile_sensor_data)
+    fallback = start_node("beams_driver", "sim_world_node")
+    assert rclpy_node.spin_until(lambda: len(odometry) > 20, ANSWER_TIMEOUT_S), fallback.log()
+    fallback.assert_clean_exit(signal.SIGTERM)
+    ros_env["BEAMS_EXECUTOR"] = "fastest"
+    refused = start_node("beams_ekf", "ekf_node")
+    assert refused.wait_exit(ANSWER_TIMEOUT_S) == 2, refused.log()
+    assert "BEAMS_EXECUTOR='fastest'" in refused.log() and "Traceback" not in refused.log()

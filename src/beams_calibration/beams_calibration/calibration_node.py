@@ -389,4 +389,5 @@ def _summary(result: CalibrationResult, written: str) -> str:
 
 
 def main(args: list[str] | None = None) -> None:
-    sys.exit(run_node(CalibrationNode, args))
+    # async services (a capture awaits revolutions): rclpy's Python executor runs them
+    sys.exit(run_node(CalibrationNode, args, events_executor=False))
