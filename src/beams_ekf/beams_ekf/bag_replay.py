@@ -190,24 +190,40 @@ def in_stamp_order(events: Iterable[Event], window_ns: int = round(REORDER_WINDO
         yield heapq.heappop(pending)
 
 
-def bag_topics(path: pathlib.Path) -> set[str]:
-    """The topics of a bag (leading slash removed)."""
+def relative_topic(topic: str, namespace: str = "") -> str | None:
+    """A bag topic's name relative to a robot's namespace, leading slash removed ("/robot1/odom" is "odom"
+    in namespace "robot1"); None for a topic outside the namespace."""
+    name, prefix = topic.lstrip("/"), namespace.strip("/")
+    if not prefix:
+        return name
+    return name[len(prefix) + 1:] if name.startswith(prefix + "/") else None
+
+
+def namespaced_topic(topic: str, namespace: str = "") -> str:
+    """The bag topic of a name relative to a robot's namespace (`relative_topic`'s inverse)."""
+    prefix = namespace.strip("/")
+    return f"/{prefix}/{topic}" if prefix else topic
+
+
+def bag_topics(path: pathlib.Path, namespace: str = "") -> set[str]:
+    """The topics of a bag inside a robot's namespace, relative to it (`relative_topic`)."""
     with Reader(pathlib.Path(path)) as reader:
-        return {c.topic.lstrip("/") for c in reader.connections}
+        return {name for c in reader.connections if (name := relative_topic(c.topic, namespace)) is not None}
 
 
-def read_events(path: pathlib.Path, typestore: Any, counts: Counter) -> Iterator[Event]:
-    """The input messages of a bag in bag order; undecodable ones are counted and skipped."""
+def read_events(path: pathlib.Path, typestore: Any, counts: Counter, namespace: str = "") -> Iterator[Event]:
+    """The input messages of a bag (of a robot's namespace) in bag order, topics relative to the namespace;
+    undecodable ones are counted and skipped."""
     sequence = itertools.count()
     with Reader(path) as reader:
-        connections = [c for c in reader.connections if c.topic.lstrip("/") in _TOPIC_ORDER]
-        wrong_type = [c for c in connections if c.msgtype != _TOPIC_TYPES[c.topic.lstrip("/")]]
+        connections = [c for c in reader.connections if relative_topic(c.topic, namespace) in _TOPIC_ORDER]
+        wrong_type = [c for c in connections if c.msgtype != _TOPIC_TYPES[relative_topic(c.topic, namespace)]]
         if wrong_type:
             counts["messages_wrong_type"] += sum(c.msgcount for c in wrong_type)
         connections = [c for c in connections if c not in wrong_type]
         # rosbags reads every connection when given none
         for connection, bag_ns, raw in reader.messages(connections=connections) if connections else ():
-            topic = connection.topic.lstrip("/")
+            topic = relative_topic(connection.topic, namespace)
             try:
                 message = typestore.deserialize_cdr(raw, connection.msgtype)
                 due = due_ns(topic, message)
@@ -229,12 +245,12 @@ class LiveStart:
     covariance: np.ndarray
 
 
-def live_estimates(input_bag: pathlib.Path, typestore: Any) -> dict[int, LiveStart]:
+def live_estimates(input_bag: pathlib.Path, typestore: Any, namespace: str = "") -> dict[int, LiveStart]:
     """The live EKF's estimates (beams/ekf/odometry) of a bag by stamp (ns), each stamped exactly with the
     odometry message it followed."""
     estimates = {}
     with Reader(pathlib.Path(input_bag)) as reader:
-        wanted = [c for c in reader.connections if c.topic.lstrip("/") == LIVE_EKF_TOPIC]
+        wanted = [c for c in reader.connections if relative_topic(c.topic, namespace) == LIVE_EKF_TOPIC]
         for connection, _, raw in reader.messages(connections=wanted) if wanted else ():
             message = typestore.deserialize_cdr(raw, connection.msgtype)
             estimates[stamp_ns(message.header.stamp)] = LiveStart(pose2d_of(message.pose.pose),
@@ -469,15 +485,19 @@ class _Run:
     build: MessageBuilder
     typestore: Any
     map_frame: str
+    # the robot's namespace: the output topics are in it, as the inputs were
+    namespace: str = ""
     result: ReplayResult = field(default_factory=ReplayResult)
     segment: int = 0
 
     def write(self, topic: str, msgtype: str, stamp: int, message: Any) -> None:
-        self.recorder.write(topic, msgtype, stamp, self.typestore.serialize_cdr(message, msgtype))
+        self.recorder.write(namespaced_topic(topic, self.namespace), msgtype, stamp,
+                            self.typestore.serialize_cdr(message, msgtype))
         self.result.messages_out += 1
 
     def handle(self, event: Event) -> None:
-        self.recorder.write(event.topic, event.msgtype, event.bag_ns, event.raw)  # the inputs, unchanged
+        topic = namespaced_topic(event.topic, self.namespace)
+        self.recorder.write(topic, event.msgtype, event.bag_ns, event.raw)  # the inputs, unchanged
         self.result.messages_out += 1
         stamp, message = stamp_ns(event.message.header.stamp), event.message
         if event.topic == TRUTH_TOPIC:
@@ -514,8 +534,11 @@ class _Run:
 
 def replay_bag(input_bag: pathlib.Path, output_bag: pathlib.Path, settings: ReplaySettings | None = None,
                *, typestore: Any = None, storage: str = "mcap", map_frame: str = "map",
-               start_like_live: bool = False) -> ReplayResult:
+               start_like_live: bool = False, namespace: str = "") -> ReplayResult:
     """Replay a bag through both pipelines and write the outputs (with the inputs) to a new bag.
+
+    namespace: the robot whose topics are replayed (a bag of several robots: one replay each); its
+    outputs are written in the same namespace.
 
     start_like_live: the EKF starts from the live EKF's first recorded estimate at an odometry stamp of
     the bag (`LiveStart`) instead of ToTal's first pose, to compare the replay with a live run whose start
@@ -524,16 +547,17 @@ def replay_bag(input_bag: pathlib.Path, output_bag: pathlib.Path, settings: Repl
     typestore = typestore if typestore is not None else beams_typestore()
     pipelines = ReplayPipelines(settings or ReplaySettings())
     use_odometry = pipelines.settings.triangulation.use_odometry
-    pipelines.expect_odometry = use_odometry and ODOMETRY_TOPIC in bag_topics(input_bag)
+    pipelines.expect_odometry = use_odometry and ODOMETRY_TOPIC in bag_topics(input_bag, namespace)
     if start_like_live:
-        pipelines.live_start = live_estimates(input_bag, typestore)
+        pipelines.live_start = live_estimates(input_bag, typestore, namespace)
         if not pipelines.live_start:
             raise ValueError(f"{input_bag} has no {LIVE_EKF_TOPIC} message to start from")
     started = time.perf_counter()
     last_ns: int | None = None
     with BagRecorder(pathlib.Path(output_bag), typestore, storage) as recorder:
-        run = _Run(pipelines, recorder, MessageBuilder(typestore), typestore, map_frame)
-        for event in in_stamp_order(read_events(pathlib.Path(input_bag), typestore, run.result.counts)):
+        run = _Run(pipelines, recorder, MessageBuilder(typestore), typestore, map_frame, namespace)
+        events = read_events(pathlib.Path(input_bag), typestore, run.result.counts, namespace)
+        for event in in_stamp_order(events):
             if event is TIME_JUMP:
                 run.write_total(pipelines.flush(), last_ns)
                 run.segment += 1
@@ -576,15 +600,17 @@ def agreement(replayed: Track, live: Track, settle_s: float = 0.0) -> Agreement:
     return Agreement(len(pairs), float(position.max()), float(heading.max()), rms(position))
 
 
-def live_tracks(input_bag: pathlib.Path, typestore: Any) -> tuple[Track, Track]:
-    """(accepted ToTal poses, EKF estimates) the live nodes published, as recorded in the bag."""
+def live_tracks(input_bag: pathlib.Path, typestore: Any, namespace: str = "") -> tuple[Track, Track]:
+    """(accepted ToTal poses, EKF estimates) the live nodes (of a robot's namespace) published, as recorded
+    in the bag."""
     total, ekf = Track(), Track()
+    live_topics = (LIVE_POSE_TOPIC, LIVE_EKF_TOPIC)
     with Reader(pathlib.Path(input_bag)) as reader:
-        wanted = [c for c in reader.connections if c.topic.lstrip("/") in (LIVE_POSE_TOPIC, LIVE_EKF_TOPIC)]
+        wanted = [c for c in reader.connections if relative_topic(c.topic, namespace) in live_topics]
         for connection, _, raw in reader.messages(connections=wanted) if wanted else ():
             message = typestore.deserialize_cdr(raw, connection.msgtype)
             stamp = stamp_ns(message.header.stamp)
-            if connection.topic.lstrip("/") == LIVE_EKF_TOPIC:
+            if relative_topic(connection.topic, namespace) == LIVE_EKF_TOPIC:
                 ekf.add(0, stamp, pose2d_of(message.pose.pose))
             elif message.accepted:
                 total.add(0, stamp, pose2d_of(message.pose.pose))
@@ -640,6 +666,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="start the EKF from the live EKF's first estimate recorded in the bag (to "
                              "compare with the live run) instead of ToTal's first pose")
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="output storage")
+    parser.add_argument("--namespace", default="",
+                        help="the robot whose topics to replay (e.g. robot1 for /robot1/odom, ...); "
+                             "default: the topics without a namespace")
     parser.add_argument("--triangulation-params", type=pathlib.Path,
                         default=_installed_config("beams_triangulation", "triangulation_node.yaml"),
                         help="triangulation_node parameter YAML (default: the installed one)")
@@ -652,8 +681,9 @@ def main(argv: list[str] | None = None) -> int:
                                             load_node_parameters(options.ekf_params))
         typestore = beams_typestore()
         result = replay_bag(options.input_bag, options.output_bag, settings, typestore=typestore,
-                            storage=options.storage, start_like_live=options.start_like_live)
-        live = live_tracks(options.input_bag, typestore)
+                            storage=options.storage, start_like_live=options.start_like_live,
+                            namespace=options.namespace)
+        live = live_tracks(options.input_bag, typestore, options.namespace)
     except (OSError, ValueError, ReaderError, WriterError) as error:
         print(f"replay_bag: {error}", file=sys.stderr)
         return 2

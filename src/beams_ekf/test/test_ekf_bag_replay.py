@@ -105,6 +105,26 @@ def test_stamps_not_arrival_order(tmp_path, messages, typestore, replayed):
     assert shuffled.total.rows == reference.total.rows
 
 
+def test_each_robot_of_a_bag_is_replayed_in_its_namespace(tmp_path, messages, typestore, replayed):
+    """A bag of two robots (/robot1/... the whole match, robot2/... its first half): each replays exactly
+    as it does alone (no cross-talk), and its outputs go to its own namespace."""
+    half = [message for message in messages if message[0] < _ns(MATCH_S / 2)]
+    both = [(t, f"/robot1/{topic}", msgtype, message) for t, topic, msgtype, message in messages]
+    both += [(t, f"robot2/{topic}", msgtype, message) for t, topic, msgtype, message in half]
+    bag = write_bag(tmp_path / "input", both, typestore)
+    reference, _ = replayed
+    first = replay_bag(bag, tmp_path / "robot1", typestore=typestore, namespace="robot1")
+    assert first.ekf.rows == reference.ekf.rows and first.total.rows == reference.total.rows
+    second = replay_bag(bag, tmp_path / "robot2", typestore=typestore, namespace="/robot2/")
+    alone = replay_bag(write_bag(tmp_path / "half", half, typestore), tmp_path / "alone", typestore=typestore)
+    assert second.ekf.rows == alone.ekf.rows and len(alone.ekf.rows) < 0.6 * len(reference.ekf.rows)
+    topics = {topic for topic, _, _ in read_messages(tmp_path / "robot2", typestore)}
+    assert {"/robot2/beams/ekf/odometry", "/robot2/beams/pose", "/robot2/odom"} <= topics
+    assert not any(topic.startswith("/robot1") for topic in topics)
+    with pytest.raises(ValueError, match="no beams/ekf/odometry"):
+        replay_bag(bag, tmp_path / "robot3", typestore=typestore, namespace="robot3", start_like_live=True)
+
+
 def test_loop_resets_cleanly(tmp_path, messages, typestore, replayed):
     """The bag played twice (stamps jump back 12 s): one reset, and the second pass gives exactly the
     estimates of the first (nothing of the first pass leaks into the second)."""
