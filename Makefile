@@ -7,7 +7,7 @@ BUILD_BASE ?= $(ROOT)/build
 INSTALL_BASE ?= $(ROOT)/install
 export BEAMS_INSTALL_BASE := $(INSTALL_BASE)
 ROS_ENV := source $(ROOT)/scripts/ros_env.sh &&
-PACKAGE_SOURCES := $(shell find src -type f -not -path '*/__pycache__/*' -not -path '*/test/*' 2>/dev/null)
+PACKAGE_SOURCES := $(shell find src compat -type f -not -path '*/__pycache__/*' -not -path '*/test/*' 2>/dev/null)
 PYTEST_ARGS ?=
 
 .PHONY: setup build test demo bench lint clean
@@ -18,9 +18,11 @@ $(VENV)/.installed: requirements.txt requirements-nonros.txt constraints.txt scr
 
 setup: $(VENV)/.installed
 
-## build: colcon build of every package (again only when a package file changed)
-$(INSTALL_BASE)/.built: $(VENV)/.installed $(PACKAGE_SOURCES) colcon.meta
+## build: colcon build of every package (again only when a package file changed); the compat/ packages
+## the ROS environment lacks (tf2_msgs from the PyPI wheels) are built too
+$(INSTALL_BASE)/.built: $(VENV)/.installed $(PACKAGE_SOURCES) colcon.meta scripts/compat_packages.sh
 	$(ROS_ENV) colcon --log-base $(BUILD_BASE)/log build --build-base $(BUILD_BASE) --install-base $(INSTALL_BASE) \
+	    --base-paths src $$(scripts/compat_packages.sh) \
 	    --metas colcon.meta --event-handlers console_direct- console_cohesion- summary+ status-
 	touch $@
 

@@ -23,6 +23,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.serialization import deserialize_message
+from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from beams_driver.node_support import BEARINGS_QOS
@@ -51,6 +52,7 @@ TOPICS = {
     "beams/ekf/pose": PoseWithCovarianceStamped,
     "beams/markers": MarkerArray,
     "/diagnostics": DiagnosticArray,
+    "/tf": TFMessage,
 }
 PROGRESS_PERIOD_S = 5.0
 START_TIMEOUT_S = 30.0

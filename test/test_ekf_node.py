@@ -114,14 +114,44 @@ def _error_m(msg, match) -> float:
     return math.hypot(msg.pose.pose.position.x - x, msg.pose.pose.position.y - y)
 
 
+def _assert_map_to_odom_places_the_odometry_on_the_estimate(transforms, outputs, match) -> None:
+    """REP-105: map -> odom composed with the odometry pose of the same stamp is the EKF's map pose."""
+    import numpy as np
+
+    from beams_driver.pose2d import compose
+    from beams_driver.ros_messages import stamp_to_seconds
+
+    estimates = {(o.header.stamp.sec, o.header.stamp.nanosec): o for o in outputs}
+    checked = 0
+    for message in transforms:
+        (transform,) = message.transforms
+        assert (transform.header.frame_id, transform.child_frame_id) == ("map", "odom")
+        estimate = estimates.get((transform.header.stamp.sec, transform.header.stamp.nanosec))
+        if estimate is None:
+            continue
+        q = transform.transform.rotation
+        map_to_odom = (transform.transform.translation.x, transform.transform.translation.y,
+                       2.0 * math.atan2(q.z, q.w))
+        # the odometry message of that stamp (the feeder's stamps are the match's instants + T0_S)
+        k = int(np.argmin(np.abs(match.times_s + T0_S - stamp_to_seconds(transform.header.stamp))))
+        x, y, yaw = compose(map_to_odom, tuple(match.odometry[k]))
+        q = estimate.pose.pose.orientation
+        assert math.hypot(x - estimate.pose.pose.position.x, y - estimate.pose.pose.position.y) < 1e-6
+        assert abs(math.remainder(yaw - 2.0 * math.atan2(q.z, q.w), math.tau)) < 1e-6
+        checked += 1
+    assert checked > 20, f"only {checked} of {len(transforms)} transforms matched an estimate"
+
+
 def test_ekf_node_tracks_and_resets(start_node, rclpy_node, match):
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
     from std_srvs.srv import Trigger
+    from tf2_msgs.msg import TFMessage
 
     start_node("beams_ekf", "ekf_node", _params())
     outputs = rclpy_node.subscribe(Odometry, "beams/ekf/odometry")
     diagnostics = rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
+    transforms = rclpy_node.subscribe(TFMessage, "/tf", 100)
     feeder = _Feeder(rclpy_node)
 
     feeder.play(match, until_s=0.3)
@@ -140,6 +170,7 @@ def test_ekf_node_tracks_and_resets(start_node, rclpy_node, match):
     assert rclpy_node.spin_until(
         lambda: any(kv.key == "bearings_accepted" and int(kv.value) > 30
                     for d in diagnostics for s in d.status if "ekf" in s.name for kv in s.values), 5.0)
+    _assert_map_to_odom_places_the_odometry_on_the_estimate(transforms, outputs, match)
 
     answer = rclpy_node.call(Trigger, "beams/ekf/reset", Trigger.Request(), 10.0)
     assert answer.success

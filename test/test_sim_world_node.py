@@ -45,9 +45,11 @@ def match_offset(trajectory, stamps: np.ndarray, poses: np.ndarray) -> tuple[flo
 def test_publishes_truth_and_perfect_odometry_at_50_hz_in_a_namespace(start_node, rclpy_node) -> None:
     from nav_msgs.msg import Odometry
     from rclpy.qos import qos_profile_sensor_data
+    from tf2_msgs.msg import TFMessage
 
     from beams_driver.sim_world import EurobotTrajectory
 
+    transforms = rclpy_node.subscribe(TFMessage, "/tf", 100)
     truth = rclpy_node.subscribe(Odometry, "/robot1/beams/sim/ground_truth")
     odometry = rclpy_node.subscribe(
         Odometry, "/robot1/odom", qos_profile_sensor_data
@@ -77,6 +79,19 @@ def test_publishes_truth_and_perfect_odometry_at_50_hz_in_a_namespace(start_node
     for (x, y, theta), (tx, ty, ttheta) in paired:
         assert math.hypot(x - (tx - 0.4), y - (ty - 1.0)) < 1e-3
         assert abs(math.remainder(theta - ttheta, 2.0 * math.pi)) < 1e-4
+
+    # odom -> base_link on /tf (shared by every namespace: frames as configured), the odometry's pose
+    odometry_by_stamp = {stamp_s(m): planar(m) for m in odometry}
+    checked = 0
+    for message in transforms:
+        (transform,) = message.transforms
+        assert (transform.header.frame_id, transform.child_frame_id) == ("odom", "base_link")
+        pose = odometry_by_stamp.get(stamp_s(transform))
+        if pose is not None:
+            t, q = transform.transform.translation, transform.transform.rotation
+            assert (t.x, t.y, 2.0 * math.atan2(q.z, q.w)) == pytest.approx(pose, abs=1e-9)
+            checked += 1
+    assert checked >= 50
 
 
 @pytest.mark.parametrize(

@@ -28,6 +28,8 @@ EXIT_INVALID_PARAMETERS = 2
 BEARINGS_QOS = QoSProfile(
     depth=10, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE
 )
+# /tf as tf2's TransformBroadcaster publishes it: reliable, volatile, depth 100
+TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE)
 # BEAMS_EXECUTOR=single_threaded: every node on rclpy's SingleThreadedExecutor (see run_node)
 EXECUTOR_VARIABLE = "BEAMS_EXECUTOR"
 EXECUTOR_CHOICES = ("events", "single_threaded")

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Pose, PoseWithCovariance
+from geometry_msgs.msg import Pose, PoseWithCovariance, Transform
 
 from beams_driver.pose2d import Pose2D, yaw_of_quaternion
 
@@ -39,6 +39,13 @@ def set_pose2d(pose: Pose, planar: Pose2D) -> None:
     pose.position.x, pose.position.y = float(planar[0]), float(planar[1])
     pose.orientation.z = math.sin(0.5 * planar[2])
     pose.orientation.w = math.cos(0.5 * planar[2])
+
+
+def set_transform2d(transform: Transform, planar: Pose2D) -> None:
+    """Write (x, y, yaw) into a geometry_msgs/Transform (z = 0, rotation about z only)."""
+    transform.translation.x, transform.translation.y = float(planar[0]), float(planar[1])
+    transform.rotation.z = math.sin(0.5 * planar[2])
+    transform.rotation.w = math.cos(0.5 * planar[2])
 
 
 def planar_covariance(covariance_6x6) -> np.ndarray:

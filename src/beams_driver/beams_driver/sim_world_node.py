@@ -3,7 +3,8 @@
 Publishes at `rate_hz` (50 Hz by default), both nav_msgs/Odometry:
 - `beams/sim/ground_truth`: the true pose (map -> base_link) and twist of an `EurobotTrajectory`;
 - `odom`: what the wheel encoders give (`OdometrySimulator`): pose in the odom frame (its origin is
-  the robot's start pose) and measured twist in base_link, with scale, wheel-base, slip and noise errors.
+  the robot's start pose) and measured twist in base_link, with scale, wheel-base, slip and noise errors;
+  with `publish_tf`, the same pose as odom -> base_link on `/tf`, as a robot's base controller does.
 
 The match clock starts with the node's first tick on the node's clock (use_sim_time follows /clock);
 after `duration_s` the robot stands still. When the clock jumps backwards (a bag or a simulation
@@ -15,18 +16,21 @@ import math
 import sys
 
 import numpy as np
+from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.time import Time
+from tf2_msgs.msg import TFMessage
 
 from beams_driver.node_support import (
+    TF_QOS,
     Diagnostics,
     ParameterValidationError,
     declare_choice,
     declare_parameter,
     run_node,
 )
-from beams_driver.ros_messages import ros_covariance, set_pose2d
+from beams_driver.ros_messages import ros_covariance, set_pose2d, set_transform2d
 from beams_driver.sim_world import EurobotTrajectory, MotionLimits, OdometryDrift, OdometrySimulator, Pose2D
 
 TRAJECTORY_KINDS = ("random", "waypoints", "static")
@@ -67,6 +71,9 @@ class SimWorldNode(Node):
             )
         self.truth_publisher = self.create_publisher(Odometry, "beams/sim/ground_truth", QUEUE_DEPTH)
         self.odom_publisher = self.create_publisher(Odometry, "odom", QUEUE_DEPTH)
+        publish_tf = declare_parameter(self, "publish_tf", True,
+                                       "Publish the odometry as odom -> base_link on /tf.")
+        self.tf_publisher = self.create_publisher(TFMessage, "/tf", TF_QOS) if publish_tf else None
         self.start_s: float | None = None
         self.last_s = -math.inf
         self.finished = False
@@ -222,6 +229,10 @@ class SimWorldNode(Node):
             self.diagnostics.increment("odometry_dropped")  # a rehearsed fault: the encoders' link is down
             return
         self.odom_publisher.publish(msg)
+        if self.tf_publisher is not None:
+            transform = TransformStamped(header=msg.header, child_frame_id=msg.child_frame_id)
+            set_transform2d(transform.transform, pose)
+            self.tf_publisher.publish(TFMessage(transforms=[transform]))
 
 
 def _pose(values: list[float], name: str) -> Pose2D:

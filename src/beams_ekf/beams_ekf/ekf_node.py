@@ -7,7 +7,8 @@ the filter or re-initialise it after a kidnapping), `/initialpose`
 `beams/ekf/set_pose` (beams_msgs/SetPose) does the same).
 Publishes `beams/ekf/odometry` (nav_msgs/Odometry, map -> base_link, pose and twist with covariance)
 and `beams/ekf/pose` (PoseWithCovarianceStamped) after each revolution's bearings and at
-`publish_rate_hz` as odometry moves it, plus `/diagnostics`.
+`publish_rate_hz` as odometry moves it, the map -> odom transform on `/tf` (REP-105: the odometry's
+source publishes odom -> base_link), plus `/diagnostics`.
 Service `beams/ekf/reset` (std_srvs/Trigger) forgets the estimate until the next pose.
 All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
 """
@@ -17,15 +18,17 @@ import sys
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import PoseWithCovarianceStamped
+from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
 
 from beams_driver.calibration_file import SensorCalibration
 from beams_driver.node_support import (
     BEARINGS_QOS,
+    TF_QOS,
     Diagnostics,
     ParameterValidationError,
     declare_beacon_geometry,
@@ -39,6 +42,7 @@ from beams_driver.ros_messages import (
     ros_covariance,
     seconds_to_stamp,
     set_pose2d,
+    set_transform2d,
     stamp_to_seconds,
 )
 from beams_ekf.localiser import (
@@ -92,6 +96,9 @@ class EkfNode(Node):
         self._declare_filter()
         self.map_frame = declare_parameter(self, "map_frame", "map", "Frame of the estimate (REP-105).")
         self.base_frame = declare_parameter(self, "base_frame", "base_link", "The robot's frame (child).")
+        self.odom_frame = declare_parameter(self, "odom_frame", "odom",
+                                            "The odometry's frame (child of the map -> odom transform).")
+        publish_tf = declare_parameter(self, "publish_tf", True, "Publish the map -> odom transform on /tf.")
         rate_hz = declare_parameter(self, "publish_rate_hz", 20.0, "Rate of the published estimate (Hz).",
                                     minimum=0.1, maximum=1000.0)
         self.diagnostics = Diagnostics(self, "ekf")
@@ -104,6 +111,7 @@ class EkfNode(Node):
 
         self.odometry_publisher = self.create_publisher(Odometry, "beams/ekf/odometry", 10)
         self.pose_publisher = self.create_publisher(PoseWithCovarianceStamped, "beams/ekf/pose", 10)
+        self.tf_publisher = self.create_publisher(TFMessage, "/tf", TF_QOS) if publish_tf else None
         self.create_subscription(Odometry, "odom", self._on_odometry, qos_profile_sensor_data)
         self.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings,
                                  BEARINGS_QOS)
@@ -215,6 +223,13 @@ class EkfNode(Node):
         pose.header = odometry.header
         pose.pose = odometry.pose
         self.pose_publisher.publish(pose)
+        map_to_odom = estimate.map_to_odom
+        if self.tf_publisher is not None and map_to_odom is not None:
+            transform = TransformStamped()
+            transform.header = odometry.header
+            transform.child_frame_id = self.odom_frame
+            set_transform2d(transform.transform, map_to_odom)
+            self.tf_publisher.publish(TFMessage(transforms=[transform]))
 
     def _update_diagnostics(self, estimate: Estimate | None) -> None:
         stats = self.localiser.stats

@@ -30,7 +30,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from beams_driver.angles import wrap_to_pi
-from beams_driver.pose2d import Pose2D, between, compose, is_finite_pose
+from beams_driver.pose2d import Pose2D, between, compose, inverse, is_finite_pose
 from beams_driver.time_jumps import StampOrder, TimeJumpDetector
 from beams_ekf.bearing_ekf import BearingEkf, BearingOutcome, ProcessNoise, turret_pose
 from beams_ekf.odometry_history import OdometryHistory
@@ -186,6 +186,14 @@ class Estimate:
     covariance: np.ndarray
     # robot-frame velocity (v_x, v_y, omega) from the last two odometry samples
     twist: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    # the odometry pose (odom frame) at stamp_s; None before any odometry
+    odom_pose: Pose2D | None = None
+
+    @property
+    def map_to_odom(self) -> Pose2D | None:
+        """The map -> odom transform (REP-105: the localisation's correction of the odometry's drift) that
+        puts the odometry pose on the estimate; None without odometry."""
+        return None if self.odom_pose is None else compose(self.pose, inverse(self.odom_pose))
 
 
 @dataclass
@@ -488,7 +496,9 @@ class Localiser:
         if not self.ekf.initialised:
             return None
         stamp_s = self._stamp_s if self._stamp_s is not None else float("nan")
-        return Estimate(stamp_s, self.ekf.pose, self.ekf.covariance, self._odometry_twist())
+        latest = self.history.latest
+        odom_pose = latest[1] if latest is not None and latest[0] == stamp_s else None
+        return Estimate(stamp_s, self.ekf.pose, self.ekf.covariance, self._odometry_twist(), odom_pose)
 
     def _odometry_twist(self) -> tuple[float, float, float]:
         """Robot-frame velocity over the last odometry step (zero with fewer than two samples)."""

@@ -157,6 +157,22 @@ def test_time_going_backwards_resets_cleanly(match):
     assert _position_error(localiser, match.truth_at) < 0.005
 
 
+def test_map_to_odom_puts_the_odometry_pose_on_the_estimate(match):
+    """REP-105's map -> odom: composed with the odometry pose at the estimate's instant, the estimate;
+    after a drifting drive it is no longer the identity (it corrects the drift)."""
+    from beams_driver.pose2d import compose
+
+    localiser = _localiser()
+    localiser.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
+    assert localiser.estimate().map_to_odom is None  # no odometry yet
+    _drive(localiser, match, 0.0, 4.0)
+    estimate = localiser.estimate()
+    k = int(np.searchsorted(match.times_s, estimate.stamp_s))
+    assert estimate.odom_pose == tuple(match.odometry[k])
+    assert compose(estimate.map_to_odom, estimate.odom_pose) == pytest.approx(estimate.pose, abs=1e-12)
+    assert hypot(*estimate.map_to_odom[:2]) > 0.3  # the match starts away from the map's origin
+
+
 def test_one_stray_odometry_message_from_the_past_changes_nothing(match):
     """A message stamped 3 s in the past between good ones (a second publisher, a late retransmission)
     is dropped and counted; the estimate goes on as if it had never come."""
