@@ -34,10 +34,11 @@ EKF_HEADING_RMS_BOUND_RAD = math.radians(0.3)
 TOTAL_RMS_BOUND_M = 0.02
 TOTAL_HEADING_RMS_BOUND_RAD = math.radians(0.5)
 # Recovery: from a restarted node's "ready" log line to its first output over DDS. Issue 7 asks for 2 s.
-# With Fast DDS's default 3 s announcement period this took 0 to 3.2 s; with the project's discovery
-# profile (beams_driver/config/fastdds_fast_discovery.xml, set by scripts/ros_env.sh) 0.6 to 1.5 s in the
-# bench, but one run in five of this test went over 2 s on this loaded 2-core machine: the bound keeps
-# a second of margin rather than fail CI on a scheduling hiccup (bench/bench_system.py reports the times).
+# After a clean stop (SIGTERM) the bench measured 0.05 to 0.7 s: the issue's bound holds. After kill -9,
+# Fast DDS delivers to the new process 0.5 to 2.5 s after its start while the dead participant lingers
+# (bench: maxima 1.3 to 2.4 s from "ready"; BENCHMARKS.md): that bound keeps a second of margin rather
+# than fail CI on it (bench/bench_system.py reports the times).
+CLEAN_RECOVERY_BOUND_S = 2.0
 RECOVERY_BOUND_S = 3.0
 START_TIMEOUT_S = 40.0
 # Let the filter settle this long after a fault ends before its error counts again.
@@ -210,10 +211,13 @@ def wait_for_log(graph, node, text: str, timeout_s: float) -> float:
 
 
 def restart_after_kill(graph, start_node, nodes: dict[str, Any], name: str,
-                       parameters: dict[str, dict[str, Any]], ready_text: str) -> float:
-    """SIGKILL a node, start it again; the monotonic time the new process logged `ready_text`."""
-    status = nodes[name].stop(signal.SIGKILL)
-    assert status == -signal.SIGKILL, f"{name} was not killed: exit status {status}"
+                       parameters: dict[str, dict[str, Any]], ready_text: str,
+                       stop_signal: int = signal.SIGKILL) -> float:
+    """Kill a node (SIGKILL) or stop it cleanly (SIGTERM: exit 0), start it again; the monotonic time the
+    new process logged `ready_text`."""
+    status = nodes[name].stop(stop_signal)
+    expected = -signal.SIGKILL if stop_signal == signal.SIGKILL else 0
+    assert status == expected, f"{name} stopped by signal {stop_signal} with exit status {status}"
     nodes[name] = start_node(*NODE_EXECUTABLES[name], parameters[name])
     return wait_for_log(graph, nodes[name], ready_text, START_TIMEOUT_S)
 
@@ -290,8 +294,15 @@ def assert_ekf_back(probe: RobotProbe, since_s: float, until_s: float, what: str
 
 
 def check_restarts(graph, start_node, nodes, parameters, probe: RobotProbe) -> dict[str, float]:
-    """kill -9 then restart the triangulation, then the EKF: each output is back within the bound of its
-    start-up, the new EKF reports its initialisation and is accurate again once settled."""
+    """Restart the triangulation after a clean stop (back within issue 7's 2 s), then kill -9 and restart
+    the triangulation, then the EKF: each output is back within the bound of its start-up, the new EKF
+    reports its initialisation and is accurate again once settled."""
+    ready = restart_after_kill(graph, start_node, nodes, "triangulation", parameters,
+                               "triangulation_node ready", signal.SIGTERM)
+    graph.spin_until(lambda: first_after(probe.total_arrivals, ready) < math.inf, 10.0)
+    clean_back_s = first_after(probe.total_arrivals, ready) - ready
+    assert clean_back_s <= CLEAN_RECOVERY_BOUND_S, f"ToTal back {clean_back_s:.2f} s after a clean restart"
+
     ready = restart_after_kill(graph, start_node, nodes, "triangulation", parameters,
                                "triangulation_node ready")
     graph.spin_until(lambda: first_after(probe.total_arrivals, ready) < math.inf, 10.0)
@@ -308,7 +319,8 @@ def check_restarts(graph, start_node, nodes, parameters, probe: RobotProbe) -> d
     restarted_s = probe.ekf[-1][0]
     graph.spin_until(lambda: probe.latest_truth_stamp() > restarted_s + 2 * SETTLE_S, 15.0)
     rms_m = assert_ekf_back(probe, restarted_s + SETTLE_S, restarted_s + 2 * SETTLE_S, "its restart")
-    return {"ToTal back after restart (s)": total_back_s, "EKF back after restart (s)": ekf_back_s,
+    return {"ToTal back after a clean restart (s)": clean_back_s,
+            "ToTal back after restart (s)": total_back_s, "EKF back after restart (s)": ekf_back_s,
             "EKF RMS after restart (m)": rms_m, "restarts over at (stamp s)": restarted_s + 2 * SETTLE_S}
 
 
