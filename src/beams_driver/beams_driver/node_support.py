@@ -46,7 +46,7 @@ def run_node(node_class: Callable[[], Node], args: list[str] | None = None, *,
 
     The streaming nodes spin in rclpy's EventsExecutor (its event queue is in C++): on the 2-core
     benchmark machine it took a third off each node's CPU and the latency p99 from a revolution to the
-    EKF's output from 4.2-6.2 ms to 2.5-2.8 ms (bench/bench_system.py). A node with coroutine (async)
+    EKF's output from 4.2-6.2 ms to 2.5-3.8 ms (bench/bench_system.py). A node with coroutine (async)
     callbacks passes events_executor=False: Jazzy's EventsExecutor does not run them. The environment
     variable BEAMS_EXECUTOR=single_threaded puts every node back on rclpy's SingleThreadedExecutor.
 
