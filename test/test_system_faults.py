@@ -450,6 +450,7 @@ def test_system_rides_through_compound_windows(start_node, rclpy_node):
     ("beams_driver", "driver_node", {"sim_occlusion_windows": [3.0, 5.0]}, "triples"),
     ("beams_driver", "driver_node", {"sim_occlusion_windows": [3.0, 5.0, 2.0]}, "start_s < end_s"),
     ("beams_driver", "sim_world_node", {"odometry_dropout_s": [5.0, 1.0]}, "start_s <= end_s"),
+    ("beams_driver", "driver_node", {"sim_other_robots": ["beams/sim/ground_truth"]}, "own ground truth"),
 ])
 def test_fault_parameters_are_validated(start_node, package, executable, parameters, message):
     node = start_node(package, executable, parameters)

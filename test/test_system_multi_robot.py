@@ -2,9 +2,12 @@
 
 BeAMS beacons serve any number of robots without synchronisation: each robot runs its own sim_world_node,
 driver_node, triangulation_node and ekf_node in its own namespace, from its own side of the table, on its
-own random trajectory and noise seeds (the simulated sensors do not see the other robot's body).
-Each robot's ToTal and EKF poses must follow its own truth within the accuracy of issues 4 and 5,
-and be far from the other robot's truth (so a topic crossing namespaces could not go unnoticed).
+own random trajectory and noise seeds. Each robot's ToTal and EKF poses must follow its own truth within
+the accuracy of issues 4 and 5, and be far from the other robot's truth (so a topic crossing namespaces
+could not go unnoticed).
+
+A robot also stands in the way: the simulated sensor follows the other robot's ground truth
+(`sim_other_robots`) and loses a beacon exactly while the other robot's body crosses the line of sight.
 """
 
 import importlib.util
@@ -27,6 +30,16 @@ ROBOTS = {"robot_a": (11, [0.4, 1.0, 0.0]), "robot_b": (23, [2.6, 1.0, math.pi])
 RUN_S = 12.0
 # The other robot is this far (m, mean) from a robot's estimates: the trajectories really differ.
 OTHER_ROBOT_MIN_DISTANCE_M = 0.2
+# Robot A stands still facing +y, beacon 3 (3.062, 1.0) to its right; robot B loops around (2.0, 1.0),
+# crossing A's line of sight to beacon 3 twice a loop (B-spline control points, m).
+STANDING_POSE = [0.4, 1.0, math.pi / 2]
+BEACON_3 = (3.062, 1.0)
+LOOP_X = [2.0, 2.2, 2.0, 1.8] * 4
+LOOP_Y = [0.4, 1.0, 1.6, 1.0] * 4
+# A body reaching the beacons' plane as wide as the robot: several hidden passes per crossing.
+BODY_RADIUS_M = 0.15
+# Passes with B this close to the edge of its shadow (m) are not judged (B moves 1 cm in 20 ms).
+SHADOW_EDGE_M = 0.03
 
 
 def test_two_robots_share_the_beacons_without_cross_talk(start_node, rclpy_node):
@@ -62,3 +75,57 @@ def test_two_robots_share_the_beacons_without_cross_talk(start_node, rclpy_node)
     a, b = probes.values()
     other = system.errors_against_truth(np.array(a.ekf), np.array(b.truth))[0]
     assert np.mean(other) > OTHER_ROBOT_MIN_DISTANCE_M, "both robots drove the same path: no cross-talk test"
+
+
+def distance_to_segment(point: np.ndarray, a: tuple[float, float], b: tuple[float, float]) -> np.ndarray:
+    """Distance (m) of each point (n, 2) to the segment [a, b]."""
+    a_xy, b_xy = np.asarray(a), np.asarray(b)
+    along = np.clip((point - a_xy) @ (b_xy - a_xy) / np.sum((b_xy - a_xy) ** 2), 0.0, 1.0)
+    return np.hypot(*(a_xy + along[:, None] * (b_xy - a_xy) - point).T)
+
+
+def test_a_robot_hides_the_beacon_behind_it_from_the_other(start_node, rclpy_node):
+    from beams_driver.edges import TURRET_PERIOD_S
+
+    probe_a, probe_b = system.RobotProbe("robot_a"), system.RobotProbe("robot_b")
+    for probe in (probe_a, probe_b):
+        probe.attach(rclpy_node)
+    standing = {"trajectory": "static", "static_pose": list(STANDING_POSE), "start_pose": list(STANDING_POSE)}
+    parameters = system.robot_parameters(
+        11, sim_world=standing,
+        driver={"sim_other_robots": ["/robot_b/beams/sim/ground_truth"],
+                "sim_other_robot_radius_m": BODY_RADIUS_M})
+    system.start_robot(start_node, parameters, "robot_a")
+    start_node("beams_driver", "sim_world_node", {"trajectory": "waypoints", "waypoints_x": LOOP_X,
+                                                  "waypoints_y": LOOP_Y, "duration_s": system.MATCH_S,
+                                                  "publish_tf": False}, "robot_b")
+    assert rclpy_node.spin_until(lambda: len(probe_a.ekf) > 20 and probe_b.truth, system.START_TIMEOUT_S)
+    started = max(probe_a.ekf[0][0], probe_b.truth[0][0])
+    assert rclpy_node.spin_until(lambda: probe_b.latest_truth_stamp() > started + system.SETTLE_S + RUN_S,
+                                 3 * RUN_S)
+
+    # When each revolution of A passed over beacon 3, where B stood, and whether A saw the beacon.
+    x, y, heading = STANDING_POSE
+    bearing = (math.atan2(BEACON_3[1] - y, BEACON_3[0] - x) - heading) % (2 * math.pi)
+    revolutions = [(t, ids) for t, ids in probe_a.revolutions if started + system.SETTLE_S <= t
+                   < probe_b.latest_truth_stamp() - TURRET_PERIOD_S]
+    pass_s = np.array([t for t, _ in revolutions]) + bearing / (2 * math.pi) * TURRET_PERIOD_S
+    b_truth = np.array(probe_b.truth)
+    b_xy = np.column_stack([np.interp(pass_s, b_truth[:, 0], b_truth[:, 1]),
+                            np.interp(pass_s, b_truth[:, 0], b_truth[:, 2])])
+    distance = distance_to_segment(b_xy, (x, y), BEACON_3)
+    seen = np.array([3 in ids for _, ids in revolutions])
+    behind = distance < BODY_RADIUS_M - SHADOW_EDGE_M
+    clear = distance > BODY_RADIUS_M + SHADOW_EDGE_M
+    hidden_windows = probe_a.counter("driver", "windows_hidden_by_other_robots")
+    print(f"robot B across the line of sight in {behind.sum()} of {len(revolutions)} revolutions: "
+          f"beacon 3 seen in {seen[behind].sum()} of them, and in {seen[clear].sum()} of the {clear.sum()} "
+          f"clear ones; driver: {hidden_windows:.0f} windows hidden")
+    assert behind.sum() >= 10, "robot B did not cross the line of sight: nothing was tested"
+    assert not seen[behind].any(), "robot A saw beacon 3 through robot B"
+    assert seen[clear].mean() > 0.95, "robot A lost beacon 3 with robot B out of the way"
+    assert hidden_windows >= behind.sum()
+    # A still knows where it stands: two beacons and odometry carry the EKF through each crossing.
+    position, heading_error = probe_a.ekf_errors(started + system.SETTLE_S)
+    assert system.rms(position) < system.EKF_RMS_BOUND_M
+    assert system.rms(heading_error) < system.EKF_HEADING_RMS_BOUND_RAD

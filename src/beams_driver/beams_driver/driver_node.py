@@ -30,11 +30,12 @@ from beams_driver.node_support import (
     run_node,
     serve_calibration_reload,
 )
+from beams_driver.pose2d import compose
 from beams_driver.ros_messages import pose2d_of, seconds_to_stamp, stamp_to_seconds
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
 from beams_driver.serial_protocol import DEFAULT_BAUDRATE
 from beams_driver.serial_source import DeviceNotFoundError, DeviceOpenError, SerialEdgeSource
-from beams_driver.sim_world import TruthHistory
+from beams_driver.sim_world import OtherRobots, TruthHistory
 from beams_driver.variance import VARIANCE_MODES, VarianceModel
 from beams_msgs.msg import BeaconBearing, BeaconBearingArray
 
@@ -77,6 +78,13 @@ class OcclusionSchedule:
         return beacon_id in self.always or any(
             beacon_id == hidden and start_s <= since_s < end_s for hidden, start_s, end_s in self.windows
         )
+
+
+def truth_sample(msg: Odometry) -> tuple[float, float, float, float, float, float]:
+    """(stamp, x, y, theta, speed, yaw rate) of a ground-truth message, as TruthHistory stores it."""
+    x, y, heading = pose2d_of(msg.pose.pose)
+    return (stamp_to_seconds(msg.header.stamp), x, y, heading, msg.twist.twist.linear.x,
+            msg.twist.twist.angular.z)
 
 
 class DriverNode(Node):
@@ -187,6 +195,11 @@ class DriverNode(Node):
             "simulated revolution ([-1.0]: none).",
         )
         self.occlusion = OcclusionSchedule.from_parameters(occluded, occlusion_windows)
+        sensor_offset = (float(offset[0]), float(offset[1]), 0.0)
+        self.other_robots = self._declare_other_robots(
+            dict(zip(simulated_map.ids, map(tuple, simulated_map.xy), strict=True)),
+            lambda t: compose(self._pose_source()(t), sensor_offset)[:2],
+        )
         spurious_rate = declare_parameter(
             self,
             "sim_stray_ir_rate_hz",
@@ -213,12 +226,43 @@ class DriverNode(Node):
             power_bias_rad=injected.power_bias if injected else None,
             rotation_bias_rad=injected.rotation_bias if injected else None,
             turret_offset_m=(float(offset[0]), float(offset[1])),
-            occlusion=self.occlusion,
+            occlusion=self._hidden,
         )
         self.ground_truth = TruthHistory()
         self.next_revolution_start_s: float | None = None
         self.create_subscription(Odometry, "beams/sim/ground_truth", self._on_ground_truth, 50)
         self.create_timer(TURRET_PERIOD_S, self._simulate_due_revolutions)
+
+    def _declare_other_robots(self, beacons: dict[int, tuple[float, float]], sensor_position) -> OtherRobots:
+        topics = declare_parameter(
+            self,
+            "sim_other_robots",
+            [""],
+            "Ground-truth topics (nav_msgs/Odometry) of the other robots on the table, whose bodies hide "
+            "beacons from the simulated sensor, e.g. ['/robot_b/beams/sim/ground_truth'] ([''] : none).",
+        )
+        radius_m = declare_parameter(
+            self,
+            "sim_other_robot_radius_m",
+            0.04,
+            "Radius of another robot's body in the beacons' plane (m): there stands its own BeAMS sensor, "
+            "8 cm wide (thesis ch. 2).",
+            minimum=0.0,
+            maximum=1.0,
+        )
+        own_topic = self.resolve_topic_name("beams/sim/ground_truth")
+        other_robots = OtherRobots(beacons, radius_m, sensor_position)
+        for topic in filter(None, topics):
+            if self.resolve_topic_name(topic) == own_topic:
+                raise ParameterValidationError(f"sim_other_robots: {topic} is this robot's own ground truth")
+            self.create_subscription(
+                Odometry, topic, lambda msg, topic=topic: self._on_other_robot(topic, msg), 50
+            )
+        return other_robots
+
+    def _hidden(self, beacon_id: int, time_s: float) -> bool:
+        """The simulated sensor's occlusion: the schedule's beacons, and those behind another robot."""
+        return self.occlusion(beacon_id, time_s) or self.other_robots(beacon_id, time_s)
 
     def _load_injected_biases(self, path: str) -> BearingCorrection | None:
         if not path:
@@ -229,11 +273,12 @@ class DriverNode(Node):
             raise ParameterValidationError(f"sim_bias_file: {error}") from None
 
     def _on_ground_truth(self, msg: Odometry) -> None:
-        x, y, heading = pose2d_of(msg.pose.pose)
-        sample = (stamp_to_seconds(msg.header.stamp), x, y, heading, msg.twist.twist.linear.x,
-                  msg.twist.twist.angular.z)
-        if not self.ground_truth.add(*sample):
+        if not self.ground_truth.add(*truth_sample(msg)):
             self.diagnostics.increment("ground_truth_rejected_non_finite")
+
+    def _on_other_robot(self, topic: str, msg: Odometry) -> None:
+        if not self.other_robots.add(topic, *truth_sample(msg)):
+            self.diagnostics.increment("other_robot_truth_rejected_non_finite")
 
     def _pose_source(self):
         if len(self.static_pose) == 3:
@@ -260,6 +305,7 @@ class DriverNode(Node):
                 self._publish(self.decoder.decode(self.simulator.revolution(self._pose_source(), start_s)))
             start_s = end_s
         self.next_revolution_start_s = start_s
+        self.diagnostics.set("windows_hidden_by_other_robots", self.other_robots.hidden_windows)
 
     # ---- serial source ----
 

@@ -10,6 +10,9 @@ with bounded tangential and lateral accelerations, starting and ending at rest, 
 footprint on the table. Everything follows from the seed. `through_waypoints` takes the control points
 from the caller and `static` is a robot standing still.
 
+`OtherRobots` puts the other robots of the table in front of the simulated sensor: each one's body, in the
+beacons' plane, hides a beacon while it stands across the line of sight.
+
 `OdometrySimulator` turns the true motion into what wheel encoders report: each wheel's distance is
 scaled by the wheel-radius error, inflated by slip (the wheel turns more than the ground moves) and
 noisy (a random walk in the travelled distance); the heading change uses a nominal wheel base that
@@ -19,7 +22,7 @@ the truth to a fraction of a millimetre over a match.
 
 import math
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -491,6 +494,11 @@ class TruthHistory:
         return (bool(self._samples) and self._samples[0][0] <= start_s - self.LEAD_S
                 and end_s <= self._samples[-1][0] + self.MAX_EXTRAPOLATION_S)
 
+    def has_pose_at(self, t: float) -> bool:
+        """True when t lies in the history, or at most MAX_EXTRAPOLATION_S outside it."""
+        return (bool(self._samples) and self._samples[0][0] - self.MAX_EXTRAPOLATION_S <= t
+                <= self._samples[-1][0] + self.MAX_EXTRAPOLATION_S)
+
     def pose_at(self, t: float) -> Pose2D:
         """Pose (x, y, theta) at t: interpolated in the history, extrapolated with the last twist after it."""
         samples = np.array(self._samples)
@@ -504,3 +512,48 @@ class TruthHistory:
         times = samples[:, 0]
         return (float(np.interp(t, times, samples[:, 1])), float(np.interp(t, times, samples[:, 2])),
                 float(np.interp(t, times, theta)))
+
+
+def sight_line_blocked(sensor_xy: tuple[float, float], beacon_xy: tuple[float, float],
+                       centre_xy: tuple[float, float], radius_m: float) -> bool:
+    """True when the segment from the sensor to the beacon passes closer than radius_m to centre_xy."""
+    (ax, ay), (bx, by), (cx, cy) = sensor_xy, beacon_xy, centre_xy
+    dx, dy = bx - ax, by - ay
+    length2 = dx * dx + dy * dy
+    s = 0.0 if length2 == 0.0 else min(1.0, max(0.0, ((cx - ax) * dx + (cy - ay) * dy) / length2))
+    return math.hypot(ax + s * dx - cx, ay + s * dy - cy) < radius_m
+
+
+class OtherRobots:
+    """The other robots on the table as the simulated sensor meets them: each one's body in the beacons'
+    plane is a disc of radius_m around its true position (from its own ground truth), and hides a beacon
+    while it stands across the line of sight. Called as the sensor simulator's occlusion, (beacon_id,
+    time_s) -> hidden; a robot whose truth has stopped arriving is no longer on the table."""
+
+    def __init__(self, beacons: Mapping[int, tuple[float, float]], radius_m: float,
+                 sensor_position: Callable[[float], tuple[float, float]]) -> None:
+        self.beacons = dict(beacons)
+        self.radius_m = radius_m
+        self.sensor_position = sensor_position
+        self.histories: dict[str, TruthHistory] = {}
+        self.hidden_windows = 0
+
+    def add(self, name: str, stamp_s: float, x: float, y: float, theta: float, speed_mps: float,
+            yaw_rate_radps: float) -> bool:
+        """Store a true pose of robot `name`; False (nothing stored) for a non-finite one."""
+        history = self.histories.setdefault(name, TruthHistory())
+        return history.add(stamp_s, x, y, theta, speed_mps, yaw_rate_radps)
+
+    def positions_at(self, t: float) -> list[tuple[float, float]]:
+        """Where the other robots known at t stand."""
+        return [history.pose_at(t)[:2] for history in self.histories.values() if history.has_pose_at(t)]
+
+    def __call__(self, beacon_id: int, time_s: float) -> bool:
+        beacon = self.beacons.get(beacon_id)
+        if beacon is None or not self.histories:
+            return False
+        sensor = self.sensor_position(time_s)
+        hidden = any(sight_line_blocked(sensor, beacon, centre, self.radius_m)
+                     for centre in self.positions_at(time_s))
+        self.hidden_windows += hidden
+        return hidden

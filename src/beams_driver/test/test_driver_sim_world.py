@@ -14,7 +14,9 @@ from beams_driver.sim_world import (
     MotionLimits,
     OdometryDrift,
     OdometrySimulator,
+    OtherRobots,
     TruthHistory,
+    sight_line_blocked,
 )
 from beams_driver.simulated_match import SimulatedMatch, simulate_match
 
@@ -292,3 +294,55 @@ def test_truth_history_covers_a_revolution_only_from_before_its_start(
     assert history.add(1.0, 1.0, 1.0, 0.0, 0.0, 0.0)
     assert history.pose_at(1.0) == (1.0, 1.0, 0.0)
     assert not history.covers(t_first + 0.5, t_first + 0.6) and not history.covers(1.0, 1.1)
+
+
+@pytest.mark.parametrize(
+    ("centre", "blocked"),
+    [
+        ((1.5, 1.0), True),  # on the line of sight
+        ((1.5, 1.09), True),  # 9 cm from it, radius 10 cm
+        ((1.5, 1.11), False),
+        ((3.2, 1.0), False),  # on the line but behind the beacon
+        ((-0.2, 1.0), False),  # on the line but behind the sensor
+        ((3.09, 1.0), True),  # at the beacon itself
+    ],
+)
+def test_sight_line_blocked_by_a_disc_between_sensor_and_beacon(centre, blocked) -> None:
+    assert sight_line_blocked((0.0, 1.0), (3.0, 1.0), centre, 0.1) is blocked
+
+
+def test_other_robot_hides_the_beacons_behind_it_while_it_is_on_the_table() -> None:
+    """Robot A stands at (0.4, 1.0); robot B at (2.6, 1.0) is on its line of sight to beacon 3
+    (3.062, 1.0): every pass over beacon 3 is hidden, beacons 1 and 2 are seen. B moved 30 cm aside
+    hides nothing; B whose truth stopped arriving has left the table."""
+    duration_s = 2.0
+    sensor_pose = (0.4, 1.0, 0.0)
+    beacons = {1: (-0.062, -0.062), 2: (-0.062, 2.062), 3: (3.062, 1.0)}
+
+    def bearings_seen(b_position: tuple[float, float],
+                      truth_until_s: float) -> tuple[int, list[tuple[float, set[int]]]]:
+        """Windows hidden, and (start time, beacons seen) of each revolution."""
+        other = OtherRobots(beacons, 0.1, lambda t: sensor_pose[:2])
+        for t in np.arange(0.0, truth_until_s, 0.02):
+            assert other.add("robot_b", t, *b_position, math.pi, 0.0, 0.0)
+        still = EurobotTrajectory.static(sensor_pose, duration_s)
+        match = simulate_match(duration_s, seed=3, trajectory=still, occlusion=other)
+        return other.hidden_windows, [(r.start_time_s, {b.beacon_id for b in r.bearings})
+                                      for r in match.revolutions]
+
+    hidden, seen = bearings_seen((2.6, 1.0), duration_s)
+    assert len(seen) >= 15 and all(ids == {1, 2} for _, ids in seen)
+    assert hidden >= len(seen)
+    hidden, seen = bearings_seen((2.6, 1.3), duration_s)
+    # beacon 3 straddles the zero reference: the first revolution has only the tail of its window
+    assert hidden == 0 and all(ids == {1, 2, 3} for _, ids in seen[1:])
+    # B's last pose at 0.98 s: hidden until 0.98 + MAX_EXTRAPOLATION_S, seen after
+    hidden, seen = bearings_seen((2.6, 1.0), 1.0)
+    late = [ids for start_s, ids in seen if start_s > 0.98 + TruthHistory.MAX_EXTRAPOLATION_S]
+    early = [ids for start_s, ids in seen if start_s + 0.1 < 0.98]
+    assert late and all(ids == {1, 2, 3} for ids in late)
+    assert early and all(ids == {1, 2} for ids in early)
+    # a beacon the map does not know is never hidden by a robot
+    other = OtherRobots(beacons, 0.1, lambda t: sensor_pose[:2])
+    other.add("robot_b", 0.0, 2.6, 1.0, 0.0, 0.0, 0.0)
+    assert not other(7, 0.0) and other(3, 0.0)
