@@ -6,13 +6,15 @@ A real robot (the serial sensor; the robot publishes its wheel odometry on `odom
     ros2 launch beams_driver beams.launch.py source:=serial device:=/dev/ttyUSB0 \
         calibration_file:=/home/robot/beams_calibration.yaml
 Each node reads its parameter file from its package's share/config; the calibration file, when given,
-overrides the beacon coordinates and carries the turret offset and the bearing corrections.
+overrides the beacon coordinates and carries the turret offset and the bearing corrections. The nodes run
+with the package's Fast DDS profile (config/fastdds_fast_discovery.xml: a node restarted after a kill -9
+is back within 0.5 s) unless FASTRTPS_DEFAULT_PROFILES_FILE is already set.
 """
 
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
 from launch.conditions import LaunchConfigurationEquals
-from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PathJoinSubstitution
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
@@ -51,8 +53,17 @@ def node_action(package: str, executable: str, config: str) -> Node:
     )
 
 
+def discovery_profile() -> SetEnvironmentVariable:
+    """The package's Fast DDS profile for the nodes, unless the robot already exports its own."""
+    profile = PathJoinSubstitution([FindPackageShare("beams_driver"), "config", "fastdds_fast_discovery.xml"])
+    return SetEnvironmentVariable(
+        "FASTRTPS_DEFAULT_PROFILES_FILE",
+        EnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE", default_value=profile),
+    )
+
+
 def generate_launch_description() -> LaunchDescription:
     arguments = [
         DeclareLaunchArgument(name, default_value=value, description=text) for name, value, text in ARGUMENTS
     ]
-    return LaunchDescription([*arguments, *(node_action(*node) for node in NODES)])
+    return LaunchDescription([*arguments, discovery_profile(), *(node_action(*node) for node in NODES)])
