@@ -30,7 +30,6 @@ from beams_driver.node_support import (
     run_node,
     serve_calibration_reload,
 )
-from beams_driver.pose2d import compose
 from beams_driver.ros_messages import pose2d_of, seconds_to_stamp, stamp_to_seconds
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
 from beams_driver.serial_protocol import DEFAULT_BAUDRATE
@@ -195,10 +194,9 @@ class DriverNode(Node):
             "simulated revolution ([-1.0]: none).",
         )
         self.occlusion = OcclusionSchedule.from_parameters(occluded, occlusion_windows)
-        sensor_offset = (float(offset[0]), float(offset[1]), 0.0)
         self.other_robots = self._declare_other_robots(
             dict(zip(simulated_map.ids, map(tuple, simulated_map.xy), strict=True)),
-            lambda t: compose(self._pose_source()(t), sensor_offset)[:2],
+            lambda t: self.simulator.turret_position(self._pose_source()(t)),
         )
         spurious_rate = declare_parameter(
             self,

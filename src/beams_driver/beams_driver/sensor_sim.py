@@ -248,15 +248,19 @@ class SensorSimulator:
             edges.append(edge)
         return (edges[0], edges[1]) if edges[1] > edges[0] else None
 
-    def _view(self, beacon: SimulatedBeacon, pose: tuple[float, float, float]) -> tuple[float, float]:
-        """(bearing in [0, 2 pi) in the robot frame, distance m) of the beacon from the turret centre."""
+    def turret_position(self, pose: tuple[float, float, float]) -> tuple[float, float]:
+        """Map position (m) of the turret centre of a robot at pose (x, y, theta): the true offset applied."""
         # Scalar math: called a few times per beacon and revolution, where numpy's overhead dominates.
         x, y, theta = (float(v) for v in pose)
         c, s = math.cos(theta), math.sin(theta)
         ox, oy = self._turret_offset_m
-        dx = beacon.x_m - (x + c * ox - s * oy)
-        dy = beacon.y_m - (y + s * ox + c * oy)
-        return (math.atan2(dy, dx) - theta) % _TWO_PI, math.hypot(dx, dy)
+        return x + c * ox - s * oy, y + s * ox + c * oy
+
+    def _view(self, beacon: SimulatedBeacon, pose: tuple[float, float, float]) -> tuple[float, float]:
+        """(bearing in [0, 2 pi) in the robot frame, distance m) of the beacon from the turret centre."""
+        turret_x, turret_y = self.turret_position(pose)
+        dx, dy = beacon.x_m - turret_x, beacon.y_m - turret_y
+        return (math.atan2(dy, dx) - float(pose[2])) % _TWO_PI, math.hypot(dx, dy)
 
     def _bias(self, window_rad: float, bearing_rad: float) -> float:
         """Injected chapter-7 biases (rad) added to the bearing this window gives."""
