@@ -8,7 +8,9 @@ import math
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Pose, PoseWithCovariance, Transform
+from geometry_msgs.msg import Pose, PoseWithCovariance, TransformStamped
+from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
 
 from beams_driver.pose2d import Pose2D, yaw_of_quaternion
 
@@ -41,11 +43,14 @@ def set_pose2d(pose: Pose, planar: Pose2D) -> None:
     pose.orientation.w = math.cos(0.5 * planar[2])
 
 
-def set_transform2d(transform: Transform, planar: Pose2D) -> None:
-    """Write (x, y, yaw) into a geometry_msgs/Transform (z = 0, rotation about z only)."""
-    transform.translation.x, transform.translation.y = float(planar[0]), float(planar[1])
-    transform.rotation.z = math.sin(0.5 * planar[2])
-    transform.rotation.w = math.cos(0.5 * planar[2])
+def planar_tf_message(header: Header, child_frame_id: str, planar: Pose2D) -> TFMessage:
+    """A /tf message of one transform header.frame_id -> child_frame_id: (x, y, yaw), z = 0, rotation
+    about z only."""
+    transform = TransformStamped(header=header, child_frame_id=child_frame_id)
+    transform.transform.translation.x, transform.transform.translation.y = float(planar[0]), float(planar[1])
+    transform.transform.rotation.z = math.sin(0.5 * planar[2])
+    transform.transform.rotation.w = math.cos(0.5 * planar[2])
+    return TFMessage(transforms=[transform])
 
 
 def planar_covariance(covariance_6x6) -> np.ndarray:

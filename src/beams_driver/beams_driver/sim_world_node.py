@@ -16,7 +16,6 @@ import math
 import sys
 
 import numpy as np
-from geometry_msgs.msg import TransformStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.time import Time
@@ -30,7 +29,7 @@ from beams_driver.node_support import (
     declare_parameter,
     run_node,
 )
-from beams_driver.ros_messages import ros_covariance, set_pose2d, set_transform2d
+from beams_driver.ros_messages import planar_tf_message, ros_covariance, set_pose2d
 from beams_driver.sim_world import EurobotTrajectory, MotionLimits, OdometryDrift, OdometrySimulator, Pose2D
 
 TRAJECTORY_KINDS = ("random", "waypoints", "static")
@@ -230,9 +229,7 @@ class SimWorldNode(Node):
             return
         self.odom_publisher.publish(msg)
         if self.tf_publisher is not None:
-            transform = TransformStamped(header=msg.header, child_frame_id=msg.child_frame_id)
-            set_transform2d(transform.transform, pose)
-            self.tf_publisher.publish(TFMessage(transforms=[transform]))
+            self.tf_publisher.publish(planar_tf_message(msg.header, msg.child_frame_id, pose))
 
 
 def _pose(values: list[float], name: str) -> Pose2D:

@@ -18,7 +18,7 @@ import sys
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import PoseWithCovarianceStamped, TransformStamped
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
@@ -38,11 +38,11 @@ from beams_driver.node_support import (
 )
 from beams_driver.ros_messages import (
     planar_covariance,
+    planar_tf_message,
     pose2d_of,
     ros_covariance,
     seconds_to_stamp,
     set_pose2d,
-    set_transform2d,
     stamp_to_seconds,
 )
 from beams_ekf.localiser import (
@@ -225,11 +225,7 @@ class EkfNode(Node):
         self.pose_publisher.publish(pose)
         map_to_odom = estimate.map_to_odom
         if self.tf_publisher is not None and map_to_odom is not None:
-            transform = TransformStamped()
-            transform.header = odometry.header
-            transform.child_frame_id = self.odom_frame
-            set_transform2d(transform.transform, map_to_odom)
-            self.tf_publisher.publish(TFMessage(transforms=[transform]))
+            self.tf_publisher.publish(planar_tf_message(odometry.header, self.odom_frame, map_to_odom))
 
     def _update_diagnostics(self, estimate: Estimate | None) -> None:
         stats = self.localiser.stats
