@@ -1,0 +1,150 @@
+"""Fast DDS after a kill -9 (issue 7, restart recovery): why the discovery profile puts user data on UDP.
+
+A plain rclpy publisher (nav_msgs/Odometry at 50 Hz, sensor-data QoS) runs; a plain subscriber process is
+started, killed with SIGKILL once its first message arrived, and started again, RESTARTS times. Each
+subscriber reports the delay from its node's creation to its first message. Two Fast DDS profiles, with
+LOCALHOST discovery as the tests use it:
+- the project's profile (src/beams_driver/config/fastdds_fast_discovery.xml): user data on UDP;
+- the same profile without its default unicast locator: user data in Fast DDS's shared memory (Fast DDS's
+  default between processes of one computer), as the nodes ran before.
+No BeAMS node takes part: the delay is the middleware's (bench/bench_system.py times the nodes' restarts).
+
+Usage: python bench/bench_dds_restart.py   (in ROS_DOMAIN_ID 67 unless the environment sets one;
+`rows()` is what bench/run_all.py collects.)
+"""
+
+import os
+import pathlib
+import re
+import selectors
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+PROFILE = ROOT / "src" / "beams_driver" / "config" / "fastdds_fast_discovery.xml"
+# the profile's element that takes user data off shared memory
+UDP_LOCATOR = re.compile(r"\s*<defaultUnicastLocatorList>.*?</defaultUnicastLocatorList>", re.DOTALL)
+DEFAULT_DOMAIN_ID = "67"  # 61-69 are the developers' (test/conftest.py); the tests never use it
+RESTARTS = 6
+PUBLISHER_SETTLE_S = 1.5
+PAUSE_AFTER_KILL_S = 0.3
+FIRST_MESSAGE_TIMEOUT_S = 10.0
+Row = tuple[str, float, str, str]
+
+PUBLISHER = """
+import time
+import rclpy
+from nav_msgs.msg import Odometry
+from rclpy.qos import qos_profile_sensor_data
+rclpy.init()
+node = rclpy.create_node("restart_bench_publisher")
+publisher = node.create_publisher(Odometry, "restart_bench", qos_profile_sensor_data)
+while rclpy.ok():  # rclpy's SIGINT handler shuts the context down
+    try:
+        publisher.publish(Odometry())
+    except Exception:  # the context shut down between the check and the publication
+        break
+    time.sleep(0.02)
+"""
+
+SUBSCRIBER = """
+import time
+import rclpy
+from nav_msgs.msg import Odometry
+from rclpy.qos import qos_profile_sensor_data
+rclpy.init()
+node = rclpy.create_node("restart_bench_subscriber")
+created = time.monotonic()
+first = []
+node.create_subscription(Odometry, "restart_bench", lambda msg: first.append(time.monotonic()),
+                         qos_profile_sensor_data)
+while not first:
+    rclpy.spin_once(node, timeout_sec=0.005)
+print(f"{first[0] - created:.4f}", flush=True)
+time.sleep(3600)  # until killed
+"""
+
+
+def shared_memory_profile(directory: pathlib.Path) -> pathlib.Path:
+    """The project's profile without its UDP default unicast locator."""
+    text = PROFILE.read_text()
+    stripped, count = UDP_LOCATOR.subn("", text)
+    if count != 1:
+        raise RuntimeError(f"{PROFILE} has {count} <defaultUnicastLocatorList> elements, expected 1")
+    path = directory / "shared_memory.xml"
+    path.write_text(stripped)
+    return path
+
+
+def first_message_delay(subscriber: subprocess.Popen) -> float:
+    """The subscriber's reported delay (s), or inf when nothing arrived in FIRST_MESSAGE_TIMEOUT_S."""
+    with selectors.DefaultSelector() as selector:
+        selector.register(subscriber.stdout, selectors.EVENT_READ)
+        if not selector.select(FIRST_MESSAGE_TIMEOUT_S):
+            return float("inf")
+        line = subscriber.stdout.readline().strip()
+    return float(line) if line else float("inf")
+
+
+def kill(process: subprocess.Popen) -> None:
+    process.send_signal(signal.SIGKILL)
+    process.wait(timeout=15)
+
+
+def restart_delays(profile: pathlib.Path) -> list[float]:
+    """Delays (s) to the first message of subscribers started right after the previous one's kill -9."""
+    env = dict(os.environ, FASTRTPS_DEFAULT_PROFILES_FILE=str(profile),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               ROS_DOMAIN_ID=os.environ.get("ROS_DOMAIN_ID", DEFAULT_DOMAIN_ID))
+    publisher = subprocess.Popen([sys.executable, "-c", PUBLISHER], env=env, stdout=subprocess.DEVNULL,
+                                 stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
+    delays = []
+    try:
+        time.sleep(PUBLISHER_SETTLE_S)
+        for restart in range(RESTARTS + 1):
+            subscriber = subprocess.Popen([sys.executable, "-c", SUBSCRIBER], env=env, stdout=subprocess.PIPE,
+                                          stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, text=True)
+            delay = first_message_delay(subscriber)
+            kill(subscriber)
+            if restart:  # the first subscriber starts fresh: no killed process before it
+                delays.append(delay)
+            time.sleep(PAUSE_AFTER_KILL_S)
+    finally:
+        publisher.send_signal(signal.SIGINT)
+        try:
+            publisher.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            kill(publisher)
+    return delays
+
+
+def rows() -> list[Row]:
+    with tempfile.TemporaryDirectory(prefix="beams-dds-restart-") as directory:
+        profiles = {"shared memory": shared_memory_profile(pathlib.Path(directory)),
+                    "UDP (the project's profile)": PROFILE}
+        result = []
+        for transport, profile in profiles.items():
+            delays = restart_delays(profile)
+            result += [
+                (f"plain subscriber restarted after kill -9, user data in {transport}: first message, median "
+                 f"of {RESTARTS}", float(np.median(delays)), "s", "issue 7: recovery within 2 s"),
+                (f"plain subscriber restarted after kill -9, user data in {transport}: first message, max of "
+                 f"{RESTARTS}", max(delays), "s", "issue 7: recovery within 2 s"),
+            ]
+    return result
+
+
+def main() -> int:
+    print("| figure | value | unit | compared with |\n|---|---|---|---|")
+    for figure, value, unit, compared in rows():
+        print(f"| {figure} | {value:.4g} | {unit} | {compared} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
