@@ -16,7 +16,7 @@ import numpy as np
 from beams_calibration import thesis_setup
 from beams_calibration.calibrate import PARAMETER_COUNT, Problem, calibrate
 from beams_calibration.dataset import to_arrays
-from beams_driver.bearing_correction import THESIS_CORRECTION
+from beams_common.bearing_correction import THESIS_CORRECTION
 
 DEFAULT_SEED = 1
 REVOLUTIONS = 100

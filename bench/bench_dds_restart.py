@@ -4,7 +4,7 @@ A plain rclpy publisher (nav_msgs/Odometry at 50 Hz, sensor-data QoS) runs; a pl
 started, killed with SIGKILL once its first message arrived, and started again, RESTARTS times. Each
 subscriber reports the delay from its node's creation to its first message. Two Fast DDS profiles, with
 LOCALHOST discovery as the tests use it:
-- the project's profile (src/beams_driver/config/fastdds_fast_discovery.xml): user data on UDP;
+- the project's profile (src/beams_bringup/config/fastdds_fast_discovery.xml): user data on UDP;
 - the same profile without its default unicast locator: user data in Fast DDS's shared memory (Fast DDS's
   default between processes of one computer), as the nodes ran before.
 No BeAMS node takes part: the delay is the middleware's (bench/bench_system.py times the nodes' restarts).
@@ -26,7 +26,7 @@ import time
 import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
-PROFILE = ROOT / "src" / "beams_driver" / "config" / "fastdds_fast_discovery.xml"
+PROFILE = ROOT / "src" / "beams_bringup" / "config" / "fastdds_fast_discovery.xml"
 # the profile's element that takes user data off shared memory
 UDP_LOCATOR = re.compile(r"\s*<defaultUnicastLocatorList>.*?</defaultUnicastLocatorList>", re.DOTALL)
 DEFAULT_DOMAIN_ID = "67"  # 61-69 are the developers' (test/conftest.py); the tests never use it

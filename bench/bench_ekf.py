@@ -14,14 +14,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from beams_driver.angles import wrap_to_pi
-from beams_driver.pose2d import compose
+from beams_common.angles import wrap_to_pi
+from beams_common.pose2d import compose
 from beams_driver.sensor_sim import SensorSimConfig
-from beams_driver.simulated_match import SimulatedMatch, simulate_match
 from beams_driver.variance import VarianceModel
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Bearing, Localiser
 from beams_ekf.replay import Accuracy, ReplayResult, accuracy, bearing_events, replay
+from beams_sim.simulated_match import SimulatedMatch, simulate_match
 
 DEFAULT_SEED = 1
 DEFAULT_DURATION_S = 90.0

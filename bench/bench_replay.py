@@ -1,7 +1,7 @@
 """Bag replay benchmark (issue 7, "Rosbag replay"): how fast `replay_bag` runs the triangulation and the
 EKF over a recorded match, as input messages per second and as a multiple of real time.
 
-The bag is a simulated 90 s Eurobot match (beams_driver.simulated_match: truth and odometry at 50 Hz,
+The bag is a simulated 90 s Eurobot match (beams_sim.simulated_match: truth and odometry at 50 Hz,
 one revolution of bearings at 10 Hz, so 110 input messages per second of match), written as MCAP and
 as sqlite3; the replay reads it, runs both pipelines and writes the outputs with the inputs.
 
@@ -14,9 +14,9 @@ import pathlib
 import sys
 import tempfile
 
-from beams_driver.simulated_match import simulate_match
-from beams_ekf.bag_io import beams_typestore
-from beams_ekf.bag_replay import ReplayResult, replay_bag, simulated_messages, write_bag
+from beams_bringup.bag_io import beams_typestore
+from beams_bringup.bag_replay import ReplayResult, replay_bag, simulated_messages, write_bag
+from beams_sim.simulated_match import simulate_match
 
 DEFAULT_DURATION_S = 90.0
 DEFAULT_SEED = 3

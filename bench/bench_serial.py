@@ -10,7 +10,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from beams_driver.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_driver.serial_protocol import (
     DEFAULT_BAUDRATE,
@@ -19,8 +19,8 @@ from beams_driver.serial_protocol import (
     FrameParser,
     RevolutionAssembler,
 )
-from beams_driver.sim_world import EurobotTrajectory, OdometrySimulator
-from beams_driver.simulated_match import simulate_match
+from beams_sim.simulated_match import simulate_match
+from beams_sim.world import EurobotTrajectory, OdometrySimulator
 
 # 8N1: ten line bits per byte.
 LINK_FRAMES_PER_S = DEFAULT_BAUDRATE / 10 / FRAME_SIZE

@@ -13,9 +13,9 @@ import timeit
 
 import numpy as np
 
-from beams_driver.angles import wrap_to_pi
-from beams_driver.beacon_map import EUROBOT_BEACON_MAP
-from beams_driver.simulated_match import simulate_match
+from beams_common.angles import wrap_to_pi
+from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_sim.simulated_match import simulate_match
 from beams_triangulation.gating import GateConfig, PoseEstimate, RevolutionEstimator, gated_estimate
 from beams_triangulation.motion_compensation import interpolate_pose
 from beams_triangulation.pose_covariance import pose_covariance_many

@@ -17,7 +17,7 @@ if [ -f "$_beams_install/setup.bash" ]; then
     source "$_beams_install/setup.bash"
 fi
 # A restarted node finds the others within about 0.2 s (announcements every 0.1 s, not 3 s).
-export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_beams_root/src/beams_driver/config/fastdds_fast_discovery.xml}"
+export FASTRTPS_DEFAULT_PROFILES_FILE="${FASTRTPS_DEFAULT_PROFILES_FILE:-$_beams_root/src/beams_bringup/config/fastdds_fast_discovery.xml}"
 # Keep DDS discovery on this machine unless the user chose otherwise (a robot sets SUBNET).
 export ROS_AUTOMATIC_DISCOVERY_RANGE="${ROS_AUTOMATIC_DISCOVERY_RANGE:-LOCALHOST}"
 unset _beams_root _beams_install

@@ -52,12 +52,12 @@ def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
       quantiles: 95% within 5 mm and 0.5 deg, RMS within 5 mm.
     Then the replay from ToTal's first pose against the truth, and the command as a user runs it.
     """
-    from beams_ekf.bag_io import beams_typestore, read_messages
-    from beams_ekf.bag_replay import live_tracks, replay_bag
-    from beams_ekf.trajectory_metrics import errors_against_truth, rms
+    from beams_bringup.bag_io import beams_typestore, read_messages
+    from beams_bringup.bag_replay import live_tracks, replay_bag
+    from beams_bringup.trajectory_metrics import errors_against_truth, rms
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    run([sys.executable, str(ROOT / "scripts" / "demo.py"), "--duration", str(DEMO_DURATION_S),
+    run([sys.executable, "-m", "beams_bringup.demo", "--duration", str(DEMO_DURATION_S),
          "--output", str(tmp_path / "demo")], env)
     bag = tmp_path / "demo" / "bag"
     typestore = beams_typestore()
@@ -102,7 +102,7 @@ def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
     assert position.max() < 0.03
 
     # The command as a user runs it: summary, plot, a new MCAP bag with the outputs and the inputs.
-    replay_bag_command = INSTALL_BASE / "beams_ekf" / "lib" / "beams_ekf" / "replay_bag"
+    replay_bag_command = INSTALL_BASE / "beams_bringup" / "lib" / "beams_bringup" / "replay_bag"
     stdout = run([str(replay_bag_command), str(bag), str(tmp_path / "replay"), "--plot",
                   str(tmp_path / "replay.png")])
     assert "| EKF |" in stdout and "x real time" in stdout and "replayed EKF vs live" in stdout

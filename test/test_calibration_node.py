@@ -105,8 +105,8 @@ def test_capture_refuses_a_hidden_beacon(start_node, rclpy_node, tmp_path):
 
 def test_calibrate_service_writes_the_calibration_file(start_node, rclpy_node, tmp_path):
     from beams_calibration.dataset import Dataset, save_dataset
-    from beams_driver.bearing_correction import THESIS_CORRECTION
-    from beams_driver.calibration_file import load_calibration
+    from beams_common.bearing_correction import THESIS_CORRECTION
+    from beams_common.calibration_file import load_calibration
     from beams_msgs.srv import Calibrate
 
     setup = _setup()

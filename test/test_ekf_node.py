@@ -118,8 +118,8 @@ def _assert_map_to_odom_places_the_odometry_on_the_estimate(transforms, outputs,
     """REP-105: map -> odom composed with the odometry pose of the same stamp is the EKF's map pose."""
     import numpy as np
 
-    from beams_driver.pose2d import compose
-    from beams_driver.ros_messages import stamp_to_seconds
+    from beams_common.pose2d import compose
+    from beams_common.ros.messages import stamp_to_seconds
 
     estimates = {(o.header.stamp.sec, o.header.stamp.nanosec): o for o in outputs}
     checked = 0
@@ -209,7 +209,7 @@ def test_ekf_node_takes_an_operator_pose(start_node, rclpy_node, match):
 
 
 @pytest.mark.parametrize(("params", "named"), [
-    ({"beacon_ids": [1, 2, 3], "beacon_x": [0.0, 1.0], "beacon_y": [0.0, 1.0, 2.0]}, "beacon map"),
+    ({"beacon_ids": [1, 2, 3], "beacon_x": [0.0, 1.0], "beacon_y": [0.0, 1.0, 2.0]}, "beacon_x"),
     # each in range, but more gated bearings than the window holds: the filter could never be "lost"
     ({"kidnap_gated_bearings": 13, "kidnap_window_bearings": 12}, "kidnap_gated_bearings"),
 ])

@@ -8,7 +8,7 @@ import pytest
 pytestmark = pytest.mark.dds
 
 EXECUTABLES = [
-    ("beams_driver", "sim_world_node"),
+    ("beams_sim", "sim_world_node"),
     ("beams_driver", "driver_node"),
     ("beams_triangulation", "triangulation_node"),
     ("beams_ekf", "ekf_node"),
@@ -52,7 +52,7 @@ def test_executor_choice_falls_back_and_refuses_nonsense(rclpy_node, start_node,
 
     ros_env["BEAMS_EXECUTOR"] = "single_threaded"
     odometry = rclpy_node.subscribe(Odometry, "odom", qos_profile_sensor_data)
-    fallback = start_node("beams_driver", "sim_world_node")
+    fallback = start_node("beams_sim", "sim_world_node")
     assert rclpy_node.spin_until(lambda: len(odometry) > 20, ANSWER_TIMEOUT_S), fallback.log()
     fallback.assert_clean_exit(signal.SIGTERM)
     ros_env["BEAMS_EXECUTOR"] = "fastest"

@@ -15,13 +15,13 @@ WAIT_S = 20.0
 
 @pytest.fixture(scope="module")
 def match():
-    from beams_driver.simulated_match import simulate_match
+    from beams_sim.simulated_match import simulate_match
 
     return simulate_match(duration_s=MATCH_S, seed=5)
 
 
 def _stamp(seconds: float):
-    from beams_driver.ros_messages import seconds_to_stamp
+    from beams_common.ros.messages import seconds_to_stamp
 
     return seconds_to_stamp(T0_S + seconds)
 
@@ -29,7 +29,7 @@ def _stamp(seconds: float):
 def _odometry(match, index: int):
     from nav_msgs.msg import Odometry
 
-    from beams_driver.ros_messages import set_pose2d
+    from beams_common.ros.messages import set_pose2d
 
     msg = Odometry()
     msg.header.stamp = _stamp(float(match.odometry.stamp_s[index]))
@@ -71,7 +71,7 @@ def _play(graph, publishers, match, speed: float = 2.0) -> None:
 
 
 def _position_error_m(msg, match) -> float:
-    from beams_driver.ros_messages import stamp_to_seconds
+    from beams_common.ros.messages import stamp_to_seconds
 
     x, y, _ = match.truth_at(stamp_to_seconds(msg.header.stamp) - T0_S)
     return math.hypot(msg.pose.pose.position.x - x, msg.pose.pose.position.y - y)

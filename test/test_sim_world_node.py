@@ -47,7 +47,7 @@ def test_publishes_truth_and_perfect_odometry_at_50_hz_in_a_namespace(start_node
     from rclpy.qos import qos_profile_sensor_data
     from tf2_msgs.msg import TFMessage
 
-    from beams_driver.sim_world import EurobotTrajectory
+    from beams_sim.world import EurobotTrajectory
 
     transforms = rclpy_node.subscribe(TFMessage, "/tf", 100)
     truth = rclpy_node.subscribe(Odometry, "/robot1/beams/sim/ground_truth")
@@ -55,7 +55,7 @@ def test_publishes_truth_and_perfect_odometry_at_50_hz_in_a_namespace(start_node
         Odometry, "/robot1/odom", qos_profile_sensor_data
     )  # best effort matches too
     start_node(
-        "beams_driver", "sim_world_node", {"seed": 3, "duration_s": 20.0, **ZERO_DRIFT}, namespace="/robot1"
+        "beams_sim", "sim_world_node", {"seed": 3, "duration_s": 20.0, **ZERO_DRIFT}, namespace="/robot1"
     )
     assert rclpy_node.spin_until(lambda: len(truth) >= 100 and len(odometry) >= 100, WAIT_S)
 
@@ -106,7 +106,7 @@ def test_publishes_truth_and_perfect_odometry_at_50_hz_in_a_namespace(start_node
     ],
 )
 def test_refuses_bad_parameters_with_one_clear_line(start_node, params: dict, message: str) -> None:
-    node = start_node("beams_driver", "sim_world_node", params)
+    node = start_node("beams_sim", "sim_world_node", params)
     assert node.wait_exit(WAIT_S) == 2
     log = node.log()
     assert message in log and "Traceback" not in log

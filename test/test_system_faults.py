@@ -69,7 +69,7 @@ def robot_parameters(seed: int, **overrides: dict[str, Any]) -> dict[str, dict[s
 
 
 NODE_EXECUTABLES = {
-    "sim_world": ("beams_driver", "sim_world_node"),
+    "sim_world": ("beams_sim", "sim_world_node"),
     "driver": ("beams_driver", "driver_node"),
     "triangulation": ("beams_triangulation", "triangulation_node"),
     "ekf": ("beams_ekf", "ekf_node"),
@@ -449,7 +449,7 @@ def test_system_rides_through_compound_windows(start_node, rclpy_node):
 @pytest.mark.parametrize(("package", "executable", "parameters", "message"), [
     ("beams_driver", "driver_node", {"sim_occlusion_windows": [3.0, 5.0]}, "triples"),
     ("beams_driver", "driver_node", {"sim_occlusion_windows": [3.0, 5.0, 2.0]}, "start_s < end_s"),
-    ("beams_driver", "sim_world_node", {"odometry_dropout_s": [5.0, 1.0]}, "start_s <= end_s"),
+    ("beams_sim", "sim_world_node", {"odometry_dropout_s": [5.0, 1.0]}, "start_s <= end_s"),
     ("beams_driver", "driver_node", {"sim_other_robots": ["beams/sim/ground_truth"]}, "own ground truth"),
 ])
 def test_fault_parameters_are_validated(start_node, package, executable, parameters, message):

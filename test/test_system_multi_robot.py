@@ -96,7 +96,7 @@ def test_a_robot_hides_the_beacon_behind_it_from_the_other(start_node, rclpy_nod
         driver={"sim_other_robots": ["/robot_b/beams/sim/ground_truth"],
                 "sim_other_robot_radius_m": BODY_RADIUS_M})
     system.start_robot(start_node, parameters, "robot_a")
-    start_node("beams_driver", "sim_world_node", {"trajectory": "waypoints", "waypoints_x": LOOP_X,
+    start_node("beams_sim", "sim_world_node", {"trajectory": "waypoints", "waypoints_x": LOOP_X,
                                                   "waypoints_y": LOOP_Y, "duration_s": system.MATCH_S,
                                                   "publish_tf": False}, "robot_b")
     assert rclpy_node.spin_until(lambda: len(probe_a.ekf) > 20 and probe_b.truth, system.START_TIMEOUT_S)

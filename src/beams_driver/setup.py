@@ -11,22 +11,20 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.xml")),
-        (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+        (f"share/{PACKAGE}/config", glob("config/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
     maintainer="BeAMS ROS maintainers",
     maintainer_email="maintainers@beams-ros.org",
     description=(
-        "The BeAMS sensor: codes, exact variance, decoder, device simulation, serial source, simulated robot."
+        "The BeAMS sensor: codes, exact variance, decoder, edge sources (simulated, serial), driver_node."
     ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "driver_node = beams_driver.driver_node:main",
-            "sim_world_node = beams_driver.sim_world_node:main",
             "variance_plot = beams_driver.variance_plot:main",
-        ],
+        ]
     },
 )

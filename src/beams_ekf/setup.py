@@ -22,7 +22,6 @@ setup(
     entry_points={
         "console_scripts": [
             "ekf_node = beams_ekf.ekf_node:main",
-            "replay_bag = beams_ekf.bag_replay:main",
         ],
     },
 )

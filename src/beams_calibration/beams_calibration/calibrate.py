@@ -23,10 +23,10 @@ from numpy.polynomial import Polynomial
 from scipy.optimize import minimize
 
 from beams_calibration.dataset import CalibrationArrays, Dataset, to_arrays
-from beams_driver.angles import wrap_to_pi
-from beams_driver.beacon_map import BeaconMap
-from beams_driver.bearing_correction import BearingCorrection
-from beams_driver.calibration_file import RmsFigures, SensorCalibration
+from beams_common.angles import wrap_to_pi
+from beams_common.beacon_map import BeaconMap
+from beams_common.bearing_correction import BearingCorrection
+from beams_common.calibration_file import RmsFigures, SensorCalibration
 from beams_triangulation.total import triangulate_many
 
 Progress = Callable[[str], None]

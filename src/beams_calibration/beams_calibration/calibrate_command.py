@@ -26,8 +26,8 @@ from beams_calibration.calibrate import (
     calibrate,
 )
 from beams_calibration.dataset import DatasetError, load_dataset, save_dataset
-from beams_driver.bearing_correction import THESIS_CORRECTION
-from beams_driver.calibration_file import save_calibration
+from beams_common.bearing_correction import THESIS_CORRECTION
+from beams_common.calibration_file import save_calibration
 
 EXIT_REFUSED = 2
 

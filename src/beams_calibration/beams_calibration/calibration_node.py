@@ -1,6 +1,6 @@
 """calibration_node: the chapter-7 calibration of BeAMS as ROS services, from capture to calibration file.
 
-Subscribes `beams/bearings` (beams_msgs/BeaconBearingArray, sensor-data QoS). Services (relative names):
+Subscribes `beams/bearings` (beams_msgs/BeaconBearingArray, reliable). Services (relative names):
 
 - `capture_reference` (beams_msgs/CaptureReference): the operator has placed the robot at a known pose;
   average that many revolutions per beacon and append the configuration to the dataset file
@@ -31,16 +31,11 @@ from rclpy.task import Future
 from std_srvs.srv import Trigger
 
 from beams_calibration.calibrate import (
-    DEFAULT_ETA_M_PER_RAD,
-    DEFAULT_THRESHOLD,
     CalibrationRefusedError,
     CalibrationResult,
-    CoverageRequirements,
     calibrate,
 )
 from beams_calibration.dataset import (
-    DEFAULT_MAX_SPREAD_RAD,
-    DEFAULT_MIN_SEEN_FRACTION,
     Configuration,
     Dataset,
     DatasetError,
@@ -50,16 +45,12 @@ from beams_calibration.dataset import (
     now_utc,
     save_dataset,
 )
-from beams_driver.beacon_map import BeaconMap
-from beams_driver.calibration_file import save_calibration
-from beams_driver.node_support import (
-    BEARINGS_QOS,
-    Diagnostics,
-    ParameterValidationError,
-    declare_beacon_map,
-    declare_parameter,
-    run_node,
-)
+from beams_calibration.parameters import CALIBRATION_PARAMETERS, coverage_requirements
+from beams_common.beacon_map import BeaconMap
+from beams_common.calibration_file import save_calibration
+from beams_common.geometry_parameters import beacon_map_of
+from beams_common.ros.node_support import BEARINGS_QOS, Diagnostics, run_node
+from beams_common.ros.parameters import ParameterValidationError, apply_runtime_changes, declare_table
 from beams_msgs.msg import BeaconBearingArray
 from beams_msgs.srv import Calibrate, CaptureReference, ListConfigurations
 
@@ -82,71 +73,11 @@ class _Capture:
 class CalibrationNode(Node):
     def __init__(self) -> None:
         super().__init__("calibration_node")
-        self.dataset_file = Path(
-            declare_parameter(
-                self, "dataset_file", "calibration_dataset.yaml", "Dataset file (YAML) to append to."
-            )
-        )
-        self.output_file = Path(
-            declare_parameter(self, "calibration_file_out", "calibration.yaml", "Calibration file written.")
-        )
-        self.plots_directory = declare_parameter(
-            self, "plots_directory", "", "Directory for the PNG figures of each calibration; empty for none."
-        )
-        self.prior_map = declare_beacon_map(self, what="A-priori beacon")
-        self.default_revolutions = declare_parameter(
-            self,
-            "default_revolutions",
-            100,
-            "Revolutions averaged when a request asks 0.",
-            minimum=1,
-            maximum=10000,
-        )
-        self.min_seen_fraction = declare_parameter(
-            self,
-            "min_seen_fraction",
-            DEFAULT_MIN_SEEN_FRACTION,
-            "A beacon decoded in fewer revolutions than this fraction counts as missing.",
-            minimum=0.01,
-            maximum=1.0,
-        )
-        self.max_spread_rad = math.radians(
-            declare_parameter(
-                self,
-                "max_spread_deg",
-                math.degrees(DEFAULT_MAX_SPREAD_RAD),
-                "Bearing spread (deg, one revolution) above which the robot is deemed to have moved.",
-                minimum=1e-3,
-                maximum=10.0,
-            )
-        )
-        self.eta = declare_parameter(
-            self,
-            "eta_m_per_rad",
-            DEFAULT_ETA_M_PER_RAD,
-            "eta of eq. 7.12 (m/rad).",
-            minimum=1e-3,
-            maximum=1e3,
-        )
-        self.threshold = declare_parameter(
-            self, "threshold", DEFAULT_THRESHOLD, "t of Algorithm 7.1.", minimum=1e-6, maximum=1.0
-        )
-        self.max_iterations = declare_parameter(
-            self, "max_iterations", 10, "Bound on the loop of Algorithm 7.1.", minimum=1, maximum=100
-        )
-        self.leave_one_out = declare_parameter(
-            self, "leave_one_out", True, "Compute the leave-one-position-out error (12 extra fits)."
-        )
-        self.requirements = CoverageRequirements(
-            min_configurations=declare_parameter(
-                self,
-                "min_configurations",
-                CoverageRequirements().min_configurations,
-                "Fewest configurations a calibration accepts.",
-                minimum=3,
-                maximum=100000,
-            )
-        )
+        self.parameters = declare_table(self, CALIBRATION_PARAMETERS)
+        self.dataset_file = Path(self.parameters["dataset_file"])
+        self.prior_map = beacon_map_of(self.parameters)
+        self._apply_parameters(self.parameters, set(self.parameters))
+        apply_runtime_changes(self, CALIBRATION_PARAMETERS, self.parameters, self._apply_parameters)
         self._check_dataset_file()
         self.diagnostics = Diagnostics(self, "calibration")
         self._capture: _Capture | None = None
@@ -168,6 +99,19 @@ class CalibrationNode(Node):
 
     # ---- parameters ----
 
+    def _apply_parameters(self, values: dict, _changed: set[str]) -> None:
+        """The capture and fit settings (each service call reads them), at start-up and at runtime."""
+        self.output_file = Path(values["calibration_file_out"])
+        self.plots_directory = values["plots_directory"]
+        self.default_revolutions = values["default_revolutions"]
+        self.min_seen_fraction = values["min_seen_fraction"]
+        self.max_spread_rad = math.radians(values["max_spread_deg"])
+        self.eta = values["eta_m_per_rad"]
+        self.threshold = values["threshold"]
+        self.max_iterations = values["max_iterations"]
+        self.leave_one_out = values["leave_one_out"]
+        self.requirements = coverage_requirements(values)
+
     def _check_dataset_file(self) -> None:
         """An existing but unreadable dataset is a start-up error, not something to overwrite later."""
         if not self.dataset_file.exists():
@@ -177,7 +121,7 @@ class CalibrationNode(Node):
         except (OSError, DatasetError) as error:
             raise ParameterValidationError(f"dataset_file: {error}") from None
         if dataset.beacon_map.ids != self.prior_map.ids:
-            self.get_logger().warn(
+            self.get_logger().warning(
                 f"the dataset's beacons {list(dataset.beacon_map.ids)} differ from beacon_ids "
                 f"{list(self.prior_map.ids)}: the dataset's a-priori map is used"
             )
@@ -191,7 +135,7 @@ class CalibrationNode(Node):
     # ---- bearings ----
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
-        self.diagnostics.increment("revolutions received")
+        self.diagnostics.increment("revolutions_received")
         capture = self._capture
         if capture is None or capture.done.done():
             return
@@ -234,7 +178,7 @@ class CalibrationNode(Node):
             configuration = Configuration(*map(float, pose), observations, revolutions, now_utc())
             dataset = append_configuration(self.dataset_file, dataset_map, configuration)
         except (OSError, DatasetError) as error:
-            self.diagnostics.set("last capture", f"refused: {error}")
+            self.diagnostics.set("last_capture", f"refused: {error}")
             return self._capture_reply(response, f"refused: {error}")
         finally:
             self._busy = False
@@ -243,7 +187,7 @@ class CalibrationNode(Node):
         message = f"configuration {response.configurations} recorded: {configuration.summary()}"
         response.message = message
         self.diagnostics.set("configurations", response.configurations)
-        self.diagnostics.set("last capture", "recorded")
+        self.diagnostics.set("last_capture", "recorded")
         self.get_logger().info(message)
         return response
 
@@ -251,7 +195,7 @@ class CalibrationNode(Node):
         response.success = False
         response.message = message
         response.configurations = self._count()
-        self.get_logger().warn(f"capture_reference: {message}")
+        self.get_logger().warning(f"capture_reference: {message}")
         return response
 
     async def _collect(self, revolutions: int) -> list[dict[int, tuple[float, float]]]:
@@ -297,7 +241,7 @@ class CalibrationNode(Node):
             response.success = False
             response.message = str(error)
             self.diagnostics.set_level("warn", f"last calibration failed: {error}")
-            self.get_logger().warn(f"calibrate: {error}")
+            self.get_logger().warning(f"calibrate: {error}")
             return response
         finally:
             self._busy = False

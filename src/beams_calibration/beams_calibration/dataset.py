@@ -33,9 +33,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from beams_driver.angles import wrap_to_pi
-from beams_driver.beacon_map import BeaconMap
-from beams_driver.calibration_file import SensorCalibration, atomic_write_text
+from beams_common.angles import wrap_to_pi
+from beams_common.beacon_map import BeaconMap
+from beams_common.calibration_file import SensorCalibration, atomic_write_text
 
 DATASET_FORMAT = "beams-calibration-dataset"
 DATASET_VERSION = 1

@@ -10,8 +10,8 @@ from collections.abc import Callable, Mapping, Sequence
 import numpy as np
 
 from beams_calibration.dataset import Configuration, Dataset, average_capture, now_utc
-from beams_driver.beacon_map import BeaconMap
-from beams_driver.bearing_correction import IDENTITY_CORRECTION, BearingCorrection
+from beams_common.beacon_map import BeaconMap
+from beams_common.bearing_correction import IDENTITY_CORRECTION, BearingCorrection
 from beams_driver.codes import BeaconCode
 from beams_driver.decoder import BearingDecoder
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator

@@ -8,8 +8,8 @@ import pytest
 
 from beams_calibration import calibrate_command, thesis_setup
 from beams_calibration.dataset import save_dataset
-from beams_driver.beacon_map import BeaconMap
-from beams_driver.calibration_file import load_calibration
+from beams_common.beacon_map import BeaconMap
+from beams_common.calibration_file import load_calibration
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # A 3 mm beacon error and a turret offset, no angle bias: the fit must find both.

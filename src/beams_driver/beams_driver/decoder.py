@@ -15,7 +15,7 @@ from typing import Protocol
 
 import numpy as np
 
-from beams_driver.angles import wrap_to_pi
+from beams_common.angles import wrap_to_pi
 from beams_driver.codes import BeaconCode
 from beams_driver.edges import RevolutionEdges
 

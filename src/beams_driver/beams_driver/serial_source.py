@@ -16,11 +16,13 @@ import contextlib
 import os
 import time
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import serial
 
+from beams_common.parameters import ParameterSpec
+from beams_driver.edge_source import EdgeSourceKind, SourceHealth, SourceHost, SourcePoll
 from beams_driver.edges import RevolutionEdges
 from beams_driver.serial_protocol import DEFAULT_BAUDRATE, FrameEvent, FrameParser, RevolutionAssembler
 
@@ -210,3 +212,45 @@ class SerialEdgeSource:
             self._offset_s = min(candidate, self._offset_s + allowance)
         self._last_arrival_s = arrival_s
         self.assembler.time_offset_s = self._offset_s
+
+
+# ---- the serial device as the driver's EdgeSource (`source: serial`) ----
+
+SERIAL_PARAMETERS = (
+    ParameterSpec("device", "/dev/ttyUSB0", "Serial device of the BeAMS sensor."),
+    ParameterSpec("baud_rate", DEFAULT_BAUDRATE, "Serial baud rate.", minimum=9600, maximum=12_000_000),
+)
+SERIAL_POLL_PERIOD_S = 0.01
+
+
+class SerialSource:
+    """SerialEdgeSource as an EdgeSource: opened at start-up (a missing device stops the driver with the
+    reason), read at every poll; a reconnection breaks the revolutions' continuity."""
+
+    def __init__(self, values: Mapping[str, Any], _codes: Sequence[Any], host: SourceHost) -> None:
+        self.serial = SerialEdgeSource(values["device"], values["baud_rate"],
+                                       read_timeout_s=SERIAL_POLL_PERIOD_S / 2, clock=host.now_s,
+                                       log=host.log_warning)
+        self.serial.open()
+        self._reconnections = 0
+
+    def poll(self, now_s: float) -> SourcePoll:
+        revolutions = self.serial.read()
+        # a window cut by the disconnection must not be joined to the new stream's first one
+        broken = self.serial.reconnections != self._reconnections
+        self._reconnections = self.serial.reconnections
+        return SourcePoll(revolutions, continuity_broken=broken)
+
+    def health(self) -> SourceHealth:
+        drops = self.serial.drops.items()
+        values: dict[str, Any] = {f"serial_drops_{reason}": count for reason, count in drops}
+        values.update(serial_connected=self.serial.connected, serial_reconnections=self.serial.reconnections)
+        if not self.serial.connected:
+            return SourceHealth("error", f"serial device {self.serial.device} lost, reconnecting", values)
+        return SourceHealth("ok", None, values)
+
+    def close(self) -> None:
+        self.serial.close()
+
+
+EDGE_SOURCE = EdgeSourceKind("serial", SERIAL_PARAMETERS, SerialSource, poll_period_s=SERIAL_POLL_PERIOD_S)

@@ -11,7 +11,7 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from beams_driver.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.decoder import BearingDecoder
 from beams_driver.edges import RevolutionEdges
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator

@@ -24,8 +24,9 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2
 
-from beams_driver.angles import wrap_to_pi
-from beams_driver.pose2d import Pose2D, compose
+from beams_common.angles import wrap_to_pi
+from beams_common.pose2d import Pose2D, compose
+from beams_ekf.pose_filter import BearingOutcome
 
 
 @dataclass(frozen=True)
@@ -59,17 +60,6 @@ class ProcessNoise:
         return translation, translation, heading
 
 
-@dataclass(frozen=True)
-class BearingOutcome:
-    """What one bearing did to the filter."""
-
-    accepted: bool
-    # squared Mahalanobis distance of the innovation (chi-square, 1 dof, under the model)
-    nis: float
-    residual_rad: float
-    reason: str = ""
-
-
 def gate_threshold(probability: float) -> float:
     """Chi-square (1 dof) quantile that a consistent innovation stays under with `probability`."""
     if not 0.0 < probability < 1.0:
@@ -95,7 +85,10 @@ class _OdometryEkf(ExtendedKalmanFilter):
 
 
 class BearingEkf:
-    """EKF over (x, y, theta) in the map frame; beacons identified by id, so no data association."""
+    """EKF over (x, y, theta) in the map frame; beacons identified by id, so no data association.
+
+    The first PoseFilter (pose_filter.py).
+    """
 
     def __init__(
         self,
@@ -104,12 +97,17 @@ class BearingEkf:
         process_noise: ProcessNoise | None = None,
         gate_probability: float = 0.999,
     ) -> None:
-        self.beacons_xy = {int(k): (float(v[0]), float(v[1])) for k, v in beacons_xy.items()}
-        self.sensor_offset_m = (float(sensor_offset_m[0]), float(sensor_offset_m[1]))
-        self.process_noise = process_noise or ProcessNoise()
-        self.gate = gate_threshold(gate_probability)
+        self.configure(beacons_xy, sensor_offset_m, process_noise or ProcessNoise(), gate_probability)
         self._ekf = _OdometryEkf(dim_x=3, dim_z=1)
         self._initialised = False
+
+    def configure(self, beacons_xy: Mapping[int, Sequence[float]], sensor_offset_m: tuple[float, float],
+                  process_noise: ProcessNoise, gate_probability: float) -> None:
+        """Beacon geometry, process noise and gate; the estimate stays (PoseFilter.configure)."""
+        self.beacons_xy = {int(k): (float(v[0]), float(v[1])) for k, v in beacons_xy.items()}
+        self.sensor_offset_m = (float(sensor_offset_m[0]), float(sensor_offset_m[1]))
+        self.process_noise = process_noise
+        self.gate = gate_threshold(gate_probability)
 
     @property
     def initialised(self) -> bool:

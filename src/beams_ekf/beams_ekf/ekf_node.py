@@ -25,18 +25,9 @@ from rclpy.qos import qos_profile_sensor_data
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from beams_driver.calibration_file import SensorCalibration
-from beams_driver.node_support import (
-    BEARINGS_QOS,
-    TF_QOS,
-    Diagnostics,
-    ParameterValidationError,
-    declare_beacon_geometry,
-    declare_parameter,
-    run_node,
-    serve_calibration_reload,
-)
-from beams_driver.ros_messages import (
+from beams_common.calibration_file import SensorCalibration
+from beams_common.geometry_parameters import geometry_of, refuse_overridden_geometry
+from beams_common.ros.messages import (
     planar_covariance,
     planar_tf_message,
     pose2d_of,
@@ -45,45 +36,24 @@ from beams_driver.ros_messages import (
     set_pose2d,
     stamp_to_seconds,
 )
+from beams_common.ros.node_support import (
+    BEARINGS_QOS,
+    TF_QOS,
+    Diagnostics,
+    run_node,
+    serve_calibration_reload,
+    startup_geometry,
+)
+from beams_common.ros.parameters import apply_runtime_changes, declare_table
 from beams_ekf.localiser import (
     Estimate,
     build_localiser,
-    filter_parameter_defaults,
     filter_settings,
     message_bearings,
 )
+from beams_ekf.parameters import EKF_PARAMETERS
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_msgs.srv import SetPose
-
-# The filter's parameters: (name, description, minimum, maximum); defaults from FilterSettings.
-FILTER_PARAMETERS = (
-    ("translation_variance_m2_per_m", "Odometry position variance per metre travelled.", 0.0, 1.0e3),
-    ("rotation_variance_rad2_per_rad", "Odometry heading variance per radian turned.", 0.0, 1.0e3),
-    ("rotation_variance_rad2_per_m", "Odometry heading variance per metre travelled.", 0.0, 1.0e3),
-    ("gate_probability", "Chi-square (1 dof) probability of the per-bearing validation gate.", 0.5, 0.999999),
-    ("history_span_s", "Odometry kept to apply late bearings (s).", 0.1, 10.0),
-    ("max_extrapolation_s", "Bearings up to this far (s) past the newest odometry are applied at once; "
-     "later ones wait for odometry.", 0.0, 1.0),
-    ("odometry_gap_s", "Odometry silence (s) treated as a gap (covariance grows).", 0.001, 10.0),
-    ("gap_position_variance_m2_per_s", "Position variance added per second of gap.", 0.0, 1.0e3),
-    ("gap_heading_variance_rad2_per_s", "Heading variance added per second of gap.", 0.0, 1.0e3),
-    ("kidnap_gated_bearings", "Gated bearings, among the last kidnap_window_bearings, that make the filter "
-     "lost (a ToTal pose elsewhere then re-initialises it).", 1, 1000),
-    ("kidnap_window_bearings", "Number of recent bearings judged for kidnap_gated_bearings.", 1, 1000),
-    ("kidnap_probability", "Chi-square (3 dof) probability beyond which a ToTal pose is inconsistent with "
-     "the estimate (their covariances summed), i.e. 'elsewhere'.", 0.5, 0.999999),
-    ("kidnap_distance_m", "Distance (m) from the estimate that always makes a ToTal pose 'elsewhere'.",
-     0.0, 1.0e3),
-    ("kidnap_heading_rad", "Heading difference (rad) that always makes a ToTal pose 'elsewhere'.",
-     0.0, 1.0e3),
-    ("time_jump_confirmations", "Consecutive odometry messages stamped in the past that make a time jump "
-     "(a bag loop: the filter resets); fewer are stray messages, dropped.", 1, 100),
-    ("use_total_pose", "Initialise (and re-initialise after a kidnapping) from ToTal's accepted poses on "
-     "beams/pose.", None, None),
-    ("default_pose_sigma", "Standard deviations (m, m, rad) of a pose without a usable covariance.",
-     1e-6, 100.0),
-)
-
 
 WAITING_FOR_POSE = "waiting for an initial pose (beams/pose, /initialpose or the set_pose service)"
 
@@ -93,14 +63,16 @@ class EkfNode(Node):
 
     def __init__(self) -> None:
         super().__init__("ekf_node")
-        self._declare_filter()
-        self.map_frame = declare_parameter(self, "map_frame", "map", "Frame of the estimate (REP-105).")
-        self.base_frame = declare_parameter(self, "base_frame", "base_link", "The robot's frame (child).")
-        self.odom_frame = declare_parameter(self, "odom_frame", "odom",
-                                            "The odometry's frame (child of the map -> odom transform).")
-        publish_tf = declare_parameter(self, "publish_tf", True, "Publish the map -> odom transform on /tf.")
-        rate_hz = declare_parameter(self, "publish_rate_hz", 20.0, "Rate of the published estimate (Hz).",
-                                    minimum=0.1, maximum=1000.0)
+        self.parameters = declare_table(self, EKF_PARAMETERS)
+        self.settings = filter_settings(self.parameters)
+        geometry = startup_geometry(self.parameters)
+        beacons = geometry.beacon_map.as_dict()
+        self.localiser = build_localiser(beacons, geometry.turret_offset_m, self.settings)
+        self.map_frame = self.parameters["map_frame"]
+        self.base_frame = self.parameters["base_frame"]
+        self.odom_frame = self.parameters["odom_frame"]
+        publish_tf = self.parameters["publish_tf"]
+        rate_hz = self.parameters["publish_rate_hz"]
         self.diagnostics = Diagnostics(self, "ekf")
         self.diagnostics.set_level("warn", WAITING_FOR_POSE)
         self._last_twist = None
@@ -120,23 +92,18 @@ class EkfNode(Node):
         self.create_service(SetPose, "beams/ekf/set_pose", self._on_set_pose)
         self.create_service(Trigger, "beams/ekf/reset", self._on_reset)
         serve_calibration_reload(self, self._apply_calibration)
+        apply_runtime_changes(self, EKF_PARAMETERS, self.parameters, self._apply_parameters)
         self.create_timer(1.0 / rate_hz, self._publish)
         self.get_logger().info(f"ekf_node ready: {len(self.localiser.ekf.beacons_xy)} beacons, turret offset "
                                f"{self.localiser.ekf.sensor_offset_m} m, gate {self.localiser.ekf.gate:.2f}")
 
     # -- parameters -----------------------------------------------------------------------------------
-    def _declare_filter(self) -> None:
-        """Beacon map and turret offset (calibration file first), then the filter's parameters (defaults:
-        FilterSettings'), mapped by `localiser.filter_settings` as the offline replay maps them."""
-        beacon_map, offset = declare_beacon_geometry(self)
-        defaults = filter_parameter_defaults()
-        values = {name: declare_parameter(self, name, defaults[name], description, minimum=low, maximum=high)
-                  for name, description, low, high in FILTER_PARAMETERS}
-        try:
-            self.settings = filter_settings(values)
-        except ValueError as error:  # parameters valid one by one but not together
-            raise ParameterValidationError(str(error)) from None
-        self.localiser = build_localiser(beacon_map.as_dict(), offset, self.settings)
+    def _apply_parameters(self, values: dict, changed: set[str]) -> None:
+        """A runtime change (validated by the table): the beacon geometry, the process noise, the gate."""
+        refuse_overridden_geometry(values, changed)
+        geometry = geometry_of(values)
+        self.settings = filter_settings(values)
+        self.localiser.configure(geometry.beacon_map.as_dict(), geometry.turret_offset_m, self.settings)
 
     # -- inputs ---------------------------------------------------------------------------------------
     def _on_odometry(self, msg: Odometry) -> None:
@@ -170,7 +137,7 @@ class EkfNode(Node):
         if msg.header.frame_id and msg.header.frame_id != self.map_frame:
             self.diagnostics.increment("poses_wrong_frame")
             message = f"pose in frame {msg.header.frame_id!r} ignored (expected {self.map_frame!r})"
-            self.get_logger().warn(message)
+            self.get_logger().warning(message)
             return False, message
         what = self._offer_pose(msg.header.stamp, msg.pose, operator=True)
         self.get_logger().info(f"operator pose: {what}")
@@ -179,8 +146,7 @@ class EkfNode(Node):
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
         beacon_map, offset = calibration.beacon_map, calibration.turret_offset_m
-        self.localiser.ekf.beacons_xy = beacon_map.as_dict()
-        self.localiser.ekf.sensor_offset_m = (float(offset[0]), float(offset[1]))
+        self.localiser.configure(beacon_map.as_dict(), (float(offset[0]), float(offset[1])), self.settings)
         return f"beacons {list(beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
 
     def _offer_pose(self, stamp, pose_with_covariance, *, operator: bool) -> str:

@@ -12,7 +12,7 @@ odometry history does not cover is refused: taken as current, it put the live fi
 off, confidently), and re-initialises it when the robot was kidnapped or the filter is lost (most of the
 recent bearings gated out while ToTal is confident of a pose inconsistent with the estimate: identified
 beacons make this possible, thesis ch. 8 "System deployment"). Time going backwards (a rosbag played
-in a loop: consecutive odometry messages in the past, not one stray; `beams_driver.time_jumps`) resets
+in a loop: consecutive odometry messages in the past, not one stray; `beams_common.time_jumps`) resets
 everything; odometry gaps inflate the covariance instead of freezing the filter.
 
 ekf_node and the offline replay (`bag_replay`) share what lies between their inputs and the filter:
@@ -29,11 +29,12 @@ from typing import Any
 import numpy as np
 from scipy.stats import chi2
 
-from beams_driver.angles import wrap_to_pi
-from beams_driver.pose2d import Pose2D, between, compose, inverse, is_finite_pose
-from beams_driver.time_jumps import StampOrder, TimeJumpDetector
-from beams_ekf.bearing_ekf import BearingEkf, BearingOutcome, ProcessNoise, turret_pose
-from beams_ekf.odometry_history import OdometryHistory
+from beams_common.angles import wrap_to_pi
+from beams_common.pose2d import Pose2D, between, compose, inverse, is_finite_pose
+from beams_common.pose_buffer import PoseBuffer
+from beams_common.time_jumps import StampOrder, TimeJumpDetector
+from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise, turret_pose
+from beams_ekf.pose_filter import BearingOutcome, PoseFilter
 
 # bearings waiting for odometry beyond this many are dropped, oldest first (a dead odometry source)
 MAX_PENDING_BEARINGS = 64
@@ -205,12 +206,13 @@ class LocaliserCounters:
 
 
 class Localiser:
-    """Odometry history + BearingEkf + initialisation, kidnap and time-jump logic."""
+    """Odometry history + a PoseFilter (BearingEkf by default) + initialisation, kidnap and time-jump
+    logic."""
 
-    def __init__(self, ekf: BearingEkf, config: LocaliserConfig | None = None) -> None:
+    def __init__(self, ekf: PoseFilter, config: LocaliserConfig | None = None) -> None:
         self.ekf = ekf
         self.config = config or LocaliserConfig()
-        self.history = OdometryHistory(self.config.history_span_s, self.config.max_extrapolation_s)
+        self.history = PoseBuffer(self.config.history_span_s, self.config.max_extrapolation_s)
         self.stats = LocaliserCounters()
         # gated (True) or accepted (False), for the last new bearings: the kidnap evidence
         self._recent_gated: deque[bool] = deque(maxlen=self.config.kidnap_window_bearings)
@@ -225,6 +227,12 @@ class Localiser:
     def initialised(self) -> bool:
         """True once a pose initialised the filter (and no reset since)."""
         return self.ekf.initialised
+
+    def configure(self, beacons_xy: Mapping[int, Sequence[float]], sensor_offset_m: tuple[float, float],
+                  settings: "FilterSettings") -> None:
+        """New beacon geometry, process noise and bearing gate (a runtime parameter change, a calibration
+        reload); the estimate and the odometry history stay."""
+        self.ekf.configure(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability)
 
     def reset(self, reason: str = "reset") -> None:
         """Forget the estimate and the odometry; the filter waits for a pose."""

@@ -9,8 +9,8 @@ from itertools import groupby
 import numpy as np
 from scipy.stats import chi2
 
-from beams_driver.angles import wrap_to_pi
-from beams_driver.pose2d import Pose2D
+from beams_common.angles import wrap_to_pi
+from beams_common.pose2d import Pose2D
 from beams_ekf.localiser import Localiser
 from beams_ekf.synthetic import BearingEvent
 

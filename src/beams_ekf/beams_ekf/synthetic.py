@@ -1,7 +1,7 @@
 """A small synthetic match for the EKF's own tests: a smooth trajectory on the Eurobot table, drifting
 wheel odometry and Gaussian bearings at the instants a 10 Hz turret points at each beacon.
 
-It stands in for `beams_driver.simulated_match` (the full edge-level pipeline) where a test needs
+It stands in for `beams_sim.simulated_match` (the full edge-level pipeline) where a test needs
 exact control of the noise: bearings are Gaussian with exactly the variance they publish.
 """
 
@@ -10,15 +10,9 @@ from math import atan2, cos, hypot, pi, sin
 
 import numpy as np
 
-from beams_driver.angles import wrap_to_pi
-from beams_driver.pose2d import Pose2D, between, compose
-
-# Eurobot beacons (map frame, m): the table spans x in [0, 3], y in [0, 2]
-EUROBOT_BEACONS_XY: dict[int, tuple[float, float]] = {
-    1: (-0.062, -0.062),
-    2: (-0.062, 2.062),
-    3: (3.062, 1.0),
-}
+from beams_common.angles import wrap_to_pi
+from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.pose2d import Pose2D, between, compose
 
 
 @dataclass(frozen=True)
@@ -94,7 +88,7 @@ def synthetic_match(duration_s: float = 30.0, seed: int = 1, *, bearing_sigma_ra
                     odometry_noise_m: float = 3.0e-3, odometry_noise_rad: float = 5.0e-3,
                     beacons_xy: dict[int, tuple[float, float]] | None = None) -> SyntheticMatch:
     """The synthetic match (deterministic from the seed)."""
-    beacons_xy = beacons_xy or EUROBOT_BEACONS_XY
+    beacons_xy = beacons_xy or EUROBOT_BEACON_MAP.as_dict()
     rng = np.random.default_rng(seed)
     times_s = np.arange(0.0, duration_s, 1.0 / odometry_rate_hz)
     truth = np.array([lissajous_pose(t) for t in times_s])

@@ -5,24 +5,26 @@ from math import atan2, pi, sqrt
 import numpy as np
 import pytest
 
-from beams_driver.angles import wrap_to_pi
-from beams_driver.pose2d import compose
+from beams_common.angles import wrap_to_pi
+from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.pose2d import compose
 from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise, gate_threshold, turret_pose
-from beams_ekf.synthetic import EUROBOT_BEACONS_XY
+
+EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
 
 POSE = (1.2, 0.7, 0.4)
 OFFSET = (0.03, -0.02)
 
 
 def _filter(pose=POSE, sigma=(0.01, 0.01, 0.01), offset=OFFSET, **kwargs) -> BearingEkf:
-    ekf = BearingEkf(EUROBOT_BEACONS_XY, offset, **kwargs)
+    ekf = BearingEkf(EUROBOT_BEACONS, offset, **kwargs)
     ekf.initialise(pose, np.diag(np.square(sigma)))
     return ekf
 
 
 def _true_bearing(pose, beacon_id, offset=OFFSET) -> float:
     sensor = compose(pose, (offset[0], offset[1], 0.0))
-    xb, yb = EUROBOT_BEACONS_XY[beacon_id]
+    xb, yb = EUROBOT_BEACONS[beacon_id]
     return wrap_to_pi(atan2(yb - sensor[1], xb - sensor[0]) - pose[2])
 
 
@@ -128,7 +130,7 @@ def test_invalid_bearings_are_refused_without_touching_the_state(beacon_id, bear
 
 
 def test_uninitialised_filter_refuses_bearings_and_initialise_validates():
-    ekf = BearingEkf(EUROBOT_BEACONS_XY)
+    ekf = BearingEkf(EUROBOT_BEACONS)
     assert ekf.update_bearing(1, 0.0, 1e-6).reason == "uninitialised"
     with pytest.raises(ValueError, match="positive definite"):
         ekf.initialise(POSE, np.diag([1.0, 1.0, 0.0]))

@@ -11,11 +11,14 @@ from math import hypot
 import numpy as np
 import pytest
 
-from beams_driver.angles import wrap_to_pi
-from beams_driver.pose2d import Pose2D
+from beams_common.angles import wrap_to_pi
+from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.pose2d import Pose2D
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Bearing, Localiser, LocaliserConfig
-from beams_ekf.synthetic import EUROBOT_BEACONS_XY, SyntheticMatch, synthetic_match
+from beams_ekf.synthetic import SyntheticMatch, synthetic_match
+
+EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
 
 OFFSET = (0.03, -0.01)
 DRIVER_DELAY_S = 0.005  # a revolution is published this long after it ends
@@ -85,7 +88,7 @@ def _error(pose: Pose2D, truth: Pose2D) -> tuple[float, float]:
 
 
 def _localiser() -> Localiser:
-    return Localiser(BearingEkf(EUROBOT_BEACONS_XY, OFFSET), LocaliserConfig())
+    return Localiser(BearingEkf(EUROBOT_BEACONS, OFFSET), LocaliserConfig())
 
 
 def _rms_after_settling(errors: list[tuple[float, float, float]]) -> tuple[float, float]:

@@ -9,12 +9,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_driver.angles import wrap_to_pi
-from beams_driver.pose2d import compose
+from beams_common.angles import wrap_to_pi
+from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.pose2d import compose
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Bearing, Localiser, LocaliserConfig
 from beams_ekf.replay import accuracy, replay
-from beams_ekf.synthetic import EUROBOT_BEACONS_XY, SyntheticMatch, synthetic_match
+from beams_ekf.synthetic import SyntheticMatch, synthetic_match
+
+EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
 
 OFFSET = (0.03, -0.01)
 START_COVARIANCE = np.diag([1e-6, 1e-6, 1e-6])
@@ -26,7 +29,7 @@ def match() -> SyntheticMatch:
 
 
 def _localiser(config: LocaliserConfig | None = None) -> Localiser:
-    return Localiser(BearingEkf(EUROBOT_BEACONS_XY, OFFSET), config)
+    return Localiser(BearingEkf(EUROBOT_BEACONS, OFFSET), config)
 
 
 def _revolutions(match: SyntheticMatch):
@@ -109,7 +112,7 @@ def test_bearings_before_initialisation_are_counted_and_toal_initialises(match):
 def test_kidnapped_robot_is_reinitialised_from_a_confident_far_fix(match):
     shift = np.array([0.5, -0.3])
     # moving every beacon by -shift is what the turret sees when the robot is carried by +shift
-    moved = {i: (x - shift[0], y - shift[1]) for i, (x, y) in EUROBOT_BEACONS_XY.items()}
+    moved = {i: (x - shift[0], y - shift[1]) for i, (x, y) in EUROBOT_BEACONS.items()}
     kidnapped = synthetic_match(20.0, seed=5, sensor_offset_m=OFFSET, beacons_xy=moved)
     carried = lambda t: tuple(np.add(match.truth_at(t), (*shift, 0.0)))  # noqa: E731
 
@@ -160,7 +163,7 @@ def test_time_going_backwards_resets_cleanly(match):
 def test_map_to_odom_puts_the_odometry_pose_on_the_estimate(match):
     """REP-105's map -> odom: composed with the odometry pose at the estimate's instant, the estimate;
     after a drifting drive it is no longer the identity (it corrects the drift)."""
-    from beams_driver.pose2d import compose
+    from beams_common.pose2d import compose
 
     localiser = _localiser()
     localiser.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
+from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.parameters import node_section
 from beams_ekf.bearing_ekf import ProcessNoise
 from beams_ekf.localiser import (
     Bearing,
@@ -22,10 +24,13 @@ from beams_ekf.localiser import (
     operator_pose_stamp_s,
     usable_covariance,
 )
-from beams_ekf.synthetic import EUROBOT_BEACONS_XY, SyntheticMatch, synthetic_match
+from beams_ekf.synthetic import SyntheticMatch, synthetic_match
+
+EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
 
 OFFSET = (0.03, -0.01)
-CONFIG = pathlib.Path(__file__).resolve().parents[1] / "config" / "ekf_node.yaml"
+# the shipped parameter file (beams_bringup), this node's section
+CONFIG = pathlib.Path(__file__).resolve().parents[2] / "beams_bringup" / "config" / "beams_params.yaml"
 DEFAULT = np.diag([0.05**2, 0.05**2, 0.1**2])
 
 
@@ -44,7 +49,7 @@ def _run(match: SyntheticMatch, spoil: bool) -> tuple[Localiser, list[tuple]]:
     revolution comes with bad bearings stamped just before the previous revolution's last bearing (which
     was applied with extrapolated odometry). Returns the localiser and its estimate (stamp, pose,
     covariance) after every revolution."""
-    localiser = build_localiser(EUROBOT_BEACONS_XY, OFFSET, FilterSettings())
+    localiser = build_localiser(EUROBOT_BEACONS, OFFSET, FilterSettings())
     localiser.on_pose(0.0, tuple(match.truth[0]), np.diag([1e-6, 1e-6, 1e-6]), operator=True)
     trace, k, previous_s = [], 0, None
     for n, (arrival_s, group) in enumerate(groupby(match.bearings, key=lambda b: b.arrival_s)):
@@ -101,7 +106,7 @@ def test_operator_pose_stamp_rule(stamp_s, newest_s, expected):
 def test_offer_pose_applies_both_rules():
     """An unstamped operator pose with a zero covariance initialises at the newest odometry instant with
     the default covariance; ToTal's pose keeps its stamp (refused here: older than the history)."""
-    localiser = build_localiser(EUROBOT_BEACONS_XY, OFFSET, FilterSettings())
+    localiser = build_localiser(EUROBOT_BEACONS, OFFSET, FilterSettings())
     for k in range(10):
         localiser.on_odometry(5.0 + 0.02 * k, (0.01 * k, 0.0, 0.0))
     assert localiser.offer_pose(4.0, (1.0, 1.0, 0.0), np.eye(3), DEFAULT, operator=False) == "outside_history"
@@ -113,8 +118,9 @@ def test_offer_pose_applies_both_rules():
 
 
 def test_settings_from_the_node_parameter_file():
-    """Every value of ekf_node.yaml reaches the settings; a missing one takes its default."""
-    parameters = yaml.safe_load(CONFIG.read_text())["/**"]["ros__parameters"]
+    """Every value of the ekf_node section of beams_params.yaml reaches the settings; a missing one
+    takes its default."""
+    parameters = node_section(yaml.safe_load(CONFIG.read_text()), "ekf_node")
     settings = filter_settings({**parameters, "history_span_s": 1.5, "default_pose_sigma": [0.1, 0.2, 0.3]})
     assert settings.process_noise == ProcessNoise(parameters["translation_variance_m2_per_m"],
                                                   parameters["rotation_variance_rad2_per_rad"],
@@ -133,7 +139,7 @@ def test_declared_defaults_are_the_settings_and_the_documented_ones():
     settings, and the documented YAML file gives the same values."""
     defaults = filter_parameter_defaults()
     assert filter_settings(defaults) == FilterSettings()
-    documented = yaml.safe_load(CONFIG.read_text())["/**"]["ros__parameters"]
+    documented = node_section(yaml.safe_load(CONFIG.read_text()), "ekf_node")
     shared = set(defaults) & set(documented)
     assert len(shared) == 17
     assert {name: defaults[name] for name in shared} == {name: documented[name] for name in shared}

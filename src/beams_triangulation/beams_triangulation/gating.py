@@ -11,26 +11,26 @@ odometry does not cover (at start-up, before the first odometry, or when odometr
 motion-compensated: its pose is published rejected (a robot turning at 2 rad/s makes it centimetres
 off while its covariance says millimetres).
 
-`triangulation_settings` maps triangulation_node's parameter values to the settings, and
-`TriangulationPipeline` is what the node runs on its two inputs: the offline replay runs both too.
+`TriangulationPipeline` is what the node runs on its two inputs; the offline replay runs it too
+(parameters.triangulation_settings maps the node's parameters to its settings).
 """
 
 from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
 
 import numpy as np
 
-from beams_driver.beacon_map import BeaconMap
+from beams_common.beacon_map import BeaconMap
+from beams_common.pose_buffer import twist_between
 from beams_triangulation.motion_compensation import (
-    OdometryBuffer,
     motion_variance_rad2,
+    odometry_buffer,
     triangulate_compensated,
-    twist_between,
 )
 from beams_triangulation.pose_covariance import pose_covariance, pose_covariance_many, position_std_m
 from beams_triangulation.total import ToTalFix, triangulate, triangulate_many
@@ -62,23 +62,6 @@ class TriangulationSettings:
     use_odometry: bool = True
     odometry_history_s: float = 2.0
     max_odometry_extrapolation_s: float = 0.05
-
-
-def triangulation_settings(parameters: Mapping[str, Any]) -> TriangulationSettings:
-    """Settings from triangulation_node's parameter values by name (a missing one takes its default).
-
-    Raises ValueError for values the settings refuse (non-positive gates).
-    """
-    defaults, value = TriangulationSettings(), parameters.get
-    gates = GateConfig(float(value("max_inverse_abs_d", defaults.gates.max_inverse_abs_d)),
-                       float(value("max_position_std_m", defaults.gates.max_position_std_m)))
-    return TriangulationSettings(
-        gates=gates,
-        use_odometry=bool(value("use_odometry", defaults.use_odometry)),
-        odometry_history_s=float(value("odometry_history_s", defaults.odometry_history_s)),
-        max_odometry_extrapolation_s=float(value("max_odometry_extrapolation_s",
-                                                 defaults.max_odometry_extrapolation_s)),
-    )
 
 
 @dataclass(slots=True)
@@ -357,7 +340,7 @@ Tag = Any  # what the caller attaches to a revolution (its number live, its due 
 
 class TriangulationPipeline:
     """triangulation_node's logic on its two inputs, without ROS (the offline replay runs it as well):
-    odometry into an `OdometryBuffer`, each revolution through a `RevolutionEstimator` with it.
+    odometry into an `odometry_buffer`, each revolution through a `RevolutionEstimator` with it.
 
     With odometry in use, a revolution whose last bearing is newer than the newest odometry waits for the
     odometry that covers it, at most until the next revolution: its bearings are then interpolated
@@ -370,9 +353,15 @@ class TriangulationPipeline:
                  turret_offset_m: Sequence[float] = (0.0, 0.0)) -> None:
         self.settings = settings
         self.estimator = RevolutionEstimator(beacon_map, settings.gates, turret_offset_m)
-        self.odometry = OdometryBuffer(settings.odometry_history_s, settings.max_odometry_extrapolation_s)
+        self.odometry = odometry_buffer(settings.odometry_history_s, settings.max_odometry_extrapolation_s)
         self.rejected_odometry = 0  # non-finite samples dropped
         self._pending: tuple[Tag, list[BearingLike]] | None = None
+
+    def configure(self, beacon_map: BeaconMap, gates: GateConfig, turret_offset_m: Sequence[float]) -> None:
+        """New beacon geometry or gates (a runtime parameter change, a calibration reload); the odometry
+        and the waiting revolution stay."""
+        self.settings = replace(self.settings, gates=gates)
+        self.estimator = RevolutionEstimator(beacon_map, gates, turret_offset_m)
 
     def on_odometry(self, stamp_s: float, pose: Sequence[float],
                     twist: tuple[float, float]) -> list[tuple[Tag, RevolutionPose]]:

@@ -14,32 +14,24 @@ that instant:
 
 Without odometry, the bearing variances are inflated by the motion estimated between revolutions
 (`motion_variance_rad2`), so that the gate and the covariance account for the motion they cannot undo.
-`OdometryBuffer` keeps the recent odometry poses by stamp for the compensation (the live node and the
-offline replay both feed it). All of it is pure: poses are (x, y, theta) tuples or arrays, odometry poses
-are in the odom frame.
+`odometry_buffer` keeps the recent odometry poses by stamp for the compensation (beams_common's
+PoseBuffer; the live node and the offline replay both feed it). All of it is pure: poses are (x, y, theta)
+tuples or arrays, odometry poses are in the odom frame.
 """
 
 from __future__ import annotations
 
-import collections
 import math
 from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from beams_driver.angles import wrap_to_pi
-from beams_driver.pose2d import Pose2D, between, compose, is_finite_pose
-from beams_driver.time_jumps import StampOrder, TimeJumpDetector
+from beams_common.angles import wrap_to_pi
+from beams_common.pose2d import between, compose
+from beams_common.pose_buffer import PoseBuffer
+from beams_common.time_jumps import TimeJumpDetector
 from beams_triangulation.total import ToTalFix, triangulate
-
-
-def arc_increment(speed_mps: float, yaw_rate_rad_s: float, dt_s: float) -> tuple[float, float, float]:
-    """Pose increment (in the starting robot frame) after dt_s at constant speed and yaw rate (an arc)."""
-    turn = yaw_rate_rad_s * dt_s
-    # Chord of the arc: length 2 sin(turn/2)/turn of the arc, along the mid heading (exact, no 0/0).
-    chord = speed_mps * dt_s * (math.sin(turn / 2.0) / (turn / 2.0) if turn else 1.0)
-    return chord * math.cos(turn / 2.0), chord * math.sin(turn / 2.0), turn
 
 
 def interpolate_pose(stamps_s: ArrayLike, poses: ArrayLike, t: float) -> tuple[float, float, float] | None:
@@ -140,73 +132,15 @@ def motion_variance_rad2(
     return (abs(yaw_rate_rad_s) * tau + abs(speed_mps) * tau / ranges) ** 2
 
 
-def twist_between(earlier: Sequence[float], earlier_stamp_s: float, later: Sequence[float],
-                  later_stamp_s: float) -> tuple[float, float] | None:
-    """(speed m/s, yaw rate rad/s) from two poses (x, y, theta), or None when their stamps do not
-    increase; the motion seen between revolutions that `motion_variance_rad2` needs without odometry."""
-    dt = later_stamp_s - earlier_stamp_s
-    if not dt > 0.0:
-        return None
-    speed = math.hypot(later[0] - earlier[0], later[1] - earlier[1]) / dt
-    return speed, wrap_to_pi(later[2] - earlier[2]) / dt
-
-
 # Odometry stamps going back by more than this (s) are a new start (a bag loop, a restarted simulation).
 ODOMETRY_TIME_JUMP_S = 1.0
 
 
-class OdometryBuffer:
-    """Recent odometry poses (odom frame) by stamp, extrapolated along the last twist's arc for a short
-    while past the newest sample (a revolution may end a little after the last odometry message).
-
-    Non-finite samples are ignored; a sample not after the newest is dropped, unless the stamps went
-    back by more than `time_jump_s` in `time_jump_confirmations` consecutive samples (a bag loop, not a
-    stray message: `beams_driver.time_jumps`), which starts the buffer over.
-    """
-
-    def __init__(self, span_s: float, max_extrapolation_s: float,
-                 time_jump_s: float = ODOMETRY_TIME_JUMP_S, time_jump_confirmations: int = 2) -> None:
-        self.span_s = span_s
-        self.max_extrapolation_s = max_extrapolation_s
-        self._time_jumps = TimeJumpDetector(time_jump_s, time_jump_confirmations)
-        self._samples: collections.deque[tuple[float, Pose2D]] = collections.deque()
-        self._twist = (0.0, 0.0)
-
-    def __len__(self) -> int:
-        return len(self._samples)
-
-    @property
-    def newest_stamp_s(self) -> float | None:
-        """Stamp of the newest sample, or None when empty."""
-        return self._samples[-1][0] if self._samples else None
-
-    def add(self, stamp_s: float, pose: Pose2D, twist: tuple[float, float]) -> bool:
-        """A sample: pose (x, y, theta) and twist (speed m/s, yaw rate rad/s) at stamp_s.
-
-        False for a non-finite sample, which is dropped; a stale one is ignored (True).
-        """
-        if not (math.isfinite(stamp_s) and is_finite_pose(pose) and all(map(math.isfinite, twist))):
-            return False
-        order = self._time_jumps.classify(stamp_s, self.newest_stamp_s)
-        if order in (StampOrder.STALE, StampOrder.HELD):
-            return True
-        if order is StampOrder.JUMP:
-            self._samples.clear()
-        self._samples.append((stamp_s, pose))
-        self._twist = (float(twist[0]), float(twist[1]))
-        while self._samples and self._samples[0][0] < stamp_s - self.span_s:
-            self._samples.popleft()
-        return True
-
-    def pose_at(self, t: float) -> Pose2D | None:
-        """Odometry pose at t, or None when t is older than the buffer or too far past its end."""
-        if not self._samples:
-            return None
-        newest_s, newest = self._samples[-1]
-        if t > newest_s:
-            dt = t - newest_s
-            if dt > self.max_extrapolation_s:
-                return None
-            return compose(newest, arc_increment(self._twist[0], self._twist[1], dt))
-        stamps = [s for s, _ in self._samples]
-        return interpolate_pose(stamps, [p for _, p in self._samples], t)
+def odometry_buffer(
+    span_s: float, max_extrapolation_s: float, time_jump_confirmations: int = 2
+) -> PoseBuffer:
+    """The odometry poses (odom frame) the compensation reads: a stamp in the past is dropped unless
+    `time_jump_confirmations` consecutive ones go back by more than ODOMETRY_TIME_JUMP_S (a bag
+    loop, not a stray message: beams_common.time_jumps), which starts the buffer over."""
+    jumps = TimeJumpDetector(ODOMETRY_TIME_JUMP_S, time_jump_confirmations)
+    return PoseBuffer(span_s, max_extrapolation_s, jumps)

@@ -25,28 +25,26 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from visualization_msgs.msg import Marker, MarkerArray
 
-from beams_driver.calibration_file import SensorCalibration
-from beams_driver.node_support import (
+from beams_common.calibration_file import SensorCalibration
+from beams_common.geometry_parameters import geometry_of, refuse_overridden_geometry
+from beams_common.ros.messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
+from beams_common.ros.node_support import (
     BEARINGS_QOS,
     Diagnostics,
-    ParameterValidationError,
-    declare_beacon_geometry,
-    declare_parameter,
     run_node,
     serve_calibration_reload,
+    startup_geometry,
 )
-from beams_driver.ros_messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
+from beams_common.ros.parameters import apply_runtime_changes, declare_table
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_triangulation.gating import (
     NoPose,
     PoseEstimate,
-    RevolutionEstimator,
     RevolutionPose,
     TriangulationPipeline,
-    TriangulationSettings,
     message_bearings,
-    triangulation_settings,
 )
+from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
 
 
 def estimate_pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
@@ -59,13 +57,14 @@ class TriangulationNode(Node):
 
     def __init__(self) -> None:
         super().__init__("triangulation_node")
-        beacon_map, offset = declare_beacon_geometry(self)
-        settings = self._declare_settings()
-        config = settings.gates
-        self.map_frame = declare_parameter(self, "map_frame", "map", "Frame of the published poses.")
+        self.parameters = declare_table(self, TRIANGULATION_PARAMETERS)
+        settings = triangulation_settings(self.parameters)
+        geometry = startup_geometry(self.parameters)
+        self.map_frame = self.parameters["map_frame"]
         self.use_odometry = settings.use_odometry
-        self.publish_markers = declare_parameter(self, "publish_markers", True, "Publish RViz markers.")
-        self.pipeline = TriangulationPipeline(beacon_map, settings, offset)
+        self.publish_markers = self.parameters["publish_markers"]
+        self.pipeline = TriangulationPipeline(geometry.beacon_map, settings, geometry.turret_offset_m)
+        apply_runtime_changes(self, TRIANGULATION_PARAMETERS, self.parameters, self._apply_parameters)
         serve_calibration_reload(self, self._apply_calibration)
         self.diagnostics = Diagnostics(self, "triangulation")
         self.diagnostics.set_level("warn", "waiting for bearings")
@@ -77,45 +76,26 @@ class TriangulationNode(Node):
                                  BEARINGS_QOS)
         if self.use_odometry:
             self.create_subscription(Odometry, "odom", self._on_odometry, qos_profile_sensor_data)
+        config = settings.gates
         self.get_logger().info(
-            f"triangulation_node ready: beacons {list(beacon_map.ids)}, turret offset {offset} m, gates "
-            f"1/|D| < {config.max_inverse_abs_d:g} m^-2 and std < {config.max_position_std_m:g} m, "
-            f"odometry {'on' if self.use_odometry else 'off'}")
+            f"triangulation_node ready: beacons {list(geometry.beacon_map.ids)}, turret offset "
+            f"{geometry.turret_offset_m} m, gates 1/|D| < {config.max_inverse_abs_d:g} m^-2 and std < "
+            f"{config.max_position_std_m:g} m, odometry {'on' if self.use_odometry else 'off'}")
 
     # -- parameters -----------------------------------------------------------------------------------
+    def _apply_parameters(self, values: dict, changed: set[str]) -> None:
+        """A runtime change (validated by the table): the gates, the beacon geometry, the frame, markers."""
+        refuse_overridden_geometry(values, changed)
+        geometry = geometry_of(values)
+        self.pipeline.configure(geometry.beacon_map, triangulation_settings(values).gates,
+                                geometry.turret_offset_m)
+        self.map_frame = values["map_frame"]
+        self.publish_markers = values["publish_markers"]
+
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
         offset = calibration.turret_offset_m
-        gates = self.pipeline.settings.gates
-        self.pipeline.estimator = RevolutionEstimator(calibration.beacon_map, gates, offset)
+        self.pipeline.configure(calibration.beacon_map, self.pipeline.settings.gates, offset)
         return f"beacons {list(calibration.beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
-
-    def _declare_settings(self) -> TriangulationSettings:
-        """Declare the gate and odometry parameters (defaults: TriangulationSettings') and map them with
-        `gating.triangulation_settings`, as the offline replay does."""
-        defaults = TriangulationSettings()
-        values = {
-            "max_inverse_abs_d": declare_parameter(
-                self, "max_inverse_abs_d", defaults.gates.max_inverse_abs_d,
-                "Gate on ToTal's reliability measure 1/|D| (m^-2).", minimum=1e-9, maximum=1e12),
-            "max_position_std_m": declare_parameter(
-                self, "max_position_std_m", defaults.gates.max_position_std_m,
-                "Gate on the propagated position std sqrt(var x + var y) (m).", minimum=1e-9, maximum=1e3),
-            "use_odometry": declare_parameter(
-                self, "use_odometry", defaults.use_odometry,
-                "Bring each revolution's bearings to one instant with `odom`; a revolution the odometry "
-                "does not cover is then published rejected."),
-            "odometry_history_s": declare_parameter(
-                self, "odometry_history_s", defaults.odometry_history_s,
-                "Odometry kept for compensation (s).", minimum=0.1, maximum=60.0),
-            "max_odometry_extrapolation_s": declare_parameter(
-                self, "max_odometry_extrapolation_s", defaults.max_odometry_extrapolation_s,
-                "How far past the newest odometry a bearing may be and still be compensated (s).",
-                minimum=0.0, maximum=1.0),
-        }
-        try:
-            return triangulation_settings(values)
-        except ValueError as error:  # parameters valid one by one but not together
-            raise ParameterValidationError(str(error)) from None
 
     # -- inputs ---------------------------------------------------------------------------------------
     def _on_odometry(self, msg: Odometry) -> None:
@@ -140,7 +120,7 @@ class TriangulationNode(Node):
         reason = no_pose.reason
         if no_pose.bad_input:
             self.diagnostics.increment("bad_input")
-            self.get_logger().warn(f"revolution {revolution}: no pose, bad input: {reason}",
+            self.get_logger().warning(f"revolution {revolution}: no pose, bad input: {reason}",
                                    throttle_duration_sec=1.0)
         else:
             self.diagnostics.increment("no_pose")

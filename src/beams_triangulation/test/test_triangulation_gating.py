@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_triangulation.gating import (
     Bearing,
     GateConfig,

@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from beams_driver.beacon_map import EUROBOT_BEACON_MAP
-from beams_driver.pose2d import between
+from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.pose2d import between
+from beams_common.pose_buffer import arc_increment
 from beams_triangulation.motion_compensation import (
-    arc_increment,
     compensate_bearings,
     interpolate_pose,
     motion_variance_rad2,

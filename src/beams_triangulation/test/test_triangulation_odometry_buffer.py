@@ -1,4 +1,4 @@
-"""The odometry the triangulation compensates with (OdometryBuffer), a revolution it does not cover (its
+"""The odometry the triangulation compensates with (odometry_buffer), a revolution it does not cover (its
 pose rejected), the pipeline triangulation_node and the replay run (a revolution waits for the odometry
 covering it), and the parameters -> settings mapping they share."""
 
@@ -9,8 +9,10 @@ import numpy as np
 import pytest
 import yaml
 
-from beams_driver.beacon_map import EUROBOT_BEACON_MAP
-from beams_driver.pose2d import between
+from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.parameters import node_section
+from beams_common.pose2d import between
+from beams_common.pose_buffer import PoseBuffer
 from beams_triangulation.gating import (
     REASON_NOT_COMPENSATED,
     Bearing,
@@ -20,15 +22,16 @@ from beams_triangulation.gating import (
     TriangulationPipeline,
     TriangulationSettings,
     estimate_revolution,
-    triangulation_settings,
 )
-from beams_triangulation.motion_compensation import OdometryBuffer
+from beams_triangulation.motion_compensation import odometry_buffer
+from beams_triangulation.parameters import triangulation_settings
 from beams_triangulation.total import expected_bearings
 
 ODOM_IN_MAP = (0.5, 0.2, 0.4)  # where the odometry frame stands in the map
 SPEED_MPS, YAW_RATE_RAD_S = 0.5, 2.0  # a Eurobot robot at full speed and yaw rate
 VARIANCE_RAD2 = np.deg2rad(0.1) ** 2
-CONFIG = pathlib.Path(__file__).resolve().parents[1] / "config" / "triangulation_node.yaml"
+# the shipped parameter file (beams_bringup), this node's section
+CONFIG = pathlib.Path(__file__).resolve().parents[2] / "beams_bringup" / "config" / "beams_params.yaml"
 
 
 def _truth(t: float) -> tuple[float, float, float]:
@@ -41,9 +44,9 @@ def _odometry(t: float) -> tuple[float, float, float]:
     return between(ODOM_IN_MAP, _truth(t))
 
 
-def _buffer(start_s: float, stop_s: float, span_s: float = 2.0) -> OdometryBuffer:
+def _buffer(start_s: float, stop_s: float, span_s: float = 2.0) -> PoseBuffer:
     """50 Hz odometry from start_s to stop_s (inclusive)."""
-    odometry = OdometryBuffer(span_s, max_extrapolation_s=0.05)
+    odometry = odometry_buffer(span_s, max_extrapolation_s=0.05)
     for t in np.arange(start_s, stop_s + 1e-9, 0.02):
         odometry.add(float(t), _odometry(float(t)), (SPEED_MPS, YAW_RATE_RAD_S))
     return odometry
@@ -125,8 +128,9 @@ def test_a_gate_rejection_keeps_its_reason_first():
 
 
 def test_settings_from_the_node_parameter_file():
-    """Every value of triangulation_node.yaml reaches the settings; a missing one takes its default."""
-    parameters = yaml.safe_load(CONFIG.read_text())["/**"]["ros__parameters"]
+    """Every value of the triangulation_node section of beams_params.yaml reaches the settings; a missing one
+    takes its default."""
+    parameters = node_section(yaml.safe_load(CONFIG.read_text()), "triangulation_node")
     settings = triangulation_settings({**parameters, "max_position_std_m": 0.07, "use_odometry": False})
     assert settings.gates == GateConfig(parameters["max_inverse_abs_d"], 0.07)
     assert settings.use_odometry is False
@@ -185,8 +189,8 @@ def test_pipeline_waits_at_most_until_the_next_revolution():
 def test_pipeline_counts_non_finite_odometry_and_keeps_the_rest():
     import math
 
-    from beams_driver.beacon_map import EUROBOT_BEACON_MAP
-    from beams_triangulation.gating import TriangulationPipeline, triangulation_settings
+    from beams_common.beacon_map import EUROBOT_BEACON_MAP
+    from beams_triangulation.gating import TriangulationPipeline
 
     pipeline = TriangulationPipeline(EUROBOT_BEACON_MAP, triangulation_settings({}), (0.0, 0.0))
     pipeline.on_odometry(1.0, (0.5, 0.5, 0.0), (0.1, 0.0))

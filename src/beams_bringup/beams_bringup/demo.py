@@ -1,0 +1,232 @@
+"""`make demo`: a simulated Eurobot match with every BeAMS node running as its own process.
+
+Starts sim_world_node, driver_node (simulated sensor), triangulation_node and ekf_node from the install
+tree (the executables `ros2 run` starts), records every topic to an MCAP bag, prints live progress
+(pose errors against the truth, bearings per second, rejected windows), stops the nodes with SIGINT and
+leaves a trajectory plot and a summary table in the output directory.
+"""
+
+import argparse
+import datetime
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from nav_msgs.msg import Odometry
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.serialization import deserialize_message
+from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import MarkerArray
+
+from beams_bringup.bag_io import BagRecorder, beams_typestore
+from beams_bringup.bag_replay import stamp_ns
+from beams_bringup.system import PARAMS_FILE, ROBOT_NODES, installed_params_file
+from beams_bringup.trajectory_metrics import (
+    RunTracks,
+    errors_against_truth,
+    plot_trajectories,
+    rms,
+    rms_table,
+)
+from beams_common.ros.messages import pose2d_of
+from beams_common.ros.node_support import BEARINGS_QOS
+from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
+
+ROOT = pathlib.Path.cwd()
+INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
+# Every topic of the suite, with its type, recorded to the bag.
+TOPICS = {
+    "beams/sim/ground_truth": Odometry,
+    "odom": Odometry,
+    "beams/bearings": BeaconBearingArray,
+    "beams/pose": TriangulatedPose,
+    "beams/pose_cov": PoseWithCovarianceStamped,
+    "beams/ekf/odometry": Odometry,
+    "beams/ekf/pose": PoseWithCovarianceStamped,
+    "beams/markers": MarkerArray,
+    "/diagnostics": DiagnosticArray,
+    "/tf": TFMessage,
+}
+PROGRESS_PERIOD_S = 5.0
+START_TIMEOUT_S = 30.0
+
+
+def ros_type_name(msg_type: type) -> str:
+    module = msg_type.__module__.split(".")
+    return f"{module[0]}/{module[1]}/{msg_type.__name__}"
+
+
+@dataclass
+class MatchRecord(RunTracks):
+    """The tracks of the live match and the counts the progress lines show."""
+
+    bearings: int = 0
+    revolutions: int = 0
+    rejected_windows: int = 0
+    poses_rejected: int = 0
+
+    def on_message(self, topic: str, msg) -> None:
+        tracks = {"beams/sim/ground_truth": self.truth, "odom": self.odometry, "beams/ekf/odometry": self.ekf}
+        if topic in tracks:
+            tracks[topic].add(0, stamp_ns(msg.header.stamp), pose2d_of(msg.pose.pose))
+        elif topic == "beams/bearings":
+            self.revolutions += 1
+            self.bearings += len(msg.bearings)
+            self.rejected_windows += msg.rejected_windows
+        elif topic == "beams/pose":
+            if msg.accepted:
+                self.total.add(0, stamp_ns(msg.header.stamp), pose2d_of(msg.pose.pose))
+            else:
+                self.poses_rejected += 1
+
+
+def start_nodes(output: pathlib.Path, duration_s: float, env: dict[str, str]) -> list[subprocess.Popen]:
+    processes = []
+    params_file = installed_params_file()
+    if params_file is None:
+        raise FileNotFoundError(f"{PARAMS_FILE} of beams_bringup is not installed: run `make build`")
+    for node in ROBOT_NODES:
+        package, executable = node.package, node.executable
+        command = [
+            str(INSTALL_BASE / package / "lib" / package / executable),
+            "--ros-args",
+            "--params-file",
+            str(params_file),
+        ]
+        if executable == "sim_world_node":
+            command += ["-p", f"duration_s:={duration_s}"]
+        log = open(output / f"{executable}.log", "w")  # noqa: SIM115 (kept open while the node runs)
+        processes.append(subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT))
+    return processes
+
+
+def stop_nodes(processes: list[subprocess.Popen]) -> list[int]:
+    for process in processes:
+        if process.poll() is None:
+            process.send_signal(signal.SIGINT)
+    statuses = []
+    for process in processes:
+        try:
+            statuses.append(process.wait(timeout=15))
+        except subprocess.TimeoutExpired:
+            process.kill()
+            statuses.append(process.wait(timeout=15))
+    return statuses
+
+
+def progress_line(record: MatchRecord, elapsed_s: float, bearings_per_s: float) -> str:
+    truth = record.truth.array()
+    ekf_position, ekf_heading = errors_against_truth(record.ekf.array(), truth)
+    total_position, _ = errors_against_truth(record.total.array(), truth)
+    ekf = (
+        f"EKF error {1000 * ekf_position[-1]:6.1f} mm {np.degrees(ekf_heading[-1]):5.2f} deg"
+        if len(ekf_position)
+        else "EKF waiting for its first pose"
+    )
+    total = f"ToTal RMS {1000 * rms(total_position):6.1f} mm" if len(total_position) else "ToTal no pose yet"
+    return (
+        f"t={elapsed_s:5.1f} s  {ekf} | {total} | {bearings_per_s:5.1f} bearings/s | "
+        f"{record.rejected_windows} rejected windows | {record.poses_rejected} poses gated out"
+    )
+
+
+def summary_table(record: MatchRecord) -> str:
+    tracks = record.in_map("truth")  # dead reckoning from the true start
+    rows = (("odometry", tracks["odometry"]), ("ToTal (accepted)", tracks["ToTal"]), ("EKF", tracks["EKF"]))
+    lines = rms_table(rows, tracks["truth"])
+    lines += [
+        "",
+        f"revolutions {record.revolutions}, bearings {record.bearings}, "
+        f"rejected windows {record.rejected_windows}, ToTal poses gated out {record.poses_rejected}",
+    ]
+    return "\n".join(lines)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--duration", type=float, default=90.0, help="match duration (s), default 90")
+    parser.add_argument(
+        "--output", type=pathlib.Path, default=None, help="output directory (default out/demo-<time>)"
+    )
+    options = parser.parse_args()
+    output = options.output or ROOT / "out" / f"demo-{datetime.datetime.now():%Y%m%d-%H%M%S}"
+    output.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ)
+    env.setdefault("ROS_DOMAIN_ID", "0")  # ROS 2's default: `ros2 topic echo` in another shell sees the demo
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
+    print(f"demo: {options.duration:.0f} s match, domain {env['ROS_DOMAIN_ID']}, output in {output}")
+
+    rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
+    node = rclpy.create_node("beams_demo_recorder")
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+    record = MatchRecord()
+    typestore = beams_typestore()
+    processes = start_nodes(output, options.duration, env)
+    statuses: list[int] = []
+    interrupted = False
+    try:
+        with BagRecorder(output / "bag", typestore) as recorder:
+            for topic, msg_type in TOPICS.items():
+
+                def on_raw(raw: bytes, topic=topic, msg_type=msg_type) -> None:
+                    msg = deserialize_message(raw, msg_type)
+                    stamp_ns = node.get_clock().now().nanoseconds
+                    recorder.write(topic, ros_type_name(msg_type), stamp_ns, raw)
+                    record.on_message(topic, msg)
+
+                qos = BEARINGS_QOS if topic == "beams/bearings" else 50
+                node.create_subscription(msg_type, topic, on_raw, qos, raw=True)
+            started = time.monotonic()
+            next_progress = started + PROGRESS_PERIOD_S
+            bearings_at_last_line = 0
+            while time.monotonic() - started < options.duration + 1.0:
+                executor.spin_once(timeout_sec=0.05)
+                if time.monotonic() >= next_progress:
+                    rate = (record.bearings - bearings_at_last_line) / PROGRESS_PERIOD_S
+                    bearings_at_last_line = record.bearings
+                    print(progress_line(record, time.monotonic() - started, rate), flush=True)
+                    next_progress += PROGRESS_PERIOD_S
+                if not record.truth.rows and time.monotonic() - started > START_TIMEOUT_S:
+                    print("demo: no ground truth after 30 s; see the node logs in", output, file=sys.stderr)
+                    break
+                if any(p.poll() is not None for p in processes):
+                    print("demo: a node stopped early; see the node logs in", output, file=sys.stderr)
+                    break
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        statuses = stop_nodes(processes)
+        executor.shutdown()
+        node.destroy_node()
+        rclpy.try_shutdown()
+
+    table = summary_table(record)
+    (output / "summary.md").write_text(table + "\n")
+    plot_trajectories(record.in_map("truth"), output / "trajectory.png",
+                      "BeAMS demo: simulated Eurobot match")
+    print()
+    print(table)
+    print(f"\nbag: {output / 'bag'} ({recorder.messages_written} messages, MCAP)")
+    print(f"plot: {output / 'trajectory.png'}; node logs: {output}/*.log")
+    names = [node.executable for node in ROBOT_NODES]
+    bad = [f"{name} exited {status}" for name, status in zip(names, statuses, strict=True) if status != 0]
+    if bad:
+        print("demo: " + ", ".join(bad), file=sys.stderr)
+        return 1
+    return 130 if interrupted else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,44 @@
+"""The robot's nodes and where their parameters live: one list for the launch file and the demo."""
+
+import os
+import pathlib
+from dataclasses import dataclass
+
+PARAMS_FILE = "beams_params.yaml"
+DISCOVERY_PROFILE = "fastdds_fast_discovery.xml"
+
+
+@dataclass(frozen=True)
+class RobotNode:
+    """One node of a robot's BeAMS suite."""
+
+    package: str
+    executable: str
+    # the simulated robot only runs with the simulated sensor
+    simulation_only: bool = False
+    # reads the calibration file (the driver's corrections, the geometry of the filters)
+    takes_calibration: bool = True
+
+
+ROBOT_NODES = (
+    RobotNode("beams_sim", "sim_world_node", simulation_only=True, takes_calibration=False),
+    RobotNode("beams_driver", "driver_node"),
+    RobotNode("beams_triangulation", "triangulation_node"),
+    RobotNode("beams_ekf", "ekf_node"),
+)
+
+
+def installed_params_file() -> pathlib.Path | None:
+    """beams_bringup's installed parameter file (ament index, or BEAMS_INSTALL_BASE), None when absent."""
+    candidates = []
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        candidates.append(pathlib.Path(get_package_share_directory("beams_bringup")) / "config" / PARAMS_FILE)
+    except Exception:  # no ament index (a plain checkout): try the workspace's install tree
+        pass
+    install_base = os.environ.get("BEAMS_INSTALL_BASE")
+    if install_base:
+        candidates.append(pathlib.Path(install_base) / "beams_bringup" / "share" / "beams_bringup" / "config"
+                          / PARAMS_FILE)
+    return next((path for path in candidates if path.exists()), None)

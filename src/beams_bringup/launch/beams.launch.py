@@ -1,0 +1,64 @@
+"""The BeAMS suite for robots with ROS 2 Jazzy from apt (`make demo` runs the same executables without it).
+
+Simulated robot and sensor (the embedded default):
+    ros2 launch beams_bringup beams.launch.py namespace:=robot1
+A real robot (the serial sensor; the robot publishes its wheel odometry on `odom`):
+    ros2 launch beams_bringup beams.launch.py source:=serial device:=/dev/ttyUSB0 \
+        calibration_file:=/home/robot/beams_calibration.yaml
+Each node reads its section of beams_bringup's config/beams_params.yaml; the calibration file, when given,
+overrides the beacon coordinates and carries the turret offset and the bearing corrections. The nodes run
+with the package's Fast DDS profile (config/fastdds_fast_discovery.xml: a node restarted after a kill -9
+is back within 0.5 s) unless FASTRTPS_DEFAULT_PROFILES_FILE is already set.
+"""
+
+from launch import LaunchDescription
+from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
+from launch.conditions import LaunchConfigurationEquals
+from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PathJoinSubstitution
+from launch_ros.actions import Node
+from launch_ros.substitutions import FindPackageShare
+
+from beams_bringup.system import DISCOVERY_PROFILE, PARAMS_FILE, ROBOT_NODES, RobotNode
+
+ARGUMENTS = (
+    ("namespace", "", "namespace of this robot's nodes"),
+    ("source", "sim", "sim (simulated robot and sensor) or serial (the real sensor)"),
+    ("device", "/dev/ttyUSB0", "serial device of the sensor (source:=serial)"),
+    ("calibration_file", "", "calibration file written by beams_calibration"),
+    ("use_sim_time", "false", "follow /clock (rosbag replay)"),
+)
+
+
+def node_action(node: RobotNode) -> Node:
+    parameters = [
+        PathJoinSubstitution([FindPackageShare("beams_bringup"), "config", PARAMS_FILE]),
+        {"use_sim_time": LaunchConfiguration("use_sim_time")},
+    ]
+    if node.takes_calibration:
+        parameters.append({"calibration_file": LaunchConfiguration("calibration_file")})
+    if node.executable == "driver_node":
+        parameters.append({"source": LaunchConfiguration("source"), "device": LaunchConfiguration("device")})
+    return Node(
+        package=node.package,
+        executable=node.executable,
+        namespace=LaunchConfiguration("namespace"),
+        parameters=parameters,
+        output="screen",
+        condition=LaunchConfigurationEquals("source", "sim") if node.simulation_only else None,
+    )
+
+
+def discovery_profile() -> SetEnvironmentVariable:
+    """The package's Fast DDS profile for the nodes, unless the robot already exports its own."""
+    profile = PathJoinSubstitution([FindPackageShare("beams_bringup"), "config", DISCOVERY_PROFILE])
+    return SetEnvironmentVariable(
+        "FASTRTPS_DEFAULT_PROFILES_FILE",
+        EnvironmentVariable("FASTRTPS_DEFAULT_PROFILES_FILE", default_value=profile),
+    )
+
+
+def generate_launch_description() -> LaunchDescription:
+    arguments = [
+        DeclareLaunchArgument(name, default_value=value, description=text) for name, value, text in ARGUMENTS
+    ]
+    return LaunchDescription([*arguments, discovery_profile(), *(node_action(node) for node in ROBOT_NODES)])

@@ -1,0 +1,113 @@
+"""The chapter-7 bias models of BeAMS bearings and their correction (thesis section 7.3).
+
+Two angle biases are modelled, both in radians:
+
+- the power bias (section 7.3.2), a cubic in the angular window w (rad), eq. 7.19:
+  f_corr1(w) = a w^3 + b w^2 + c w + d, with phi_biased = phi_real + f_corr1(w) (eq. 7.17);
+- the rotation bias (section 7.3.3), the Fourier series of the turret angle phi (rad) up to the
+  second order without its constant term (E = 0, absorbed by d), eq. 7.25:
+  f_corr2(phi) = A cos(phi) + B sin(phi) + C cos(2 phi) + D sin(2 phi).
+
+The thesis's fitted values (figures 7.5, 7.9, 7.11, 7.12) are consistent with w and the result in
+radians: the power bias then spans a few degrees over the working windows (about ten times the
+rotation bias, as section 7.3.5 says). The correction subtracts both (eq. 7.18 and 7.24).
+
+A cubic extrapolates wildly, so a calibrated correction carries the window range it was fitted on
+(`window_range_rad`) and evaluates the power bias at the window clamped to that range.
+"""
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from beams_common.angles import wrap_to_pi
+
+Coefficients = tuple[float, float, float, float]
+_ZERO: Coefficients = (0.0, 0.0, 0.0, 0.0)
+
+# The thesis's global-calibration values (figures 7.11 and 7.12), used as realistic injected biases.
+THESIS_POWER_BIAS_COEFFICIENTS: Coefficients = (-90.46, 35.83, -4.59, 0.19)
+THESIS_ROTATION_BIAS_COEFFICIENTS: Coefficients = (-6.69e-4, -1.77e-3, -1.09e-3, -1.89e-3)
+
+
+def _as_output(values: np.ndarray) -> np.ndarray | float:
+    """Scalars stay Python floats, arrays stay arrays (the convention of angles.wrap_to_pi)."""
+    return float(values) if np.ndim(values) == 0 else values
+
+
+def _coefficients(values: ArrayLike, name: str) -> Coefficients:
+    array = np.asarray(values, dtype=float).reshape(-1)
+    if array.shape != (4,) or not np.all(np.isfinite(array)):
+        raise ValueError(f"{name}: expected 4 finite numbers, got {values!r}")
+    return (float(array[0]), float(array[1]), float(array[2]), float(array[3]))
+
+
+@dataclass(frozen=True)
+class BearingCorrection:
+    """Power-bias (a, b, c, d) and rotation-bias (A, B, C, D) coefficients, thesis eq. 7.19 and 7.25.
+
+    The default is the identity correction (all coefficients zero). `window_range_rad` (lo, hi), when
+    given, is the range of windows the power bias was fitted on; windows outside it are clamped.
+    """
+
+    power_bias_coefficients: Coefficients = _ZERO
+    rotation_bias_coefficients: Coefficients = _ZERO
+    window_range_rad: tuple[float, float] | None = None
+
+    def __post_init__(self) -> None:
+        # Normalise lists/arrays to float tuples so the dataclass stays hashable and comparable.
+        object.__setattr__(
+            self, "power_bias_coefficients", _coefficients(self.power_bias_coefficients, "power bias")
+        )
+        object.__setattr__(
+            self,
+            "rotation_bias_coefficients",
+            _coefficients(self.rotation_bias_coefficients, "rotation bias"),
+        )
+        if self.window_range_rad is not None:
+            low, high = (float(value) for value in self.window_range_rad)
+            if not (np.isfinite(low) and np.isfinite(high) and 0.0 <= low < high):
+                raise ValueError(f"window range: expected 0 <= low < high, got {self.window_range_rad!r}")
+            object.__setattr__(self, "window_range_rad", (low, high))
+
+    @property
+    def is_identity(self) -> bool:
+        """True when the correction changes no bearing."""
+        return self.power_bias_coefficients == _ZERO and self.rotation_bias_coefficients == _ZERO
+
+    def power_bias(self, window_rad: ArrayLike) -> np.ndarray | float:
+        """Power bias f_corr1(w) (rad) for windows w (rad), eq. 7.19; w clamped to window_range_rad."""
+        a, b, c, d = self.power_bias_coefficients
+        w = np.asarray(window_rad, dtype=float)
+        if self.window_range_rad is not None:
+            w = np.clip(w, *self.window_range_rad)
+        return _as_output(((a * w + b) * w + c) * w + d)
+
+    def rotation_bias(self, angle_rad: ArrayLike) -> np.ndarray | float:
+        """Rotation bias f_corr2(phi) (rad) for turret angles phi (rad), eq. 7.25 with E = 0."""
+        a, b, c, d = self.rotation_bias_coefficients
+        phi = np.asarray(angle_rad, dtype=float)
+        return _as_output(a * np.cos(phi) + b * np.sin(phi) + c * np.cos(2.0 * phi) + d * np.sin(2.0 * phi))
+
+    def correct(self, bearing_rad: ArrayLike, window_rad: ArrayLike) -> np.ndarray | float:
+        """Corrected bearing phi - f_corr1(w) - f_corr2(phi), wrapped to (-pi, pi] (eq. 7.18, 7.24).
+
+        Both biases are evaluated at the measured values, as the thesis does (f_corr2 takes phi_biased).
+        """
+        phi = np.asarray(bearing_rad, dtype=float)
+        corrected = phi - np.asarray(self.power_bias(window_rad)) - np.asarray(self.rotation_bias(phi))
+        return wrap_to_pi(corrected)
+
+    def apply_bias(self, true_bearing_rad: ArrayLike, window_rad: ArrayLike) -> np.ndarray | float:
+        """The biased bearing a sensor with these imperfections measures (eq. 7.17 and 7.24 forward).
+
+        For simulations and tests; correct() inverts it to first order in the (small) biases.
+        """
+        phi = np.asarray(true_bearing_rad, dtype=float)
+        biased = phi + np.asarray(self.power_bias(window_rad)) + np.asarray(self.rotation_bias(phi))
+        return wrap_to_pi(biased)
+
+
+IDENTITY_CORRECTION = BearingCorrection()
+THESIS_CORRECTION = BearingCorrection(THESIS_POWER_BIAS_COEFFICIENTS, THESIS_ROTATION_BIAS_COEFFICIENTS)

@@ -1,0 +1,251 @@
+"""The calibration file: what the chapter-7 calibration found, read by the driver, ToTal and the EKF.
+
+A YAML file, human-readable and editable:
+
+    format: beams-calibration
+    version: 1
+    created_utc: '2026-11-22T03:30:00Z'
+    beacons:                 # true beacon coordinates in the map frame (m), table 7.4
+      - {id: 1, x_m: 1.1499, y_m: 0.0455}
+    power_bias:              # eq. 7.19, window and result in rad
+      {a: -90.46, b: 35.83, c: -4.59, d: 0.19, window_range_rad: [0.08, 0.19]}   # range optional
+    rotation_bias:           # eq. 7.25, turret angle and result in rad
+      {A: -0.000669, B: -0.00177, C: -0.00109, D: -0.00189}
+    turret_offset_m: {x: -0.00098, y: -0.00011}   # turret centre in base_link, eq. 7.26
+    rms:                     # table 7.5: error before and after each stage
+      - {stage: no calibration, position_rms_m: 0.00875, orientation_rms_rad: 0.0075}
+    leave_one_out: {stage: ..., position_rms_m: ..., orientation_rms_rad: ...}   # optional
+    warnings: []
+
+Writes are atomic (temporary file, fsync, os.replace), and the previous file is kept as `<path>.bak`.
+"""
+
+import contextlib
+import datetime
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from beams_common.beacon_map import BeaconMap
+from beams_common.bearing_correction import BearingCorrection
+
+FILE_FORMAT = "beams-calibration"
+FILE_VERSION = 1
+_POWER_KEYS = ("a", "b", "c", "d")
+_ROTATION_KEYS = ("A", "B", "C", "D")
+
+
+class CalibrationFileError(ValueError):
+    """A calibration file that exists but cannot be used; the message names the file and the problem."""
+
+
+@dataclass(frozen=True)
+class RmsFigures:
+    """Position RMS (m, eq. 7.10) and orientation RMS (rad, eq. 7.11) after one calibration stage."""
+
+    stage: str
+    position_rms_m: float
+    orientation_rms_rad: float
+
+
+@dataclass(frozen=True)
+class SensorCalibration:
+    """Everything chapter 7 calibrates, plus how well it did and when it was made."""
+
+    beacon_map: BeaconMap
+    bearing_correction: BearingCorrection = field(default_factory=BearingCorrection)
+    turret_offset_m: tuple[float, float] = (0.0, 0.0)
+    rms: tuple[RmsFigures, ...] = ()
+    leave_one_out: RmsFigures | None = None
+    warnings: tuple[str, ...] = ()
+    created_utc: str = ""
+
+    @staticmethod
+    def now_utc() -> str:
+        """The creation-time format of the file (ISO 8601, UTC, seconds)."""
+        return datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def atomic_write_text(path: str | os.PathLike, text: str, *, keep_backup: bool = True) -> None:
+    """Replace `path` by `text` so that a crash at any instant leaves either the old or the new file.
+
+    The text goes to a temporary file in the same directory, is fsynced, then renamed over `path`
+    (os.replace is atomic on POSIX). With keep_backup, the previous file is first copied to
+    `<path>.bak`, itself atomically.
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    if keep_backup and target.exists():
+        backup = target.with_name(target.name + ".bak")
+        _atomic_replace(backup, lambda handle: _copy_into(target, handle))
+    _atomic_replace(target, lambda handle: handle.write(text.encode("utf-8")))
+
+
+def _copy_into(source: Path, handle: Any) -> None:
+    with source.open("rb") as original:
+        shutil.copyfileobj(original, handle)
+
+
+def _atomic_replace(target: Path, fill: Callable[[Any], object]) -> None:
+    descriptor, temporary = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
+    try:
+        # mkstemp creates the file 0600; give it the usual umask-derived mode of a new file.
+        os.fchmod(descriptor, 0o666 & ~_current_umask())
+        with os.fdopen(descriptor, "wb") as handle:
+            fill(handle)
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(temporary, target)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(temporary)
+        raise
+    _fsync_directory(target.parent)
+
+
+def _current_umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _fsync_directory(directory: Path) -> None:
+    # The rename itself is only durable once the directory entry is on disk.
+    with contextlib.suppress(OSError):
+        descriptor = os.open(directory, os.O_RDONLY)
+        try:
+            os.fsync(descriptor)
+        finally:
+            os.close(descriptor)
+
+
+def calibration_to_dict(calibration: SensorCalibration) -> dict[str, Any]:
+    """The YAML document of a calibration (plain types only)."""
+    correction = calibration.bearing_correction
+    document: dict[str, Any] = {
+        "format": FILE_FORMAT,
+        "version": FILE_VERSION,
+        "created_utc": calibration.created_utc or SensorCalibration.now_utc(),
+        "beacons": [
+            {"id": int(beacon_id), "x_m": float(xy[0]), "y_m": float(xy[1])}
+            for beacon_id, xy in zip(calibration.beacon_map.ids, calibration.beacon_map.xy, strict=True)
+        ],
+        "power_bias": _power_bias_to_dict(correction),
+        "rotation_bias": dict(zip(_ROTATION_KEYS, correction.rotation_bias_coefficients, strict=True)),
+        "turret_offset_m": {
+            "x": float(calibration.turret_offset_m[0]),
+            "y": float(calibration.turret_offset_m[1]),
+        },
+        "rms": [_rms_to_dict(figures) for figures in calibration.rms],
+        "warnings": list(calibration.warnings),
+    }
+    if calibration.leave_one_out is not None:
+        document["leave_one_out"] = _rms_to_dict(calibration.leave_one_out)
+    return document
+
+
+def _power_bias_to_dict(correction: BearingCorrection) -> dict[str, Any]:
+    entry: dict[str, Any] = dict(zip(_POWER_KEYS, correction.power_bias_coefficients, strict=True))
+    if correction.window_range_rad is not None:
+        entry["window_range_rad"] = list(correction.window_range_rad)
+    return entry
+
+
+def _rms_to_dict(figures: RmsFigures) -> dict[str, Any]:
+    return {
+        "stage": figures.stage,
+        "position_rms_m": float(figures.position_rms_m),
+        "orientation_rms_rad": float(figures.orientation_rms_rad),
+    }
+
+
+_HEADER = """\
+# BeAMS sensor calibration (thesis chapter 7), written by beams_calibration.
+# beacons: true beacon coordinates in the map frame (m).
+# power_bias: f(w) = a w^3 + b w^2 + c w + d (eq. 7.19), window w and f in rad;
+#   w is clamped to window_range_rad (the windows the calibration saw), when given.
+# rotation_bias: f(phi) = A cos(phi) + B sin(phi) + C cos(2 phi) + D sin(2 phi) (eq. 7.25), rad.
+# The driver publishes phi - f_power(w) - f_rotation(phi) (eq. 7.18, 7.24).
+# turret_offset_m: turret rotation centre in base_link (m), eq. 7.26.
+# rms: position (m, eq. 7.10) and orientation (rad, eq. 7.11) RMS errors after each stage.
+"""
+
+
+def save_calibration(calibration: SensorCalibration, path: str | os.PathLike) -> None:
+    """Write the calibration as YAML, atomically, keeping the previous file as `<path>.bak`."""
+    text = _HEADER + yaml.safe_dump(
+        calibration_to_dict(calibration), sort_keys=False, default_flow_style=None
+    )
+    atomic_write_text(path, text, keep_backup=True)
+
+
+def load_calibration(path: str | os.PathLike) -> SensorCalibration:
+    """Read a calibration file.
+
+    Raises FileNotFoundError (an OSError) for a missing file and CalibrationFileError (a ValueError)
+    naming the file and the faulty entry for a malformed one.
+    """
+    source = Path(path)
+    if not source.is_file():
+        raise FileNotFoundError(f"calibration file {source} does not exist")
+    try:
+        document = yaml.safe_load(source.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as error:
+        raise CalibrationFileError(f"calibration file {source} is not valid YAML: {error}") from None
+    try:
+        return calibration_from_dict(document)
+    except (KeyError, TypeError, ValueError) as error:
+        raise CalibrationFileError(f"calibration file {source}: {_describe(error)}") from None
+
+
+def _describe(error: Exception) -> str:
+    return f"missing entry {error}" if isinstance(error, KeyError) else str(error)
+
+
+def calibration_from_dict(document: Any) -> SensorCalibration:
+    """Parse and validate the YAML document of a calibration (see the module docstring)."""
+    if not isinstance(document, dict):
+        raise ValueError("expected a YAML mapping at the top level")
+    if document.get("format") != FILE_FORMAT:
+        raise ValueError(f"format is {document.get('format')!r}, expected {FILE_FORMAT!r}")
+    if document.get("version") != FILE_VERSION:
+        raise ValueError(f"version {document.get('version')!r} is not supported (expected {FILE_VERSION})")
+    beacons = document["beacons"]
+    if not isinstance(beacons, list):
+        raise ValueError("beacons must be a list of {id, x_m, y_m}")
+    beacon_map = BeaconMap.from_lists(
+        [int(b["id"]) for b in beacons],
+        [float(b["x_m"]) for b in beacons],
+        [float(b["y_m"]) for b in beacons],
+    )
+    window_range = document["power_bias"].get("window_range_rad")
+    correction = BearingCorrection(
+        tuple(float(document["power_bias"][key]) for key in _POWER_KEYS),
+        tuple(float(document["rotation_bias"][key]) for key in _ROTATION_KEYS),
+        None if window_range is None else (float(window_range[0]), float(window_range[1])),
+    )
+    offset = document["turret_offset_m"]
+    turret_offset_m = (float(offset["x"]), float(offset["y"]))
+    if not all(map(math.isfinite, turret_offset_m)):
+        raise ValueError("turret_offset_m must be finite")
+    leave_one_out = document.get("leave_one_out")
+    return SensorCalibration(
+        beacon_map=beacon_map,
+        bearing_correction=correction,
+        turret_offset_m=turret_offset_m,
+        rms=tuple(_rms_from_dict(item) for item in document.get("rms") or []),
+        leave_one_out=None if leave_one_out is None else _rms_from_dict(leave_one_out),
+        warnings=tuple(str(text) for text in document.get("warnings") or []),
+        created_utc=str(document.get("created_utc", "")),
+    )
+
+
+def _rms_from_dict(item: dict[str, Any]) -> RmsFigures:
+    return RmsFigures(str(item["stage"]), float(item["position_rms_m"]), float(item["orientation_rms_rad"]))

@@ -1,0 +1,74 @@
+"""Conversions between ROS messages and the planar quantities the BeAMS modules compute with.
+
+Stamps in seconds, planar poses (x, y, yaw) and their 3x3 covariances; the 6x6 ROS covariance is
+row-major over (x, y, z, roll, pitch, yaw) and a planar estimate says nothing of z, roll and pitch.
+"""
+
+import math
+
+import numpy as np
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Pose, PoseWithCovariance, TransformStamped
+from std_msgs.msg import Header
+from tf2_msgs.msg import TFMessage
+
+from beams_common.pose2d import Pose2D, yaw_of_quaternion
+
+# Rows/columns of x, y and yaw in ROS's 6x6 covariance.
+PLANAR_INDICES = (0, 1, 5)
+# Variance reported for z, roll and pitch, which a planar estimate does not know (REP-105 convention).
+UNKNOWN_VARIANCE = 1e6
+
+
+def stamp_to_seconds(stamp: Time) -> float:
+    return stamp.sec + 1e-9 * stamp.nanosec
+
+
+def seconds_to_stamp(seconds: float) -> Time:
+    """builtin_interfaces/Time from seconds, nanoseconds rounded."""
+    nanoseconds = round(seconds * 1e9)
+    return Time(sec=nanoseconds // 1_000_000_000, nanosec=nanoseconds % 1_000_000_000)
+
+
+def pose2d_of(pose: Pose) -> Pose2D:
+    """(x, y, yaw) of a geometry_msgs/Pose."""
+    q = pose.orientation
+    return (pose.position.x, pose.position.y, yaw_of_quaternion(q.x, q.y, q.z, q.w))
+
+
+def set_pose2d(pose: Pose, planar: Pose2D) -> None:
+    """Write (x, y, yaw) into a geometry_msgs/Pose (z = 0, rotation about z only)."""
+    pose.position.x, pose.position.y = float(planar[0]), float(planar[1])
+    pose.orientation.z = math.sin(0.5 * planar[2])
+    pose.orientation.w = math.cos(0.5 * planar[2])
+
+
+def planar_tf_message(header: Header, child_frame_id: str, planar: Pose2D) -> TFMessage:
+    """A /tf message of one transform header.frame_id -> child_frame_id: (x, y, yaw), z = 0, rotation
+    about z only."""
+    transform = TransformStamped(header=header, child_frame_id=child_frame_id)
+    transform.transform.translation.x, transform.transform.translation.y = float(planar[0]), float(planar[1])
+    transform.transform.rotation.z = math.sin(0.5 * planar[2])
+    transform.transform.rotation.w = math.cos(0.5 * planar[2])
+    return TFMessage(transforms=[transform])
+
+
+def planar_covariance(covariance_6x6) -> np.ndarray:
+    """The (x, y, yaw) 3x3 block of a row-major 6x6 ROS covariance."""
+    full = np.asarray(covariance_6x6, dtype=float).reshape(6, 6)
+    return full[np.ix_(PLANAR_INDICES, PLANAR_INDICES)]
+
+
+def ros_covariance(planar: np.ndarray) -> list[float]:
+    """Row-major 6x6 ROS covariance holding a (x, y, yaw) 3x3 block; z, roll, pitch marked unknown."""
+    full = np.diag([0.0, 0.0, UNKNOWN_VARIANCE, UNKNOWN_VARIANCE, UNKNOWN_VARIANCE, 0.0])
+    full[np.ix_(PLANAR_INDICES, PLANAR_INDICES)] = planar
+    return full.ravel().tolist()
+
+
+def pose_with_covariance(planar: Pose2D, covariance: np.ndarray) -> PoseWithCovariance:
+    """geometry_msgs/PoseWithCovariance of a planar pose and its 3x3 covariance."""
+    message = PoseWithCovariance()
+    set_pose2d(message.pose, planar)
+    message.covariance = ros_covariance(covariance)
+    return message

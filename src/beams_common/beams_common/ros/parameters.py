@@ -1,0 +1,95 @@
+"""Declaring a node's parameters from its ParameterTable, and applying runtime changes with the same checks.
+
+A parameter whose spec says `runtime=False` is declared read-only: `ros2 param set` is refused by rclpy
+with "parameter is read-only". A runtime one goes through the table's validation (alone and together with
+the others) and then the node's `apply`; a refusal from either is the reply `ros2 param set` prints.
+Nothing is accepted and ignored (ros2/demos set_parameters_callback.py is the model).
+"""
+
+import array
+from collections.abc import Callable
+from typing import Any
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
+from rclpy.node import Node
+
+from beams_common.parameters import ParameterError, ParameterSpec, ParameterTable
+
+
+class ParameterValidationError(ValueError):
+    """A parameter value the node cannot run with; the message tells the user what to change."""
+
+
+def descriptor(spec: ParameterSpec) -> ParameterDescriptor:
+    """The ROS descriptor of a spec: description, read-only flag and numeric range."""
+    result = ParameterDescriptor(description=spec.full_description(), read_only=not spec.runtime)
+    if spec.minimum is not None and spec.maximum is not None:
+        if spec.item_type is int:
+            result.integer_range = [
+                IntegerRange(from_value=int(spec.minimum), to_value=int(spec.maximum), step=0)
+            ]
+        elif spec.item_type is float:
+            result.floating_point_range = [
+                FloatingPointRange(from_value=float(spec.minimum), to_value=float(spec.maximum), step=0.0)
+            ]
+    if spec.choices:
+        result.additional_constraints = f"one of {list(spec.choices)}"
+    return result
+
+
+def python_value(value: Any) -> Any:
+    """A parameter value as the specs see it: rclpy gives array parameters as array.array or tuples."""
+    return list(value) if isinstance(value, array.array | tuple) else value
+
+
+def declare_table(node: Node, table: ParameterTable) -> dict[str, Any]:
+    """Declare every parameter of the table and return their values, validated one by one and together.
+
+    Raises ParameterValidationError naming the parameter (run_node: one line, exit status 2).
+    """
+    values: dict[str, Any] = {}
+    overrides = getattr(node, "_parameter_overrides", {})  # rclpy keeps the --ros-args values there
+    for spec in table.specs:
+        try:
+            values[spec.name] = python_value(
+                node.declare_parameter(spec.name, spec.default, descriptor(spec)).value
+            )
+        except Exception as error:  # rclpy raises several types for out-of-range or mistyped overrides
+            # the spec's reason when it has one, so the node and the offline tools say the same
+            override = overrides.get(spec.name)
+            reason = spec.reason(python_value(override.value)) if override is not None else None
+            raise ParameterValidationError(reason or f"{spec.name}: {error}") from None
+    try:
+        return table.validate(values)
+    except ParameterError as error:
+        raise ParameterValidationError(str(error)) from None
+
+
+def apply_runtime_changes(
+    node: Node,
+    table: ParameterTable,
+    current: dict[str, Any],
+    apply: Callable[[dict[str, Any], set[str]], None],
+) -> None:
+    """Validate every runtime change of the table's parameters and hand the new values to `apply`.
+
+    `current` holds the values in use and is updated when a change is accepted. `apply(values, changed)`
+    puts the validated values to work, or raises ValueError (or OSError) with the reason to refuse them
+    (the values in use then stay). Register after every parameter is declared.
+    """
+
+    def on_set(parameters: list) -> SetParametersResult:
+        changes = {p.name: python_value(p.value) for p in parameters if p.name in table.names}
+        if not changes:
+            return SetParametersResult(successful=True)
+        try:
+            validated = table.validate({**current, **changes})
+            apply(validated, set(changes))
+        except (ValueError, OSError) as error:  # OSError: a file the change names cannot be read
+            node.get_logger().warning(f"parameter change refused: {error}")
+            return SetParametersResult(successful=False, reason=str(error))
+        current.update(validated)
+        node.get_logger().info(f"parameters changed at runtime: {sorted(changes)}")
+        return SetParametersResult(successful=True)
+
+    node.add_on_set_parameters_callback(on_set)

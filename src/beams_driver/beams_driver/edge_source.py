@@ -1,0 +1,119 @@
+"""Where the driver's edges come from: the EdgeSource protocol, and how driver_node finds a source.
+
+Every source delivers RevolutionEdges (edges.py), one per turret revolution, to the same decoder and
+variance model. A source is a kind (`EdgeSourceKind`): its parameters (ParameterSpecs, declared by the
+driver only when that source is chosen) and a factory building the source from their validated values,
+the code list and a `SourceHost` (what the source may ask of the node: subscribe to a pose stream, a
+topic name, a log, the clock). The built-in kinds are `sim` (sim_source.py) and `serial`
+(serial_source.py); a new source is a new module with an EDGE_SOURCE kind, chosen with
+`source:=package.module:EDGE_SOURCE`, with no edit to the driver (test/test_edge_source_plugin.py
+plugs in a replay of recorded edges that way).
+"""
+
+import importlib
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+from beams_common.parameters import ParameterSpec
+from beams_common.pose2d import Pose2D
+from beams_driver.codes import BeaconCode
+from beams_driver.edges import RevolutionEdges
+
+# A pose stream sample: (stamp s, pose (x, y, theta) m/rad, twist (speed m/s, yaw rate rad/s)).
+PoseCallback = Callable[[float, Pose2D, tuple[float, float]], None]
+
+
+@dataclass
+class SourcePoll:
+    """What a source delivered since the last poll.
+
+    continuity_broken: the first revolution delivered does not follow the last one decoded (a
+    reconnection, a skipped revolution, a clock jump): the decoder must not join windows across it.
+    """
+
+    revolutions: list[RevolutionEdges] = field(default_factory=list)
+    continuity_broken: bool = False
+
+
+@dataclass
+class SourceHealth:
+    """How the source is doing, for /diagnostics: level ('ok', 'warn', 'error'), a message (None: the
+    driver says how many bearings the last revolution gave) and counters."""
+
+    level: str = "ok"
+    message: str | None = None
+    values: dict[str, Any] = field(default_factory=dict)
+
+
+class SourceHost(Protocol):
+    """What a source may ask of the node hosting it (driver_node implements it with ROS)."""
+
+    def subscribe_poses(self, topic: str, callback: PoseCallback) -> None:
+        """Call back with every nav_msgs/Odometry message on topic (stamp, pose, twist)."""
+
+    def resolve_topic(self, topic: str) -> str:
+        """The fully qualified name of topic in the node's namespace."""
+
+    def log_warning(self, message: str) -> None:
+        """A warning in the node's log."""
+
+    def now_s(self) -> float:
+        """The node's clock (s): the ROS time, simulated under use_sim_time."""
+
+
+class EdgeSource(Protocol):
+    """A stream of revolutions of edges (the BeAMS sensor, its simulation, a recording)."""
+
+    def poll(self, now_s: float) -> SourcePoll:
+        """The revolutions completed since the last poll (called every few milliseconds)."""
+
+    def health(self) -> SourceHealth:
+        """The source's state and counters for /diagnostics."""
+
+    def close(self) -> None:
+        """Release what the source holds (a serial port); called once when the driver stops."""
+
+
+SourceFactory = Callable[[Mapping[str, Any], Sequence[BeaconCode], SourceHost], EdgeSource]
+
+
+@dataclass(frozen=True)
+class EdgeSourceKind:
+    """A kind of source: its name, its parameters, its start-up checks across them, its factory.
+
+    poll_period_s is how often the driver polls it. The factory raises ValueError or OSError with the
+    reason when the source cannot start (a missing device): the driver then exits 2 with that line.
+    """
+
+    name: str
+    parameters: tuple[ParameterSpec, ...]
+    create: SourceFactory
+    together: tuple[Callable[[Mapping[str, Any]], str | None], ...] = ()
+    poll_period_s: float = 0.01
+
+
+BUILT_IN_SOURCES = {
+    "sim": "beams_driver.sim_source:EDGE_SOURCE",
+    "serial": "beams_driver.serial_source:EDGE_SOURCE",
+}
+
+
+def source_kind(name: str) -> EdgeSourceKind:
+    """The kind named by the driver's `source` parameter: a built-in name or `package.module:ATTRIBUTE`.
+
+    Raises ValueError with the reason when it cannot be found.
+    """
+    target = BUILT_IN_SOURCES.get(name, name)
+    module_name, _, attribute = target.partition(":")
+    if not module_name or not attribute:
+        raise ValueError(
+            f"source must be one of {sorted(BUILT_IN_SOURCES)} or 'package.module:ATTRIBUTE', got {name!r}"
+        )
+    try:
+        kind = getattr(importlib.import_module(module_name), attribute)
+    except (ImportError, AttributeError) as error:
+        raise ValueError(f"source {name!r}: {error}") from None
+    if not isinstance(kind, EdgeSourceKind):
+        raise ValueError(f"source {name!r}: {target} is not an EdgeSourceKind")
+    return kind

@@ -1,0 +1,93 @@
+"""driver_node's parameters: one spec each (the chosen edge source adds its own, edge_source.py).
+
+Runtime-changeable: the variance model (mode, natural and constant variances: the next revolution's
+bearings get them), the frame and the calibration file (its corrections are applied at once). The codes
+and the source define what the sensor is and stay read-only.
+"""
+
+from collections.abc import Mapping
+from typing import Any
+
+from beams_common.geometry_parameters import CALIBRATION_FILE
+from beams_common.parameters import ParameterSpec, ParameterTable
+from beams_driver.codes import BIT_TIME_S, BeaconCode, code_family, codes_from_strings, validate_codes
+from beams_driver.sensor_sim import SensorSimConfig
+from beams_driver.variance import VARIANCE_MODES, VarianceModel
+
+_SIMULATED = SensorSimConfig()
+
+
+def codes_of(values: Mapping[str, Any]) -> tuple[BeaconCode, ...]:
+    """The code list the parameters give: the custom codes, else the family of code_count (eq. 2.6);
+    ValueError when it breaks section 2.4.4's constraints."""
+    custom = [code for code in values["custom_codes"] if code]
+    bit_time_s = values["bit_time_s"]
+    codes = (
+        codes_from_strings(custom, bit_time_s) if custom else code_family(values["code_count"], bit_time_s)
+    )
+    validate_codes(codes)
+    return tuple(codes)
+
+
+def _codes_check(values: Mapping[str, Any]) -> str | None:
+    try:
+        codes_of(values)
+    except ValueError as error:
+        return f"codes: {error}"
+    return None
+
+
+def variance_model_of(values: Mapping[str, Any], codes: tuple[BeaconCode, ...]) -> VarianceModel:
+    """The bearing variance model of the parameters (ch. 4 exact, theorem 3.1's bound, or a constant)."""
+    return VarianceModel(
+        codes,
+        values["variance_mode"],
+        natural_variance_rad2=values["natural_variance_rad2"],
+        constant_variance_rad2=values["constant_variance_rad2"],
+        min_burst_fraction=_SIMULATED.min_burst_fraction,
+    )
+
+
+DRIVER_PARAMETERS = ParameterTable(
+    "driver_node",
+    (
+        ParameterSpec(
+            "source",
+            "sim",
+            "Edge source: 'sim' (simulated sensor), 'serial' (the sensor's "
+            "microcontroller) or 'package.module:ATTRIBUTE' (an EdgeSourceKind of another package).",
+        ),
+        ParameterSpec("frame_id", "beams_sensor", "Frame of the turret (sensor).", runtime=True),
+        ParameterSpec(
+            "code_count", 5, "Number of codes of the family C_i (thesis eq. 2.6).", minimum=1, maximum=9
+        ),
+        ParameterSpec(
+            "custom_codes",
+            [""],
+            "Custom code list as bit strings (e.g. '10111111'), code i+1 = entry i; [''] for the family.",
+            length=(1, 64),
+        ),
+        ParameterSpec("bit_time_s", BIT_TIME_S, "Bit time T0 of the codes (s).", minimum=1e-6, maximum=1e-3),
+        ParameterSpec(
+            "variance_mode", "exact", "Bearing variance model.", choices=VARIANCE_MODES, runtime=True
+        ),
+        ParameterSpec(
+            "natural_variance_rad2",
+            _SIMULATED.natural_variance_rad2,
+            "Natural (noise) variance added to the code variance (rad^2).",
+            minimum=0.0,
+            maximum=1e-2,
+            runtime=True,
+        ),
+        ParameterSpec(
+            "constant_variance_rad2",
+            1e-6,
+            "Variance of every bearing in variance_mode 'constant' (rad^2).",
+            minimum=1e-12,
+            maximum=1e-2,
+            runtime=True,
+        ),
+        CALIBRATION_FILE,
+    ),
+    (_codes_check,),
+)

@@ -1,0 +1,204 @@
+"""A whole simulated Eurobot match, offline: the test bench of the triangulation, EKF and calibration.
+
+`simulate_match(duration_s, seed)` drives the robot along an `EurobotTrajectory`, runs the edge-level
+sensor simulator (`sensor_sim`) and the decoder (`decoder`) revolution by revolution (about 10 Hz,
+625000/62400 turn/s, section 2.4.2), and the wheel odometry at 50 Hz, exactly as the ROS nodes would
+but without ROS or real time. It returns:
+
+- `ground_truth`: the true map pose and twist at the odometry instants (t = 0 included);
+- `odometry`: the drifting odometry at the same instants, pose in the odom frame (its origin is the
+  robot's start pose, so map -> odom is `initial_pose`), twist in base_link;
+- `revolutions`: one `DecodedRevolution` per turret revolution, bearings in the sensor frame, each
+  stamped with the instant the turret pointed at its beacon;
+- `true_bearing(beacon_id, t)`: what a perfect sensor would have measured, to judge the others.
+
+Everything follows from `seed` (three independent streams: trajectory, sensor, odometry). The hardware
+imperfections of chapter 7 (power and rotation biases, turret offset, beacons away from their nominal
+map positions) and occlusions are passed through to the sensor simulator.
+A 90 s match takes about 2 s on one core (bench/bench_serial.py; per revolution: bench/bench_driver.py).
+"""
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from beams_common.angles import wrap_to_pi
+from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_driver.codes import BeaconCode
+from beams_driver.decoder import BearingDecoder, DecodedRevolution
+from beams_driver.edges import RevolutionEdges
+from beams_driver.sensor_sim import (
+    BiasFunction,
+    Occlusion,
+    PoseAt,
+    SensorSimConfig,
+    SensorSimulator,
+    SimulatedBeacon,
+    beacons_from_map,
+)
+from beams_driver.variance import VarianceModel
+from beams_sim.world import (
+    MATCH_DURATION_S,
+    EurobotTrajectory,
+    OdometryDrift,
+    OdometrySimulator,
+    Pose2D,
+    PoseTwistSamples,
+)
+
+ODOMETRY_RATE_HZ = 50.0
+
+
+@dataclass(frozen=True)
+class SimulatedMatch:
+    """The outcome of `simulate_match`: truth, odometry and decoded revolutions of one match."""
+
+    trajectory: EurobotTrajectory
+    beacon_map: BeaconMap
+    true_beacons: tuple[SimulatedBeacon, ...]
+    turret_offset_m: tuple[float, float]
+    initial_pose: Pose2D
+    ground_truth: PoseTwistSamples
+    odometry: PoseTwistSamples
+    revolutions: list[DecodedRevolution]
+    edges: list[RevolutionEdges] | None
+
+    def truth_at(self, t: float) -> Pose2D:
+        """True map pose at any instant."""
+        return self.trajectory.pose_at(t)
+
+    def true_bearing(self, beacon_id: int, t: float) -> float:
+        """Bearing (rad, (-pi, pi], sensor frame) of the true beacon from the turret centre at instant t."""
+        beacon = next(b for b in self.true_beacons if b.beacon_id == beacon_id)
+        x, y, theta = self.trajectory.pose_at(t)
+        c, s = math.cos(theta), math.sin(theta)
+        turret_x = x + c * self.turret_offset_m[0] - s * self.turret_offset_m[1]
+        turret_y = y + s * self.turret_offset_m[0] + c * self.turret_offset_m[1]
+        return float(wrap_to_pi(math.atan2(beacon.y_m - turret_y, beacon.x_m - turret_x) - theta))
+
+    def bearing_errors(self) -> dict[int, np.ndarray]:
+        """Decoded minus true bearing (rad, wrapped) of every bearing, per beacon id."""
+        errors: dict[int, list[float]] = {}
+        for revolution in self.revolutions:
+            for bearing in revolution.bearings:
+                error = wrap_to_pi(bearing.bearing - self.true_bearing(bearing.beacon_id, bearing.stamp_s))
+                errors.setdefault(bearing.beacon_id, []).append(float(error))
+        return {beacon_id: np.array(values) for beacon_id, values in errors.items()}
+
+
+def simulate_match(
+    duration_s: float = MATCH_DURATION_S,
+    seed: int = 0,
+    *,
+    trajectory: EurobotTrajectory | None = None,
+    beacon_map: BeaconMap = EUROBOT_BEACON_MAP,
+    true_beacons: Sequence[SimulatedBeacon] | None = None,
+    sensor_config: SensorSimConfig | None = None,
+    variance_model: VarianceModel | None = None,
+    power_bias_rad: BiasFunction | None = None,
+    rotation_bias_rad: BiasFunction | None = None,
+    turret_offset_m: tuple[float, float] = (0.0, 0.0),
+    occlusion: Occlusion | None = None,
+    odometry_drift: OdometryDrift | None = None,
+    odometry_rate_hz: float = ODOMETRY_RATE_HZ,
+    wheel_base_m: float = 0.3,
+    keep_edges: bool = False,
+) -> SimulatedMatch:
+    """Run a match offline (see the module docstring).
+
+    trajectory: default `EurobotTrajectory.random(seed, duration_s)`; true_beacons: where the beacons
+    really stand (default: exactly on beacon_map); sensor_config: default `SensorSimConfig()` (the
+    thesis's device, code family C1..C5); variance_model: default "exact" with the sensor's natural
+    variance; odometry_drift: default `OdometryDrift()`; keep_edges keeps every revolution's raw edges.
+    """
+    if not duration_s > 0.0 or not odometry_rate_hz > 0.0:
+        raise ValueError(f"duration_s ({duration_s}) and odometry_rate_hz ({odometry_rate_hz}) must be > 0")
+    trajectory_seed, sensor_seed, odometry_seed = np.random.SeedSequence(seed).spawn(3)
+    if trajectory is None:
+        trajectory = EurobotTrajectory.random(_as_int(trajectory_seed), duration_s)
+    config = sensor_config or SensorSimConfig()
+    beacons = tuple(true_beacons) if true_beacons is not None else beacons_from_map(beacon_map)
+    simulator = SensorSimulator(
+        config,
+        beacons,
+        np.random.default_rng(sensor_seed),
+        power_bias_rad=power_bias_rad,
+        rotation_bias_rad=rotation_bias_rad,
+        turret_offset_m=turret_offset_m,
+        occlusion=occlusion,
+    )
+    decoder = BearingDecoder(config.codes, variance_model or default_variance_model(config.codes, config))
+    revolutions, edges = _run_sensor(
+        simulator, decoder, trajectory.pose_at, duration_s, config.period_s, keep_edges
+    )
+    odometry_simulator = OdometrySimulator(
+        trajectory, odometry_drift, seed=_as_int(odometry_seed), wheel_base_m=wheel_base_m
+    )
+    start = odometry_simulator.advance(0.0)
+    odometry = _concatenate(start, odometry_simulator.run(odometry_rate_hz, until_s=duration_s))
+    return SimulatedMatch(
+        trajectory=trajectory,
+        beacon_map=beacon_map,
+        true_beacons=beacons,
+        turret_offset_m=(float(turret_offset_m[0]), float(turret_offset_m[1])),
+        initial_pose=trajectory.pose_at(0.0),
+        ground_truth=_ground_truth(trajectory, odometry.stamp_s),
+        odometry=odometry,
+        revolutions=revolutions,
+        edges=edges,
+    )
+
+
+def default_variance_model(codes: Sequence[BeaconCode], config: SensorSimConfig) -> VarianceModel:
+    """The exact variance (chapter 4) plus the simulated sensor's natural variance (section 5.6)."""
+    return VarianceModel(
+        codes,
+        "exact",
+        turret_speed_rad_s=config.turret_speed_rad_s,
+        natural_variance_rad2=config.natural_variance_rad2,
+        min_burst_fraction=config.min_burst_fraction,
+    )
+
+
+def _run_sensor(
+    simulator: SensorSimulator,
+    decoder: BearingDecoder,
+    pose_at: PoseAt,
+    duration_s: float,
+    period_s: float,
+    keep_edges: bool,
+) -> tuple[list[DecodedRevolution], list[RevolutionEdges] | None]:
+    """Every complete revolution of the match, simulated then decoded."""
+    count = math.floor(duration_s / period_s + 1e-9)
+    decoded: list[DecodedRevolution] = []
+    kept: list[RevolutionEdges] | None = [] if keep_edges else None
+    for k in range(count):
+        edges = simulator.revolution(pose_at, k * period_s)
+        decoded.append(decoder.decode(edges))
+        if kept is not None:
+            kept.append(edges)
+    return decoded, kept
+
+
+def _ground_truth(trajectory: EurobotTrajectory, stamps_s: np.ndarray) -> PoseTwistSamples:
+    states = trajectory.states_at(stamps_s)
+    return PoseTwistSamples(
+        stamp_s=stamps_s,
+        x_m=states[:, 0],
+        y_m=states[:, 1],
+        theta_rad=np.asarray(wrap_to_pi(states[:, 2])),
+        speed_mps=states[:, 4],
+        yaw_rate_radps=states[:, 5],
+    )
+
+
+def _concatenate(first: PoseTwistSamples, rest: PoseTwistSamples) -> PoseTwistSamples:
+    fields = ("stamp_s", "x_m", "y_m", "theta_rad", "speed_mps", "yaw_rate_radps")
+    return PoseTwistSamples(**{f: np.concatenate([getattr(first, f), getattr(rest, f)]) for f in fields})
+
+
+def _as_int(sequence: np.random.SeedSequence) -> int:
+    """A plain integer seed from a spawned sequence (the constructors take ints)."""
+    return int(sequence.generate_state(1)[0])
