@@ -341,6 +341,14 @@ class DriverNode(Node):
         if not self.serial.connected:
             self.diagnostics.set_level("error", f"serial device {self.serial.device} lost, reconnecting")
 
+    def destroy_node(self) -> None:
+        # The port is released on every stop, so a restarted driver (or a terminal program) can open it.
+        serial_source = getattr(self, "serial", None)
+        if serial_source is not None:
+            serial_source.close()
+            self.get_logger().info(f"serial device {serial_source.device} released")
+        super().destroy_node()
+
     # ---- publishing ----
 
     def _publish(self, decoded: DecodedRevolution) -> None:
