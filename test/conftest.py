@@ -192,6 +192,7 @@ def start_node(ros_env: dict[str, str], tmp_path: pathlib.Path) -> Iterator[Call
         params: dict[str, Any] | None = None,
         namespace: str = "",
         extra_args: list[str] | None = None,
+        own_process_group: bool = False,
     ) -> NodeProcess:
         command = [str(executable_path(package, executable)), "--ros-args"]
         if params:
@@ -204,7 +205,13 @@ def start_node(ros_env: dict[str, str], tmp_path: pathlib.Path) -> Iterator[Call
         log_path = tmp_path / f"{executable}_{len(started)}.log"
         with open(log_path, "w") as log_file:
             process = subprocess.Popen(
-                command, env=ros_env, stdout=log_file, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL
+                command,
+                env=ros_env,
+                stdout=log_file,
+                stderr=subprocess.STDOUT,
+                stdin=subprocess.DEVNULL,
+                # a group of its own receives signals as a terminal or a launcher sends them (os.killpg)
+                start_new_session=own_process_group,
             )
         node = NodeProcess(name=f"{package}/{executable}", process=process, log_path=log_path)
         started.append(node)

@@ -13,8 +13,13 @@ is back within 0.5 s) unless FASTRTPS_DEFAULT_PROFILES_FILE is already set.
 
 from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
-from launch.conditions import LaunchConfigurationEquals
-from launch.substitutions import EnvironmentVariable, LaunchConfiguration, PathJoinSubstitution
+from launch.conditions import IfCondition
+from launch.substitutions import (
+    EnvironmentVariable,
+    EqualsSubstitution,
+    LaunchConfiguration,
+    PathJoinSubstitution,
+)
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
@@ -44,7 +49,13 @@ def node_action(node: RobotNode) -> Node:
         namespace=LaunchConfiguration("namespace"),
         parameters=parameters,
         output="screen",
-        condition=LaunchConfigurationEquals("source", "sim") if node.simulation_only else None,
+        # the simulated robot only runs with the simulated sensor
+        # (IfCondition(EqualsSubstitution): LaunchConfigurationEquals is deprecated since Jazzy.)
+        condition=(
+            IfCondition(EqualsSubstitution(LaunchConfiguration("source"), "sim"))
+            if node.simulation_only
+            else None
+        ),
     )
 
 

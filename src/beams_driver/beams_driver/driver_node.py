@@ -45,6 +45,9 @@ class RosSourceHost:
     def resolve_topic(self, topic: str) -> str:
         return self._node.resolve_topic_name(topic)
 
+    def log_info(self, message: str) -> None:
+        self._node.get_logger().info(message)
+
     def log_warning(self, message: str) -> None:
         self._node.get_logger().warning(message)
 
@@ -81,9 +84,11 @@ class DriverNode(Node):
         )
 
     def destroy_node(self) -> None:
+        # the source is released on every stop, so a restarted driver (or a terminal program) can open
+        # the serial port
         source = getattr(self, "source", None)
         if source is not None:
-            source.close()  # releases the serial port
+            source.close()
         super().destroy_node()
 
     # ---- parameters ----

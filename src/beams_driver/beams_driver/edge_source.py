@@ -55,6 +55,9 @@ class SourceHost(Protocol):
     def resolve_topic(self, topic: str) -> str:
         """The fully qualified name of topic in the node's namespace."""
 
+    def log_info(self, message: str) -> None:
+        """A line in the node's log."""
+
     def log_warning(self, message: str) -> None:
         """A warning in the node's log."""
 

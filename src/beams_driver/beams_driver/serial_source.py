@@ -232,6 +232,7 @@ class SerialSource:
                                        read_timeout_s=SERIAL_POLL_PERIOD_S / 2, clock=host.now_s,
                                        log=host.log_warning)
         self.serial.open()
+        self._log_info = host.log_info
         self._reconnections = 0
 
     def poll(self, now_s: float) -> SourcePoll:
@@ -251,6 +252,7 @@ class SerialSource:
 
     def close(self) -> None:
         self.serial.close()
+        self._log_info(f"serial device {self.serial.device} released")
 
 
 EDGE_SOURCE = EdgeSourceKind("serial", SERIAL_PARAMETERS, SerialSource, poll_period_s=SERIAL_POLL_PERIOD_S)

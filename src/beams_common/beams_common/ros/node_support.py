@@ -4,6 +4,7 @@ Parameters are declared from their specs by beams_common.ros.parameters.
 """
 
 import os
+import signal
 import traceback
 from collections.abc import Callable
 from typing import Any
@@ -15,6 +16,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from std_srvs.srv import Trigger
 
 from beams_common.calibration_file import SensorCalibration, load_calibration
@@ -32,11 +34,14 @@ TF_QOS = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE, durabilit
 # BEAMS_EXECUTOR=single_threaded: every node on rclpy's SingleThreadedExecutor (see run_node)
 EXECUTOR_VARIABLE = "BEAMS_EXECUTOR"
 EXECUTOR_CHOICES = ("events", "single_threaded")
+# Longest wait in the executor before a stop signal is seen (s)
+STOP_POLL_PERIOD_S = 0.1
 _LEVELS = {"ok": DiagnosticStatus.OK, "warn": DiagnosticStatus.WARN, "error": DiagnosticStatus.ERROR}
 
 
-def run_node(node_class: Callable[[], Node], args: list[str] | None = None, *,
-             events_executor: bool = True) -> int:
+def run_node(
+    node_class: Callable[[], Node], args: list[str] | None = None, *, events_executor: bool = True
+) -> int:
     """Create the node, spin it until SIGINT or SIGTERM, and return the process exit status.
 
     The streaming nodes spin in rclpy's EventsExecutor (its event queue is in C++): on the 2-core
@@ -45,24 +50,57 @@ def run_node(node_class: Callable[[], Node], args: list[str] | None = None, *,
     callbacks passes events_executor=False: Jazzy's EventsExecutor does not run them. The environment
     variable BEAMS_EXECUTOR=single_threaded puts every node back on rclpy's SingleThreadedExecutor.
 
-    Returns 0 on a normal shutdown (no traceback) and EXIT_INVALID_PARAMETERS when the node
-    refused its parameters at start-up.
+    Every stop signal, however many and whenever they come, ends in the same quiet shutdown (see
+    _catch_stop_signals): returns 0 (no traceback), and EXIT_INVALID_PARAMETERS when the node refused
+    its parameters at start-up.
     """
-    rclpy.init(args=args)
+    stop_signals = _catch_stop_signals()
+    # No rclpy signal handlers: they shut the context down under callbacks still running (a timer's
+    # publish then fails) and chain to KeyboardInterrupt; the spin loop stops on stop_signals instead.
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node: Node | None = None
     try:
         node = node_class()
-        _spin(node, _executor(events_executor))
+        _spin(node, _executor(events_executor), stop_signals)
     except ParameterValidationError as error:
         rclpy.logging.get_logger("beams").fatal(f"invalid parameters: {error}")
         return EXIT_INVALID_PARAMETERS
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except ExternalShutdownException:
         pass
     finally:
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        _ignore_stop_signals()
     return 0
+
+
+def _catch_stop_signals() -> list[int]:
+    """Make SIGINT and SIGTERM requests to stop, which never raise; returns the list of those received.
+
+    Under `ros2 launch`, Ctrl-C reaches a node twice (from the terminal's process group and from
+    launch, which then escalates to SIGTERM): with Python's default handler the second one raised
+    KeyboardInterrupt inside destroy_node. Here a repeated signal only adds to the list.
+    """
+    received: list[int] = []
+
+    def note(signal_number: int, _frame: object) -> None:
+        received.append(signal_number)
+
+    for signal_number in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signal_number, note)
+    return received
+
+
+def _ignore_stop_signals() -> None:
+    """Ignore SIGINT and SIGTERM for the rest of the process's life (its exit).
+
+    Python's finalisation resets every signal with a Python handler to its default action, and the DDS
+    teardown that follows takes a while: a second Ctrl-C then killed the node (exit -2 under launch).
+    Python leaves an ignored signal ignored; SIGKILL still ends a node that hangs.
+    """
+    for signal_number in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signal_number, signal.SIG_IGN)
 
 
 def _executor(events_executor: bool) -> Executor:
@@ -75,16 +113,19 @@ def _executor(events_executor: bool) -> Executor:
     return SingleThreadedExecutor()
 
 
-def _spin(node: Node, executor: Executor) -> None:
-    """Spin until shutdown, surviving rclpy's rare failure to convert a taken message (a lost message)."""
+def _spin(node: Node, executor: Executor, stop_signals: list[int]) -> None:
+    """Spin until a stop signal or shutdown, surviving rclpy's rare failure to convert a taken message
+    (a lost message)."""
     executor.add_node(node)
     lost_messages = 0
-    while rclpy.ok():
+    while rclpy.ok() and not stop_signals:
         try:
-            executor.spin_once(timeout_sec=0.5)
+            # Python runs the signal handler between callbacks or when spin_once returns: this period
+            # bounds the time from a signal to the shutdown of an idle node.
+            executor.spin_once(timeout_sec=STOP_POLL_PERIOD_S)
         except (_rclpy.RCLError, RuntimeError) as error:
-            # A signal shuts the context down under the executor, which may then fail to build its
-            # wait set: that is a shutdown, not a fault.
+            # A context shut down under the executor (rclpy.shutdown elsewhere) may make it fail to
+            # build its wait set: that is a shutdown, not a fault.
             if not rclpy.ok():
                 return
             # Under load rclpy occasionally fails to convert a message it has taken (the frame is
