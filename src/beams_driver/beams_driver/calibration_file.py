@@ -22,7 +22,6 @@ Writes are atomic (temporary file, fsync, os.replace), and the previous file is 
 
 import contextlib
 import datetime
-import math
 import os
 import shutil
 import tempfile
@@ -33,6 +32,7 @@ from typing import Any
 
 import yaml
 
+from beams_driver import file_schema
 from beams_driver.beacon_map import BeaconMap
 from beams_driver.bearing_correction import BearingCorrection
 
@@ -201,51 +201,52 @@ def load_calibration(path: str | os.PathLike) -> SensorCalibration:
         raise CalibrationFileError(f"calibration file {source} is not valid YAML: {error}") from None
     try:
         return calibration_from_dict(document)
-    except (KeyError, TypeError, ValueError) as error:
-        raise CalibrationFileError(f"calibration file {source}: {_describe(error)}") from None
-
-
-def _describe(error: Exception) -> str:
-    return f"missing entry {error}" if isinstance(error, KeyError) else str(error)
+    except ValueError as error:  # SchemaError, or BeaconMap's and BearingCorrection's own checks
+        raise CalibrationFileError(f"calibration file {source}: {error}") from None
 
 
 def calibration_from_dict(document: Any) -> SensorCalibration:
-    """Parse and validate the YAML document of a calibration (see the module docstring)."""
-    if not isinstance(document, dict):
-        raise ValueError("expected a YAML mapping at the top level")
-    if document.get("format") != FILE_FORMAT:
-        raise ValueError(f"format is {document.get('format')!r}, expected {FILE_FORMAT!r}")
-    if document.get("version") != FILE_VERSION:
-        raise ValueError(f"version {document.get('version')!r} is not supported (expected {FILE_VERSION})")
-    beacons = document["beacons"]
-    if not isinstance(beacons, list):
-        raise ValueError("beacons must be a list of {id, x_m, y_m}")
-    beacon_map = BeaconMap.from_lists(
-        [int(b["id"]) for b in beacons],
-        [float(b["x_m"]) for b in beacons],
-        [float(b["y_m"]) for b in beacons],
+    """Parse the YAML document of a calibration against its schema (see the module docstring): every
+    entry is checked for type, shape and finiteness; SchemaError (a ValueError) names the faulty one."""
+    top = file_schema.header(document, FILE_FORMAT, FILE_VERSION)
+    beacon_map = BeaconMap.from_lists(*file_schema.beacon_lists(top))
+    power, rotation, offset = (
+        file_schema.mapping(file_schema.required(top, key), key, keys)
+        for key, keys in (("power_bias", _POWER_KEYS), ("rotation_bias", _ROTATION_KEYS),
+                          ("turret_offset_m", ("x", "y")))
     )
-    window_range = document["power_bias"].get("window_range_rad")
+    window_range = file_schema.optional(power, "window_range_rad", _window_range, "power_bias", None)
     correction = BearingCorrection(
-        tuple(float(document["power_bias"][key]) for key in _POWER_KEYS),
-        tuple(float(document["rotation_bias"][key]) for key in _ROTATION_KEYS),
-        None if window_range is None else (float(window_range[0]), float(window_range[1])),
+        tuple(file_schema.number(power[key], f"power_bias.{key}") for key in _POWER_KEYS),
+        tuple(file_schema.number(rotation[key], f"rotation_bias.{key}") for key in _ROTATION_KEYS),
+        window_range,
     )
-    offset = document["turret_offset_m"]
-    turret_offset_m = (float(offset["x"]), float(offset["y"]))
-    if not all(map(math.isfinite, turret_offset_m)):
-        raise ValueError("turret_offset_m must be finite")
-    leave_one_out = document.get("leave_one_out")
+    turret_offset_m = (file_schema.number(offset["x"], "turret_offset_m.x"),
+                       file_schema.number(offset["y"], "turret_offset_m.y"))
+    rms = file_schema.optional(top, "rms", lambda v, p: file_schema.items(v, p), "", [])
+    warnings = file_schema.optional(top, "warnings", lambda v, p: file_schema.items(v, p), "", [])
     return SensorCalibration(
         beacon_map=beacon_map,
         bearing_correction=correction,
         turret_offset_m=turret_offset_m,
-        rms=tuple(_rms_from_dict(item) for item in document.get("rms") or []),
-        leave_one_out=None if leave_one_out is None else _rms_from_dict(leave_one_out),
-        warnings=tuple(str(text) for text in document.get("warnings") or []),
-        created_utc=str(document.get("created_utc", "")),
+        rms=tuple(_rms_from_dict(item, f"rms[{index}]") for index, item in enumerate(rms)),
+        leave_one_out=file_schema.optional(top, "leave_one_out", _rms_from_dict, "", None),
+        warnings=tuple(file_schema.text(item, f"warnings[{index}]") for index, item in enumerate(warnings)),
+        created_utc=file_schema.optional(top, "created_utc", file_schema.text, "", ""),
     )
 
 
-def _rms_from_dict(item: dict[str, Any]) -> RmsFigures:
-    return RmsFigures(str(item["stage"]), float(item["position_rms_m"]), float(item["orientation_rms_rad"]))
+def _window_range(value: Any, path: str) -> tuple[float, float]:
+    low, high = (file_schema.number(v, f"{path}[{k}]", minimum=0.0)
+                 for k, v in enumerate(file_schema.items(value, path, 2)))
+    if not low <= high:
+        raise file_schema.SchemaError(f"{path}: expected [low, high] with low <= high, got [{low}, {high}]")
+    return (low, high)
+
+
+def _rms_from_dict(item: Any, path: str) -> RmsFigures:
+    entry = file_schema.mapping(item, path, ("stage", "position_rms_m", "orientation_rms_rad"))
+    return RmsFigures(file_schema.text(entry["stage"], f"{path}.stage"),
+                      file_schema.number(entry["position_rms_m"], f"{path}.position_rms_m", minimum=0.0),
+                      file_schema.number(entry["orientation_rms_rad"], f"{path}.orientation_rms_rad",
+                                         minimum=0.0))

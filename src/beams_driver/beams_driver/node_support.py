@@ -10,8 +10,10 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 import rclpy
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -21,6 +23,7 @@ from std_srvs.srv import Trigger
 
 from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_driver.calibration_file import SensorCalibration, load_calibration
+from beams_driver.validation import bounded
 
 EXIT_INVALID_PARAMETERS = 2
 # beams/bearings: reliable, so no revolution is lost between the driver and the filters (a best-effort
@@ -228,7 +231,16 @@ def declare_beacon_geometry(node: Node) -> tuple[BeaconMap, tuple[float, float]]
 
 
 class Diagnostics:
-    """Counters and a status published on /diagnostics once a second (diagnostic_msgs)."""
+    """Counters and a status published on /diagnostics once a second (diagnostic_msgs).
+
+    A refusal (`refuse`) is counted, logged (throttled) and shown: the next publication is at least WARN
+    with its reason, whatever the node's status became meanwhile. Every text is bounded in length
+    (`validation.bounded`). Under use_sim_time, while no /clock has come, a status "waiting for /clock"
+    is published on the steady (wall) clock, with a log line every WAITING_LOG_PERIOD publications.
+    """
+
+    WAITING_FOR_CLOCK = "waiting for /clock (use_sim_time is true): no time, nothing processed"
+    WAITING_LOG_PERIOD = 5
 
     def __init__(self, node: Node, name: str, period_s: float = 1.0) -> None:
         self._node = node
@@ -236,8 +248,14 @@ class Diagnostics:
         self._values: dict[str, Any] = {}
         self._level = "ok"
         self._message = "running"
+        self._refusal: tuple[str, str] | None = None  # (level, reason) not yet published
         self._publisher = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._timer = node.create_timer(period_s, self.publish)
+        self._clock_waits = 0
+        if node.get_parameter("use_sim_time").value:
+            # the node's timers run on /clock: without it they never fire, so watch on the steady clock
+            self._clock_watch = node.create_timer(period_s, self._watch_clock,
+                                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def increment(self, key: str, count: int = 1) -> None:
         self._values[key] = self._values.get(key, 0) + count
@@ -252,20 +270,51 @@ class Diagnostics:
         if level not in _LEVELS:
             raise ValueError(f"diagnostic level must be one of {sorted(_LEVELS)}, got {level!r}")
         self._level = level
-        self._message = message
+        self._message = bounded(message)
+
+    def refuse(self, key: str, reason: str, level: str = "warn") -> None:
+        """Count a refused input under `key`, keep its reason in `last_refusal`, make the next status at
+        least `level` with it, and log it (at most once a second)."""
+        if level not in ("warn", "error"):
+            raise ValueError(f"a refusal is 'warn' or 'error', got {level!r}")
+        reason = bounded(reason)
+        self.increment(key)
+        self._values["last_refusal"] = f"{key}: {reason}"
+        if self._refusal is None or _LEVELS[level] >= _LEVELS[self._refusal[0]]:
+            self._refusal = (level, f"{key}: {reason}")
+        log = self._node.get_logger().error if level == "error" else self._node.get_logger().warning
+        log(f"refused ({key}, {self._values[key]} so far): {reason}", throttle_duration_sec=1.0)
 
     def publish(self) -> None:
+        level, message = self._level, self._message
+        if self._refusal is not None:
+            refusal_level, reason = self._refusal
+            self._refusal = None
+            level = refusal_level if _LEVELS[refusal_level] > _LEVELS[level] else level
+            message = bounded(f"{message}; refused {reason}")
+        self._send(level, message, self._node.get_clock().now().to_msg())
+
+    def _send(self, level: str, message: str, stamp: Any) -> None:
         status = DiagnosticStatus(
-            level=_LEVELS[self._level],
+            level=_LEVELS[level],
             name=self._name,
-            message=self._message,
+            message=message,
             hardware_id="beams",
             values=[KeyValue(key=key, value=_format_value(value)) for key, value in self._values.items()],
         )
         array = DiagnosticArray(status=[status])
-        array.header.stamp = self._node.get_clock().now().to_msg()
+        array.header.stamp = stamp
         self._publisher.publish(array)
+
+    def _watch_clock(self) -> None:
+        """Under use_sim_time: say so while the node's clock has not started (no /clock yet)."""
+        if self._node.get_clock().now().nanoseconds != 0:
+            return
+        self._send("warn", self.WAITING_FOR_CLOCK, Time())
+        if self._clock_waits % self.WAITING_LOG_PERIOD == 0:
+            self._node.get_logger().warning(self.WAITING_FOR_CLOCK)
+        self._clock_waits += 1
 
 
 def _format_value(value: Any) -> str:
-    return f"{value:.6g}" if isinstance(value, float) else str(value)
+    return f"{value:.6g}" if isinstance(value, float) else bounded(str(value))
