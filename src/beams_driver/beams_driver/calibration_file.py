@@ -73,6 +73,56 @@ class SensorCalibration:
         return datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
+class StagedFile:
+    """A file written in full beside its target, not yet in place: `commit` swaps it in (os.replace, atomic
+    on POSIX), `discard` removes it. Several staged files let a writer produce every output before it
+    replaces any: a failure meanwhile leaves all the targets as they were."""
+
+    def __init__(self, target: str | os.PathLike, fill: Callable[[Any], object]) -> None:
+        self.target = Path(target)
+        descriptor, temporary = tempfile.mkstemp(
+            dir=self.target.parent, prefix=f".{self.target.name}.", suffix=".tmp"
+        )
+        self._temporary: Path | None = Path(temporary)
+        try:
+            # mkstemp creates the file 0600; give it the usual umask-derived mode of a new file.
+            os.fchmod(descriptor, 0o666 & ~_current_umask())
+            with os.fdopen(descriptor, "wb") as handle:
+                fill(handle)
+                handle.flush()
+                os.fsync(handle.fileno())
+        except BaseException:
+            self.discard()
+            raise
+
+    def commit(self, *, keep_backup: bool = False) -> None:
+        """Put the file in place; with keep_backup, the previous target is first copied to `<target>.bak`."""
+        if self._temporary is None:
+            raise RuntimeError(f"{self.target}: staged file already committed or discarded")
+        if keep_backup and self.target.exists():
+            backup = self.target.with_name(self.target.name + ".bak")
+            StagedFile(backup, lambda handle: _copy_into(self.target, handle)).commit()
+        try:
+            os.replace(self._temporary, self.target)
+        except BaseException:
+            self.discard()
+            raise
+        self._temporary = None
+        _fsync_directory(self.target.parent)
+
+    def discard(self) -> None:
+        if self._temporary is not None:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(self._temporary)
+            self._temporary = None
+
+
+def stage_text(path: str | os.PathLike, text: str) -> StagedFile:
+    """`text` staged for `path` (UTF-8), its directory created if needed."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    return StagedFile(path, lambda handle: handle.write(text.encode("utf-8")))
+
+
 def atomic_write_text(path: str | os.PathLike, text: str, *, keep_backup: bool = True) -> None:
     """Replace `path` by `text` so that a crash at any instant leaves either the old or the new file.
 
@@ -80,34 +130,12 @@ def atomic_write_text(path: str | os.PathLike, text: str, *, keep_backup: bool =
     (os.replace is atomic on POSIX). With keep_backup, the previous file is first copied to
     `<path>.bak`, itself atomically.
     """
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    if keep_backup and target.exists():
-        backup = target.with_name(target.name + ".bak")
-        _atomic_replace(backup, lambda handle: _copy_into(target, handle))
-    _atomic_replace(target, lambda handle: handle.write(text.encode("utf-8")))
+    stage_text(path, text).commit(keep_backup=keep_backup)
 
 
 def _copy_into(source: Path, handle: Any) -> None:
     with source.open("rb") as original:
         shutil.copyfileobj(original, handle)
-
-
-def _atomic_replace(target: Path, fill: Callable[[Any], object]) -> None:
-    descriptor, temporary = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
-    try:
-        # mkstemp creates the file 0600; give it the usual umask-derived mode of a new file.
-        os.fchmod(descriptor, 0o666 & ~_current_umask())
-        with os.fdopen(descriptor, "wb") as handle:
-            fill(handle)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(temporary, target)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(temporary)
-        raise
-    _fsync_directory(target.parent)
 
 
 def _current_umask() -> int:
@@ -178,12 +206,15 @@ _HEADER = """\
 """
 
 
+def calibration_text(calibration: SensorCalibration) -> str:
+    """The calibration file's text (YAML with its explanatory header)."""
+    document = calibration_to_dict(calibration)
+    return _HEADER + yaml.safe_dump(document, sort_keys=False, default_flow_style=None)
+
+
 def save_calibration(calibration: SensorCalibration, path: str | os.PathLike) -> None:
     """Write the calibration as YAML, atomically, keeping the previous file as `<path>.bak`."""
-    text = _HEADER + yaml.safe_dump(
-        calibration_to_dict(calibration), sort_keys=False, default_flow_style=None
-    )
-    atomic_write_text(path, text, keep_backup=True)
+    atomic_write_text(path, calibration_text(calibration), keep_backup=True)
 
 
 def load_calibration(path: str | os.PathLike) -> SensorCalibration:

@@ -23,7 +23,7 @@ from std_srvs.srv import Trigger
 
 from beams_driver.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_driver.calibration_file import SensorCalibration, load_calibration
-from beams_driver.validation import bounded
+from beams_driver.validation import bounded, revolution_size_problem
 
 EXIT_INVALID_PARAMETERS = 2
 # beams/bearings: reliable, so no revolution is lost between the driver and the filters (a best-effort
@@ -186,10 +186,14 @@ def serve_calibration_reload(node: Node, apply: Callable[[SensorCalibration], st
             response.message = apply(load_calibration(path))
             response.success = True
             node.get_logger().info(f"calibration reloaded from {path}: {response.message}")
-        except (OSError, ValueError) as error:
+        except (OSError, ValueError) as error:  # the file's schema turns any malformed entry into these
             response.success = False
-            response.message = f"calibration not reloaded, the one in use stays: {error}"
-            node.get_logger().error(response.message)
+            response.message = bounded(f"calibration not reloaded, the one in use stays: {error}")
+            diagnostics = getattr(node, "diagnostics", None)
+            if isinstance(diagnostics, Diagnostics):
+                diagnostics.refuse("calibration_reloads_refused", response.message, level="error")
+            else:
+                node.get_logger().error(response.message)
         return response
 
     node.create_service(Trigger, "~/reload_calibration", reload)
@@ -284,6 +288,14 @@ class Diagnostics:
             self._refusal = (level, f"{key}: {reason}")
         log = self._node.get_logger().error if level == "error" else self._node.get_logger().warning
         log(f"refused ({key}, {self._values[key]} so far): {reason}", throttle_duration_sec=1.0)
+
+    def oversized_revolution(self, message: Any) -> bool:
+        """True, the message refused and counted, when a beams/bearings message holds more bearings than a
+        revolution can (`validation.MAX_BEARINGS_PER_REVOLUTION`): checked before any per-bearing work."""
+        problem = revolution_size_problem(len(message.bearings))
+        if problem:
+            self.refuse("revolutions_too_many_bearings", f"revolution {message.revolution}: {problem}")
+        return bool(problem)
 
     def publish(self) -> None:
         level, message = self._level, self._message
