@@ -58,8 +58,8 @@ def robot_parameters(seed: int, **overrides: dict[str, Any]) -> dict[str, dict[s
     `overrides` maps a node ("sim_world", "driver", "triangulation", "ekf") to parameters to add.
     """
     parameters = {
-        "sim_world": {"trajectory": "random", "seed": seed, "odometry_seed": seed + 1, "duration_s": MATCH_S},
-        "driver": {"sim_seed": seed + 2},
+        "sim_world": {"trajectory": "random", "trajectory_seed": seed, "odometry_seed": seed + 1, "duration_s": MATCH_S},
+        "driver": {"sim_sensor_seed": seed + 2},
         "triangulation": {"publish_markers": False},
         "ekf": {},
     }

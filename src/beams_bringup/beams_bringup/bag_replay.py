@@ -309,7 +309,7 @@ class ReplayPipelines:
         self.counts["revolutions"] += 1
         self.counts["bearings"] += len(message.bearings)
         completed = self.triangulation.on_revolution(None, gating.message_bearings(message, stamp_to_seconds))
-        self.localiser.on_bearings(ekf_inputs.message_bearings(message, stamp_to_seconds))
+        self.localiser.on_revolution(ekf_inputs.message_bearings(message, stamp_to_seconds))
         return self._total_poses(completed)
 
     def _total_poses(self, completed: list[tuple[Any, RevolutionPose]]) -> list[RevolutionPose]:

@@ -5,7 +5,8 @@
 
 Prints progress lines while it runs, then the RMS errors after each stage (table 7.5 for this dataset),
 the leave-one-position-out error, the parameters and any plausibility warning. Exit status 0 on
-success, 2 when the dataset is missing, malformed or refused.
+success, 2 when the dataset is missing, malformed or refused, the calibration makes the RMS worse
+(without --force), or an output cannot be written (then no file is changed).
 """
 
 import argparse
@@ -26,8 +27,8 @@ from beams_calibration.calibrate import (
     calibrate,
 )
 from beams_calibration.dataset import DatasetError, load_dataset, save_dataset
+from beams_calibration.outputs import rms_regression, write_outputs
 from beams_common.bearing_correction import THESIS_CORRECTION
-from beams_common.calibration_file import save_calibration
 
 EXIT_REFUSED = 2
 
@@ -50,6 +51,9 @@ def _parser() -> argparse.ArgumentParser:
         "--table-7-5", action="store_true", help="also fit each method alone and in pairs, as table 7.5 does"
     )
     parser.add_argument("--dry-run", action="store_true", help="do not write the calibration file")
+    parser.add_argument(
+        "--force", action="store_true", help="write a calibration that makes the RMS worse"
+    )
     parser.add_argument(
         "--simulate-thesis",
         action="store_true",
@@ -142,14 +146,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"calibrate: {error}", file=sys.stderr)
         return EXIT_REFUSED
     print(format_report(result))
-    if args.plots is not None:
-        from beams_calibration.plots import plot_all
-
-        for figure in plot_all(result, args.plots):
-            progress(f"figure written: {figure}")
-    if not args.dry_run:
-        save_calibration(result.to_sensor_calibration(), args.output)
-        progress(f"calibration written: {args.output}")
+    worse = rms_regression(result, args.eta)
+    if worse and not args.force:
+        print(f"calibrate: {worse} (--force writes it); nothing written", file=sys.stderr)
+        return EXIT_REFUSED
+    try:  # all or nothing: a failure leaves every file as it was
+        written = write_outputs(result, None if args.dry_run else args.output, args.plots)
+    except OSError as error:
+        print(f"calibrate: nothing written: {error}", file=sys.stderr)
+        return EXIT_REFUSED
+    for path in written:
+        progress(f"written: {path}")
     return 0
 
 

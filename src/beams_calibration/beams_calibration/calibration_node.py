@@ -41,16 +41,22 @@ from beams_calibration.dataset import (
     DatasetError,
     append_configuration,
     average_capture,
+    capture_pose_problem,
     load_dataset,
     now_utc,
     save_dataset,
 )
+from beams_calibration.outputs import rms_regression, write_outputs
 from beams_calibration.parameters import CALIBRATION_PARAMETERS, coverage_requirements
 from beams_common.beacon_map import BeaconMap
-from beams_common.calibration_file import save_calibration
 from beams_common.geometry_parameters import beacon_map_of
-from beams_common.ros.node_support import BEARINGS_QOS, Diagnostics, run_node
+from beams_common.ros.node_support import (
+    BEARINGS_QOS,
+    Diagnostics,
+    run_node,
+)
 from beams_common.ros.parameters import ParameterValidationError, apply_runtime_changes, declare_table
+from beams_common.validation import bounded
 from beams_msgs.msg import BeaconBearingArray
 from beams_msgs.srv import Calibrate, CaptureReference, ListConfigurations
 
@@ -154,8 +160,10 @@ class CalibrationNode(Node):
         pose = (request.x, request.y, request.theta)
         if self._busy:
             return self._capture_reply(response, BUSY)
-        if not all(math.isfinite(v) for v in pose):
-            return self._capture_reply(response, f"refused: the pose {pose} is not finite")
+        implausible = capture_pose_problem(*pose, self._dataset_map_or_prior())
+        if implausible and not (request.force and all(math.isfinite(v) for v in pose)):
+            return self._capture_reply(response, f"refused: {implausible}" + ("" if request.force else
+                                                                              " (force: true records it)"))
         revolutions = int(request.revolutions) or int(self.default_revolutions)
         if revolutions > MAX_REVOLUTIONS:
             return self._capture_reply(response, f"refused: at most {MAX_REVOLUTIONS} revolutions")
@@ -193,10 +201,17 @@ class CalibrationNode(Node):
 
     def _capture_reply(self, response: CaptureReference.Response, message: str) -> CaptureReference.Response:
         response.success = False
-        response.message = message
+        response.message = bounded(message)
         response.configurations = self._count()
-        self.get_logger().warning(f"capture_reference: {message}")
+        self.diagnostics.refuse("captures_refused", message)
         return response
+
+    def _dataset_map_or_prior(self) -> BeaconMap:
+        """The dataset's beacon map, or the a-priori one when the dataset is missing or unreadable."""
+        try:
+            return self._dataset_map()
+        except (OSError, DatasetError):
+            return self.prior_map
 
     async def _collect(self, revolutions: int) -> list[dict[int, tuple[float, float]]]:
         """Wait for the next `revolutions` revolutions, bounded in (steady) time."""
@@ -229,19 +244,18 @@ class CalibrationNode(Node):
         try:
             dataset = load_dataset(self.dataset_file)
             result = await self._in_worker(lambda: self._run_calibration(dataset))
-            written = ""
-            if not request.dry_run:
-                save_calibration(result.to_sensor_calibration(), self.output_file)
-                written = str(self.output_file)
-            if self.plots_directory:
-                from beams_calibration.plots import plot_all
-
-                plot_all(result, self.plots_directory)
+            worse = rms_regression(result, self.eta)
+            if worse and not request.force:
+                raise CalibrationRefusedError(f"{worse} (force: true writes it); nothing written")
+            output = None if request.dry_run else self.output_file
+            plots = Path(self.plots_directory) if self.plots_directory else None
+            # every file written beside its target first: a failure leaves them all as they were
+            await self._in_worker(lambda: write_outputs(result, output, plots))
+            written = "" if output is None else str(output)
         except (OSError, DatasetError, CalibrationRefusedError) as error:
             response.success = False
-            response.message = str(error)
-            self.diagnostics.set_level("warn", f"last calibration failed: {error}")
-            self.get_logger().warning(f"calibrate: {error}")
+            response.message = bounded(f"not calibrated, no file changed: {error}")
+            self.diagnostics.refuse("calibrations_refused", response.message)
             return response
         finally:
             self._busy = False
@@ -298,14 +312,18 @@ class CalibrationNode(Node):
             response.success = False
             response.message = BUSY
             return response
+        if not self.dataset_file.exists():
+            response.success = True
+            response.message = f"nothing to clear: {self.dataset_file} does not exist (no .bak made)"
+            self.get_logger().info(response.message)
+            return response
         try:
-            dataset = (
-                load_dataset(self.dataset_file) if self.dataset_file.exists() else Dataset(self.prior_map)
-            )
-            save_dataset(dataset.cleared(), self.dataset_file)
+            dataset = load_dataset(self.dataset_file)
+            save_dataset(dataset.cleared(), self.dataset_file)  # keeps the previous file as .bak
         except (OSError, DatasetError) as error:
             response.success = False
-            response.message = f"not cleared: {error}"
+            response.message = bounded(f"not cleared, the dataset is unchanged: {error}")
+            self.diagnostics.refuse("clears_refused", response.message)
             return response
         response.success = True
         response.message = (

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from beams_common import file_schema
 from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import BeaconMap
 from beams_common.calibration_file import SensorCalibration, atomic_write_text
@@ -134,6 +135,32 @@ def to_arrays(dataset: Dataset, beacon_ids: Sequence[int] | None = None) -> Cali
         beacon_ids=ids,
         beacons_xy=dataset.beacon_map.subset(ids),
     )
+
+
+# --- capture: plausibility of the operator's pose ----------------------------------------------
+
+# The beacons stand on the table's border (section 7.3.1, table 7.2), so a robot placed on the table has
+# its centre inside their bounding box; the margin (m) admits beacons set a little inside the border.
+CAPTURE_POSE_MARGIN_M = 0.2
+# Headings are given in (-pi, pi] or [0, 2 pi); beyond one turn either way the operator mistyped.
+MAX_CAPTURE_HEADING_RAD = 2.0 * math.pi
+
+
+def capture_pose_problem(x_m: float, y_m: float, theta_rad: float, beacon_map: BeaconMap,
+                         margin_m: float = CAPTURE_POSE_MARGIN_M) -> str:
+    """Why a reference pose is implausible (not finite, outside the beacons' bounding box grown by
+    margin_m, heading beyond one turn), or ''."""
+    if not all(math.isfinite(v) for v in (x_m, y_m, theta_rad)):
+        return f"the pose ({x_m}, {y_m}, {theta_rad}) is not finite"
+    low = beacon_map.xy.min(axis=0) - margin_m
+    high = beacon_map.xy.max(axis=0) + margin_m
+    if not (low[0] <= x_m <= high[0] and low[1] <= y_m <= high[1]):
+        return (f"the position ({x_m:.4g}, {y_m:.4g}) m is outside the beacons' table: x in "
+                f"[{low[0]:.3f}, {high[0]:.3f}] m, y in [{low[1]:.3f}, {high[1]:.3f}] m (beacons' bounding "
+                f"box with a {margin_m} m margin)")
+    if abs(theta_rad) > MAX_CAPTURE_HEADING_RAD:
+        return f"the heading {theta_rad:.4g} rad is beyond one turn: give it in (-pi, pi] or [0, 2 pi)"
+    return ""
 
 
 # --- capture: averaging revolutions into one configuration ------------------------------------
@@ -243,12 +270,12 @@ def load_dataset(path: str | os.PathLike) -> Dataset:
         raise FileNotFoundError(f"dataset file {source} does not exist")
     try:
         document = yaml.safe_load(source.read_text(encoding="utf-8"))
-        return dataset_from_dict(document)
-    except yaml.YAMLError as error:
+    except (yaml.YAMLError, UnicodeDecodeError) as error:
         raise DatasetError(f"dataset file {source} is not valid YAML: {error}") from None
-    except (KeyError, TypeError, ValueError) as error:
-        detail = f"missing entry {error}" if isinstance(error, KeyError) else str(error)
-        raise DatasetError(f"dataset file {source}: {detail}") from None
+    try:
+        return dataset_from_dict(document)
+    except ValueError as error:  # SchemaError, or BeaconMap's own checks
+        raise DatasetError(f"dataset file {source}: {error}") from None
 
 
 def load_or_create_dataset(path: str | os.PathLike, beacon_map: BeaconMap) -> Dataset:
@@ -266,49 +293,53 @@ def append_configuration(
 
 
 def dataset_from_dict(document: Any) -> Dataset:
-    """Parse and validate the YAML document of a dataset (see the module docstring)."""
-    if not isinstance(document, dict):
-        raise ValueError("expected a YAML mapping at the top level")
-    if document.get("format") != DATASET_FORMAT:
-        raise ValueError(f"format is {document.get('format')!r}, expected {DATASET_FORMAT!r}")
-    if document.get("version") != DATASET_VERSION:
-        raise ValueError(f"version {document.get('version')!r} is not supported (expected {DATASET_VERSION})")
-    beacons = document["beacons"]
-    beacon_map = BeaconMap.from_lists(
-        [int(b["id"]) for b in beacons],
-        [float(b["x_m"]) for b in beacons],
-        [float(b["y_m"]) for b in beacons],
-    )
-    configurations = tuple(
-        _configuration_from_dict(index, item)
-        for index, item in enumerate(document.get("configurations") or [])
-    )
-    return Dataset(beacon_map, configurations)
+    """Parse the YAML document of a dataset against its schema (see the module docstring): every entry
+    is checked for type, shape and finiteness; SchemaError (a ValueError) names the faulty one."""
+    top = file_schema.header(document, DATASET_FORMAT, DATASET_VERSION)
+    beacon_map = BeaconMap.from_lists(*file_schema.beacon_lists(top))
+    configurations = file_schema.optional(top, "configurations", file_schema.items, "", [])
+    return Dataset(beacon_map, tuple(_configuration_from_dict(item, f"configurations[{k}]")
+                                     for k, item in enumerate(configurations)))
 
 
-def _configuration_from_dict(index: int, item: dict[str, Any]) -> Configuration:
-    pose = item["pose"]
-    values = (float(pose["x_m"]), float(pose["y_m"]), float(pose["theta_rad"]))
+def _configuration_from_dict(item: Any, path: str) -> Configuration:
+    entry = file_schema.mapping(item, path, ("pose", "beacons"))
+    pose = file_schema.mapping(entry["pose"], f"{path}.pose", ("x_m", "y_m", "theta_rad"))
+    values = tuple(file_schema.number(pose[key], f"{path}.pose.{key}") for key in ("x_m", "y_m", "theta_rad"))
+    revolutions = file_schema.optional(entry, "revolutions", _count, path, 1)
     observations = tuple(
-        BeaconObservation(
-            beacon_id=int(b["id"]),
-            bearing_rad=float(b["bearing_rad"]),
-            window_rad=float(b["window_rad"]),
-            spread_rad=float(b.get("spread_rad", 0.0)),
-            revolutions=int(b.get("revolutions", item.get("revolutions", 1))),
-        )
-        for b in item["beacons"]
+        _observation_from_dict(b, f"{path}.beacons[{k}]", revolutions)
+        for k, b in enumerate(file_schema.items(entry["beacons"], f"{path}.beacons"))
     )
-    numbers = [*values] + [v for o in observations for v in (o.bearing_rad, o.window_rad)]
-    if not all(math.isfinite(v) for v in numbers):
-        raise ValueError(f"configuration {index}: poses, bearings and windows must be finite")
+    ids = [o.beacon_id for o in observations]
+    if len(set(ids)) != len(ids):
+        raise file_schema.SchemaError(f"{path}.beacons: beacon id repeated in {ids}")
     return Configuration(
         *values,
         observations=observations,
-        revolutions=int(item.get("revolutions", 1)),
-        recorded_utc=str(item.get("recorded_utc", "")),
-        label=str(item.get("label", "")),
+        revolutions=revolutions,
+        recorded_utc=file_schema.optional(entry, "recorded_utc", file_schema.text, path, ""),
+        label=file_schema.optional(entry, "label", file_schema.text, path, ""),
     )
+
+
+def _count(value: Any, path: str) -> int:
+    return file_schema.integer(value, path, minimum=1)
+
+
+def _observation_from_dict(item: Any, path: str, revolutions: int) -> BeaconObservation:
+    beacon = file_schema.mapping(item, path, ("id", "bearing_rad", "window_rad"))
+    return BeaconObservation(
+        beacon_id=file_schema.integer(beacon["id"], f"{path}.id", minimum=0, maximum=65535),
+        bearing_rad=file_schema.number(beacon["bearing_rad"], f"{path}.bearing_rad"),
+        window_rad=file_schema.number(beacon["window_rad"], f"{path}.window_rad", minimum=0.0),
+        spread_rad=file_schema.optional(beacon, "spread_rad", _non_negative, path, 0.0),
+        revolutions=file_schema.optional(beacon, "revolutions", _count, path, revolutions),
+    )
+
+
+def _non_negative(value: Any, path: str) -> float:
+    return file_schema.number(value, path, minimum=0.0)
 
 
 def now_utc() -> str:

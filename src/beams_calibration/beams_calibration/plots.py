@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from beams_calibration.calibrate import CalibrationResult, position_groups
+from beams_common.calibration_file import StagedFile
 
 # Figure 7.13: each panel is 15 mm wide with a graduation every 2 mm.
 PANEL_HALF_SIDE_M = 0.0075
@@ -28,6 +29,11 @@ def _new_figure(width_in: float, height_in: float):
 
 
 def plot_positions(result: CalibrationResult, path: str | os.PathLike) -> Path:
+    """Figure 7.13 (`positions_figure`) to a PNG file."""
+    return _save(positions_figure(result), path)
+
+
+def positions_figure(result: CalibrationResult):
     """Figure 7.13: around each reference position (cross), the computed positions before (stars)
     and after (circles) calibration; panels 15 mm square, 2 mm graduations, mm offsets."""
     groups = position_groups(result.poses)
@@ -64,10 +70,15 @@ def plot_positions(result: CalibrationResult, path: str | os.PathLike) -> Path:
         f"{result.after.position_rms_m * 1e3:.2f} mm after calibration"
     )
     figure.tight_layout()
-    return _save(figure, path)
+    return figure
 
 
 def plot_corrections(result: CalibrationResult, path: str | os.PathLike) -> Path:
+    """Figures 7.11 and 7.12 (`corrections_figure`) to a PNG file."""
+    return _save(corrections_figure(result), path)
+
+
+def corrections_figure(result: CalibrationResult):
     """Figures 7.11 and 7.12: the power-bias correction against the window and the rotation-bias
     correction against the turret angle (deg), with the dataset's windows and bearings marked."""
     figure = _new_figure(10.0, 4.0)
@@ -98,7 +109,7 @@ def plot_corrections(result: CalibrationResult, path: str | os.PathLike) -> Path
     rotation_axes.set_xlim(-180, 180)
     rotation_axes.grid(True, linewidth=0.3)
     figure.tight_layout()
-    return _save(figure, path)
+    return figure
 
 
 def _save(figure, path: str | os.PathLike) -> Path:
@@ -108,10 +119,29 @@ def _save(figure, path: str | os.PathLike) -> Path:
     return target
 
 
+# The figures of a calibration and their file names in the plots directory.
+FIGURES = (
+    ("calibration_positions.png", positions_figure),
+    ("calibration_corrections.png", corrections_figure),
+)
+
+
 def plot_all(result: CalibrationResult, directory: str | os.PathLike) -> list[Path]:
     """Both figures into a directory: calibration_positions.png and calibration_corrections.png."""
-    folder = Path(directory)
-    return [
-        plot_positions(result, folder / "calibration_positions.png"),
-        plot_corrections(result, folder / "calibration_corrections.png"),
-    ]
+    return [_save(draw(result), Path(directory) / name) for name, draw in FIGURES]
+
+
+def stage_plots(result: CalibrationResult, directory: str | os.PathLike) -> list[StagedFile]:
+    """Both figures drawn and written beside their targets in `directory`, not yet in place (see
+    `calibration_file.StagedFile`); the directory must exist."""
+    staged: list[StagedFile] = []
+    try:
+        for name, draw in FIGURES:
+            figure = draw(result)
+            target = Path(directory) / name
+            staged.append(StagedFile(target, lambda handle, f=figure: f.savefig(handle, format="png")))
+    except BaseException:
+        for item in staged:
+            item.discard()
+        raise
+    return staged

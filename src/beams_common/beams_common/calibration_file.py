@@ -22,7 +22,6 @@ Writes are atomic (temporary file, fsync, os.replace), and the previous file is 
 
 import contextlib
 import datetime
-import math
 import os
 import shutil
 import tempfile
@@ -33,6 +32,7 @@ from typing import Any
 
 import yaml
 
+from beams_common import file_schema
 from beams_common.beacon_map import BeaconMap
 from beams_common.bearing_correction import BearingCorrection
 
@@ -73,6 +73,56 @@ class SensorCalibration:
         return datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
+class StagedFile:
+    """A file written in full beside its target, not yet in place: `commit` swaps it in (os.replace, atomic
+    on POSIX), `discard` removes it. Several staged files let a writer produce every output before it
+    replaces any: a failure meanwhile leaves all the targets as they were."""
+
+    def __init__(self, target: str | os.PathLike, fill: Callable[[Any], object]) -> None:
+        self.target = Path(target)
+        descriptor, temporary = tempfile.mkstemp(
+            dir=self.target.parent, prefix=f".{self.target.name}.", suffix=".tmp"
+        )
+        self._temporary: Path | None = Path(temporary)
+        try:
+            # mkstemp creates the file 0600; give it the usual umask-derived mode of a new file.
+            os.fchmod(descriptor, 0o666 & ~_current_umask())
+            with os.fdopen(descriptor, "wb") as handle:
+                fill(handle)
+                handle.flush()
+                os.fsync(handle.fileno())
+        except BaseException:
+            self.discard()
+            raise
+
+    def commit(self, *, keep_backup: bool = False) -> None:
+        """Put the file in place; with keep_backup, the previous target is first copied to `<target>.bak`."""
+        if self._temporary is None:
+            raise RuntimeError(f"{self.target}: staged file already committed or discarded")
+        if keep_backup and self.target.exists():
+            backup = self.target.with_name(self.target.name + ".bak")
+            StagedFile(backup, lambda handle: _copy_into(self.target, handle)).commit()
+        try:
+            os.replace(self._temporary, self.target)
+        except BaseException:
+            self.discard()
+            raise
+        self._temporary = None
+        _fsync_directory(self.target.parent)
+
+    def discard(self) -> None:
+        if self._temporary is not None:
+            with contextlib.suppress(FileNotFoundError):
+                os.unlink(self._temporary)
+            self._temporary = None
+
+
+def stage_text(path: str | os.PathLike, text: str) -> StagedFile:
+    """`text` staged for `path` (UTF-8), its directory created if needed."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    return StagedFile(path, lambda handle: handle.write(text.encode("utf-8")))
+
+
 def atomic_write_text(path: str | os.PathLike, text: str, *, keep_backup: bool = True) -> None:
     """Replace `path` by `text` so that a crash at any instant leaves either the old or the new file.
 
@@ -80,34 +130,12 @@ def atomic_write_text(path: str | os.PathLike, text: str, *, keep_backup: bool =
     (os.replace is atomic on POSIX). With keep_backup, the previous file is first copied to
     `<path>.bak`, itself atomically.
     """
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    if keep_backup and target.exists():
-        backup = target.with_name(target.name + ".bak")
-        _atomic_replace(backup, lambda handle: _copy_into(target, handle))
-    _atomic_replace(target, lambda handle: handle.write(text.encode("utf-8")))
+    stage_text(path, text).commit(keep_backup=keep_backup)
 
 
 def _copy_into(source: Path, handle: Any) -> None:
     with source.open("rb") as original:
         shutil.copyfileobj(original, handle)
-
-
-def _atomic_replace(target: Path, fill: Callable[[Any], object]) -> None:
-    descriptor, temporary = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
-    try:
-        # mkstemp creates the file 0600; give it the usual umask-derived mode of a new file.
-        os.fchmod(descriptor, 0o666 & ~_current_umask())
-        with os.fdopen(descriptor, "wb") as handle:
-            fill(handle)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(temporary, target)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(temporary)
-        raise
-    _fsync_directory(target.parent)
 
 
 def _current_umask() -> int:
@@ -178,12 +206,15 @@ _HEADER = """\
 """
 
 
+def calibration_text(calibration: SensorCalibration) -> str:
+    """The calibration file's text (YAML with its explanatory header)."""
+    document = calibration_to_dict(calibration)
+    return _HEADER + yaml.safe_dump(document, sort_keys=False, default_flow_style=None)
+
+
 def save_calibration(calibration: SensorCalibration, path: str | os.PathLike) -> None:
     """Write the calibration as YAML, atomically, keeping the previous file as `<path>.bak`."""
-    text = _HEADER + yaml.safe_dump(
-        calibration_to_dict(calibration), sort_keys=False, default_flow_style=None
-    )
-    atomic_write_text(path, text, keep_backup=True)
+    atomic_write_text(path, calibration_text(calibration), keep_backup=True)
 
 
 def load_calibration(path: str | os.PathLike) -> SensorCalibration:
@@ -201,51 +232,52 @@ def load_calibration(path: str | os.PathLike) -> SensorCalibration:
         raise CalibrationFileError(f"calibration file {source} is not valid YAML: {error}") from None
     try:
         return calibration_from_dict(document)
-    except (KeyError, TypeError, ValueError) as error:
-        raise CalibrationFileError(f"calibration file {source}: {_describe(error)}") from None
-
-
-def _describe(error: Exception) -> str:
-    return f"missing entry {error}" if isinstance(error, KeyError) else str(error)
+    except ValueError as error:  # SchemaError, or BeaconMap's and BearingCorrection's own checks
+        raise CalibrationFileError(f"calibration file {source}: {error}") from None
 
 
 def calibration_from_dict(document: Any) -> SensorCalibration:
-    """Parse and validate the YAML document of a calibration (see the module docstring)."""
-    if not isinstance(document, dict):
-        raise ValueError("expected a YAML mapping at the top level")
-    if document.get("format") != FILE_FORMAT:
-        raise ValueError(f"format is {document.get('format')!r}, expected {FILE_FORMAT!r}")
-    if document.get("version") != FILE_VERSION:
-        raise ValueError(f"version {document.get('version')!r} is not supported (expected {FILE_VERSION})")
-    beacons = document["beacons"]
-    if not isinstance(beacons, list):
-        raise ValueError("beacons must be a list of {id, x_m, y_m}")
-    beacon_map = BeaconMap.from_lists(
-        [int(b["id"]) for b in beacons],
-        [float(b["x_m"]) for b in beacons],
-        [float(b["y_m"]) for b in beacons],
+    """Parse the YAML document of a calibration against its schema (see the module docstring): every
+    entry is checked for type, shape and finiteness; SchemaError (a ValueError) names the faulty one."""
+    top = file_schema.header(document, FILE_FORMAT, FILE_VERSION)
+    beacon_map = BeaconMap.from_lists(*file_schema.beacon_lists(top))
+    power, rotation, offset = (
+        file_schema.mapping(file_schema.required(top, key), key, keys)
+        for key, keys in (("power_bias", _POWER_KEYS), ("rotation_bias", _ROTATION_KEYS),
+                          ("turret_offset_m", ("x", "y")))
     )
-    window_range = document["power_bias"].get("window_range_rad")
+    window_range = file_schema.optional(power, "window_range_rad", _window_range, "power_bias", None)
     correction = BearingCorrection(
-        tuple(float(document["power_bias"][key]) for key in _POWER_KEYS),
-        tuple(float(document["rotation_bias"][key]) for key in _ROTATION_KEYS),
-        None if window_range is None else (float(window_range[0]), float(window_range[1])),
+        tuple(file_schema.number(power[key], f"power_bias.{key}") for key in _POWER_KEYS),
+        tuple(file_schema.number(rotation[key], f"rotation_bias.{key}") for key in _ROTATION_KEYS),
+        window_range,
     )
-    offset = document["turret_offset_m"]
-    turret_offset_m = (float(offset["x"]), float(offset["y"]))
-    if not all(map(math.isfinite, turret_offset_m)):
-        raise ValueError("turret_offset_m must be finite")
-    leave_one_out = document.get("leave_one_out")
+    turret_offset_m = (file_schema.number(offset["x"], "turret_offset_m.x"),
+                       file_schema.number(offset["y"], "turret_offset_m.y"))
+    rms = file_schema.optional(top, "rms", lambda v, p: file_schema.items(v, p), "", [])
+    warnings = file_schema.optional(top, "warnings", lambda v, p: file_schema.items(v, p), "", [])
     return SensorCalibration(
         beacon_map=beacon_map,
         bearing_correction=correction,
         turret_offset_m=turret_offset_m,
-        rms=tuple(_rms_from_dict(item) for item in document.get("rms") or []),
-        leave_one_out=None if leave_one_out is None else _rms_from_dict(leave_one_out),
-        warnings=tuple(str(text) for text in document.get("warnings") or []),
-        created_utc=str(document.get("created_utc", "")),
+        rms=tuple(_rms_from_dict(item, f"rms[{index}]") for index, item in enumerate(rms)),
+        leave_one_out=file_schema.optional(top, "leave_one_out", _rms_from_dict, "", None),
+        warnings=tuple(file_schema.text(item, f"warnings[{index}]") for index, item in enumerate(warnings)),
+        created_utc=file_schema.optional(top, "created_utc", file_schema.text, "", ""),
     )
 
 
-def _rms_from_dict(item: dict[str, Any]) -> RmsFigures:
-    return RmsFigures(str(item["stage"]), float(item["position_rms_m"]), float(item["orientation_rms_rad"]))
+def _window_range(value: Any, path: str) -> tuple[float, float]:
+    low, high = (file_schema.number(v, f"{path}[{k}]", minimum=0.0)
+                 for k, v in enumerate(file_schema.items(value, path, 2)))
+    if not low <= high:
+        raise file_schema.SchemaError(f"{path}: expected [low, high] with low <= high, got [{low}, {high}]")
+    return (low, high)
+
+
+def _rms_from_dict(item: Any, path: str) -> RmsFigures:
+    entry = file_schema.mapping(item, path, ("stage", "position_rms_m", "orientation_rms_rad"))
+    return RmsFigures(file_schema.text(entry["stage"], f"{path}.stage"),
+                      file_schema.number(entry["position_rms_m"], f"{path}.position_rms_m", minimum=0.0),
+                      file_schema.number(entry["orientation_rms_rad"], f"{path}.orientation_rms_rad",
+                                         minimum=0.0))

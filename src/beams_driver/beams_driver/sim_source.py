@@ -130,7 +130,7 @@ PARAMETERS = (
         "",
         "Calibration file whose power and rotation biases the simulated sensor injects (empty: none).",
     ),
-    ParameterSpec("sim_seed", 1, "Seed of the simulated sensor's noise.", minimum=0, maximum=2**31),
+    ParameterSpec("sim_sensor_seed", 1, "Seed of the simulated sensor's noise.", minimum=0, maximum=2**31),
 )
 
 
@@ -160,7 +160,7 @@ class SimulatedSource:
         self.simulator = SensorSimulator(
             SensorSimConfig(codes=tuple(codes), spurious_rate_hz=values["sim_stray_ir_rate_hz"]),
             beacons_from_map(simulated_map),
-            np.random.default_rng(values["sim_seed"]),
+            np.random.default_rng(values["sim_sensor_seed"]),
             power_bias_rad=injected.power_bias if injected else None,
             rotation_bias_rad=injected.rotation_bias if injected else None,
             turret_offset_m=(float(offset[0]), float(offset[1])),

@@ -45,6 +45,11 @@ from beams_common.ros.node_support import (
     startup_geometry,
 )
 from beams_common.ros.parameters import apply_runtime_changes, declare_table
+from beams_common.validation import (
+    bounded,
+    operator_pose_problem,
+    planar_estimate_problem,
+)
 from beams_ekf.localiser import (
     Estimate,
     build_localiser,
@@ -116,7 +121,19 @@ class EkfNode(Node):
             self._published_stamp_s = None
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
-        self.localiser.on_bearings(message_bearings(msg, stamp_to_seconds))
+        if self.diagnostics.oversized_revolution(msg):  # refused before any per-bearing work
+            return
+        bearings = message_bearings(msg, stamp_to_seconds)
+        counts = self.localiser.stats.counts
+        invalid_before = counts["bearings_invalid measurement"] + counts["bearings_unknown beacon"]
+        note = self.localiser.on_revolution(bearings)
+        if note:
+            self.diagnostics.refuse("revolutions_repeated_beacon", f"revolution {msg.revolution}: {note}")
+        invalid = counts["bearings_invalid measurement"] + counts["bearings_unknown beacon"] - invalid_before
+        if invalid:
+            self.diagnostics.refuse("revolutions_with_invalid_bearings", f"revolution {msg.revolution}: "
+                                    f"{invalid} bearing(s) refused (unknown beacon, non-finite value or "
+                                    "non-physical variance)")
         self._changed = True
         self._publish()  # at once: the end-to-end latency from a revolution to the estimate stays small
 
@@ -133,16 +150,25 @@ class EkfNode(Node):
         return response
 
     def _operator_pose(self, msg: PoseWithCovarianceStamped) -> tuple[bool, str]:
-        """An operator's pose (RViz /initialpose or the set_pose service): (taken, what happened)."""
+        """An operator's pose (RViz /initialpose or the set_pose service): (taken, what happened); taken
+        only when the filter was initialised from it."""
         if msg.header.frame_id and msg.header.frame_id != self.map_frame:
-            self.diagnostics.increment("poses_wrong_frame")
             message = f"pose in frame {msg.header.frame_id!r} ignored (expected {self.map_frame!r})"
-            self.get_logger().warning(message)
-            return False, message
+            self.diagnostics.refuse("poses_wrong_frame", message)
+            return False, bounded(message)
+        position, q = msg.pose.pose.position, msg.pose.pose.orientation
+        problem = operator_pose_problem((position.x, position.y, position.z), (q.x, q.y, q.z, q.w),
+                                        msg.pose.covariance)
+        if problem:
+            self.diagnostics.refuse("operator_poses_refused", problem)
+            return False, f"operator pose refused: {problem}"
         what = self._offer_pose(msg.header.stamp, msg.pose, operator=True)
+        if what != "initialisations":
+            self.diagnostics.refuse("operator_poses_refused", f"the filter did not take it: {what}")
+            return False, f"operator pose refused by the filter: {what}"
         self.get_logger().info(f"operator pose: {what}")
         self._publish()
-        return self.localiser.estimate() is not None, f"operator pose: {what}"
+        return True, f"operator pose: {what}"
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
         beacon_map, offset = calibration.beacon_map, calibration.turret_offset_m
@@ -167,6 +193,10 @@ class EkfNode(Node):
         estimate = self.localiser.estimate()
         self._update_diagnostics(estimate)
         if estimate is None or not math.isfinite(estimate.stamp_s):
+            return
+        problem = planar_estimate_problem(estimate.pose, estimate.covariance)
+        if problem:  # the invariant of every published estimate
+            self.diagnostics.refuse("estimates_not_published_invalid", problem, level="error")
             return
         if estimate.stamp_s == self._published_stamp_s and not self._changed:  # nothing new since
             return

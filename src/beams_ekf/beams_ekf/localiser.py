@@ -33,6 +33,7 @@ from beams_common.angles import wrap_to_pi
 from beams_common.pose2d import Pose2D, between, compose, inverse, is_finite_pose
 from beams_common.pose_buffer import PoseBuffer
 from beams_common.time_jumps import StampOrder, TimeJumpDetector
+from beams_common.validation import bearing_problem, one_sighting_per_beacon, revolution_size_problem
 from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise, turret_pose
 from beams_ekf.pose_filter import BearingOutcome, PoseFilter
 
@@ -299,6 +300,31 @@ class Localiser:
         return None if then is None else between(then, latest[1])
 
     # -- bearings -------------------------------------------------------------------------------------
+    def on_revolution(self, bearings: Sequence[Bearing]) -> str:
+        """One revolution's bearings (a beams/bearings message): refused whole beyond
+        MAX_BEARINGS_PER_REVOLUTION, one sighting per beacon (`validation.one_sighting_per_beacon`, the
+        triangulation's rule: a repeated sighting is dropped, a beacon seen twice at one instant refused),
+        then `on_bearings`. Returns why bearings were refused or dropped ('' when none was); counted."""
+        problem = revolution_size_problem(len(bearings))
+        if problem:
+            self.stats.counts["revolutions_too_many_bearings"] += 1
+            return problem
+        sightings = one_sighting_per_beacon(bearings)
+        conflicting = set(sightings.conflicting_ids)
+        usable = [b for b in sightings.kept if b.beacon_id not in conflicting]
+        notes = []
+        if conflicting:
+            refused = sum(b.beacon_id in conflicting for b in bearings)
+            self.stats.counts["bearings_conflicting_beacon"] += refused
+            notes.append(f"beacon(s) {sorted(conflicting)} seen twice at one instant: refused")
+        repeated = [b for b in sightings.dropped if b.beacon_id not in conflicting]
+        if repeated:
+            self.stats.counts["bearings_repeated_beacon"] += len(repeated)
+            notes.append(f"beacon(s) {sorted({b.beacon_id for b in repeated})} seen again in the revolution: "
+                         "the sighting nearest the revolution's middle is used")
+        self.on_bearings(usable)
+        return "; ".join(notes)
+
     def on_bearing(self, stamp_s: float, beacon_id: int, bearing_rad: float,
                    variance_rad2: float) -> BearingOutcome:
         """Apply one bearing (sensor frame) at its own stamp."""
@@ -343,13 +369,13 @@ class Localiser:
         return [outcomes[n] for n in range(len(bearings))]
 
     def _invalid_reason(self, bearing: Bearing) -> str:
-        """Why the filter can never use a bearing (BearingEkf's reasons), or an empty string."""
-        if bearing.beacon_id not in self.ekf.beacons_xy:
-            return "unknown beacon"
-        values = (bearing.stamp_s, bearing.bearing_rad, bearing.variance_rad2)
-        if not (all(map(isfinite, values)) and bearing.variance_rad2 > 0.0):
-            return "invalid measurement"
-        return ""
+        """Why the filter can never use a bearing (`validation.bearing_problem`, the triangulation's rule
+        too), as a counter name, or an empty string."""
+        problem = bearing_problem(bearing.beacon_id, bearing.bearing_rad, bearing.variance_rad2,
+                                  bearing.stamp_s, self.ekf.beacons_xy)
+        if not problem:
+            return ""
+        return "unknown beacon" if bearing.beacon_id not in self.ekf.beacons_xy else "invalid measurement"
 
     def _ahead_of_odometry(self, stamp_s: float) -> bool:
         """True for a stamp after the newest odometry (past extrapolation) but within the history span."""

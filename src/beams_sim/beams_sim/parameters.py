@@ -49,7 +49,7 @@ SIM_WORLD_PARAMETERS = ParameterTable(
             minimum=1.0,
             maximum=600.0,
         ),
-        ParameterSpec("seed", 0, "Seed of the random trajectory.", minimum=0, maximum=2**31),
+        ParameterSpec("trajectory_seed", 0, "Seed of the random trajectory.", minimum=0, maximum=2**31),
         ParameterSpec(
             "start_pose",
             [0.4, 1.0, 0.0],
@@ -124,7 +124,7 @@ def trajectory_of(values: Mapping[str, Any]) -> EurobotTrajectory:
     if values["trajectory"] == "waypoints":
         points = list(zip(values["waypoints_x"], values["waypoints_y"], strict=True))
         return EurobotTrajectory.through_waypoints(points, duration_s, limits)
-    return EurobotTrajectory.random(values["seed"], duration_s, limits, _pose(values["start_pose"]))
+    return EurobotTrajectory.random(values["trajectory_seed"], duration_s, limits, _pose(values["start_pose"]))
 
 
 def drift_of(values: Mapping[str, Any]) -> OdometryDrift:

@@ -27,6 +27,7 @@ import numpy as np
 
 from beams_common.beacon_map import BeaconMap
 from beams_common.pose_buffer import twist_between
+from beams_common.validation import bearing_problem, one_sighting_per_beacon, revolution_size_problem
 from beams_triangulation.motion_compensation import (
     motion_variance_rad2,
     odometry_buffer,
@@ -131,18 +132,16 @@ def best_triplet(beacons_xy: np.ndarray, bearings_rad: np.ndarray, variances_rad
     return tuple(int(i) for i in triplets[int(np.argmin(score))])
 
 
-def _validate(beacon_ids: Sequence[int], bearings: np.ndarray, variances: np.ndarray,
+def _validate(beacon_ids: Sequence[int], bearings: np.ndarray, variances: np.ndarray, stamps: np.ndarray,
               beacon_map: BeaconMap) -> str:
-    """The reason the input cannot give a pose, or an empty string."""
-    unknown = [i for i in beacon_ids if i not in beacon_map]
-    if unknown:
-        return f"unknown beacon id(s) {unknown}: not on the beacon map {list(beacon_map.ids)}"
+    """The reason the input cannot give a pose (`validation.bearing_problem`, the EKF's rule too, on each
+    bearing; a beacon seen twice at one instant), or an empty string."""
     if len(set(beacon_ids)) != len(beacon_ids):
         return f"duplicated beacon id in one revolution: {list(beacon_ids)}"
-    if not np.all(np.isfinite(bearings)):
-        return f"non-finite bearing in {bearings.tolist()}"
-    if not (np.all(np.isfinite(variances)) and np.all(variances >= 0.0)):
-        return f"invalid bearing variance in {variances.tolist()} (rad^2, must be finite and >= 0)"
+    for values in zip(beacon_ids, bearings, variances, stamps, strict=True):
+        problem = bearing_problem(*values, beacon_map.ids)
+        if problem:
+            return problem
     return ""
 
 
@@ -205,26 +204,12 @@ class BearingLike(Protocol):
 
 
 def drop_repeated_beacons(bearings: Sequence[BearingLike]) -> list[BearingLike]:
-    """One bearing per beacon: a beacon seen twice at different instants keeps the sighting closest in
-    time to the revolution's median instant.
-
-    A robot turning against the turret sees the beacon near the zero reference at the start and again
-    at the end of the same revolution (a few percent of the revolutions of a match): both sightings are
-    real, the closer one in time needs the least motion compensation. Two sightings at the same instant
-    are not physical and stay, for the validation to refuse.
-    """
-    median_s = float(np.median([b.stamp_s for b in bearings])) if bearings else 0.0
-    kept: dict[int, BearingLike] = {}
-    duplicates_at_one_instant = []
-    for bearing in bearings:
-        previous = kept.get(bearing.beacon_id)
-        if previous is None:
-            kept[bearing.beacon_id] = bearing
-        elif previous.stamp_s == bearing.stamp_s:
-            duplicates_at_one_instant.append(bearing)
-        elif abs(bearing.stamp_s - median_s) < abs(previous.stamp_s - median_s):
-            kept[bearing.beacon_id] = bearing
-    return [*kept.values(), *duplicates_at_one_instant]
+    """One bearing per beacon (`validation.one_sighting_per_beacon`, the EKF's rule too): a beacon seen
+    twice at different instants keeps the sighting closest in time to the revolution's median instant.
+    Two sightings at the same instant are not physical and stay, for the validation to refuse."""
+    sightings = one_sighting_per_beacon(bearings)
+    conflicting = set(sightings.conflicting_ids)
+    return [*sightings.kept, *(b for b in sightings.dropped if b.beacon_id in conflicting)]
 
 
 @dataclass(frozen=True)
@@ -253,14 +238,16 @@ def estimate_revolution(
     cover the bearings), motion=(speed m/s, yaw rate rad/s) seen between revolutions inflates the
     bearing variances (`motion_variance_rad2`).
     """
+    too_many = revolution_size_problem(len(bearings))  # before any per-bearing work
+    if too_many:
+        return RevolutionPose(NoPose(too_many, bad_input=True), math.nan, False)
     bearings = drop_repeated_beacons(bearings)
     ids = [b.beacon_id for b in bearings]
     angles = np.array([b.bearing for b in bearings], dtype=float)
     variances = np.array([b.variance for b in bearings], dtype=float)
     stamps = np.array([b.stamp_s for b in bearings], dtype=float)
     mean_stamp = float(stamps.mean()) if len(stamps) else math.nan
-    problem = _validate(ids, angles, variances, beacon_map) or ("" if np.all(np.isfinite(stamps))
-                                                                 else "non-finite bearing stamp")
+    problem = _validate(ids, angles, variances, stamps, beacon_map)
     if problem:
         return RevolutionPose(NoPose(problem, bad_input=True), mean_stamp, False)
     if len(ids) < 3:

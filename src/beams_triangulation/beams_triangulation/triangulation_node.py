@@ -36,6 +36,11 @@ from beams_common.ros.node_support import (
     startup_geometry,
 )
 from beams_common.ros.parameters import apply_runtime_changes, declare_table
+from beams_common.validation import (
+    bounded,
+    one_sighting_per_beacon,
+    planar_estimate_problem,
+)
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_triangulation.gating import (
     NoPose,
@@ -106,7 +111,13 @@ class TriangulationNode(Node):
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
         self.diagnostics.increment("revolutions")
-        self._handle(self.pipeline.on_revolution(msg.revolution, message_bearings(msg, stamp_to_seconds)))
+        if self.diagnostics.oversized_revolution(msg):  # refused before any per-bearing work
+            return
+        bearings = message_bearings(msg, stamp_to_seconds)
+        dropped = one_sighting_per_beacon(bearings).dropped
+        if dropped:  # the pipeline keeps one sighting per beacon (gating.drop_repeated_beacons)
+            self.diagnostics.increment("repeated_beacon_sightings", len(dropped))
+        self._handle(self.pipeline.on_revolution(msg.revolution, bearings))
 
     def _handle(self, completed: list[tuple[int, RevolutionPose]]) -> None:
         """Publish the revolutions the pipeline completed (or say why they gave no pose)."""
@@ -117,11 +128,9 @@ class TriangulationNode(Node):
                 self._publish(outcome.result, outcome.stamp_s, outcome.compensated)
 
     def _report_no_pose(self, no_pose: NoPose, revolution: int) -> None:
-        reason = no_pose.reason
+        reason = bounded(no_pose.reason)
         if no_pose.bad_input:
-            self.diagnostics.increment("bad_input")
-            self.get_logger().warning(f"revolution {revolution}: no pose, bad input: {reason}",
-                                   throttle_duration_sec=1.0)
+            self.diagnostics.refuse("bad_input", f"revolution {revolution}: no pose: {reason}")
         else:
             self.diagnostics.increment("no_pose")
             self.get_logger().debug(f"revolution {revolution}: no pose: {reason}")
@@ -129,6 +138,10 @@ class TriangulationNode(Node):
 
     # -- outputs --------------------------------------------------------------------------------------
     def _publish(self, estimate: PoseEstimate, stamp_s: float, compensated: bool) -> None:
+        problem = planar_estimate_problem((estimate.x, estimate.y, estimate.heading), estimate.covariance)
+        if problem or not math.isfinite(stamp_s):  # the invariant of every published pose
+            self.diagnostics.refuse("poses_not_published_invalid", problem or f"non-finite stamp {stamp_s}")
+            return
         message = TriangulatedPose()
         message.header.stamp = seconds_to_stamp(stamp_s)
         message.header.frame_id = self.map_frame

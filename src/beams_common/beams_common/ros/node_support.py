@@ -10,7 +10,9 @@ from collections.abc import Callable
 from typing import Any
 
 import rclpy
+from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rclpy.clock import Clock, ClockType
 from rclpy.executors import Executor, ExternalShutdownException, SingleThreadedExecutor
 from rclpy.experimental import EventsExecutor
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
@@ -22,6 +24,7 @@ from std_srvs.srv import Trigger
 from beams_common.calibration_file import SensorCalibration, load_calibration
 from beams_common.geometry_parameters import BeaconGeometry, geometry_of
 from beams_common.ros.parameters import ParameterValidationError
+from beams_common.validation import bounded, revolution_size_problem
 
 EXIT_INVALID_PARAMETERS = 2
 # beams/bearings: reliable, so no revolution is lost between the driver and the filters (a best-effort
@@ -162,17 +165,30 @@ def serve_calibration_reload(node: Node, apply: Callable[[SensorCalibration], st
             response.message = apply(load_calibration(path))
             response.success = True
             node.get_logger().info(f"calibration reloaded from {path}: {response.message}")
-        except (OSError, ValueError) as error:
+        except (OSError, ValueError) as error:  # the file's schema turns any malformed entry into these
             response.success = False
-            response.message = f"calibration not reloaded, the one in use stays: {error}"
-            node.get_logger().error(response.message)
+            response.message = bounded(f"calibration not reloaded, the one in use stays: {error}")
+            diagnostics = getattr(node, "diagnostics", None)
+            if isinstance(diagnostics, Diagnostics):
+                diagnostics.refuse("calibration_reloads_refused", response.message, level="error")
+            else:
+                node.get_logger().error(response.message)
         return response
 
     node.create_service(Trigger, "~/reload_calibration", reload)
 
 
 class Diagnostics:
-    """Counters and a status published on /diagnostics once a second (diagnostic_msgs)."""
+    """Counters and a status published on /diagnostics once a second (diagnostic_msgs).
+
+    A refusal (`refuse`) is counted, logged (throttled) and shown: the next publication is at least WARN
+    with its reason, whatever the node's status became meanwhile. Every text is bounded in length
+    (`validation.bounded`). Under use_sim_time, while no /clock has come, a status "waiting for /clock"
+    is published on the steady (wall) clock, with a log line every WAITING_LOG_PERIOD publications.
+    """
+
+    WAITING_FOR_CLOCK = "waiting for /clock (use_sim_time is true): no time, nothing processed"
+    WAITING_LOG_PERIOD = 5
 
     def __init__(self, node: Node, name: str, period_s: float = 1.0) -> None:
         self._node = node
@@ -180,8 +196,14 @@ class Diagnostics:
         self._values: dict[str, Any] = {}
         self._level = "ok"
         self._message = "running"
+        self._refusal: tuple[str, str] | None = None  # (level, reason) not yet published
         self._publisher = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self._timer = node.create_timer(period_s, self.publish)
+        self._clock_waits = 0
+        if node.get_parameter("use_sim_time").value:
+            # the node's timers run on /clock: without it they never fire, so watch on the steady clock
+            self._clock_watch = node.create_timer(period_s, self._watch_clock,
+                                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
 
     def increment(self, key: str, count: int = 1) -> None:
         self._values[key] = self._values.get(key, 0) + count
@@ -196,20 +218,59 @@ class Diagnostics:
         if level not in _LEVELS:
             raise ValueError(f"diagnostic level must be one of {sorted(_LEVELS)}, got {level!r}")
         self._level = level
-        self._message = message
+        self._message = bounded(message)
+
+    def refuse(self, key: str, reason: str, level: str = "warn") -> None:
+        """Count a refused input under `key`, keep its reason in `last_refusal`, make the next status at
+        least `level` with it, and log it (at most once a second)."""
+        if level not in ("warn", "error"):
+            raise ValueError(f"a refusal is 'warn' or 'error', got {level!r}")
+        reason = bounded(reason)
+        self.increment(key)
+        self._values["last_refusal"] = f"{key}: {reason}"
+        if self._refusal is None or _LEVELS[level] >= _LEVELS[self._refusal[0]]:
+            self._refusal = (level, f"{key}: {reason}")
+        log = self._node.get_logger().error if level == "error" else self._node.get_logger().warning
+        log(f"refused ({key}, {self._values[key]} so far): {reason}", throttle_duration_sec=1.0)
+
+    def oversized_revolution(self, message: Any) -> bool:
+        """True, the message refused and counted, when a beams/bearings message holds more bearings than a
+        revolution can (`validation.MAX_BEARINGS_PER_REVOLUTION`): checked before any per-bearing work."""
+        problem = revolution_size_problem(len(message.bearings))
+        if problem:
+            self.refuse("revolutions_too_many_bearings", f"revolution {message.revolution}: {problem}")
+        return bool(problem)
 
     def publish(self) -> None:
+        level, message = self._level, self._message
+        if self._refusal is not None:
+            refusal_level, reason = self._refusal
+            self._refusal = None
+            level = refusal_level if _LEVELS[refusal_level] > _LEVELS[level] else level
+            message = bounded(f"{message}; refused {reason}")
+        self._send(level, message, self._node.get_clock().now().to_msg())
+
+    def _send(self, level: str, message: str, stamp: Any) -> None:
         status = DiagnosticStatus(
-            level=_LEVELS[self._level],
+            level=_LEVELS[level],
             name=self._name,
-            message=self._message,
+            message=message,
             hardware_id="beams",
             values=[KeyValue(key=key, value=_format_value(value)) for key, value in self._values.items()],
         )
         array = DiagnosticArray(status=[status])
-        array.header.stamp = self._node.get_clock().now().to_msg()
+        array.header.stamp = stamp
         self._publisher.publish(array)
+
+    def _watch_clock(self) -> None:
+        """Under use_sim_time: say so while the node's clock has not started (no /clock yet)."""
+        if self._node.get_clock().now().nanoseconds != 0:
+            return
+        self._send("warn", self.WAITING_FOR_CLOCK, Time())
+        if self._clock_waits % self.WAITING_LOG_PERIOD == 0:
+            self._node.get_logger().warning(self.WAITING_FOR_CLOCK)
+        self._clock_waits += 1
 
 
 def _format_value(value: Any) -> str:
-    return f"{value:.6g}" if isinstance(value, float) else str(value)
+    return f"{value:.6g}" if isinstance(value, float) else bounded(str(value))

@@ -1,0 +1,159 @@
+"""The checks every input and output of the BeAMS nodes goes through, each returning a reason.
+
+Pure functions (no rclpy), shared by the nodes and the offline tools: an empty string means "valid",
+anything else is the reason, bounded in length, that a service reply, a log line and /diagnostics give.
+
+- Messages: at most `MAX_BEARINGS_PER_REVOLUTION` bearings per revolution (bounded work per message),
+  each bearing finite with a variance of at least `MIN_BEARING_VARIANCE_RAD2` (`bearing_problem`, the
+  one rule of the triangulation and the EKF), one sighting per beacon (`one_sighting_per_beacon`).
+- Outputs: a planar pose leaves a node only finite with a symmetric positive definite covariance
+  (`planar_estimate_problem`).
+- Requests: an operator's pose (`operator_pose_problem`).
+"""
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+
+# A real turret sees 3 beacons (the thesis's setup), a few more on a crowded table; 64 leaves room for
+# 21 robots' worth of beacons yet bounds a revolution's cost (10,000 bearings froze the EKF for 0.5 s).
+MAX_BEARINGS_PER_REVOLUTION = 64
+# The encoder resolves 2 pi / 62,400 rad (serial_protocol.TICKS_PER_REVOLUTION): a bearing, the mean of
+# two edge angles, cannot be known better than that tick's quantisation variance tick^2 / 12 = 8.4e-10
+# rad^2 (the driver's own floor, the natural variance, is 3.0e-7 rad^2). Below it a variance is not
+# physical, and 0 would give ToTal an all-zero, singular pose covariance (eq. 6.30).
+ENCODER_TICK_RAD = 2.0 * math.pi / 62_400
+MIN_BEARING_VARIANCE_RAD2 = ENCODER_TICK_RAD**2 / 12.0
+# Reasons travel in service replies, log lines and /diagnostics: long enough for a path and a value.
+MAX_REASON_CHARS = 240
+# Relative asymmetry tolerated in a covariance computed in floating point (J S J' is symmetric to
+# rounding only).
+SYMMETRY_TOLERANCE = 1e-9
+# Smallest eigenvalue over the largest below which a covariance is singular in floating point (a
+# Cholesky factorisation still succeeds on some singular matrices by rounding): 1e-12 leaves six orders
+# of magnitude beyond any pose covariance the nodes compute (1e-8 m^2 next to 1e-2 rad^2).
+MAX_CONDITION_RECIPROCAL = 1e-12
+
+
+def bounded(text: str, limit: int = MAX_REASON_CHARS) -> str:
+    """`text` cut to `limit` characters, the cut marked, so that no reason costs unbounded work."""
+    return text if len(text) <= limit else text[: limit - 15] + f" ... (+{len(text) - limit + 15} chars)"
+
+
+def revolution_size_problem(count: int) -> str:
+    """Why a revolution of `count` bearings is refused whole (too many to be a real turret's), or ''."""
+    if count > MAX_BEARINGS_PER_REVOLUTION:
+        return f"{count} bearings in one revolution, more than the limit {MAX_BEARINGS_PER_REVOLUTION}"
+    return ""
+
+
+def bearing_problem(
+    beacon_id: int, bearing_rad: float, variance_rad2: float, stamp_s: float, known_ids: Iterable[int]
+) -> str:
+    """Why one bearing can never be used (unknown beacon, non-finite value, non-physical variance), or ''.
+
+    The variance must be finite and at least MIN_BEARING_VARIANCE_RAD2 (the encoder's quantisation).
+    """
+    if beacon_id not in known_ids:
+        return f"unknown beacon id {beacon_id}: not on the beacon map"
+    if not (math.isfinite(bearing_rad) and math.isfinite(stamp_s)):
+        return f"beacon {beacon_id}: non-finite bearing {float(bearing_rad)!r} or stamp {float(stamp_s)!r}"
+    if not (math.isfinite(variance_rad2) and variance_rad2 >= MIN_BEARING_VARIANCE_RAD2):
+        return (
+            f"beacon {beacon_id}: invalid bearing variance {float(variance_rad2)!r} rad^2 (must be "
+            f"finite and >= {MIN_BEARING_VARIANCE_RAD2:.2e} rad^2, the encoder's quantisation)"
+        )
+    return ""
+
+
+class Sighting(Protocol):
+    """What `one_sighting_per_beacon` needs of a bearing."""
+
+    beacon_id: int
+    stamp_s: float
+
+
+@dataclass(frozen=True)
+class Sightings:
+    """A revolution's bearings sorted out: one per beacon (`kept`), the repeated sightings set aside
+    (`dropped`), and the beacons seen twice at one instant (`conflicting_ids`, not physical: refused)."""
+
+    kept: list[Any]
+    dropped: list[Any]
+    conflicting_ids: list[int]
+
+
+def one_sighting_per_beacon(bearings: Sequence[Sighting]) -> Sightings:
+    """One bearing per beacon: a beacon seen again at another instant keeps the sighting closest in time
+    to the revolution's median instant; a beacon seen twice at one instant is conflicting.
+
+    A robot turning against the turret sees the beacon near the zero reference at the start and again
+    at the end of the same revolution: both sightings are real, the closer one in time needs the least
+    motion compensation. The triangulation and the EKF apply the same rule.
+    """
+    finite = [b.stamp_s for b in bearings if math.isfinite(b.stamp_s)]
+    median_s = float(np.median(finite)) if finite else 0.0
+    kept: dict[int, Any] = {}
+    dropped: list[Any] = []
+    conflicting: list[int] = []
+    for bearing in bearings:
+        previous = kept.get(bearing.beacon_id)
+        if previous is None:
+            kept[bearing.beacon_id] = bearing
+            continue
+        if previous.stamp_s == bearing.stamp_s:
+            if bearing.beacon_id not in conflicting:
+                conflicting.append(bearing.beacon_id)
+            dropped.append(bearing)
+        elif abs(bearing.stamp_s - median_s) < abs(previous.stamp_s - median_s):
+            dropped.append(previous)
+            kept[bearing.beacon_id] = bearing
+        else:
+            dropped.append(bearing)
+    return Sightings(list(kept.values()), dropped, conflicting)
+
+
+def covariance_problem(covariance: Any, size: int = 3) -> str:
+    """Why a covariance cannot be published (shape, non-finite, asymmetric, not positive definite), or ''."""
+    matrix = np.asarray(covariance, dtype=float)
+    if matrix.shape != (size, size):
+        return f"covariance of shape {matrix.shape}, expected ({size}, {size})"
+    if not np.all(np.isfinite(matrix)):
+        return "covariance has a non-finite entry"
+    scale = float(np.max(np.abs(matrix)))
+    if scale == 0.0:
+        return "covariance is all zero"
+    if float(np.max(np.abs(matrix - matrix.T))) > SYMMETRY_TOLERANCE * scale:
+        return "covariance is not symmetric"
+    normalised = matrix / scale  # entries in [-1, 1]: no overflow whatever the magnitude
+    eigenvalues = np.linalg.eigvalsh(0.5 * (normalised + normalised.T))
+    if not eigenvalues[0] > MAX_CONDITION_RECIPROCAL * eigenvalues[-1]:
+        return f"covariance is not positive definite (eigenvalues {eigenvalues.tolist()} x {scale:.3g})"
+    return ""
+
+
+def planar_estimate_problem(pose: Sequence[float], covariance: Any) -> str:
+    """Why a planar pose (x, y, theta) and its 3x3 covariance must not leave a node, or ''."""
+    if len(pose) != 3 or not all(math.isfinite(float(v)) for v in pose):
+        return bounded(f"pose {tuple(pose)} is not three finite numbers")
+    problem = covariance_problem(covariance)
+    return f"pose ({pose[0]:.3f}, {pose[1]:.3f}, {pose[2]:.3f}): {problem}" if problem else ""
+
+
+def operator_pose_problem(
+    position: Sequence[float], quaternion: Sequence[float], covariance_6x6: Sequence[float]
+) -> str:
+    """Why an operator's pose (set_pose, /initialpose) is refused: non-finite position, orientation or
+    covariance, or a quaternion of zero norm; ''. An all-zero covariance is allowed (the default is used)."""
+    if not all(math.isfinite(float(v)) for v in position):
+        return bounded(f"position {tuple(position)} is not finite")
+    if not all(math.isfinite(float(v)) for v in quaternion):
+        return bounded(f"orientation {tuple(quaternion)} is not finite")
+    if math.hypot(*(float(v) for v in quaternion)) < 1e-6:  # hypot: no overflow on huge entries
+        return "orientation quaternion has zero norm"
+    if not all(math.isfinite(float(v)) for v in covariance_6x6):
+        return "covariance has a non-finite entry"
+    return ""
