@@ -150,7 +150,7 @@ class TriangulationNode(Node):
     def _report_no_pose(self, no_pose: NoPose, revolution: int) -> None:
         reason = bounded(no_pose.reason)
         if no_pose.bad_input:
-            self.diagnostics.refuse("bad_input", f"revolution {revolution}: no pose: {reason}")
+            self.diagnostics.refuse("bad_input", f"revolution {revolution}: no pose, bad input: {reason}")
         else:
             self.diagnostics.increment("no_pose")
             self.get_logger().debug(f"revolution {revolution}: no pose: {reason}")
