@@ -125,9 +125,11 @@ class TriangulationNode(Node):
     # -- inputs ---------------------------------------------------------------------------------------
     def _on_odometry(self, msg: Odometry) -> None:
         twist = (msg.twist.twist.linear.x, msg.twist.twist.angular.z)
+        rejected = self.pipeline.rejected_odometry
         self._handle(self.pipeline.on_odometry(stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose),
                                                twist))
-        self.diagnostics.set("odometry_rejected_non_finite", self.pipeline.rejected_odometry)
+        if self.pipeline.rejected_odometry > rejected:
+            self.diagnostics.refuse("odometry_rejected_non_finite", "odometry with a non-finite value")
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
         self.diagnostics.increment("revolutions")
