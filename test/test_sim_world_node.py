@@ -55,7 +55,10 @@ def test_publishes_truth_and_perfect_odometry_at_50_hz_in_a_namespace(start_node
         Odometry, "/robot1/odom", qos_profile_sensor_data
     )  # best effort matches too
     start_node(
-        "beams_sim", "sim_world_node", {"trajectory_seed": 3, "duration_s": 20.0, **ZERO_DRIFT}, namespace="/robot1"
+        "beams_sim",
+        "sim_world_node",
+        {"trajectory_seed": 3, "duration_s": 20.0, **ZERO_DRIFT},
+        namespace="/robot1",
     )
     assert rclpy_node.spin_until(lambda: len(truth) >= 100 and len(odometry) >= 100, WAIT_S)
 

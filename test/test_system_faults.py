@@ -58,7 +58,12 @@ def robot_parameters(seed: int, **overrides: dict[str, Any]) -> dict[str, dict[s
     `overrides` maps a node ("sim_world", "driver", "triangulation", "ekf") to parameters to add.
     """
     parameters = {
-        "sim_world": {"trajectory": "random", "trajectory_seed": seed, "odometry_seed": seed + 1, "duration_s": MATCH_S},
+        "sim_world": {
+            "trajectory": "random",
+            "trajectory_seed": seed,
+            "odometry_seed": seed + 1,
+            "duration_s": MATCH_S,
+        },
         "driver": {"sim_sensor_seed": seed + 2},
         "triangulation": {"publish_markers": False},
         "ekf": {},
@@ -76,11 +81,13 @@ NODE_EXECUTABLES = {
 }
 
 
-def start_robot(start_node: Callable[..., Any], parameters: dict[str, dict[str, Any]],
-                namespace: str = "") -> dict[str, Any]:
+def start_robot(
+    start_node: Callable[..., Any], parameters: dict[str, dict[str, Any]], namespace: str = ""
+) -> dict[str, Any]:
     """Start the four nodes of one robot (separate processes) in a namespace; {node: NodeProcess}."""
-    return {name: start_node(*NODE_EXECUTABLES[name], parameters[name], namespace)
-            for name in NODE_EXECUTABLES}
+    return {
+        name: start_node(*NODE_EXECUTABLES[name], parameters[name], namespace) for name in NODE_EXECUTABLES
+    }
 
 
 def stamp_s(stamp) -> float:
@@ -144,8 +151,9 @@ class RobotProbe:
         node.create_subscription(Odometry, prefix + "beams/ekf/odometry", self._on_ekf, 50)
         node.create_subscription(TriangulatedPose, prefix + "beams/pose", self._on_total, 50)
         node.create_subscription(Odometry, prefix + "odom", self._on_odometry, qos_profile_sensor_data)
-        node.create_subscription(BeaconBearingArray, prefix + "beams/bearings", self._on_bearings,
-                                 qos_profile_sensor_data)
+        node.create_subscription(
+            BeaconBearingArray, prefix + "beams/bearings", self._on_bearings, qos_profile_sensor_data
+        )
         node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
 
     def _on_truth(self, msg) -> None:
@@ -202,14 +210,21 @@ class RobotProbe:
 
 def wait_for_log(graph, node, text: str, timeout_s: float) -> float:
     """Spin until a node's log shows `text`; the monotonic time it was seen (fails the test on time-out)."""
-    assert graph.spin_until(lambda: text in node.log(), timeout_s), \
+    assert graph.spin_until(lambda: text in node.log(), timeout_s), (
         f"{node.name} did not log {text!r} within {timeout_s} s:\n{node.log()}"
+    )
     return time.monotonic()
 
 
-def restart_after_kill(graph, start_node, nodes: dict[str, Any], name: str,
-                       parameters: dict[str, dict[str, Any]], ready_text: str,
-                       stop_signal: int = signal.SIGKILL) -> float:
+def restart_after_kill(
+    graph,
+    start_node,
+    nodes: dict[str, Any],
+    name: str,
+    parameters: dict[str, dict[str, Any]],
+    ready_text: str,
+    stop_signal: int = signal.SIGKILL,
+) -> float:
     """Kill a node (SIGKILL) or stop it cleanly (SIGTERM: exit 0), start it again; the monotonic time the
     new process logged `ready_text`."""
     status = nodes[name].stop(stop_signal)
@@ -294,14 +309,16 @@ def check_restarts(graph, start_node, nodes, parameters, probe: RobotProbe) -> d
     """Restart the triangulation after a clean stop, then kill -9 and restart the triangulation, then the
     EKF: each output is back within issue 7's 2 s of its start-up, the new EKF
     reports its initialisation and is accurate again once settled."""
-    ready = restart_after_kill(graph, start_node, nodes, "triangulation", parameters,
-                               "triangulation_node ready", signal.SIGTERM)
+    ready = restart_after_kill(
+        graph, start_node, nodes, "triangulation", parameters, "triangulation_node ready", signal.SIGTERM
+    )
     graph.spin_until(lambda: first_after(probe.total_arrivals, ready) < math.inf, 10.0)
     clean_back_s = first_after(probe.total_arrivals, ready) - ready
     assert clean_back_s <= RECOVERY_BOUND_S, f"ToTal back {clean_back_s:.2f} s after a clean restart"
 
-    ready = restart_after_kill(graph, start_node, nodes, "triangulation", parameters,
-                               "triangulation_node ready")
+    ready = restart_after_kill(
+        graph, start_node, nodes, "triangulation", parameters, "triangulation_node ready"
+    )
     graph.spin_until(lambda: first_after(probe.total_arrivals, ready) < math.inf, 10.0)
     total_back_s = first_after(probe.total_arrivals, ready) - ready
     assert total_back_s <= RECOVERY_BOUND_S, f"ToTal back {total_back_s:.2f} s after a kill -9"
@@ -311,24 +328,31 @@ def check_restarts(graph, start_node, nodes, parameters, probe: RobotProbe) -> d
     ekf_back_s = first_after(probe.ekf_arrivals, ready) - ready
     assert ekf_back_s <= RECOVERY_BOUND_S, f"EKF back {ekf_back_s:.2f} s after a kill -9"
     # the killed process cannot report any more: what arrives after `ready` is the new one's
-    assert graph.spin_until(lambda: probe.counter("ekf", "initialisations", since=ready) == 1, 5.0), \
+    assert graph.spin_until(lambda: probe.counter("ekf", "initialisations", since=ready) == 1, 5.0), (
         "the restarted EKF did not report its initialisation in /diagnostics"
+    )
     restarted_s = probe.ekf[-1][0]
     graph.spin_until(lambda: probe.latest_truth_stamp() > restarted_s + 2 * SETTLE_S, 15.0)
     rms_m = assert_ekf_back(probe, restarted_s + SETTLE_S, restarted_s + 2 * SETTLE_S, "its restart")
-    return {"ToTal back after a clean restart (s)": clean_back_s,
-            "ToTal back after restart (s)": total_back_s, "EKF back after restart (s)": ekf_back_s,
-            "EKF RMS after restart (m)": rms_m, "restarts over at (stamp s)": restarted_s + 2 * SETTLE_S}
+    return {
+        "ToTal back after a clean restart (s)": clean_back_s,
+        "ToTal back after restart (s)": total_back_s,
+        "EKF back after restart (s)": ekf_back_s,
+        "EKF RMS after restart (m)": rms_m,
+        "restarts over at (stamp s)": restarted_s + 2 * SETTLE_S,
+    }
 
 
 def check_occlusion(graph, probe: RobotProbe) -> tuple[float, dict[str, float]]:
     """Beacon 3 hidden for 10 s: ToTal has two beacons and says so, the EKF goes on. The hidden span
     comes from the bearings (revolutions without beacon 3); returns its end and the figures."""
+
     def hidden() -> tuple[float, float] | None:
         return interval_without([t for t, ids in probe.revolutions if OCCLUDED_BEACON in ids], 1.0)
 
-    assert graph.spin_until(lambda: hidden() is not None, START_TIMEOUT_S + OCCLUSION_S[1]), \
+    assert graph.spin_until(lambda: hidden() is not None, START_TIMEOUT_S + OCCLUSION_S[1]), (
         "beacon 3 never disappeared"
+    )
     hidden_from, hidden_to = hidden()
     assert hidden_to - hidden_from == pytest.approx(OCCLUSION_S[1] - OCCLUSION_S[0], abs=0.3)
     no_pose = probe.counter("triangulation", "no_pose")
@@ -341,8 +365,9 @@ def check_occlusion(graph, probe: RobotProbe) -> tuple[float, dict[str, float]]:
 
 def check_odometry_dropout(graph, probe: RobotProbe) -> tuple[float, float]:
     """Odometry silent for 2 s: sim_world counts the dropped samples, the EKF a gap. Returns the silence."""
-    assert graph.spin_until(lambda: interval_without(probe.odometry_stamps, 1.0) is not None, 30.0), \
+    assert graph.spin_until(lambda: interval_without(probe.odometry_stamps, 1.0) is not None, 30.0), (
         "the odometry never stopped"
+    )
     silent_from, silent_to = interval_without(probe.odometry_stamps, 1.0)
     assert silent_to - silent_from == pytest.approx(ODOMETRY_DROPOUT_S[1] - ODOMETRY_DROPOUT_S[0], abs=0.1)
     assert graph.spin_until(lambda: probe.counter("sim_world", "odometry_dropped") >= 90, 3.0)
@@ -353,15 +378,20 @@ def check_odometry_dropout(graph, probe: RobotProbe) -> tuple[float, float]:
 def check_malformed_burst(graph, probe: RobotProbe) -> float:
     """A burst of malformed messages on every input: each node that reads them counts them in
     /diagnostics. Returns the stamp the burst started at."""
-    keys = (("triangulation", "bad_input"), ("ekf", "bearings_invalid measurement"),
-            ("ekf", "bearings_unknown beacon"), ("ekf", "odometry_invalid"),
-            ("driver", "ground_truth_rejected_non_finite"))
+    keys = (
+        ("triangulation", "bad_input"),
+        ("ekf", "bearings_invalid measurement"),
+        ("ekf", "bearings_unknown beacon"),
+        ("ekf", "odometry_invalid"),
+        ("driver", "ground_truth_rejected_non_finite"),
+    )
     before = {key: probe.counter(*key) for key in keys}
     burst_from = probe.latest_truth_stamp()
     publish_burst(graph, count=20, spacing_s=0.05)
     for tag, key in keys:  # diagnostics come once a second
-        assert graph.spin_until(lambda tag=tag, key=key: probe.counter(tag, key) > before[tag, key], 3.0), \
+        assert graph.spin_until(lambda tag=tag, key=key: probe.counter(tag, key) > before[tag, key], 3.0), (
             f"{tag} did not report the malformed messages ({key})"
+        )
     return burst_from
 
 
@@ -384,15 +414,18 @@ def test_system_survives_faults(start_node, rclpy_node):
     assert hidden_from > restarts_over_s, "the restarts took so long that they overlapped the occlusion"
     silent_from, silent_to = check_odometry_dropout(graph, probe)
     figures |= occlusion
-    figures["EKF RMS after occlusion (m)"] = assert_ekf_back(probe, hidden_to + SETTLE_S, silent_from,
-                                                             "the occlusion")
+    figures["EKF RMS after occlusion (m)"] = assert_ekf_back(
+        probe, hidden_to + SETTLE_S, silent_from, "the occlusion"
+    )
     graph.spin_until(lambda: probe.latest_truth_stamp() > silent_to + 2 * SETTLE_S, 10.0)
     burst_from = check_malformed_burst(graph, probe)
-    figures["EKF RMS after dropout (m)"] = assert_ekf_back(probe, silent_to + SETTLE_S, burst_from,
-                                                           "the odometry dropout")
+    figures["EKF RMS after dropout (m)"] = assert_ekf_back(
+        probe, silent_to + SETTLE_S, burst_from, "the odometry dropout"
+    )
     graph.spin_until(lambda: probe.latest_truth_stamp() > burst_from + 2 * SETTLE_S, 10.0)
-    figures["EKF RMS after burst (m)"] = assert_ekf_back(probe, burst_from + SETTLE_S, math.inf,
-                                                         "the malformed burst")
+    figures["EKF RMS after burst (m)"] = assert_ekf_back(
+        probe, burst_from + SETTLE_S, math.inf, "the malformed burst"
+    )
     for name, node in nodes.items():
         assert node.process.poll() is None, f"{name} died:\n{node.log()}"
     total_position, total_heading = probe.total_errors()
@@ -411,12 +444,19 @@ ALIGNED_MATCH_S = 14.0
 
 
 def test_system_rides_through_compound_windows(start_node, rclpy_node):
-    beacons = {"beacon_ids": ALIGNED_BEACONS["ids"], "beacon_x": ALIGNED_BEACONS["x"],
-               "beacon_y": ALIGNED_BEACONS["y"]}
+    beacons = {
+        "beacon_ids": ALIGNED_BEACONS["ids"],
+        "beacon_x": ALIGNED_BEACONS["x"],
+        "beacon_y": ALIGNED_BEACONS["y"],
+    }
     parameters = robot_parameters(
         seed=5,
-        sim_world={"trajectory": "waypoints", "waypoints_x": CORNER_WAYPOINTS["x"],
-                   "waypoints_y": CORNER_WAYPOINTS["y"], "duration_s": ALIGNED_MATCH_S},
+        sim_world={
+            "trajectory": "waypoints",
+            "waypoints_x": CORNER_WAYPOINTS["x"],
+            "waypoints_y": CORNER_WAYPOINTS["y"],
+            "duration_s": ALIGNED_MATCH_S,
+        },
         driver={f"sim_{key}": value for key, value in beacons.items()},
         triangulation=beacons,
         ekf=beacons,
@@ -424,15 +464,18 @@ def test_system_rides_through_compound_windows(start_node, rclpy_node):
     probe = RobotProbe("")
     probe.attach(rclpy_node)
     # the match clock starts with sim_world: start it once the others listen, so the EKF sees it all
-    nodes = {name: start_node(*NODE_EXECUTABLES[name], parameters[name])
-             for name in ("driver", "triangulation", "ekf")}
+    nodes = {
+        name: start_node(*NODE_EXECUTABLES[name], parameters[name])
+        for name in ("driver", "triangulation", "ekf")
+    }
     for name, node in nodes.items():
         wait_for_log(rclpy_node, node, "ready" if name != "driver" else "publishing", START_TIMEOUT_S)
     start_node(*NODE_EXECUTABLES["sim_world"], parameters["sim_world"])
     assert rclpy_node.spin_until(lambda: len(probe.truth) > 0, START_TIMEOUT_S)
     match_start_s = probe.truth[0][0]
-    assert rclpy_node.spin_until(lambda: probe.latest_truth_stamp() > match_start_s + ALIGNED_MATCH_S,
-                                 2 * ALIGNED_MATCH_S)
+    assert rclpy_node.spin_until(
+        lambda: probe.latest_truth_stamp() > match_start_s + ALIGNED_MATCH_S, 2 * ALIGNED_MATCH_S
+    )
     rclpy_node.spin_for(1.5)  # the last diagnostics
 
     merged = [t for t, ids in probe.revolutions if 3 not in ids and 4 not in ids and {1, 2} <= set(ids)]
@@ -442,16 +485,21 @@ def test_system_rides_through_compound_windows(start_node, rclpy_node):
     during, _ = probe.ekf_errors(merged[0], merged[-1])
     assert len(during) > 10, "the EKF stopped publishing during the compound windows"
     after_m = assert_ekf_back(probe, merged[-1] + SETTLE_S, math.inf, "the compound windows")
-    print(f"compound windows: {len(merged)} revolutions over {merged[-1] - merged[0]:.1f} s, EKF RMS during "
-          f"{rms(during):.4f} m (max {during.max():.4f}), after {after_m:.4f} m")
+    print(
+        f"compound windows: {len(merged)} revolutions over {merged[-1] - merged[0]:.1f} s, EKF RMS during "
+        f"{rms(during):.4f} m (max {during.max():.4f}), after {after_m:.4f} m"
+    )
 
 
-@pytest.mark.parametrize(("package", "executable", "parameters", "message"), [
-    ("beams_driver", "driver_node", {"sim_occlusion_windows": [3.0, 5.0]}, "triples"),
-    ("beams_driver", "driver_node", {"sim_occlusion_windows": [3.0, 5.0, 2.0]}, "start_s < end_s"),
-    ("beams_sim", "sim_world_node", {"odometry_dropout_s": [5.0, 1.0]}, "start_s <= end_s"),
-    ("beams_driver", "driver_node", {"sim_other_robots": ["beams/sim/ground_truth"]}, "own ground truth"),
-])
+@pytest.mark.parametrize(
+    ("package", "executable", "parameters", "message"),
+    [
+        ("beams_driver", "driver_node", {"sim_occlusion_windows": [3.0, 5.0]}, "triples"),
+        ("beams_driver", "driver_node", {"sim_occlusion_windows": [3.0, 5.0, 2.0]}, "start_s < end_s"),
+        ("beams_sim", "sim_world_node", {"odometry_dropout_s": [5.0, 1.0]}, "start_s <= end_s"),
+        ("beams_driver", "driver_node", {"sim_other_robots": ["beams/sim/ground_truth"]}, "own ground truth"),
+    ],
+)
 def test_fault_parameters_are_validated(start_node, package, executable, parameters, message):
     node = start_node(package, executable, parameters)
     assert node.wait_exit(20) == 2

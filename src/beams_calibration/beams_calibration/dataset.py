@@ -269,11 +269,7 @@ def load_dataset(path: str | os.PathLike) -> Dataset:
     if not source.is_file():
         raise FileNotFoundError(f"dataset file {source} does not exist")
     try:
-        document = yaml.safe_load(source.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as error:
-        raise DatasetError(f"dataset file {source} is not valid YAML: {error}") from None
-    try:
-        return dataset_from_dict(document)
+        return dataset_from_dict(file_schema.read_yaml(source))
     except ValueError as error:  # SchemaError, or BeaconMap's own checks
         raise DatasetError(f"dataset file {source}: {error}") from None
 

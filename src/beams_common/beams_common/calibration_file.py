@@ -227,11 +227,7 @@ def load_calibration(path: str | os.PathLike) -> SensorCalibration:
     if not source.is_file():
         raise FileNotFoundError(f"calibration file {source} does not exist")
     try:
-        document = yaml.safe_load(source.read_text(encoding="utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as error:
-        raise CalibrationFileError(f"calibration file {source} is not valid YAML: {error}") from None
-    try:
-        return calibration_from_dict(document)
+        return calibration_from_dict(file_schema.read_yaml(source))
     except ValueError as error:  # SchemaError, or BeaconMap's and BearingCorrection's own checks
         raise CalibrationFileError(f"calibration file {source}: {error}") from None
 

@@ -10,7 +10,10 @@ a reason string.
 
 import math
 from collections.abc import Callable, Mapping
+from pathlib import Path
 from typing import Any, TypeVar
+
+import yaml
 
 from beams_common.validation import bounded
 
@@ -18,10 +21,24 @@ T = TypeVar("T")
 # Longest free text accepted (labels, stages, warnings), and most items in one list of a document.
 MAX_TEXT_CHARS = 1000
 MAX_ITEMS = 100_000
+# Largest file read (bytes): a dataset of 10,000 configurations takes about 4 MB.
+MAX_FILE_BYTES = 16 * 2**20
 
 
 class SchemaError(ValueError):
     """A document entry of the wrong type, shape or value; the message starts with the entry's path."""
+
+
+def read_yaml(path: Path) -> Any:
+    """The YAML document of a file (OSError when unreadable); SchemaError when larger than
+    MAX_FILE_BYTES, not UTF-8, not YAML, or nested beyond the parser's recursion limit."""
+    size = path.stat().st_size
+    if size > MAX_FILE_BYTES:
+        raise SchemaError(f"{size} bytes, more than the {MAX_FILE_BYTES} a BeAMS file can hold")
+    try:
+        return yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as error:
+        raise SchemaError(f"not valid YAML: {bounded(str(error))}") from None
 
 
 def _shown(value: Any) -> str:
@@ -54,24 +71,27 @@ def number(value: Any, path: str, *, minimum: float | None = None, maximum: floa
     """A finite real number (an int or a float, not a bool or a string) within [minimum, maximum]."""
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise SchemaError(f"{path}: expected a number, got {type(value).__name__} {_shown(value)}")
-    result = float(value)
+    try:
+        result = float(value)
+    except OverflowError:  # an integer beyond a float's range
+        result = math.inf
     if not math.isfinite(result):
-        raise SchemaError(f"{path}: expected a finite number, got {result}")
-    if minimum is not None and result < minimum:
-        raise SchemaError(f"{path}: {result} is below its minimum {minimum}")
-    if maximum is not None and result > maximum:
-        raise SchemaError(f"{path}: {result} is above its maximum {maximum}")
-    return result
+        raise SchemaError(f"{path}: expected a finite number, got {_shown(value)}")
+    return _within(result, path, minimum, maximum)
 
 
 def integer(value: Any, path: str, *, minimum: int | None = None, maximum: int | None = None) -> int:
     """An integer (not a bool, not a float) within [minimum, maximum]."""
     if isinstance(value, bool) or not isinstance(value, int):
         raise SchemaError(f"{path}: expected an integer, got {type(value).__name__} {_shown(value)}")
+    return _within(value, path, minimum, maximum)
+
+
+def _within(value: T, path: str, minimum: float | None, maximum: float | None) -> T:
     if minimum is not None and value < minimum:
-        raise SchemaError(f"{path}: {value} is below its minimum {minimum}")
+        raise SchemaError(f"{path}: {_shown(value)} is below its minimum {minimum}")
     if maximum is not None and value > maximum:
-        raise SchemaError(f"{path}: {value} is above its maximum {maximum}")
+        raise SchemaError(f"{path}: {_shown(value)} is above its maximum {maximum}")
     return value
 
 

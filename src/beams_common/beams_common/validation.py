@@ -126,9 +126,9 @@ def covariance_problem(covariance: Any, size: int = 3) -> str:
     scale = float(np.max(np.abs(matrix)))
     if scale == 0.0:
         return "covariance is all zero"
-    if float(np.max(np.abs(matrix - matrix.T))) > SYMMETRY_TOLERANCE * scale:
-        return "covariance is not symmetric"
     normalised = matrix / scale  # entries in [-1, 1]: no overflow whatever the magnitude
+    if float(np.max(np.abs(normalised - normalised.T))) > SYMMETRY_TOLERANCE:
+        return "covariance is not symmetric"
     eigenvalues = np.linalg.eigvalsh(0.5 * (normalised + normalised.T))
     if not eigenvalues[0] > MAX_CONDITION_RECIPROCAL * eigenvalues[-1]:
         return f"covariance is not positive definite (eigenvalues {eigenvalues.tolist()} x {scale:.3g})"

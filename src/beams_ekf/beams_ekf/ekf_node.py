@@ -114,6 +114,8 @@ class EkfNode(Node):
     def _on_odometry(self, msg: Odometry) -> None:
         stamp_s = stamp_to_seconds(msg.header.stamp)
         outcome = self.localiser.on_odometry(stamp_s, pose2d_of(msg.pose.pose))
+        if outcome == "invalid":
+            self.diagnostics.refuse("odometry_refused", f"odometry at {stamp_s:.3f} s: non-finite pose")
         if outcome in ("reference", "predicted"):
             self._last_twist = msg.twist
             self._last_odometry_stamp = (stamp_s, msg.header.stamp)
@@ -140,7 +142,8 @@ class EkfNode(Node):
     def _on_total_pose(self, msg: TriangulatedPose) -> None:
         if not (self.settings.use_total_pose and msg.accepted):
             return
-        self._offer_pose(msg.header.stamp, msg.pose, operator=False)
+        if self._offer_pose(msg.header.stamp, msg.pose, operator=False) == "invalid":
+            self.diagnostics.refuse("total_poses_refused", "accepted ToTal pose with a non-finite value")
 
     def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
         self._operator_pose(msg)

@@ -124,7 +124,9 @@ def trajectory_of(values: Mapping[str, Any]) -> EurobotTrajectory:
     if values["trajectory"] == "waypoints":
         points = list(zip(values["waypoints_x"], values["waypoints_y"], strict=True))
         return EurobotTrajectory.through_waypoints(points, duration_s, limits)
-    return EurobotTrajectory.random(values["trajectory_seed"], duration_s, limits, _pose(values["start_pose"]))
+    return EurobotTrajectory.random(
+        values["trajectory_seed"], duration_s, limits, _pose(values["start_pose"])
+    )
 
 
 def drift_of(values: Mapping[str, Any]) -> OdometryDrift:

@@ -105,9 +105,11 @@ class TriangulationNode(Node):
     # -- inputs ---------------------------------------------------------------------------------------
     def _on_odometry(self, msg: Odometry) -> None:
         twist = (msg.twist.twist.linear.x, msg.twist.twist.angular.z)
+        rejected = self.pipeline.rejected_odometry
         self._handle(self.pipeline.on_odometry(stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose),
                                                twist))
-        self.diagnostics.set("odometry_rejected_non_finite", self.pipeline.rejected_odometry)
+        if self.pipeline.rejected_odometry > rejected:
+            self.diagnostics.refuse("odometry_rejected_non_finite", "odometry with a non-finite value")
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
         self.diagnostics.increment("revolutions")
@@ -130,7 +132,7 @@ class TriangulationNode(Node):
     def _report_no_pose(self, no_pose: NoPose, revolution: int) -> None:
         reason = bounded(no_pose.reason)
         if no_pose.bad_input:
-            self.diagnostics.refuse("bad_input", f"revolution {revolution}: no pose: {reason}")
+            self.diagnostics.refuse("bad_input", f"revolution {revolution}: no pose, bad input: {reason}")
         else:
             self.diagnostics.increment("no_pose")
             self.get_logger().debug(f"revolution {revolution}: no pose: {reason}")
