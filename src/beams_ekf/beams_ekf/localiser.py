@@ -9,9 +9,10 @@ predicting again through the later samples (see `Localiser.on_bearings`); a pose
 operator's /initialpose) initialises the filter, brought to the filter's instant by the odometry motion
 since its stamp (a ToTal fix is stamped at its revolution, ~0.1-0.2 s before it arrives, so a fix the
 odometry history does not cover is refused: taken as current, it put the live filter 0.2 m and 7 deg
-off, confidently), and re-initialises it when the robot was kidnapped or the filter is lost (most of the
-recent bearings gated out while ToTal is confident of a pose inconsistent with the estimate: identified
-beacons make this possible, thesis ch. 8 "System deployment"). Time going backwards (a rosbag played
+off, confidently), and re-initialises it when the robot was kidnapped (most of the recent bearings gated
+out while ToTal is confident of a pose inconsistent with the estimate: identified beacons make this
+possible, thesis ch. 8 "System deployment") or the filter is lost (`NisMonitor`: the bearings'
+innovations, over a sliding window, too large for the covariance: the next ToTal fix restarts it). Time going backwards (a rosbag played
 in a loop: consecutive odometry messages in the past, not one stray; `beams_driver.time_jumps`) resets
 everything; odometry gaps inflate the covariance instead of freezing the filter.
 
@@ -64,8 +65,15 @@ class LocaliserConfig:
     # reset the filter (a bag loop); smaller steps, and a single stray old message, are dropped
     time_jump_tolerance_s: float = 0.0
     time_jump_confirmations: int = 2
+    # lost detection (NisMonitor): the NIS of the last lost_nis_window_bearings new bearings, summed,
+    # beyond the chi-square quantile at lost_nis_probability (0: the monitor is off)
+    lost_nis_window_bearings: int = 30
+    lost_nis_probability: float = 1.0 - 1.0e-6
 
     def __post_init__(self) -> None:
+        if self.lost_nis_window_bearings < 0 or not 0.0 < self.lost_nis_probability < 1.0:
+            raise ValueError(f"need lost_nis_window_bearings >= 0 and lost_nis_probability in (0, 1), got "
+                             f"{self.lost_nis_window_bearings} and {self.lost_nis_probability}")
         if not (self.history_span_s > 0.0 and self.max_extrapolation_s >= 0.0 and self.odometry_gap_s > 0.0):
             raise ValueError("history_span_s and odometry_gap_s must be > 0, max_extrapolation_s >= 0")
         if not 1 <= self.kidnap_gated_bearings <= self.kidnap_window_bearings:
@@ -173,6 +181,41 @@ class _Slot:
     bearings: list[Bearing] = field(default_factory=list)
 
 
+class NisMonitor:
+    """Lost detection on the bearings' innovations: a consistent filter's normalised innovations squared
+    (NIS, r^2 / S) are independent chi-square (1 dof) draws, so the sum over the last n bearings is
+    chi-square with n dof; a sum beyond its quantile at `probability` says the estimate (or its
+    covariance) is wrong. Each NIS counts at most the gate's threshold (a gated-out bearing says "beyond
+    the gate", and one wild reflection must not make the filter lost on its own); the test runs on the
+    bearings so far until the window fills (a lost start is caught within a few bearings)."""
+
+    def __init__(self, window_bearings: int, probability: float, gate: float) -> None:
+        self._nis: deque[float] = deque(maxlen=max(window_bearings, 1))
+        self.enabled = window_bearings > 0
+        self._gate = gate
+        self._thresholds = [float("inf")] + [float(chi2.ppf(probability, df=n))
+                                             for n in range(1, max(window_bearings, 1) + 1)]
+
+    def add(self, nis: float) -> bool:
+        """Record one new bearing's NIS (gated ones too); True when that makes the filter lost."""
+        was_lost = self.lost
+        self._nis.append(min(nis, self._gate) if isfinite(nis) else self._gate)
+        return self.lost and not was_lost
+
+    @property
+    def window_sum(self) -> float:
+        """The capped NIS summed over the window (a diagnostic)."""
+        return float(sum(self._nis))
+
+    @property
+    def lost(self) -> bool:
+        """True when the window's NIS sum exceeds the chi-square quantile for its length."""
+        return self.enabled and self.window_sum > self._thresholds[len(self._nis)]
+
+    def clear(self) -> None:
+        self._nis.clear()
+
+
 def _rejected(reason: str) -> BearingOutcome:
     return BearingOutcome(False, float("nan"), float("nan"), reason)
 
@@ -217,6 +260,8 @@ class Localiser:
         self._time_jumps = TimeJumpDetector(self.config.time_jump_tolerance_s,
                                             self.config.time_jump_confirmations)
         self._kidnap_threshold = float(chi2.ppf(self.config.kidnap_probability, df=3))
+        self.nis_monitor = NisMonitor(self.config.lost_nis_window_bearings, self.config.lost_nis_probability,
+                                      ekf.gate)
         self._stamp_s: float | None = None
         # bearings stamped after the newest odometry, waiting for the odometry that covers them
         self._pending: list[Bearing] = []
@@ -231,6 +276,7 @@ class Localiser:
         self.ekf.reset()
         self.history.clear()
         self._recent_gated.clear()
+        self.nis_monitor.clear()
         self._stamp_s = None
         self._pending.clear()
         self._time_jumps.clear()
@@ -408,6 +454,8 @@ class Localiser:
             self.stats.last_bearing_stamp_s = bearing.stamp_s
         if outcome.accepted or outcome.reason == "gated":
             self._recent_gated.append(not outcome.accepted)
+            if self.nis_monitor.add(outcome.nis):
+                self.stats.counts["lost_detections"] += 1
 
     def _count(self, outcome: BearingOutcome) -> BearingOutcome:
         self.stats.counts["bearings_accepted" if outcome.accepted else f"bearings_{outcome.reason}"] += 1
@@ -430,7 +478,8 @@ class Localiser:
 
         An operator's pose always (re)initialises (one older than the odometry history is taken as
         current: it has no meaningful stamp); ToTal's initialises a filter that has no estimate, and
-        re-initialises one that is lost (kidnap suspected and the fix elsewhere), provided the odometry
+        re-initialises one that is kidnapped (kidnap suspected and the fix elsewhere) or lost (the
+        NisMonitor's test), provided the odometry
         history covers its stamp ("outside_history" otherwise: the next fix will be covered).
         """
         if not (isfinite(stamp_s) and is_finite_pose(pose)):
@@ -446,6 +495,8 @@ class Localiser:
             return self._initialise(stamp_s, pose_now, covariance, "initialisations")
         if self.kidnap_suspected and self._far_from_estimate(pose_now, covariance):
             return self._initialise(stamp_s, pose_now, covariance, "kidnap_reinitialisations")
+        if self.nis_monitor.lost:
+            return self._initialise(stamp_s, pose_now, covariance, "lost_reinitialisations")
         return "ignored"
 
     def offer_pose(self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, default_covariance: np.ndarray,
@@ -480,6 +531,7 @@ class Localiser:
             self.stats.counts["poses_invalid"] += 1
             return "invalid"
         self._recent_gated.clear()
+        self.nis_monitor.clear()
         # the states kept for late bearings belong to the old estimate
         for index in range(len(self.history)):
             self.history.set_payload(index, None)

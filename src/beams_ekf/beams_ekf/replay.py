@@ -2,7 +2,7 @@
 the accuracy and consistency figures of the EKF (RMS errors, NEES against its chi-square band).
 """
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from itertools import groupby
 
@@ -10,9 +10,20 @@ import numpy as np
 from scipy.stats import chi2
 
 from beams_driver.angles import wrap_to_pi
-from beams_driver.pose2d import Pose2D
+from beams_driver.beacon_map import BeaconMap
+from beams_driver.pose2d import Pose2D, interpolate
 from beams_ekf.localiser import Localiser
 from beams_ekf.synthetic import BearingEvent
+
+
+@dataclass(frozen=True)
+class PoseEvent:
+    """A ToTal fix as triangulation_node publishes it: arrives at `arrival_s`, refers to `stamp_s`."""
+
+    arrival_s: float
+    stamp_s: float
+    pose: Pose2D
+    covariance: np.ndarray
 
 
 @dataclass
@@ -53,19 +64,25 @@ def replay(
     truth_at: Callable[[float], Pose2D],
     initial_pose: Pose2D,
     initial_covariance: np.ndarray,
+    fixes: Iterable[PoseEvent] = (),
 ) -> ReplayResult:
-    """Feed odometry (arriving at its stamp) and bearings (arriving at `arrival_s`) in arrival order."""
+    """Feed odometry (arriving at its stamp), bearings and ToTal's fixes (arriving at `arrival_s`; at
+    one instant the bearings first) in arrival order."""
     localiser.on_pose(float(odometry_times_s[0]), initial_pose, initial_covariance, operator=True)
-    by_arrival = [(a, list(group)) for a, group in groupby(sorted(bearings, key=lambda b: b.arrival_s),
-                                                             key=lambda b: b.arrival_s)]
+    events = [(b.arrival_s, 0, b) for b in bearings] + [(f.arrival_s, 1, f) for f in fixes]
+    events.sort(key=lambda event: event[:2])
+    by_arrival = [(a, [event[2] for event in group]) for a, group in groupby(events, key=lambda e: e[0])]
     times, estimates, covariances, truths = [], [], [], []
     k = 0
-    for arrival_s, revolution in by_arrival:
+    for arrival_s, arrived in by_arrival:
         while k < len(odometry_times_s) and odometry_times_s[k] <= arrival_s:
             localiser.on_odometry(float(odometry_times_s[k]), tuple(odometry_poses[k]))
             k += 1
-        for b in revolution:
-            localiser.on_bearing(b.stamp_s, b.beacon_id, b.bearing_rad, b.variance_rad2)
+        for event in arrived:
+            if isinstance(event, PoseEvent):
+                localiser.on_pose(event.stamp_s, event.pose, event.covariance, operator=False)
+            else:
+                localiser.on_bearing(event.stamp_s, event.beacon_id, event.bearing_rad, event.variance_rad2)
         estimate = localiser.estimate()
         if estimate is not None:
             times.append(estimate.stamp_s)
@@ -104,4 +121,28 @@ def bearing_events(revolutions: Iterable, variance_rad2: Callable[[int, float], 
         for b in revolution.bearings:
             variance = b.variance if variance_rad2 is None else variance_rad2(b.beacon_id, b.angular_window)
             events.append(BearingEvent(arrival_s, b.stamp_s, b.beacon_id, b.bearing, float(variance)))
+    return events
+
+
+def total_fix_events(revolutions: Sequence, beacon_map: BeaconMap, turret_offset_m: tuple[float, float],
+                     odometry_times_s: np.ndarray, odometry_poses: np.ndarray) -> list[PoseEvent]:
+    """ToTal's accepted fixes of decoded revolutions as triangulation_node gives them (motion-compensated
+    with the odometry, gated), each arriving when its revolution ends."""
+    from beams_triangulation.gating import estimate_revolution
+
+    def odometry_at(t: float) -> Pose2D | None:
+        k = int(np.searchsorted(odometry_times_s, t, side="right"))
+        if not 0 < k < len(odometry_times_s):
+            return None
+        t0, t1 = odometry_times_s[k - 1], odometry_times_s[k]
+        return interpolate(tuple(odometry_poses[k - 1]), tuple(odometry_poses[k]), (t - t0) / (t1 - t0))
+
+    events = []
+    for revolution in revolutions:
+        outcome = estimate_revolution(revolution.bearings, beacon_map, turret_offset_m=turret_offset_m,
+                                      odometry_at=odometry_at)
+        result = outcome.result
+        if getattr(result, "accepted", False):
+            events.append(PoseEvent(revolution.start_time_s + revolution.period_s, outcome.stamp_s,
+                                    (result.x, result.y, result.heading), result.covariance))
     return events
