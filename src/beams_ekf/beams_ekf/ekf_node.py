@@ -60,6 +60,14 @@ FILTER_PARAMETERS = (
     ("translation_variance_m2_per_m", "Odometry position variance per metre travelled.", 0.0, 1.0e3),
     ("rotation_variance_rad2_per_rad", "Odometry heading variance per radian turned.", 0.0, 1.0e3),
     ("rotation_variance_rad2_per_m", "Odometry heading variance per metre travelled.", 0.0, 1.0e3),
+    ("cross_track_variance_m2_per_m", "Odometry cross-track variance per metre travelled.", 0.0, 1.0e3),
+    ("odometry_error_states", "Estimate the odometry's systematic errors (distance scale, rotation scale, "
+     "heading drift per metre) as filter states.", None, None),
+    ("odometry_scale_sigma", "Prior standard deviation of the odometry's distance scale.", 1e-6, 1.0),
+    ("odometry_rotation_scale_sigma", "Prior standard deviation of the odometry's rotation scale (wheel "
+     "base).", 1e-6, 1.0),
+    ("odometry_heading_drift_sigma_rad_per_m", "Prior standard deviation of the heading drift per metre "
+     "driven (unequal wheel radii, rad/m).", 1e-6, 1.0),
     ("gate_probability", "Chi-square (1 dof) probability of the per-bearing validation gate.", 0.5, 0.999999),
     ("history_span_s", "Odometry kept to apply late bearings (s).", 0.1, 10.0),
     ("max_extrapolation_s", "Bearings up to this far (s) past the newest odometry are applied at once; "
@@ -78,6 +86,10 @@ FILTER_PARAMETERS = (
      0.0, 1.0e3),
     ("time_jump_confirmations", "Consecutive odometry messages stamped in the past that make a time jump "
      "(a bag loop: the filter resets); fewer are stray messages, dropped.", 1, 100),
+    ("lost_nis_window_bearings", "Bearings whose NIS (normalised innovation squared) the lost test sums; "
+     "0 switches the test off.", 0, 1000),
+    ("lost_nis_probability", "Chi-square probability beyond which the summed NIS makes the filter lost "
+     "(the next ToTal pose re-initialises it).", 0.5, 1.0 - 1e-12),
     ("use_total_pose", "Initialise (and re-initialise after a kidnapping) from ToTal's accepted poses on "
      "beams/pose.", None, None),
     ("default_pose_sigma", "Standard deviations (m, m, rad) of a pose without a usable covariance.",
@@ -236,11 +248,14 @@ class EkfNode(Node):
             return
         self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
         self.diagnostics.set("recent_gated_bearings", self.localiser.recent_gated_bearings)
+        self.diagnostics.set("lost_nis_window_sum", self.localiser.nis_monitor.window_sum)
         since_s = (estimate.stamp_s - stats.last_bearing_stamp_s if stats.last_bearing_stamp_s is not None
                    else float("inf"))
         self.diagnostics.set("time_since_last_bearing_s", since_s)
         if since_s > 1.0:
             self.diagnostics.set_level("warn", "no accepted bearing for more than 1 s: odometry only")
+        elif self.localiser.nis_monitor.lost:
+            self.diagnostics.set_level("warn", "lost: bearings' innovations too large, waiting for a ToTal pose")
         elif self.localiser.kidnap_suspected:
             self.diagnostics.set_level("warn", "bearings gated out: robot moved? waiting for a ToTal pose")
         else:

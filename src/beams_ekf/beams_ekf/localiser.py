@@ -34,6 +34,7 @@ from beams_driver.angles import wrap_to_pi
 from beams_driver.pose2d import Pose2D, between, compose, inverse, is_finite_pose
 from beams_driver.time_jumps import StampOrder, TimeJumpDetector
 from beams_ekf.bearing_ekf import BearingEkf, BearingOutcome, ProcessNoise, turret_pose
+from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.odometry_history import OdometryHistory
 
 # bearings waiting for odometry beyond this many are dropped, oldest first (a dead odometry source)
@@ -88,14 +89,32 @@ class LocaliserConfig:
 # ekf_node's parameter name of each ProcessNoise field (those of LocaliserConfig are its field names)
 PROCESS_NOISE_PARAMETERS = {"translation_m2_per_m": "translation_variance_m2_per_m",
                             "rotation_rad2_per_rad": "rotation_variance_rad2_per_rad",
-                            "rotation_rad2_per_m": "rotation_variance_rad2_per_m"}
+                            "rotation_rad2_per_m": "rotation_variance_rad2_per_m",
+                            "cross_track_m2_per_m": "cross_track_variance_m2_per_m"}
+# ekf_node's parameter name of each OdometryErrorStates prior (odometry_error_states switches them on)
+ODOMETRY_ERROR_PARAMETERS = {"scale_sigma": "odometry_scale_sigma",
+                             "rotation_scale_sigma": "odometry_rotation_scale_sigma",
+                             "heading_drift_sigma_rad_per_m": "odometry_heading_drift_sigma_rad_per_m"}
+
+# The wheels' random error, variance per metre rolled, of the simulated robot (sim_world's OdometryDrift:
+# noise 1 mm/sqrt(m) is 1.0e-6; the random part of the half-normal slip, 0.005^2 (1 - 2/pi) of a step's
+# squared length, adds at most 0.09e-6 at the 1 cm steps of 0.5 m/s and 50 Hz), and its wheel base (m).
+WHEEL_VARIANCE_M2_PER_M = 1.1e-6
+WHEEL_BASE_M = 0.3
 
 
 @dataclass(frozen=True)
 class FilterSettings:
-    """What ekf_node takes from its parameters (besides the beacon geometry)."""
+    """What ekf_node takes from its parameters (besides the beacon geometry).
 
-    process_noise: ProcessNoise = field(default_factory=ProcessNoise)
+    By default the filter estimates the odometry's systematic errors (`odometry_errors`), so its process
+    noise is the wheels' random noise alone (`ProcessNoise.wheel_noise`); without those states the
+    process noise must also cover the systematic errors as white noise (ProcessNoise's own defaults).
+    """
+
+    process_noise: ProcessNoise = field(
+        default_factory=lambda: ProcessNoise.wheel_noise(WHEEL_VARIANCE_M2_PER_M, WHEEL_BASE_M))
+    odometry_errors: OdometryErrorStates | None = field(default_factory=OdometryErrorStates)
     # chi-square (1 dof) probability of the per-bearing gate
     gate_probability: float = 0.999
     localiser: LocaliserConfig = field(default_factory=LocaliserConfig)
@@ -115,6 +134,9 @@ def filter_parameter_defaults() -> dict[str, Any]:
     defaults = FilterSettings()
     values: dict[str, Any] = {parameter: getattr(defaults.process_noise, name)
                               for name, parameter in PROCESS_NOISE_PARAMETERS.items()}
+    errors = defaults.odometry_errors or OdometryErrorStates()
+    values.update({parameter: getattr(errors, name) for name, parameter in ODOMETRY_ERROR_PARAMETERS.items()})
+    values["odometry_error_states"] = defaults.odometry_errors is not None
     values.update({f.name: getattr(defaults.localiser, f.name) for f in fields(LocaliserConfig)})
     values.update(gate_probability=defaults.gate_probability, use_total_pose=defaults.use_total_pose,
                   default_pose_sigma=list(defaults.default_pose_sigma))
@@ -134,7 +156,12 @@ def filter_settings(parameters: Mapping[str, Any]) -> FilterSettings:
     sigma = tuple(float(v) for v in parameters.get("default_pose_sigma", defaults.default_pose_sigma))
     if len(sigma) != 3:
         raise ValueError(f"default_pose_sigma needs 3 values (x, y, yaw), got {list(sigma)}")
-    return FilterSettings(noise, float(parameters.get("gate_probability", defaults.gate_probability)),
+    errors = None
+    if parameters.get("odometry_error_states", defaults.odometry_errors is not None):
+        prior = defaults.odometry_errors or OdometryErrorStates()
+        errors = OdometryErrorStates(**{name: float(parameters.get(parameter, getattr(prior, name)))
+                                        for name, parameter in ODOMETRY_ERROR_PARAMETERS.items()})
+    return FilterSettings(noise, errors, float(parameters.get("gate_probability", defaults.gate_probability)),
                           config, bool(parameters.get("use_total_pose", defaults.use_total_pose)), sigma)
 
 
@@ -564,5 +591,6 @@ class Localiser:
 def build_localiser(beacons_xy: Mapping[int, Sequence[float]], sensor_offset_m: tuple[float, float],
                     settings: FilterSettings) -> Localiser:
     """The Localiser of a beacon map ({id: (x, y)}), a turret offset (m) and the filter settings."""
-    ekf = BearingEkf(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability)
+    ekf = BearingEkf(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability,
+                     settings.odometry_errors)
     return Localiser(ekf, settings.localiser)
