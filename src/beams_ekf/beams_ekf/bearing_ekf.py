@@ -59,8 +59,8 @@ class ProcessNoise:
         per metre driven and 1 / B per radian turned on the spot (each wheel rolls B / 2 per radian);
         no cross-track noise (the odometry integrates arcs: wheels do not slide sideways)."""
         if not (wheel_variance_m2_per_m >= 0.0 and wheel_base_m > 0.0):
-            raise ValueError(f"need a wheel variance >= 0 and a wheel base > 0, got {wheel_variance_m2_per_m}, "
-                             f"{wheel_base_m}")
+            raise ValueError(f"need a wheel variance >= 0 and a wheel base > 0, got "
+                             f"{wheel_variance_m2_per_m}, {wheel_base_m}")
         return cls(translation_m2_per_m=0.5 * wheel_variance_m2_per_m,
                    rotation_rad2_per_rad=wheel_variance_m2_per_m / wheel_base_m,
                    rotation_rad2_per_m=2.0 * wheel_variance_m2_per_m / wheel_base_m**2,

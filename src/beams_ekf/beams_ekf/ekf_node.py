@@ -255,7 +255,7 @@ class EkfNode(Node):
         if since_s > 1.0:
             self.diagnostics.set_level("warn", "no accepted bearing for more than 1 s: odometry only")
         elif self.localiser.nis_monitor.lost:
-            self.diagnostics.set_level("warn", "lost: bearings' innovations too large, waiting for a ToTal pose")
+            self.diagnostics.set_level("warn", "lost: innovations too large, waiting for a ToTal pose")
         elif self.localiser.kidnap_suspected:
             self.diagnostics.set_level("warn", "bearings gated out: robot moved? waiting for a ToTal pose")
         else:
