@@ -14,7 +14,8 @@ out while ToTal is confident of a pose inconsistent with the estimate: identifie
 possible, thesis ch. 8 "System deployment") or the filter is lost (`NisMonitor`: the bearings'
 innovations, over a sliding window, too large for the covariance: the next ToTal fix restarts it).
 Time going backwards (a rosbag played in a loop: consecutive odometry messages in the past, not one
-stray; `beams_driver.time_jumps`) resets everything; odometry gaps inflate the covariance instead of freezing the filter.
+stray; `beams_driver.time_jumps`) resets everything; odometry gaps inflate the covariance instead of
+freezing the filter.
 
 ekf_node and the offline replay (`bag_replay`) share what lies between their inputs and the filter:
 `filter_settings` (parameter values to the filter's settings), `build_localiser`, `message_bearings`,
