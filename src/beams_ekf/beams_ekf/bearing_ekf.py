@@ -116,6 +116,24 @@ def turret_pose(robot_pose: Pose2D, sensor_offset_m: tuple[float, float]) -> Pos
     return compose(robot_pose, (sensor_offset_m[0], sensor_offset_m[1], 0.0))
 
 
+def bearing_measurement(pose: Pose2D, beacon_xy: tuple[float, float],
+                        lever: Pose2D) -> tuple[float, np.ndarray]:
+    """h(x) = atan2(yb - ys, xb - xs) - theta - ptheta for a robot at `pose`, the turret at `lever`
+    (px, py, ptheta) in its frame, and dh/d(x, y, theta) (3,). Raises ZeroDivisionError when the
+    turret stands on the beacon."""
+    lx, ly, lth = lever
+    theta = pose[2]
+    c, s = cos(theta), sin(theta)
+    dx = beacon_xy[0] - (pose[0] + c * lx - s * ly)
+    dy = beacon_xy[1] - (pose[1] + s * lx + c * ly)
+    q = dx * dx + dy * dy
+    if q < 1e-12:
+        raise ZeroDivisionError("the sensor is on the beacon")
+    # d(xs)/d(theta) = -s lx - c ly and d(ys)/d(theta) = c lx - s ly
+    d_theta = (dy * (-s * lx - c * ly) - dx * (c * lx - s * ly)) / q - 1.0
+    return wrap_to_pi(atan2(dy, dx) - theta - lth), np.array([dy / q, -dx / q, d_theta])
+
+
 class _OdometryEkf(ExtendedKalmanFilter):
     """filterpy's EKF with the nonlinear odometry composition as its state transition (the states past
     the pose, if any, are constants)."""
@@ -240,21 +258,16 @@ class BearingEkf:
 
     def predicted_bearing(self, beacon_id: int, lever: Pose2D | None = None) -> tuple[float, np.ndarray]:
         """h(x) and its 1 x dim Jacobian for one beacon, the turret at `lever` in the robot frame."""
-        xb, yb = self.beacons_xy[beacon_id]
-        lx, ly, lth = lever if lever is not None else (self.sensor_offset_m[0], self.sensor_offset_m[1], 0.0)
+        lever = lever if lever is not None else (self.sensor_offset_m[0], self.sensor_offset_m[1], 0.0)
         x = self._ekf.x
-        theta = float(x[2, 0])
-        c, s = cos(theta), sin(theta)
-        dx = xb - (float(x[0, 0]) + c * lx - s * ly)
-        dy = yb - (float(x[1, 0]) + s * lx + c * ly)
-        q = dx * dx + dy * dy
-        if q < 1e-12:
-            raise ZeroDivisionError(f"the sensor is on beacon {beacon_id}")
-        # d(xs)/d(theta) = -s lx - c ly and d(ys)/d(theta) = c lx - s ly
-        d_theta = (dy * (-s * lx - c * ly) - dx * (c * lx - s * ly)) / q - 1.0
+        try:
+            expected, d_pose = bearing_measurement((float(x[0, 0]), float(x[1, 0]), float(x[2, 0])),
+                                                   self.beacons_xy[beacon_id], lever)
+        except ZeroDivisionError:
+            raise ZeroDivisionError(f"the sensor is on beacon {beacon_id}") from None
         jacobian = np.zeros((1, self.dim))
-        jacobian[0, :3] = (dy / q, -dx / q, d_theta)
-        return wrap_to_pi(atan2(dy, dx) - theta - lth), jacobian
+        jacobian[0, :3] = d_pose
+        return expected, jacobian
 
     def update_bearing(
         self, beacon_id: int, bearing_rad: float, variance_rad2: float, lever: Pose2D | None = None
