@@ -37,7 +37,7 @@ from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
 from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.pcrb import PcrbTrack, WheelNoiseModel, trajectory_pcrb
-from beams_ekf.replay import PoseEvent, ReplayResult, bearing_events, replay, total_fix_events
+from beams_ekf.replay import PoseEvent, ReplayResult, match_fixes, match_odometry, replay_match
 
 DEFAULT_SEEDS = 10
 DEFAULT_DURATION_S = 90.0
@@ -95,11 +95,6 @@ def true_bearing_variances(match: SimulatedMatch, config: SensorSimConfig) -> li
     return result
 
 
-def _odometry(match: SimulatedMatch) -> np.ndarray:
-    o = match.odometry
-    return np.column_stack([o.x_m, o.y_m, o.theta_rad])
-
-
 def _start(match: SimulatedMatch) -> tuple[tuple[float, float, float], np.ndarray]:
     x, y, theta = match.initial_pose
     return (x + START_SIGMA[0], y - START_SIGMA[1], theta + START_SIGMA[2]), np.diag(np.square(START_SIGMA))
@@ -108,7 +103,7 @@ def _start(match: SimulatedMatch) -> tuple[tuple[float, float, float], np.ndarra
 def match_bound(match: SimulatedMatch, config: SensorSimConfig, errors_unknown: bool) -> PcrbTrack:
     """The PCRB of a match from the simulator's true noise models (see the module docstring)."""
     drift = OdometryDrift()
-    odometry = _odometry(match)
+    odometry = match_odometry(match)
     truth = match.ground_truth
     increments = np.array([between(tuple(a), tuple(b)) for a, b in itertools.pairwise(odometry)])
     return trajectory_pcrb(
@@ -127,16 +122,7 @@ def match_bound(match: SimulatedMatch, config: SensorSimConfig, errors_unknown: 
 
 def run(filter_: Filter, match: SimulatedMatch, fixes: list[PoseEvent], start=None) -> ReplayResult:
     pose, covariance = start or _start(match)
-    return replay(
-        filter_.build(match),
-        match.odometry.stamp_s,
-        _odometry(match),
-        bearing_events(match.revolutions),
-        match.truth_at,
-        pose,
-        covariance,
-        fixes,
-    )
+    return replay_match(filter_.build(match), match, pose, covariance, fixes)
 
 
 @dataclass
@@ -194,13 +180,7 @@ def lost_recovery_s(seeds: range, sensor_model: str) -> tuple[float, int]:
     worst, failed = 0.0, 0
     for seed in seeds:
         match = sensor_match(LOST_MATCH_S, seed, sensor_model)
-        fixes = total_fix_events(
-            match.revolutions,
-            match.beacon_map,
-            match.turret_offset_m,
-            match.odometry.stamp_s,
-            _odometry(match),
-        )
+        fixes = match_fixes(match)
         x, y, theta = match.initial_pose
         for angle in np.linspace(0.0, 2.0 * math.pi, LOST_DIRECTIONS, endpoint=False):
             start = (
@@ -227,13 +207,7 @@ def rows(
     occluded: dict[str, list[tuple[float, float]]] = {f.name: [] for f in FILTERS}
     for seed in range(seeds):
         match = sensor_match(duration_s, seed, sensor_model)
-        fixes = total_fix_events(
-            match.revolutions,
-            match.beacon_map,
-            match.turret_offset_m,
-            match.odometry.stamp_s,
-            _odometry(match),
-        )
+        fixes = match_fixes(match)
         unknown, known = match_bound(match, config, True), match_bound(match, config, False)
         for filter_ in FILTERS:
             pooled[filter_.name].add(run(filter_, match, fixes), unknown, known)

@@ -146,3 +146,22 @@ def total_fix_events(revolutions: Sequence, beacon_map: BeaconMap, turret_offset
             events.append(PoseEvent(revolution.start_time_s + revolution.period_s, outcome.stamp_s,
                                     (result.x, result.y, result.heading), result.covariance))
     return events
+
+
+def match_odometry(match) -> np.ndarray:
+    """(k, 3) odometry poses (odom frame) of a beams_driver.simulated_match.SimulatedMatch."""
+    o = match.odometry
+    return np.column_stack([o.x_m, o.y_m, o.theta_rad])
+
+
+def match_fixes(match) -> list[PoseEvent]:
+    """ToTal's accepted fixes of a SimulatedMatch (`total_fix_events`)."""
+    return total_fix_events(match.revolutions, match.beacon_map, match.turret_offset_m,
+                            match.odometry.stamp_s, match_odometry(match))
+
+
+def replay_match(localiser: Localiser, match, initial_pose: Pose2D, initial_covariance: np.ndarray,
+                 fixes: Iterable[PoseEvent] = ()) -> ReplayResult:
+    """`replay` of a SimulatedMatch: its odometry, its published bearings, ToTal's `fixes`."""
+    return replay(localiser, match.odometry.stamp_s, match_odometry(match), bearing_events(match.revolutions),
+                  match.truth_at, initial_pose, initial_covariance, fixes)
