@@ -19,6 +19,7 @@ the bound is then `true_bearing_variances` below, to be given the model's own (w
 """
 
 import argparse
+import inspect
 import itertools
 import math
 import sys
@@ -69,7 +70,11 @@ FILTERS = (
 def sensor_match(duration_s: float, seed: int, sensor_model: str, **options) -> SimulatedMatch:
     """The simulated match of one sensor model ("ideal": today's simulator)."""
     if sensor_model != "ideal":
-        options["sim_noise_model"] = sensor_model  # simulate_match's argument once the model exists
+        if "sim_noise_model" not in inspect.signature(simulate_match).parameters:
+            raise SystemExit(
+                f"sensor model {sensor_model!r}: simulate_match has no sim_noise_model argument yet"
+            )
+        options["sim_noise_model"] = sensor_model
     return simulate_match(duration_s, seed, **options)
 
 
