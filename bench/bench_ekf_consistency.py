@@ -3,9 +3,11 @@ Cramer-Rao bound (PCRB) from the simulator's true noise models, the odometry err
 beacons hidden for 10 s) and the lost detection.
 
 Filters compared: "white odometry noise" (BearingEkf's own ProcessNoise defaults, no odometry error
-states: the filter before issue 13) and "error states" (ekf_node's defaults, FilterSettings: the
-odometry's systematic errors as states, the wheels' random noise as process noise). Every replay gets
-ToTal's motion-compensated fixes, as ekf_node does (they only matter to a lost filter).
+states: the filter before issue 13), "error states" (ekf_node's defaults, FilterSettings: the
+odometry's systematic errors as states, the wheels' random noise as process noise) and "wheel noise, no
+error states" (that process noise without the states: the systematic errors are then unmodelled).
+Every replay gets ToTal's motion-compensated fixes, as ekf_node does (they only matter to a lost or
+diverging filter).
 
 The PCRB ("bound") uses the wheels' true random noise (WheelNoiseModel), each decoded bearing's true
 variance (the exact variance plus the natural one, at the true window the simulator used), and the
@@ -64,6 +66,11 @@ def _beacons(match: SimulatedMatch) -> dict[int, tuple[float, float]]:
 FILTERS = (
     Filter("white odometry noise", lambda m: Localiser(BearingEkf(_beacons(m), m.turret_offset_m))),
     Filter("error states", lambda m: build_localiser(_beacons(m), m.turret_offset_m, FilterSettings())),
+    # the diagnosis: the wheels' random noise alone, without the states, cannot explain the drift
+    Filter(
+        "wheel noise, no error states",
+        lambda m: build_localiser(_beacons(m), m.turret_offset_m, FilterSettings(odometry_errors=None)),
+    ),
 )
 
 
