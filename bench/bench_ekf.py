@@ -14,13 +14,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from beams_bringup.match_replay import bearing_events
 from beams_common.angles import wrap_to_pi
 from beams_common.pose2d import compose
 from beams_driver.sensor_sim import SensorSimConfig
 from beams_driver.variance import VarianceModel
 from beams_ekf.bearing_ekf import BearingEkf
-from beams_ekf.localiser import Bearing, Localiser
-from beams_ekf.replay import Accuracy, ReplayResult, accuracy, bearing_events, replay
+from beams_ekf.localiser import Bearing, FilterSettings, Localiser, build_localiser
+from beams_ekf.replay import Accuracy, ReplayResult, accuracy, replay
 from beams_sim.simulated_match import SimulatedMatch, simulate_match
 
 DEFAULT_SEED = 1
@@ -44,8 +45,9 @@ def _odometry_array(match: SimulatedMatch) -> np.ndarray:
 
 
 def _localiser(match: SimulatedMatch) -> Localiser:
+    """ekf_node's filter (its default settings: odometry error states, the wheels' random noise)."""
     beacons = dict(zip(match.beacon_map.ids, map(tuple, match.beacon_map.xy), strict=True))
-    return Localiser(BearingEkf(beacons, match.turret_offset_m))
+    return build_localiser(beacons, match.turret_offset_m, FilterSettings())
 
 
 def _start(match: SimulatedMatch) -> tuple[tuple[float, float, float], np.ndarray]:

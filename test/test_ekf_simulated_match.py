@@ -7,10 +7,11 @@ import math
 import numpy as np
 import pytest
 
+from beams_bringup.match_replay import bearing_events
 from beams_common.pose2d import compose
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Localiser
-from beams_ekf.replay import Accuracy, ReplayResult, accuracy, bearing_events, replay
+from beams_ekf.replay import Accuracy, ReplayResult, accuracy, replay
 from beams_sim.simulated_match import SimulatedMatch, simulate_match
 
 

@@ -14,6 +14,10 @@ distance (chi-square with one degree of freedom).
 A bearing stamped between two states of the filter is applied at the earlier one, the turret at the
 pose the interpolated odometry gives it at the stamp, expressed in that state's robot frame: an
 effective "lever" pose (px, py, ptheta) that the same measurement model handles (see `turret_pose`).
+
+Optionally (`odometry_errors`), the state also holds the odometry's systematic errors (k_s, k_theta, h)
+of `odometry_errors.OdometryErrorStates`: each prediction then applies the increment they correct, and
+the bearings estimate them through the pose's cross-covariance with them.
 """
 
 from collections.abc import Mapping, Sequence
@@ -26,6 +30,7 @@ from scipy.stats import chi2
 
 from beams_common.angles import wrap_to_pi
 from beams_common.pose2d import Pose2D, compose
+from beams_ekf.odometry_errors import OdometryErrorStates, corrected_increment
 from beams_ekf.pose_filter import BearingOutcome
 
 
@@ -34,7 +39,9 @@ class ProcessNoise:
     """Odometry error growth, as variances per unit travelled (random-walk model of wheel odometry).
 
     Along- and cross-track variances grow with the distance (scale error, slip); the heading variance
-    with the rotation (wheel-base error) and with the distance (unequal wheel radii, slip).
+    with the rotation (wheel-base error) and with the distance (unequal wheel radii, slip). The defaults
+    stand for the systematic errors too, as white noise (they are not: see `odometry_errors`);
+    `wheel_noise` gives the random part alone, for a filter that estimates the systematic errors.
     """
 
     translation_m2_per_m: float = 3.0e-5
@@ -42,8 +49,29 @@ class ProcessNoise:
     rotation_rad2_per_m: float = 3.0e-5
     # floor per prediction, so a filter that only sees still odometry never becomes overconfident
     floor_variance: float = 1.0e-10
+    # cross-track variance per metre; None: the same as along the track
+    cross_track_m2_per_m: float | None = None
+
+    @classmethod
+    def wheel_noise(cls, wheel_variance_m2_per_m: float, wheel_base_m: float) -> "ProcessNoise":
+        """The increment's variances when each wheel's distance has a random error of variance
+        `wheel_variance_m2_per_m` per metre it rolls (independent wheels), and nothing else: the arc
+        length s = (l + r) / 2 gets half of it per metre driven, the turn (r - l) / B gets 2 / B^2 of it
+        per metre driven and 1 / B per radian turned on the spot (each wheel rolls B / 2 per radian);
+        no cross-track noise (the odometry integrates arcs: wheels do not slide sideways)."""
+        if not (wheel_variance_m2_per_m >= 0.0 and wheel_base_m > 0.0):
+            raise ValueError(f"need a wheel variance >= 0 and a wheel base > 0, got "
+                             f"{wheel_variance_m2_per_m}, {wheel_base_m}")
+        return cls(translation_m2_per_m=0.5 * wheel_variance_m2_per_m,
+                   rotation_rad2_per_rad=wheel_variance_m2_per_m / wheel_base_m,
+                   rotation_rad2_per_m=2.0 * wheel_variance_m2_per_m / wheel_base_m**2,
+                   cross_track_m2_per_m=0.0)
 
     def __post_init__(self) -> None:
+        if self.cross_track_m2_per_m is not None and not (isfinite(self.cross_track_m2_per_m)
+                                                          and self.cross_track_m2_per_m >= 0.0):
+            raise ValueError(f"process noise cross_track_m2_per_m must be finite and >= 0, got "
+                             f"{self.cross_track_m2_per_m}")
         for name in ("translation_m2_per_m", "rotation_rad2_per_rad", "rotation_rad2_per_m",
                      "floor_variance"):
             value = getattr(self, name)
@@ -55,9 +83,11 @@ class ProcessNoise:
         distance_m = hypot(increment[0], increment[1])
         rotation_rad = abs(increment[2])
         translation = self.translation_m2_per_m * distance_m + self.floor_variance
+        cross = (translation if self.cross_track_m2_per_m is None
+                 else self.cross_track_m2_per_m * distance_m + self.floor_variance)
         heading = (self.rotation_rad2_per_rad * rotation_rad + self.rotation_rad2_per_m * distance_m
                    + self.floor_variance)
-        return translation, translation, heading
+        return translation, cross, heading
 
 
 def gate_threshold(probability: float) -> float:
@@ -76,12 +106,33 @@ def turret_pose(robot_pose: Pose2D, sensor_offset_m: tuple[float, float]) -> Pos
     return compose(robot_pose, (sensor_offset_m[0], sensor_offset_m[1], 0.0))
 
 
+def bearing_measurement(pose: Pose2D, beacon_xy: tuple[float, float],
+                        lever: Pose2D) -> tuple[float, np.ndarray]:
+    """h(x) = atan2(yb - ys, xb - xs) - theta - ptheta for a robot at `pose`, the turret at `lever`
+    (px, py, ptheta) in its frame, and dh/d(x, y, theta) (3,). Raises ZeroDivisionError when the
+    turret stands on the beacon."""
+    lx, ly, lth = lever
+    theta = pose[2]
+    c, s = cos(theta), sin(theta)
+    dx = beacon_xy[0] - (pose[0] + c * lx - s * ly)
+    dy = beacon_xy[1] - (pose[1] + s * lx + c * ly)
+    q = dx * dx + dy * dy
+    if q < 1e-12:
+        raise ZeroDivisionError("the sensor is on the beacon")
+    # d(xs)/d(theta) = -s lx - c ly and d(ys)/d(theta) = c lx - s ly
+    d_theta = (dy * (-s * lx - c * ly) - dx * (c * lx - s * ly)) / q - 1.0
+    return wrap_to_pi(atan2(dy, dx) - theta - lth), np.array([dy / q, -dx / q, d_theta])
+
+
 class _OdometryEkf(ExtendedKalmanFilter):
-    """filterpy's EKF with the nonlinear odometry composition as its state transition."""
+    """filterpy's EKF with the nonlinear odometry composition as its state transition (the states past
+    the pose, if any, are constants)."""
 
     def predict_x(self, u: Pose2D = (0.0, 0.0, 0.0)) -> None:
         pose = compose((float(self.x[0, 0]), float(self.x[1, 0]), float(self.x[2, 0])), u)
-        self.x = np.array([[pose[0]], [pose[1]], [pose[2]]])
+        x = self.x.copy()
+        x[:3, 0] = pose
+        self.x = x
 
 
 class BearingEkf:
@@ -96,9 +147,12 @@ class BearingEkf:
         sensor_offset_m: tuple[float, float] = (0.0, 0.0),
         process_noise: ProcessNoise | None = None,
         gate_probability: float = 0.999,
+        odometry_errors: OdometryErrorStates | None = None,
     ) -> None:
         self.configure(beacons_xy, sensor_offset_m, process_noise or ProcessNoise(), gate_probability)
-        self._ekf = _OdometryEkf(dim_x=3, dim_z=1)
+        self.odometry_errors = odometry_errors
+        self.dim = 3 if odometry_errors is None else 6
+        self._ekf = _OdometryEkf(dim_x=self.dim, dim_z=1)
         self._initialised = False
 
     def configure(self, beacons_xy: Mapping[int, Sequence[float]], sensor_offset_m: tuple[float, float],
@@ -123,17 +177,34 @@ class BearingEkf:
     @property
     def covariance(self) -> np.ndarray:
         """3x3 covariance of (x, y, theta) (a copy)."""
-        return self._ekf.P.copy()
+        return self._ekf.P[:3, :3].copy()
+
+    @property
+    def odometry_error_estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(k_s, k_theta, h) and their 3x3 covariance, or None without those states."""
+        if self.odometry_errors is None:
+            return None
+        return self._ekf.x[3:, 0].copy(), self._ekf.P[3:, 3:].copy()
 
     def initialise(self, pose: Pose2D, covariance: np.ndarray) -> None:
-        """Start (or restart) from a pose and its 3x3 covariance (ToTal's fix or an operator's pose)."""
+        """Start (or restart) from a pose and its 3x3 covariance (ToTal's fix or an operator's pose).
+
+        Odometry error states start from their prior the first time; a restart keeps what the bearings
+        taught them (the odometry did not change), uncorrelated with the new pose.
+        """
         covariance = np.asarray(covariance, dtype=float).reshape(3, 3)
         if not (all(isfinite(v) for v in pose) and np.all(np.isfinite(covariance))):
             raise ValueError("initial pose and covariance must be finite")
         if np.any(np.linalg.eigvalsh(0.5 * (covariance + covariance.T)) <= 0.0):
             raise ValueError("initial covariance must be positive definite")
-        self._ekf.x = np.array([[pose[0]], [pose[1]], [wrap_to_pi(pose[2])]])
-        self._ekf.P = 0.5 * (covariance + covariance.T)
+        x, p = np.zeros((self.dim, 1)), np.zeros((self.dim, self.dim))
+        x[:3, 0] = (pose[0], pose[1], wrap_to_pi(pose[2]))
+        p[:3, :3] = 0.5 * (covariance + covariance.T)
+        if self.odometry_errors is not None:
+            known = self.odometry_error_estimate if self._initialised else None
+            x[3:, 0] = known[0] if known else self.odometry_errors.prior_mean
+            p[3:, 3:] = known[1] if known else self.odometry_errors.prior_covariance
+        self._ekf.x, self._ekf.P = x, p
         self._initialised = True
 
     def state(self) -> tuple[np.ndarray, np.ndarray]:
@@ -146,7 +217,7 @@ class BearingEkf:
         self._ekf.P = state[1].copy()
 
     def reset(self) -> None:
-        """Forget the estimate; the filter waits for `initialise`."""
+        """Forget the estimate (odometry error states included); the filter waits for `initialise`."""
         self._initialised = False
 
     def predict(self, increment: Pose2D) -> None:
@@ -154,40 +225,47 @@ class BearingEkf:
         # the increment is expressed in the robot frame at the prior heading
         theta = float(self._ekf.x[2, 0])
         c, s = cos(theta), sin(theta)
-        dx, dy = increment[0], increment[1]
-        # Jacobian of compose(x, u) with respect to the state x
-        self._ekf.F = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
+        moved = increment
+        self._ekf.F = np.eye(self.dim)
+        self._ekf.Q = np.zeros((self.dim, self.dim))
+        if self.odometry_errors is not None:
+            # the true motion is the reported one corrected by the error states (odometry_errors)
+            moved, d_errors, _ = corrected_increment(increment, self._ekf.x[3:, 0])
+            rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            self._ekf.F[:3, 3:] = rotation @ d_errors
+            walk = self.odometry_errors.walk_variance_per_m * hypot(increment[0], increment[1])
+            self._ekf.Q[3:, 3:] = walk * np.eye(3)
+        dx, dy = moved[0], moved[1]
+        # Jacobian of compose(x, u) with respect to the pose
+        self._ekf.F[:3, :3] = [[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]]
         # the robot-frame noise M rotated into the map frame by G = d compose / d u
         m_along, m_across, m_heading = self.process_noise.robot_frame_variances(increment)
         cc, ss, cs = c * c, s * s, c * s
-        self._ekf.Q = np.array([
+        self._ekf.Q[:3, :3] = [
             [cc * m_along + ss * m_across, cs * (m_along - m_across), 0.0],
             [cs * (m_along - m_across), ss * m_along + cc * m_across, 0.0],
             [0.0, 0.0, m_heading],
-        ])
-        self._ekf.predict(u=increment)
+        ]
+        self._ekf.predict(u=moved)
 
     def add_time_noise(self, position_variance_m2: float, heading_variance_rad2: float) -> None:
         """Inflate the covariance (e.g. for an odometry gap during which the robot may have slipped)."""
-        added = np.diag([position_variance_m2, position_variance_m2, heading_variance_rad2])
-        self._ekf.P = self._ekf.P + added
+        added = np.zeros(self.dim)
+        added[:3] = (position_variance_m2, position_variance_m2, heading_variance_rad2)
+        self._ekf.P = self._ekf.P + np.diag(added)
 
     def predicted_bearing(self, beacon_id: int, lever: Pose2D | None = None) -> tuple[float, np.ndarray]:
-        """h(x) and its 1x3 Jacobian for one beacon, the turret at `lever` in the robot frame."""
-        xb, yb = self.beacons_xy[beacon_id]
-        lx, ly, lth = lever if lever is not None else (self.sensor_offset_m[0], self.sensor_offset_m[1], 0.0)
+        """h(x) and its 1 x dim Jacobian for one beacon, the turret at `lever` in the robot frame."""
+        lever = lever if lever is not None else (self.sensor_offset_m[0], self.sensor_offset_m[1], 0.0)
         x = self._ekf.x
-        theta = float(x[2, 0])
-        c, s = cos(theta), sin(theta)
-        dx = xb - (float(x[0, 0]) + c * lx - s * ly)
-        dy = yb - (float(x[1, 0]) + s * lx + c * ly)
-        q = dx * dx + dy * dy
-        if q < 1e-12:
-            raise ZeroDivisionError(f"the sensor is on beacon {beacon_id}")
-        # d(xs)/d(theta) = -s lx - c ly and d(ys)/d(theta) = c lx - s ly
-        d_theta = (dy * (-s * lx - c * ly) - dx * (c * lx - s * ly)) / q - 1.0
-        jacobian = np.array([[dy / q, -dx / q, d_theta]])
-        return wrap_to_pi(atan2(dy, dx) - theta - lth), jacobian
+        try:
+            expected, d_pose = bearing_measurement((float(x[0, 0]), float(x[1, 0]), float(x[2, 0])),
+                                                   self.beacons_xy[beacon_id], lever)
+        except ZeroDivisionError:
+            raise ZeroDivisionError(f"the sensor is on beacon {beacon_id}") from None
+        jacobian = np.zeros((1, self.dim))
+        jacobian[0, :3] = d_pose
+        return expected, jacobian
 
     def update_bearing(
         self, beacon_id: int, bearing_rad: float, variance_rad2: float, lever: Pose2D | None = None

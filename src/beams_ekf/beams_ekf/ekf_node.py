@@ -235,11 +235,14 @@ class EkfNode(Node):
             return
         self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
         self.diagnostics.set("recent_gated_bearings", self.localiser.recent_gated_bearings)
+        self.diagnostics.set("lost_nis_window_sum", self.localiser.nis_monitor.window_sum)
         since_s = (estimate.stamp_s - stats.last_bearing_stamp_s if stats.last_bearing_stamp_s is not None
                    else float("inf"))
         self.diagnostics.set("time_since_last_bearing_s", since_s)
         if since_s > 1.0:
             self.diagnostics.set_level("warn", "no accepted bearing for more than 1 s: odometry only")
+        elif self.localiser.nis_monitor.lost:
+            self.diagnostics.set_level("warn", "lost: innovations too large, waiting for a ToTal pose")
         elif self.localiser.kidnap_suspected:
             self.diagnostics.set_level("warn", "bearings gated out: robot moved? waiting for a ToTal pose")
         else:

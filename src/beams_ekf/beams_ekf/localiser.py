@@ -9,11 +9,13 @@ predicting again through the later samples (see `Localiser.on_bearings`); a pose
 operator's /initialpose) initialises the filter, brought to the filter's instant by the odometry motion
 since its stamp (a ToTal fix is stamped at its revolution, ~0.1-0.2 s before it arrives, so a fix the
 odometry history does not cover is refused: taken as current, it put the live filter 0.2 m and 7 deg
-off, confidently), and re-initialises it when the robot was kidnapped or the filter is lost (most of the
-recent bearings gated out while ToTal is confident of a pose inconsistent with the estimate: identified
-beacons make this possible, thesis ch. 8 "System deployment"). Time going backwards (a rosbag played
-in a loop: consecutive odometry messages in the past, not one stray; `beams_common.time_jumps`) resets
-everything; odometry gaps inflate the covariance instead of freezing the filter.
+off, confidently), and re-initialises it when the robot was kidnapped (most of the recent bearings gated
+out while ToTal is confident of a pose inconsistent with the estimate: identified beacons make this
+possible, thesis ch. 8 "System deployment") or the filter is lost (`NisMonitor`: the bearings'
+innovations, over a sliding window, too large for the covariance: the next ToTal fix restarts it).
+Time going backwards (a rosbag played in a loop: consecutive odometry messages in the past, not one
+stray; `beams_common.time_jumps`) resets everything; odometry gaps inflate the covariance instead of
+freezing the filter.
 
 ekf_node and the offline replay (`bag_replay`) share what lies between their inputs and the filter:
 `filter_settings` (parameter values to the filter's settings), `build_localiser`, `message_bearings`,
@@ -35,6 +37,7 @@ from beams_common.pose_buffer import PoseBuffer
 from beams_common.time_jumps import StampOrder, TimeJumpDetector
 from beams_common.validation import bearing_problem, one_sighting_per_beacon, revolution_size_problem
 from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise, turret_pose
+from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.pose_filter import BearingOutcome, PoseFilter
 
 # bearings waiting for odometry beyond this many are dropped, oldest first (a dead odometry source)
@@ -66,8 +69,15 @@ class LocaliserConfig:
     # reset the filter (a bag loop); smaller steps, and a single stray old message, are dropped
     time_jump_tolerance_s: float = 0.0
     time_jump_confirmations: int = 2
+    # lost detection (NisMonitor): the NIS of the last lost_nis_window_bearings new bearings, summed,
+    # beyond the chi-square quantile at lost_nis_probability (0: the monitor is off)
+    lost_nis_window_bearings: int = 30
+    lost_nis_probability: float = 1.0 - 1.0e-6
 
     def __post_init__(self) -> None:
+        if self.lost_nis_window_bearings < 0 or not 0.0 < self.lost_nis_probability < 1.0:
+            raise ValueError(f"need lost_nis_window_bearings >= 0 and lost_nis_probability in (0, 1), got "
+                             f"{self.lost_nis_window_bearings} and {self.lost_nis_probability}")
         if not (self.history_span_s > 0.0 and self.max_extrapolation_s >= 0.0 and self.odometry_gap_s > 0.0):
             raise ValueError("history_span_s and odometry_gap_s must be > 0, max_extrapolation_s >= 0")
         if not 1 <= self.kidnap_gated_bearings <= self.kidnap_window_bearings:
@@ -82,14 +92,32 @@ class LocaliserConfig:
 # ekf_node's parameter name of each ProcessNoise field (those of LocaliserConfig are its field names)
 PROCESS_NOISE_PARAMETERS = {"translation_m2_per_m": "translation_variance_m2_per_m",
                             "rotation_rad2_per_rad": "rotation_variance_rad2_per_rad",
-                            "rotation_rad2_per_m": "rotation_variance_rad2_per_m"}
+                            "rotation_rad2_per_m": "rotation_variance_rad2_per_m",
+                            "cross_track_m2_per_m": "cross_track_variance_m2_per_m"}
+# ekf_node's parameter name of each OdometryErrorStates prior (odometry_error_states switches them on)
+ODOMETRY_ERROR_PARAMETERS = {"scale_sigma": "odometry_scale_sigma",
+                             "rotation_scale_sigma": "odometry_rotation_scale_sigma",
+                             "heading_drift_sigma_rad_per_m": "odometry_heading_drift_sigma_rad_per_m"}
+
+# The wheels' random error, variance per metre rolled, of the simulated robot (sim_world's OdometryDrift:
+# noise 1 mm/sqrt(m) is 1.0e-6; the random part of the half-normal slip, 0.005^2 (1 - 2/pi) of a step's
+# squared length, adds at most 0.09e-6 at the 1 cm steps of 0.5 m/s and 50 Hz), and its wheel base (m).
+WHEEL_VARIANCE_M2_PER_M = 1.1e-6
+WHEEL_BASE_M = 0.3
 
 
 @dataclass(frozen=True)
 class FilterSettings:
-    """What ekf_node takes from its parameters (besides the beacon geometry)."""
+    """What ekf_node takes from its parameters (besides the beacon geometry).
 
-    process_noise: ProcessNoise = field(default_factory=ProcessNoise)
+    By default the filter estimates the odometry's systematic errors (`odometry_errors`), so its process
+    noise is the wheels' random noise alone (`ProcessNoise.wheel_noise`); without those states the
+    process noise must also cover the systematic errors as white noise (ProcessNoise's own defaults).
+    """
+
+    process_noise: ProcessNoise = field(
+        default_factory=lambda: ProcessNoise.wheel_noise(WHEEL_VARIANCE_M2_PER_M, WHEEL_BASE_M))
+    odometry_errors: OdometryErrorStates | None = field(default_factory=OdometryErrorStates)
     # chi-square (1 dof) probability of the per-bearing gate
     gate_probability: float = 0.999
     localiser: LocaliserConfig = field(default_factory=LocaliserConfig)
@@ -109,6 +137,9 @@ def filter_parameter_defaults() -> dict[str, Any]:
     defaults = FilterSettings()
     values: dict[str, Any] = {parameter: getattr(defaults.process_noise, name)
                               for name, parameter in PROCESS_NOISE_PARAMETERS.items()}
+    errors = defaults.odometry_errors or OdometryErrorStates()
+    values.update({parameter: getattr(errors, name) for name, parameter in ODOMETRY_ERROR_PARAMETERS.items()})
+    values["odometry_error_states"] = defaults.odometry_errors is not None
     values.update({f.name: getattr(defaults.localiser, f.name) for f in fields(LocaliserConfig)})
     values.update(gate_probability=defaults.gate_probability, use_total_pose=defaults.use_total_pose,
                   default_pose_sigma=list(defaults.default_pose_sigma))
@@ -128,7 +159,12 @@ def filter_settings(parameters: Mapping[str, Any]) -> FilterSettings:
     sigma = tuple(float(v) for v in parameters.get("default_pose_sigma", defaults.default_pose_sigma))
     if len(sigma) != 3:
         raise ValueError(f"default_pose_sigma needs 3 values (x, y, yaw), got {list(sigma)}")
-    return FilterSettings(noise, float(parameters.get("gate_probability", defaults.gate_probability)),
+    errors = None
+    if parameters.get("odometry_error_states", defaults.odometry_errors is not None):
+        prior = defaults.odometry_errors or OdometryErrorStates()
+        errors = OdometryErrorStates(**{name: float(parameters.get(parameter, getattr(prior, name)))
+                                        for name, parameter in ODOMETRY_ERROR_PARAMETERS.items()})
+    return FilterSettings(noise, errors, float(parameters.get("gate_probability", defaults.gate_probability)),
                           config, bool(parameters.get("use_total_pose", defaults.use_total_pose)), sigma)
 
 
@@ -173,6 +209,41 @@ class _Slot:
 
     state: tuple[np.ndarray, np.ndarray]
     bearings: list[Bearing] = field(default_factory=list)
+
+
+class NisMonitor:
+    """Lost detection on the bearings' innovations: a consistent filter's normalised innovations squared
+    (NIS, r^2 / S) are independent chi-square (1 dof) draws, so the sum over the last n bearings is
+    chi-square with n dof; a sum beyond its quantile at `probability` says the estimate (or its
+    covariance) is wrong. Each NIS counts at most the gate's threshold (a gated-out bearing says "beyond
+    the gate", and one wild reflection must not make the filter lost on its own); the test runs on the
+    bearings so far until the window fills (a lost start is caught within a few bearings)."""
+
+    def __init__(self, window_bearings: int, probability: float, gate: float) -> None:
+        self._nis: deque[float] = deque(maxlen=max(window_bearings, 1))
+        self.enabled = window_bearings > 0
+        self._gate = gate
+        self._thresholds = [float("inf")] + [float(chi2.ppf(probability, df=n))
+                                             for n in range(1, max(window_bearings, 1) + 1)]
+
+    def add(self, nis: float) -> bool:
+        """Record one new bearing's NIS (gated ones too); True when that makes the filter lost."""
+        was_lost = self.lost
+        self._nis.append(min(nis, self._gate) if isfinite(nis) else self._gate)
+        return self.lost and not was_lost
+
+    @property
+    def window_sum(self) -> float:
+        """The capped NIS summed over the window (a diagnostic)."""
+        return float(sum(self._nis))
+
+    @property
+    def lost(self) -> bool:
+        """True when the window's NIS sum exceeds the chi-square quantile for its length."""
+        return self.enabled and self.window_sum > self._thresholds[len(self._nis)]
+
+    def clear(self) -> None:
+        self._nis.clear()
 
 
 def _rejected(reason: str) -> BearingOutcome:
@@ -220,6 +291,8 @@ class Localiser:
         self._time_jumps = TimeJumpDetector(self.config.time_jump_tolerance_s,
                                             self.config.time_jump_confirmations)
         self._kidnap_threshold = float(chi2.ppf(self.config.kidnap_probability, df=3))
+        self.nis_monitor = NisMonitor(self.config.lost_nis_window_bearings, self.config.lost_nis_probability,
+                                      ekf.gate)
         self._stamp_s: float | None = None
         # bearings stamped after the newest odometry, waiting for the odometry that covers them
         self._pending: list[Bearing] = []
@@ -240,6 +313,7 @@ class Localiser:
         self.ekf.reset()
         self.history.clear()
         self._recent_gated.clear()
+        self.nis_monitor.clear()
         self._stamp_s = None
         self._pending.clear()
         self._time_jumps.clear()
@@ -442,6 +516,8 @@ class Localiser:
             self.stats.last_bearing_stamp_s = bearing.stamp_s
         if outcome.accepted or outcome.reason == "gated":
             self._recent_gated.append(not outcome.accepted)
+            if self.nis_monitor.add(outcome.nis):
+                self.stats.counts["lost_detections"] += 1
 
     def _count(self, outcome: BearingOutcome) -> BearingOutcome:
         self.stats.counts["bearings_accepted" if outcome.accepted else f"bearings_{outcome.reason}"] += 1
@@ -464,7 +540,8 @@ class Localiser:
 
         An operator's pose always (re)initialises (one older than the odometry history is taken as
         current: it has no meaningful stamp); ToTal's initialises a filter that has no estimate, and
-        re-initialises one that is lost (kidnap suspected and the fix elsewhere), provided the odometry
+        re-initialises one that is kidnapped (kidnap suspected and the fix elsewhere) or lost (the
+        NisMonitor's test), provided the odometry
         history covers its stamp ("outside_history" otherwise: the next fix will be covered).
         """
         if not (isfinite(stamp_s) and is_finite_pose(pose)):
@@ -480,6 +557,8 @@ class Localiser:
             return self._initialise(stamp_s, pose_now, covariance, "initialisations")
         if self.kidnap_suspected and self._far_from_estimate(pose_now, covariance):
             return self._initialise(stamp_s, pose_now, covariance, "kidnap_reinitialisations")
+        if self.nis_monitor.lost:
+            return self._initialise(stamp_s, pose_now, covariance, "lost_reinitialisations")
         return "ignored"
 
     def offer_pose(self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, default_covariance: np.ndarray,
@@ -514,6 +593,7 @@ class Localiser:
             self.stats.counts["poses_invalid"] += 1
             return "invalid"
         self._recent_gated.clear()
+        self.nis_monitor.clear()
         # the states kept for late bearings belong to the old estimate
         for index in range(len(self.history)):
             self.history.set_payload(index, None)
@@ -546,5 +626,6 @@ class Localiser:
 def build_localiser(beacons_xy: Mapping[int, Sequence[float]], sensor_offset_m: tuple[float, float],
                     settings: FilterSettings) -> Localiser:
     """The Localiser of a beacon map ({id: (x, y)}), a turret offset (m) and the filter settings."""
-    ekf = BearingEkf(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability)
+    ekf = BearingEkf(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability,
+                     settings.odometry_errors)
     return Localiser(ekf, settings.localiser)

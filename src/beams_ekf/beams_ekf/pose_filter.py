@@ -35,6 +35,9 @@ class PoseFilter(Protocol):
     # the beacons it knows ({id: (x, y)}, map frame, m) and the turret's offset in base_link (m)
     beacons_xy: dict[int, tuple[float, float]]
     sensor_offset_m: tuple[float, float]
+    # the chi-square (1 dof) threshold beyond which update_bearing gates a bearing (the lost test caps
+    # each bearing's NIS there)
+    gate: float
 
     @property
     def initialised(self) -> bool:

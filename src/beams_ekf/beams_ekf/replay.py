@@ -15,6 +15,16 @@ from beams_ekf.localiser import Localiser
 from beams_ekf.synthetic import BearingEvent
 
 
+@dataclass(frozen=True)
+class PoseEvent:
+    """A ToTal fix as triangulation_node publishes it: arrives at `arrival_s`, refers to `stamp_s`."""
+
+    arrival_s: float
+    stamp_s: float
+    pose: Pose2D
+    covariance: np.ndarray
+
+
 @dataclass
 class ReplayResult:
     """The estimate after each revolution's bearings, with the truth at the same instant."""
@@ -53,19 +63,25 @@ def replay(
     truth_at: Callable[[float], Pose2D],
     initial_pose: Pose2D,
     initial_covariance: np.ndarray,
+    fixes: Iterable[PoseEvent] = (),
 ) -> ReplayResult:
-    """Feed odometry (arriving at its stamp) and bearings (arriving at `arrival_s`) in arrival order."""
+    """Feed odometry (arriving at its stamp), bearings and ToTal's fixes (arriving at `arrival_s`; at
+    one instant the bearings first) in arrival order."""
     localiser.on_pose(float(odometry_times_s[0]), initial_pose, initial_covariance, operator=True)
-    by_arrival = [(a, list(group)) for a, group in groupby(sorted(bearings, key=lambda b: b.arrival_s),
-                                                             key=lambda b: b.arrival_s)]
+    events = [(b.arrival_s, 0, b) for b in bearings] + [(f.arrival_s, 1, f) for f in fixes]
+    events.sort(key=lambda event: event[:2])
+    by_arrival = [(a, [event[2] for event in group]) for a, group in groupby(events, key=lambda e: e[0])]
     times, estimates, covariances, truths = [], [], [], []
     k = 0
-    for arrival_s, revolution in by_arrival:
+    for arrival_s, arrived in by_arrival:
         while k < len(odometry_times_s) and odometry_times_s[k] <= arrival_s:
             localiser.on_odometry(float(odometry_times_s[k]), tuple(odometry_poses[k]))
             k += 1
-        for b in revolution:
-            localiser.on_bearing(b.stamp_s, b.beacon_id, b.bearing_rad, b.variance_rad2)
+        for event in arrived:
+            if isinstance(event, PoseEvent):
+                localiser.on_pose(event.stamp_s, event.pose, event.covariance, operator=False)
+            else:
+                localiser.on_bearing(event.stamp_s, event.beacon_id, event.bearing_rad, event.variance_rad2)
         estimate = localiser.estimate()
         if estimate is not None:
             times.append(estimate.stamp_s)
@@ -92,16 +108,3 @@ def accuracy(result: ReplayResult, settle_s: float = 1.0) -> Accuracy:
         nees_in_band=float(np.mean((nees >= low) & (nees <= high))),
         samples=int(keep.sum()),
     )
-
-
-def bearing_events(revolutions: Iterable, variance_rad2: Callable[[int, float], float] | None = None
-                   ) -> list[BearingEvent]:
-    """The bearings of decoded revolutions (beams_driver.decoder.DecodedRevolution), arriving when their
-    revolution ends; `variance_rad2(beacon_id, angular_window_rad)` replaces the published variance."""
-    events = []
-    for revolution in revolutions:
-        arrival_s = revolution.start_time_s + revolution.period_s
-        for b in revolution.bearings:
-            variance = b.variance if variance_rad2 is None else variance_rad2(b.beacon_id, b.angular_window)
-            events.append(BearingEvent(arrival_s, b.stamp_s, b.beacon_id, b.bearing, float(variance)))
-    return events

@@ -124,7 +124,11 @@ def test_settings_from_the_node_parameter_file():
     settings = filter_settings({**parameters, "history_span_s": 1.5, "default_pose_sigma": [0.1, 0.2, 0.3]})
     assert settings.process_noise == ProcessNoise(parameters["translation_variance_m2_per_m"],
                                                   parameters["rotation_variance_rad2_per_rad"],
-                                                  parameters["rotation_variance_rad2_per_m"])
+                                                  parameters["rotation_variance_rad2_per_m"],
+                                                  cross_track_m2_per_m=parameters["cross_track_variance_m2_per_m"])
+    assert settings.odometry_errors.heading_drift_sigma_rad_per_m == parameters[
+        "odometry_heading_drift_sigma_rad_per_m"]
+    assert settings.localiser.lost_nis_window_bearings == parameters["lost_nis_window_bearings"]
     assert settings.gate_probability == parameters["gate_probability"]
     assert settings.localiser.history_span_s == 1.5
     assert settings.localiser.kidnap_heading_rad == parameters["kidnap_heading_rad"]
@@ -141,7 +145,7 @@ def test_declared_defaults_are_the_settings_and_the_documented_ones():
     assert filter_settings(defaults) == FilterSettings()
     documented = node_section(yaml.safe_load(CONFIG.read_text()), "ekf_node")
     shared = set(defaults) & set(documented)
-    assert len(shared) == 17
+    assert len(shared) == 24
     assert {name: defaults[name] for name in shared} == {name: documented[name] for name in shared}
 
 

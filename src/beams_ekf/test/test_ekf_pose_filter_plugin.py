@@ -8,7 +8,7 @@ import numpy as np
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.pose2d import Pose2D, compose
-from beams_ekf.bearing_ekf import BearingEkf
+from beams_ekf.bearing_ekf import BearingEkf, gate_threshold
 from beams_ekf.localiser import Localiser
 from beams_ekf.pose_filter import BearingOutcome, PoseFilter
 from beams_ekf.replay import accuracy, replay
@@ -31,6 +31,7 @@ class DeadReckoning:
     def configure(self, beacons_xy, sensor_offset_m, process_noise, gate_probability) -> None:
         self.beacons_xy = dict(beacons_xy)
         self.sensor_offset_m = tuple(sensor_offset_m)
+        self.gate = gate_threshold(gate_probability)
 
     @property
     def initialised(self) -> bool:

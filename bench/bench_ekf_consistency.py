@@ -1,0 +1,319 @@
+"""EKF consistency and optimality over seeds of the simulated match (issue 13): NEES, the posterior
+Cramer-Rao bound (PCRB) from the simulator's true noise models, the odometry error states (with two
+beacons hidden for 10 s) and the lost detection.
+
+Filters compared: "white odometry noise" (BearingEkf's own ProcessNoise defaults, no odometry error
+states: the filter before issue 13), "error states" (ekf_node's defaults, FilterSettings: the
+odometry's systematic errors as states, the wheels' random noise as process noise) and "wheel noise, no
+error states" (that process noise without the states: the systematic errors are then unmodelled).
+Every replay gets ToTal's motion-compensated fixes, as ekf_node does (they only matter to a lost or
+diverging filter).
+
+The PCRB ("bound") uses the wheels' true random noise (WheelNoiseModel), each decoded bearing's true
+variance (the exact variance plus the natural one, at the true window the simulator used), and the
+odometry's systematic errors as unknowns with the filter's prior ("bound, errors unknown") or as known
+("bound, errors known": what an estimator told the simulator's drift could reach).
+
+Usage: python bench/bench_ekf_consistency.py [--seeds N] [--duration S] [--sensor-model ideal]
+(`rows()` is what bench/run_all.py collects.) `--sensor-model thesis_hardware` passes
+`sim_noise_model` to simulate_match once the simulator has that model; its true bearing variance for
+the bound is then `true_bearing_variances` below, to be given the model's own (window-dependent) noise.
+"""
+
+import argparse
+import inspect
+import itertools
+import math
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import chi2
+
+from beams_bringup.match_replay import match_fixes, match_odometry, replay_match
+from beams_common.pose2d import between
+from beams_driver.sensor_sim import SensorSimConfig
+from beams_ekf.bearing_ekf import BearingEkf
+from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
+from beams_ekf.odometry_errors import OdometryErrorStates
+from beams_ekf.pcrb import PcrbTrack, WheelNoiseModel, trajectory_pcrb
+from beams_ekf.replay import PoseEvent, ReplayResult
+from beams_sim.simulated_match import SimulatedMatch, default_variance_model, simulate_match
+from beams_sim.world import OdometryDrift
+
+DEFAULT_SEEDS = 10
+DEFAULT_DURATION_S = 90.0
+SETTLE_S = 1.0  # the initial transient left out, as bench_ekf's accuracy() does
+START_SIGMA = (0.01, 0.01, math.radians(1.0))  # ToTal's first fix (bench_ekf's start)
+OCCLUSION_START_S, OCCLUSION_S, HIDDEN_BEACONS = 30.0, 10.0, (1, 2)
+LOST_OFFSET_M, LOST_DIRECTIONS, LOST_MATCH_S = 0.05, 8, 6.0
+NEES_BAND = (float(chi2.ppf(0.025, df=3)), float(chi2.ppf(0.975, df=3)))
+
+
+@dataclass(frozen=True)
+class Filter:
+    """A filter configuration under test."""
+
+    name: str
+    build: Callable[[SimulatedMatch], Localiser]
+
+
+def _beacons(match: SimulatedMatch) -> dict[int, tuple[float, float]]:
+    return dict(zip(match.beacon_map.ids, map(tuple, match.beacon_map.xy), strict=True))
+
+
+FILTERS = (
+    Filter("white odometry noise", lambda m: Localiser(BearingEkf(_beacons(m), m.turret_offset_m))),
+    Filter("error states", lambda m: build_localiser(_beacons(m), m.turret_offset_m, FilterSettings())),
+    # the diagnosis: the wheels' random noise alone, without the states, cannot explain the drift
+    Filter(
+        "wheel noise, no error states",
+        lambda m: build_localiser(_beacons(m), m.turret_offset_m, FilterSettings(odometry_errors=None)),
+    ),
+)
+
+
+def sensor_match(duration_s: float, seed: int, sensor_model: str, **options) -> SimulatedMatch:
+    """The simulated match of one sensor model ("ideal": today's simulator)."""
+    if sensor_model != "ideal":
+        if "sim_noise_model" not in inspect.signature(simulate_match).parameters:
+            raise SystemExit(
+                f"sensor model {sensor_model!r}: simulate_match has no sim_noise_model argument yet"
+            )
+        options["sim_noise_model"] = sensor_model
+    return simulate_match(duration_s, seed, **options)
+
+
+def true_bearing_variances(match: SimulatedMatch, config: SensorSimConfig) -> list[tuple[float, int, float]]:
+    """(stamp, beacon id, true variance) of every decoded bearing: the simulator's exact variance
+    plus natural variance at the true window (beam geometry at the true distance), not the decoded one."""
+    model = default_variance_model(config.codes, config)
+    beacons = {b.beacon_id: b for b in match.true_beacons}
+    result = []
+    for revolution in match.revolutions:
+        for b in revolution.bearings:
+            x, y, theta = match.truth_at(b.stamp_s)
+            c, s = math.cos(theta), math.sin(theta)
+            turret = (
+                x + c * match.turret_offset_m[0] - s * match.turret_offset_m[1],
+                y + s * match.turret_offset_m[0] + c * match.turret_offset_m[1],
+            )
+            beacon = beacons[b.beacon_id]
+            window = config.window_rad(
+                math.hypot(beacon.x_m - turret[0], beacon.y_m - turret[1]), beacon.power_scale
+            )
+            result.append((b.stamp_s, b.beacon_id, float(model.variance(b.beacon_id, window))))
+    return result
+
+
+def _start(match: SimulatedMatch) -> tuple[tuple[float, float, float], np.ndarray]:
+    x, y, theta = match.initial_pose
+    return (x + START_SIGMA[0], y - START_SIGMA[1], theta + START_SIGMA[2]), np.diag(np.square(START_SIGMA))
+
+
+def match_bound(match: SimulatedMatch, config: SensorSimConfig, errors_unknown: bool) -> PcrbTrack:
+    """The PCRB of a match from the simulator's true noise models (see the module docstring)."""
+    drift = OdometryDrift()
+    odometry = match_odometry(match)
+    truth = match.ground_truth
+    increments = np.array([between(tuple(a), tuple(b)) for a, b in itertools.pairwise(odometry)])
+    return trajectory_pcrb(
+        truth.stamp_s,
+        np.column_stack([truth.x_m, truth.y_m, truth.theta_rad]),
+        increments,
+        true_bearing_variances(match, config),
+        _beacons(match),
+        match.truth_at,
+        match.turret_offset_m,
+        np.diag(np.square(START_SIGMA)),
+        WheelNoiseModel(drift.noise_m_per_sqrt_m, drift.slip_std),
+        OdometryErrorStates() if errors_unknown else None,
+    )
+
+
+def run(filter_: Filter, match: SimulatedMatch, fixes: list[PoseEvent], start=None) -> ReplayResult:
+    pose, covariance = start or _start(match)
+    return replay_match(filter_.build(match), match, pose, covariance, fixes)
+
+
+@dataclass
+class Pooled:
+    """Errors, NEES and bounds of one filter pooled over the seeds (after SETTLE_S)."""
+
+    errors: list[np.ndarray]
+    nees: list[np.ndarray]
+    bound_unknown: list[np.ndarray]
+    bound_known: list[np.ndarray]
+    lost_detections: int = 0
+
+    def add(self, result: ReplayResult, unknown: PcrbTrack, known: PcrbTrack) -> None:
+        keep = result.times_s >= result.times_s[0] + SETTLE_S
+        errors = result.errors()[keep]
+        self.errors.append(errors)
+        self.nees.append(np.einsum("ki,kij,kj->k", errors, np.linalg.inv(result.covariances[keep]), errors))
+        self.bound_unknown.append(unknown.at(result.times_s[keep]))
+        self.bound_known.append(known.at(result.times_s[keep]))
+        self.lost_detections += result.counts.get("lost_detections", 0)
+
+    def figures(self) -> dict[str, float]:
+        errors, nees = np.concatenate(self.errors), np.concatenate(self.nees)
+        figures = {
+            "rms_position_m": float(np.sqrt(np.mean(errors[:, 0] ** 2 + errors[:, 1] ** 2))),
+            "rms_heading_rad": float(np.sqrt(np.mean(errors[:, 2] ** 2))),
+            "nees_mean": float(nees.mean()),
+            "nees_in_band": float(np.mean((nees >= NEES_BAND[0]) & (nees <= NEES_BAND[1]))),
+        }
+        for name, bounds in (("unknown", self.bound_unknown), ("known", self.bound_known)):
+            b = np.concatenate(bounds)
+            figures[f"bound_{name}_position_m"] = float(np.sqrt(np.mean(b[:, 0, 0] + b[:, 1, 1])))
+            figures[f"bound_{name}_heading_rad"] = float(np.sqrt(np.mean(b[:, 2, 2])))
+        return figures
+
+
+def hidden(beacon_id: int, time_s: float) -> bool:
+    """Two beacons hidden for OCCLUSION_S from OCCLUSION_START_S."""
+    return beacon_id in HIDDEN_BEACONS and OCCLUSION_START_S <= time_s < OCCLUSION_START_S + OCCLUSION_S
+
+
+def occlusion_growth(result: ReplayResult) -> tuple[float, float]:
+    """(largest position error during the occlusion, mean NEES during it)."""
+    inside = (result.times_s >= OCCLUSION_START_S) & (result.times_s < OCCLUSION_START_S + OCCLUSION_S + 0.2)
+    errors = result.errors()[inside]
+    nees = np.einsum("ki,kij,kj->k", errors, np.linalg.inv(result.covariances[inside]), errors)
+    return float(np.hypot(errors[:, 0], errors[:, 1]).max()), float(nees.mean())
+
+
+def lost_recovery_s(seeds: range, sensor_model: str) -> tuple[float, int]:
+    """Worst time (s) from the start until the position error stays under 1 cm (the first estimate comes
+    with the first revolution's bearings, 0.1 s in), from starts LOST_OFFSET_M off the truth
+    in LOST_DIRECTIONS directions with a 1 mm covariance (confidently wrong), ekf_node's filter; and how
+    many of those starts never recovered."""
+    worst, failed = 0.0, 0
+    for seed in seeds:
+        match = sensor_match(LOST_MATCH_S, seed, sensor_model)
+        fixes = match_fixes(match)
+        x, y, theta = match.initial_pose
+        for angle in np.linspace(0.0, 2.0 * math.pi, LOST_DIRECTIONS, endpoint=False):
+            start = (
+                (x + LOST_OFFSET_M * math.cos(angle), y + LOST_OFFSET_M * math.sin(angle), theta),
+                np.diag([1e-6, 1e-6, 1e-6]),
+            )
+            result = run(FILTERS[1], match, fixes, start)
+            off = np.flatnonzero(np.hypot(*result.errors()[:, :2].T) > 0.01)
+            if len(off) and off[-1] == len(result.times_s) - 1:
+                failed += 1
+                continue
+            # the first estimate from which the error stays under 1 cm, from the start of the match
+            first_good = off[-1] + 1 if len(off) else 0
+            worst = max(worst, float(result.times_s[first_good] - match.odometry.stamp_s[0]))
+    return worst, failed
+
+
+def rows(
+    seeds: int = DEFAULT_SEEDS, duration_s: float = DEFAULT_DURATION_S, sensor_model: str = "ideal"
+) -> list[tuple[str, float, str, str]]:
+    """(figure, value, unit, compared with) rows."""
+    config = SensorSimConfig()
+    pooled = {f.name: Pooled([], [], [], []) for f in FILTERS}
+    occluded: dict[str, list[tuple[float, float]]] = {f.name: [] for f in FILTERS}
+    for seed in range(seeds):
+        match = sensor_match(duration_s, seed, sensor_model)
+        fixes = match_fixes(match)
+        unknown, known = match_bound(match, config, True), match_bound(match, config, False)
+        for filter_ in FILTERS:
+            pooled[filter_.name].add(run(filter_, match, fixes), unknown, known)
+        if duration_s > OCCLUSION_START_S + OCCLUSION_S:
+            hidden_match = sensor_match(duration_s, seed, sensor_model, occlusion=hidden)
+            for filter_ in FILTERS:
+                occluded[filter_.name].append(occlusion_growth(run(filter_, hidden_match, [])))
+    label = f"{seeds} seeds x {duration_s:.0f} s, sensor {sensor_model}"
+    table = []
+    for name, pool in pooled.items():
+        f = pool.figures()
+        table += [
+            (
+                f"EKF mean NEES ({name}), {label}",
+                f["nees_mean"],
+                "",
+                "target 2.4-3.6 (3 for a consistent filter)",
+            ),
+            (f"EKF NEES in 95% band ({name})", 100 * f["nees_in_band"], "%", "target >= 90%"),
+            (
+                f"EKF RMS position ({name})",
+                1000 * f["rms_position_m"],
+                "mm",
+                f"bound {1000 * f['bound_unknown_position_m']:.3g} mm (errors unknown), "
+                f"{1000 * f['bound_known_position_m']:.3g} mm (known)",
+            ),
+            (
+                f"EKF RMS position / PCRB, errors unknown ({name})",
+                f["rms_position_m"] / f["bound_unknown_position_m"],
+                "",
+                "goal <= 1.2",
+            ),
+            (
+                f"EKF RMS heading ({name})",
+                math.degrees(f["rms_heading_rad"]),
+                "deg",
+                f"bound {math.degrees(f['bound_unknown_heading_rad']):.3g} deg (errors unknown), "
+                f"{math.degrees(f['bound_known_heading_rad']):.3g} deg (known)",
+            ),
+            (
+                f"EKF RMS heading / PCRB, errors unknown ({name})",
+                f["rms_heading_rad"] / f["bound_unknown_heading_rad"],
+                "",
+                "goal <= 1.2",
+            ),
+            (f"lost detections over the seeds ({name})", float(pool.lost_detections), "", "target 0"),
+        ]
+    for name, values in occluded.items():
+        if values:
+            growth = np.array(values)
+            table += [
+                (
+                    f"beacons {HIDDEN_BEACONS} hidden {OCCLUSION_S:.0f} s: max position error, worst seed "
+                    f"({name})",
+                    1000 * float(growth[:, 0].max()),
+                    "mm",
+                    f"median over seeds {1000 * np.median(growth[:, 0]):.3g} mm",
+                ),
+                (
+                    f"beacons {HIDDEN_BEACONS} hidden {OCCLUSION_S:.0f} s: mean NEES while hidden ({name})",
+                    float(growth[:, 1].mean()),
+                    "",
+                    "3 for a consistent filter",
+                ),
+            ]
+    worst_s, failed = lost_recovery_s(range(min(seeds, 3)), sensor_model)
+    table += [
+        (
+            f"recovery from a confident {100 * LOST_OFFSET_M:.0f} cm wrong start, worst of "
+            f"{LOST_DIRECTIONS * min(seeds, 3)} (error < 1 cm from then on)",
+            worst_s,
+            "s",
+            f"target <= 2 s; {failed} never recovered",
+        ),
+    ]
+    return table
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--seeds", type=int, default=DEFAULT_SEEDS)
+    parser.add_argument("--duration", type=float, default=DEFAULT_DURATION_S)
+    parser.add_argument("--sensor-model", default="ideal", choices=("ideal", "thesis_hardware"))
+    options = parser.parse_args()
+    started = time.monotonic()
+    print("| figure | value | unit | compared with |\n|---|---|---|---|")
+    for figure, value, unit, compared in rows(options.seeds, options.duration, options.sensor_model):
+        print(f"| {figure} | {value:.4g} | {unit} | {compared} |")
+    print(f"({time.monotonic() - started:.0f} s)", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

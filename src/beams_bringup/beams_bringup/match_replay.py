@@ -1,0 +1,68 @@
+"""The EKF and ToTal on a simulated match (beams_sim.simulated_match), offline: the decoded revolutions'
+bearings and ToTal's gated fixes as the nodes would receive them, replayed through a Localiser
+(beams_ekf.replay). System-level, so it lives above the three packages it joins."""
+
+from collections.abc import Callable, Iterable, Sequence
+
+import numpy as np
+
+from beams_common.beacon_map import BeaconMap
+from beams_common.pose2d import Pose2D, interpolate
+from beams_ekf.localiser import Localiser
+from beams_ekf.replay import PoseEvent, ReplayResult, replay
+from beams_ekf.synthetic import BearingEvent
+from beams_triangulation.gating import estimate_revolution
+
+
+def bearing_events(revolutions: Iterable, variance_rad2: Callable[[int, float], float] | None = None
+                   ) -> list[BearingEvent]:
+    """The bearings of decoded revolutions (beams_driver.decoder.DecodedRevolution), arriving when their
+    revolution ends; `variance_rad2(beacon_id, angular_window_rad)` replaces the published variance."""
+    events = []
+    for revolution in revolutions:
+        arrival_s = revolution.start_time_s + revolution.period_s
+        for b in revolution.bearings:
+            variance = b.variance if variance_rad2 is None else variance_rad2(b.beacon_id, b.angular_window)
+            events.append(BearingEvent(arrival_s, b.stamp_s, b.beacon_id, b.bearing, float(variance)))
+    return events
+
+
+def total_fix_events(revolutions: Sequence, beacon_map: BeaconMap, turret_offset_m: tuple[float, float],
+                     odometry_times_s: np.ndarray, odometry_poses: np.ndarray) -> list[PoseEvent]:
+    """ToTal's accepted fixes of decoded revolutions as triangulation_node gives them (motion-compensated
+    with the odometry, gated), each arriving when its revolution ends."""
+    def odometry_at(t: float) -> Pose2D | None:
+        k = int(np.searchsorted(odometry_times_s, t, side="right"))
+        if not 0 < k < len(odometry_times_s):
+            return None
+        t0, t1 = odometry_times_s[k - 1], odometry_times_s[k]
+        return interpolate(tuple(odometry_poses[k - 1]), tuple(odometry_poses[k]), (t - t0) / (t1 - t0))
+
+    events = []
+    for revolution in revolutions:
+        outcome = estimate_revolution(revolution.bearings, beacon_map, turret_offset_m=turret_offset_m,
+                                      odometry_at=odometry_at)
+        result = outcome.result
+        if getattr(result, "accepted", False):
+            events.append(PoseEvent(revolution.start_time_s + revolution.period_s, outcome.stamp_s,
+                                    (result.x, result.y, result.heading), result.covariance))
+    return events
+
+
+def match_odometry(match) -> np.ndarray:
+    """(k, 3) odometry poses (odom frame) of a beams_sim.simulated_match.SimulatedMatch."""
+    o = match.odometry
+    return np.column_stack([o.x_m, o.y_m, o.theta_rad])
+
+
+def match_fixes(match) -> list[PoseEvent]:
+    """ToTal's accepted fixes of a SimulatedMatch (`total_fix_events`)."""
+    return total_fix_events(match.revolutions, match.beacon_map, match.turret_offset_m,
+                            match.odometry.stamp_s, match_odometry(match))
+
+
+def replay_match(localiser: Localiser, match, initial_pose: Pose2D, initial_covariance: np.ndarray,
+                 fixes: Iterable[PoseEvent] = ()) -> ReplayResult:
+    """`replay` of a SimulatedMatch: its odometry, its published bearings, ToTal's `fixes`."""
+    return replay(localiser, match.odometry.stamp_s, match_odometry(match), bearing_events(match.revolutions),
+                  match.truth_at, initial_pose, initial_covariance, fixes)

@@ -1,0 +1,94 @@
+"""The wheel odometry's increment as an arc, and its systematic errors as filter states (issue 13).
+
+A differential-drive robot's odometry step is an arc: the robot travels s along it and turns by Delta,
+so its robot-frame increment is
+
+    g(s, Delta) = (s sin(Delta)/Delta, s (1 - cos(Delta))/Delta, Delta).
+
+Wheel-radius and wheel-base errors are not white noise: they scale every step the same way. Three
+constants describe them to first order (`OdometryErrorStates`), the true motion being
+
+    s_true = k_s s,    Delta_true = k_theta Delta + h s
+
+(k_s: the mean wheel scale, slip included; k_theta: nominal / true wheel base; h (rad/m): the unequal
+wheel radii turn the robot while it drives straight). With them as states, the process noise left is
+the wheels' random noise, per step.
+"""
+
+from dataclasses import dataclass
+from math import cos, isfinite, sin
+
+import numpy as np
+
+from beams_common.pose2d import Pose2D
+
+# below this turn (rad) the arc functions use their Taylor series (the closed forms lose precision)
+_SMALL_TURN_RAD = 1e-4
+
+
+def arc_increment(s_m: float, turn_rad: float) -> tuple[Pose2D, np.ndarray]:
+    """g(s, Delta) and its 3x2 Jacobian d g / d (s, Delta)."""
+    d = turn_rad
+    if abs(d) < _SMALL_TURN_RAD:
+        a, b = 1.0 - d * d / 6.0, 0.5 * d - d**3 / 24.0
+        da, db = -d / 3.0, 0.5 - d * d / 8.0
+    else:
+        a, b = sin(d) / d, (1.0 - cos(d)) / d
+        da, db = (d * cos(d) - sin(d)) / (d * d), (d * sin(d) - (1.0 - cos(d))) / (d * d)
+    jacobian = np.array([[a, s_m * da], [b, s_m * db], [0.0, 1.0]])
+    return (s_m * a, s_m * b, d), jacobian
+
+
+def arc_of_increment(increment: Pose2D) -> tuple[float, float]:
+    """(s, Delta) of an odometry increment (dx, dy, dtheta): the arc through it (least squares on the
+    chord, exact for an increment that is an arc)."""
+    (a, b, _), _ = arc_increment(1.0, increment[2])
+    return (increment[0] * a + increment[1] * b) / (a * a + b * b), increment[2]
+
+
+@dataclass(frozen=True)
+class OdometryErrorStates:
+    """Optional filter states (k_s, k_theta, h) for the odometry's systematic errors, with their prior.
+
+    Prior standard deviations: a few percent of scale and of wheel base (the size sim_world's
+    OdometryDrift gives a roughly calibrated robot: 1 % wheel radii, 0.4 % mean slip, 1 % wheel base)
+    and a heading drift of 0.03 rad/m (a 0.5 % radius difference over a 0.3 m wheel base is 0.017 rad/m).
+    """
+
+    scale_sigma: float = 0.02
+    rotation_scale_sigma: float = 0.02
+    heading_drift_sigma_rad_per_m: float = 0.03
+    # random walk of the three states per metre travelled (0: constants, as in the simulator)
+    walk_variance_per_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        sigmas = (self.scale_sigma, self.rotation_scale_sigma, self.heading_drift_sigma_rad_per_m)
+        if not all(isfinite(v) and v > 0.0 for v in sigmas):
+            raise ValueError(f"odometry error priors must be finite and > 0, got {sigmas}")
+        if not (isfinite(self.walk_variance_per_m) and self.walk_variance_per_m >= 0.0):
+            raise ValueError(f"walk_variance_per_m must be finite and >= 0, got {self.walk_variance_per_m}")
+
+    @property
+    def prior_mean(self) -> np.ndarray:
+        """(k_s, k_theta, h) of a perfect odometry."""
+        return np.array([1.0, 1.0, 0.0])
+
+    @property
+    def prior_covariance(self) -> np.ndarray:
+        """3x3 diagonal prior covariance of (k_s, k_theta, h)."""
+        sigmas = (self.scale_sigma, self.rotation_scale_sigma, self.heading_drift_sigma_rad_per_m)
+        return np.diag(np.square(sigmas))
+
+
+def corrected_increment(increment: Pose2D, errors: np.ndarray) -> tuple[Pose2D, np.ndarray, np.ndarray]:
+    """The true-motion increment from a reported one and the error states (k_s, k_theta, h).
+
+    Returns the increment, its 3x3 Jacobian with respect to the error states and its 3x2 Jacobian
+    with respect to the reported arc (s, Delta) (through which the wheels' random noise enters).
+    """
+    k_s, k_theta, h = (float(v) for v in errors)
+    s, turn = arc_of_increment(increment)
+    increment_true, d_arc = arc_increment(k_s * s, k_theta * turn + h * s)
+    d_errors = d_arc @ np.array([[s, 0.0, 0.0], [0.0, turn, s]])
+    d_reported = d_arc @ np.array([[k_s, 0.0], [h, k_theta]])
+    return increment_true, d_errors, d_reported
