@@ -337,9 +337,13 @@ class DriverNode(Node):
         for reason, count in self.serial.drops.items():
             self.diagnostics.set(f"serial_drops_{reason}", count)
         self.diagnostics.set("serial_connected", self.serial.connected)
+        self.diagnostics.set("serial_disconnections", self.serial.disconnections)
         self.diagnostics.set("serial_reconnections", self.serial.reconnections)
         if not self.serial.connected:
-            self.diagnostics.set_level("error", f"serial device {self.serial.device} lost, reconnecting")
+            why = f" ({self.serial.last_error})" if self.serial.last_error else ""
+            self.diagnostics.set_level("error", f"serial device {self.serial.device} lost, reconnecting{why}")
+        elif self.serial.stream_problem:
+            self.diagnostics.set_level("error", self.serial.stream_problem)
 
     def destroy_node(self) -> None:
         # The port is released on every stop, so a restarted driver (or a terminal program) can open it.
