@@ -6,11 +6,11 @@
 Reads `beams/bearings`, `odom` and, when present, `beams/sim/ground_truth` (with or without the leading
 slash) from a bag (sqlite3 or MCAP, with the `rosbags` library, no ROS graph), feeds them to the same
 pure objects the nodes wrap (`gating.TriangulationPipeline` as triangulation_node does,
-`localiser.Localiser` as ekf_node does) as fast as the CPU allows, and writes `beams/pose`, `beams/pose_cov`, `beams/ekf/odometry` and
-`beams/ekf/pose` next to a copy of the inputs into a new bag (MCAP by default; topics fully qualified,
-each with its offered QoS profiles, as `ros2 bag record` writes them), plus a trajectory plot
-and a summary (RMS errors against the truth when the bag has it, agreement with the live nodes' outputs
-when the bag recorded them).
+`localiser.Localiser` as ekf_node does) as fast as the CPU allows, and writes `beams/pose`,
+`beams/pose_cov`, `beams/ekf/odometry` and `beams/ekf/pose` next to a copy of the inputs into a new
+bag (MCAP by default; topics fully qualified, each with its offered QoS profiles, as `ros2 bag record`
+writes them), plus a trajectory plot and a summary (RMS errors against the truth when the bag has it,
+agreement with the live nodes' outputs when the bag recorded them).
 
 Time is the messages' stamps, never their arrival: a revolution is due when it ends (header stamp, the
 revolution's start, plus its period: when the driver publishes it), odometry and truth at their stamp;
