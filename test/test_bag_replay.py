@@ -52,6 +52,9 @@ def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
       quantiles: 95% within 5 mm and 0.5 deg, RMS within 5 mm.
     Then the replay from ToTal's first pose against the truth, and the command as a user runs it.
     """
+    from rosbags.interfaces import QosDurability, QosReliability
+    from rosbags.rosbag2 import Reader
+
     from beams_bringup.bag_io import beams_typestore, read_messages
     from beams_bringup.bag_replay import live_tracks, replay_bag
     from beams_bringup.trajectory_metrics import errors_against_truth, rms
@@ -61,6 +64,17 @@ def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
          "--output", str(tmp_path / "demo")], env)
     bag = tmp_path / "demo" / "bag"
     typestore = beams_typestore()
+    # Recorded as `ros2 bag record` does: fully qualified names, each with its publishers' offered
+    # profiles (reliable, volatile, depth 10 for the nodes' topics; the graph does not report history).
+    with Reader(bag) as reader:
+        offered = {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
+    assert {"/odom", "/beams/bearings", "/beams/sim/ground_truth", "/beams/ekf/odometry", "/diagnostics",
+            "/tf"} <= set(offered), offered
+    assert all(topic.startswith("/") for topic in offered)
+    for topic in ("/odom", "/beams/bearings", "/beams/ekf/odometry", "/beams/pose"):
+        assert len(offered[topic]) == 1, (topic, offered[topic])
+        assert offered[topic][0].reliability == QosReliability.RELIABLE
+        assert offered[topic][0].durability == QosDurability.VOLATILE
 
     replayed = replay_bag(bag, tmp_path / "like_live", typestore=typestore, start_like_live=True)
     live_total, live_ekf = live_tracks(bag, typestore)
@@ -109,5 +123,5 @@ def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
     assert (tmp_path / "replay.png").stat().st_size > 10_000
     assert "mcap" in (tmp_path / "replay" / "metadata.yaml").read_text()
     topics = {topic for topic, _, _ in read_messages(tmp_path / "replay", typestore)}
-    assert {"beams/pose", "beams/pose_cov", "beams/ekf/odometry", "beams/ekf/pose", "odom",
-            "beams/bearings", "beams/sim/ground_truth"} <= topics
+    assert {"/beams/pose", "/beams/pose_cov", "/beams/ekf/odometry", "/beams/ekf/pose", "/odom",
+            "/beams/bearings", "/beams/sim/ground_truth"} <= topics

@@ -2,19 +2,45 @@
 
 The demo records every topic with `BagRecorder`; the offline replay reads them back with `read_messages`.
 Messages are CDR bytes exactly as they travelled over DDS, so `ros2 bag play` replays them unchanged.
+As `ros2 bag record` does, topics are fully qualified ("/odom") and each carries the QoS profiles its
+publishers offered (offered_qos_profiles), which `ros2 bag play` publishes it with.
 """
 
 import pathlib
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from types import TracebackType
 from typing import Any
 
 from ament_index_python.packages import get_package_share_directory
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import Reader, StoragePlugin, Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 BEAMS_MSGS_PACKAGE = "beams_msgs"
+# rmw's infinite duration (RMW_DURATION_INFINITE), as rosbag2 writes it for "no deadline" and the like
+INFINITE_DURATION = QosTime(sec=9_223_372_036, nsec=854_775_807)
+
+
+def offered_qos(depth: int = 10, *, reliable: bool = True, transient_local: bool = False) -> Qos:
+    """A publisher's profile as offered_qos_profiles holds it: keep last `depth`, automatic liveliness,
+    no deadline or lifespan (what the BeAMS nodes publish with: reliable, volatile, depth 10)."""
+    return Qos(
+        history=QosHistory.KEEP_LAST,
+        depth=depth,
+        reliability=QosReliability.RELIABLE if reliable else QosReliability.BEST_EFFORT,
+        durability=QosDurability.TRANSIENT_LOCAL if transient_local else QosDurability.VOLATILE,
+        deadline=INFINITE_DURATION,
+        lifespan=INFINITE_DURATION,
+        liveliness=QosLiveliness.AUTOMATIC,
+        liveliness_lease_duration=INFINITE_DURATION,
+        avoid_ros_namespace_conventions=False,
+    )
+
+
+def fully_qualified(topic: str) -> str:
+    """The topic name as `ros2 bag record` writes it, from the root namespace: "odom" is "/odom"."""
+    return "/" + topic.lstrip("/")
 
 
 def beams_typestore(beams_msgs_share: pathlib.Path | None = None) -> Typestore:
@@ -51,11 +77,16 @@ class BagRecorder:
     ) -> None:
         self._writer.close()
 
-    def write(self, topic: str, msgtype: str, stamp_ns: int, cdr_bytes: bytes) -> None:
-        """Append one message (ROS type name such as 'nav_msgs/msg/Odometry') received at stamp_ns."""
+    def write(
+        self, topic: str, msgtype: str, stamp_ns: int, cdr_bytes: bytes, offered_qos: Sequence[Qos] = ()
+    ) -> None:
+        """Append one message (ROS type name such as 'nav_msgs/msg/Odometry') received at stamp_ns; the
+        topic's first message records its publishers' offered_qos in the bag's metadata."""
         connection = self._connections.get(topic)
         if connection is None:
-            connection = self._writer.add_connection(topic, msgtype, typestore=self._typestore)
+            connection = self._writer.add_connection(
+                topic, msgtype, typestore=self._typestore, offered_qos_profiles=list(offered_qos)
+            )
             self._connections[topic] = connection
         self._writer.write(connection, stamp_ns, cdr_bytes)
         self.messages_written += 1

@@ -3,13 +3,14 @@
     replay_bag INPUT_BAG OUTPUT_BAG [--plot PNG] [--storage mcap|sqlite3] [--start-like-live]
                [--triangulation-params YAML] [--ekf-params YAML]
 
-Reads `beams/bearings`, `odom` and, when present, `beams/sim/ground_truth` from a bag (sqlite3 or MCAP,
-with the `rosbags` library, no ROS graph), feeds them to the same pure objects the nodes wrap
-(`gating.TriangulationPipeline` as triangulation_node does, `localiser.Localiser` as ekf_node does) as
-fast as the CPU allows, and writes `beams/pose`, `beams/pose_cov`, `beams/ekf/odometry` and
-`beams/ekf/pose` next to a copy of the inputs into a new bag (MCAP by default), plus a trajectory plot
-and a summary (RMS errors against the truth when the bag has it, agreement with the live nodes' outputs
-when the bag recorded them).
+Reads `beams/bearings`, `odom` and, when present, `beams/sim/ground_truth` (with or without the leading
+slash) from a bag (sqlite3 or MCAP, with the `rosbags` library, no ROS graph), feeds them to the same
+pure objects the nodes wrap (`gating.TriangulationPipeline` as triangulation_node does,
+`localiser.Localiser` as ekf_node does) as fast as the CPU allows, and writes `beams/pose`,
+`beams/pose_cov`, `beams/ekf/odometry` and `beams/ekf/pose` next to a copy of the inputs into a new
+bag (MCAP by default; topics fully qualified, each with its offered QoS profiles, as `ros2 bag record`
+writes them), plus a trajectory plot and a summary (RMS errors against the truth when the bag has it,
+agreement with the live nodes' outputs when the bag recorded them).
 
 Time is the messages' stamps, never their arrival: a revolution is due when it ends (header stamp, the
 revolution's start, plus its period: when the driver publishes it), odometry and truth at their stamp;
@@ -37,7 +38,7 @@ from typing import Any
 import numpy as np
 from rosbags.rosbag2 import Reader, ReaderError, WriterError
 
-from beams_bringup.bag_io import BagRecorder, beams_typestore
+from beams_bringup.bag_io import BagRecorder, beams_typestore, fully_qualified, offered_qos
 from beams_bringup.system import installed_params_file
 from beams_bringup.trajectory_metrics import RunTracks, Track, plot_trajectories, rms, rms_table
 from beams_common.angles import wrap_to_pi
@@ -80,6 +81,9 @@ POSE_COV_TYPE = "geometry_msgs/msg/PoseWithCovarianceStamped"
 # Processing order of messages due at the same instant: odometry first, so it covers the bearings.
 _TOPIC_ORDER = {TRUTH_TOPIC: 0, ODOMETRY_TOPIC: 1, BEARINGS_TOPIC: 2}
 _TOPIC_TYPES = {TRUTH_TOPIC: ODOMETRY_TYPE, ODOMETRY_TOPIC: ODOMETRY_TYPE, BEARINGS_TOPIC: BEARINGS_TYPE}
+# The live nodes publish every topic the replay writes reliable, volatile, keep last 10 (driver_node's
+# BEARINGS_QOS, sim_world_node's QUEUE_DEPTH, the others' depth 10): the bag says so, as ros2 bag record's do.
+NODES_QOS = offered_qos(10)
 # How far (s) a message may arrive after a later-stamped one and still be put back in stamp order.
 REORDER_WINDOW_S = 1.0
 # Stamps going back by more than this (s) are a new start (a bag loop): both pipelines reset.
@@ -147,6 +151,8 @@ class Event:
     msgtype: str = field(compare=False)
     raw: bytes = field(compare=False, repr=False)
     message: Any = field(compare=False, repr=False)
+    # the profiles its publishers offered, as the bag recorded them (none in older bags)
+    offered_qos: tuple = field(compare=False, repr=False, default=())
 
 
 # Marker yielded by `in_stamp_order` where the stamps went back: the pipelines start over.
@@ -188,9 +194,10 @@ def relative_topic(topic: str, namespace: str = "") -> str | None:
 
 
 def namespaced_topic(topic: str, namespace: str = "") -> str:
-    """The bag topic of a name relative to a robot's namespace (`relative_topic`'s inverse)."""
+    """The fully qualified bag topic of a name relative to a robot's namespace (`relative_topic`'s
+    inverse): "/robot1/odom", or "/odom" without a namespace."""
     prefix = namespace.strip("/")
-    return f"/{prefix}/{topic}" if prefix else topic
+    return fully_qualified(f"{prefix}/{topic}" if prefix else topic)
 
 
 def bag_topics(path: pathlib.Path, namespace: str = "") -> set[str]:
@@ -220,7 +227,7 @@ def read_events(path: pathlib.Path, typestore: Any, counts: Counter, namespace: 
                 continue
             counts[f"messages_{topic}"] += 1
             yield Event(due, _TOPIC_ORDER[topic], next(sequence), topic, bag_ns, connection.msgtype, raw,
-                        message)
+                        message, tuple(getattr(connection.ext, "offered_qos_profiles", ())))
 
 
 # -- the pipelines --------------------------------------------------------------------------------------
@@ -424,22 +431,23 @@ BagMessage = tuple[int, str, str, Any]
 
 def simulated_messages(match: Any, typestore: Any, epoch_ns: int = 0) -> list[BagMessage]:
     """The input topics of a `beams_sim.simulated_match.SimulatedMatch`, stamped epoch_ns + match time:
-    truth and odometry at their stamps, each revolution when it ends (as driver_node publishes it)."""
+    truth and odometry at their stamps, each revolution when it ends (as driver_node publishes it).
+    Topics are fully qualified ("/odom"), as `ros2 bag record` names them."""
     build = MessageBuilder(typestore)
     g, o = match.ground_truth, match.odometry
     messages: list[BagMessage] = []
     for k, t in enumerate(o.stamp_s):
         stamp = epoch_ns + round(t * 1e9)
         truth = (g.x_m[k], g.y_m[k], g.theta_rad[k])
-        messages.append((stamp, TRUTH_TOPIC, ODOMETRY_TYPE,
+        messages.append((stamp, fully_qualified(TRUTH_TOPIC), ODOMETRY_TYPE,
                          build.odometry(stamp, "map", truth, g.speed_mps[k], g.yaw_rate_radps[k])))
-        messages.append((stamp, ODOMETRY_TOPIC, ODOMETRY_TYPE,
+        messages.append((stamp, fully_qualified(ODOMETRY_TOPIC), ODOMETRY_TYPE,
                          build.odometry(stamp, "odom", o.pose(k), o.speed_mps[k], o.yaw_rate_radps[k])))
     for r in match.revolutions:
         start = epoch_ns + round(r.start_time_s * 1e9)
         bearings = [(epoch_ns + round(b.stamp_s * 1e9), b.beacon_id, b.bearing, b.variance)
                     for b in r.bearings]
-        messages.append((start + round(r.period_s * 1e9), BEARINGS_TOPIC, BEARINGS_TYPE,
+        messages.append((start + round(r.period_s * 1e9), fully_qualified(BEARINGS_TOPIC), BEARINGS_TYPE,
                          build.bearing_array(start, r.period_s, bearings, r.revolution)))
     return messages
 
@@ -448,7 +456,8 @@ def write_bag(path: pathlib.Path, messages: Iterable[BagMessage], typestore: Any
               passes: int = 1, pass_period_ns: int = 0, jitter_s: float = 0.0, seed: int = 0) -> pathlib.Path:
     """A bag of the messages, recorded when published plus a random delivery delay in [0, jitter_s) (so
     that bag order is not stamp order); passes > 1 records them again pass_period_ns later each time
-    with the same stamps (a bag played in a loop)."""
+    with the same stamps (a bag played in a loop). Topic names are written as given; each topic
+    carries the nodes' offered QoS profile (NODES_QOS)."""
     rng = np.random.default_rng(seed)
     records = []
     for n in range(passes):
@@ -459,7 +468,7 @@ def write_bag(path: pathlib.Path, messages: Iterable[BagMessage], typestore: Any
     records.sort(key=lambda record: record[0])
     with BagRecorder(pathlib.Path(path), typestore, storage) as recorder:
         for arrival, topic, msgtype, raw in records:
-            recorder.write(topic, msgtype, arrival, raw)
+            recorder.write(topic, msgtype, arrival, raw, [NODES_QOS])
     return pathlib.Path(path)
 
 
@@ -480,12 +489,13 @@ class _Run:
 
     def write(self, topic: str, msgtype: str, stamp: int, message: Any) -> None:
         self.recorder.write(namespaced_topic(topic, self.namespace), msgtype, stamp,
-                            self.typestore.serialize_cdr(message, msgtype))
+                            self.typestore.serialize_cdr(message, msgtype), [NODES_QOS])
         self.result.messages_out += 1
 
     def handle(self, event: Event) -> None:
         topic = namespaced_topic(event.topic, self.namespace)
-        self.recorder.write(topic, event.msgtype, event.bag_ns, event.raw)  # the inputs, unchanged
+        # the inputs, unchanged, with their recorded QoS (the nodes' for an older bag without)
+        self.recorder.write(topic, event.msgtype, event.bag_ns, event.raw, event.offered_qos or [NODES_QOS])
         self.result.messages_out += 1
         stamp, message = stamp_ns(event.message.header.stamp), event.message
         if event.topic == TRUTH_TOPIC:

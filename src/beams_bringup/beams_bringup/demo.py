@@ -1,7 +1,8 @@
 """`make demo`: a simulated Eurobot match with every BeAMS node running as its own process.
 
 Starts sim_world_node, driver_node (simulated sensor), triangulation_node and ekf_node from the install
-tree (the executables `ros2 run` starts), records every topic to an MCAP bag, prints live progress
+tree (the executables `ros2 run` starts), records every topic to an MCAP bag as `ros2 bag record` does
+(fully qualified names, the publishers' offered QoS profiles in the metadata), prints live progress
 (pose errors against the truth, bearings per second, rejected windows), stops the nodes with SIGINT and
 leaves a trajectory plot and a summary table in the output directory.
 """
@@ -22,11 +23,14 @@ from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from rclpy.serialization import deserialize_message
+from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
-from beams_bringup.bag_io import BagRecorder, beams_typestore
+from beams_bringup.bag_io import BagRecorder, beams_typestore, fully_qualified
 from beams_bringup.bag_replay import stamp_ns
 from beams_bringup.system import PARAMS_FILE, ROBOT_NODES, installed_params_file
 from beams_bringup.trajectory_metrics import (
@@ -57,6 +61,30 @@ TOPICS = {
 }
 PROGRESS_PERIOD_S = 5.0
 START_TIMEOUT_S = 30.0
+
+
+def bag_qos(profile: QoSProfile) -> Qos:
+    """An rclpy profile as a bag's offered_qos_profiles entry (the policies have the same names)."""
+
+    def duration(value) -> QosTime:
+        return QosTime(*divmod(value.nanoseconds, 1_000_000_000))
+
+    return Qos(
+        history=QosHistory[profile.history.name],
+        depth=profile.depth,
+        reliability=QosReliability[profile.reliability.name],
+        durability=QosDurability[profile.durability.name],
+        deadline=duration(profile.deadline),
+        lifespan=duration(profile.lifespan),
+        liveliness=QosLiveliness[profile.liveliness.name],
+        liveliness_lease_duration=duration(profile.liveliness_lease_duration),
+        avoid_ros_namespace_conventions=profile.avoid_ros_namespace_conventions,
+    )
+
+
+def offered_qos_profiles(node: Node, topic: str) -> list[Qos]:
+    """The profiles the topic's publishers offer, from the ROS graph (what `ros2 bag record` stores)."""
+    return [bag_qos(info.qos_profile) for info in node.get_publishers_info_by_topic(fully_qualified(topic))]
 
 
 def ros_type_name(msg_type: type) -> str:
@@ -178,12 +206,16 @@ def main() -> int:
     interrupted = False
     try:
         with BagRecorder(output / "bag", typestore) as recorder:
+            recorded: set[str] = set()
             for topic, msg_type in TOPICS.items():
 
                 def on_raw(raw: bytes, topic=topic, msg_type=msg_type) -> None:
                     msg = deserialize_message(raw, msg_type)
                     stamp_ns = node.get_clock().now().nanoseconds
-                    recorder.write(topic, ros_type_name(msg_type), stamp_ns, raw)
+                    # a message came, so its publisher is known: the graph has its profile now
+                    offered = offered_qos_profiles(node, topic) if topic not in recorded else []
+                    recorded.add(topic)
+                    recorder.write(fully_qualified(topic), ros_type_name(msg_type), stamp_ns, raw, offered)
                     record.on_message(topic, msg)
 
                 qos = BEARINGS_QOS if topic == "beams/bearings" else 50

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from beams_bringup.bag_io import beams_typestore, read_messages
+from beams_bringup.bag_io import BagRecorder, beams_typestore, read_messages
 from beams_bringup.bag_replay import (
     BEARINGS_TYPE,
     ODOMETRY_TYPE,
@@ -87,12 +87,12 @@ def test_output_bag_holds_the_outputs_and_the_inputs(replayed, typestore, match)
     by_topic: dict[str, list] = {}
     for topic, _, message in read_messages(output, typestore):
         by_topic.setdefault(topic, []).append(message)
-    assert len(by_topic["odom"]) == len(match.odometry.stamp_s)
-    assert len(by_topic["beams/bearings"]) == len(match.revolutions)
-    assert len(by_topic["beams/ekf/odometry"]) == len(by_topic["beams/ekf/pose"]) == len(result.ekf.rows)
-    accepted = [m for m in by_topic["beams/pose"] if m.accepted]
-    assert len(accepted) == len(by_topic["beams/pose_cov"]) == len(result.total.rows)
-    written = by_topic["beams/ekf/odometry"][-1]
+    assert len(by_topic["/odom"]) == len(match.odometry.stamp_s)
+    assert len(by_topic["/beams/bearings"]) == len(match.revolutions)
+    assert len(by_topic["/beams/ekf/odometry"]) == len(by_topic["/beams/ekf/pose"]) == len(result.ekf.rows)
+    accepted = [m for m in by_topic["/beams/pose"] if m.accepted]
+    assert len(accepted) == len(by_topic["/beams/pose_cov"]) == len(result.total.rows)
+    written = by_topic["/beams/ekf/odometry"][-1]
     assert written.header.frame_id == "map"
     assert written.pose.pose.position.x == pytest.approx(result.ekf.rows[-1][2], abs=1e-12)
     covariance = np.asarray(written.pose.covariance).reshape(6, 6)[np.ix_((0, 1, 5), (0, 1, 5))]
@@ -114,8 +114,8 @@ def test_each_robot_of_a_bag_is_replayed_in_its_namespace(tmp_path, messages, ty
     """A bag of two robots (/robot1/... the whole match, robot2/... its first half): each replays exactly
     as it does alone (no cross-talk), and its outputs go to its own namespace."""
     half = [message for message in messages if message[0] < _ns(MATCH_S / 2)]
-    both = [(t, f"/robot1/{topic}", msgtype, message) for t, topic, msgtype, message in messages]
-    both += [(t, f"robot2/{topic}", msgtype, message) for t, topic, msgtype, message in half]
+    both = [(t, f"/robot1{topic}", msgtype, message) for t, topic, msgtype, message in messages]
+    both += [(t, f"robot2{topic}", msgtype, message) for t, topic, msgtype, message in half]
     bag = write_bag(tmp_path / "input", both, typestore)
     reference, _ = replayed
     first = replay_bag(bag, tmp_path / "robot1", typestore=typestore, namespace="robot1")
@@ -219,3 +219,42 @@ def test_replay_refuses_a_parameter_file_the_node_refuses(tmp_path, override, re
     with pytest.raises(ParameterError, match=re.escape(reason)):
         load_node_parameters(params_file, TRIANGULATION_PARAMETERS)
     assert main(["--params-file", str(params_file), str(tmp_path / "in"), str(tmp_path / "out")]) == 2
+
+
+def test_bags_named_either_way_in_either_storage_replay_alike(tmp_path, messages, typestore, replayed):
+    """Topics fully qualified ("/odom", as `ros2 bag record` and the demo write them) or relative
+    ("odom", as older demo bags did), sqlite3 or MCAP: the same estimates, bit for bit. The output bag
+    names its topics fully qualified and offers the nodes' QoS, or the profiles the input recorded."""
+    from rosbags.interfaces import QosReliability
+    from rosbags.rosbag2 import Reader
+
+    from beams_bringup.bag_io import offered_qos
+
+    reference, _ = replayed
+    relative = [(t, topic.lstrip("/"), msgtype, message) for t, topic, msgtype, message in messages]
+    assert {m[1] for m in messages} == {"/odom", "/beams/bearings", "/beams/sim/ground_truth"}
+    for storage in ("sqlite3", "mcap"):
+        for naming, bag_messages in (("qualified", messages), ("relative", relative)):
+            bag = write_bag(tmp_path / f"{naming}_{storage}", bag_messages, typestore, storage=storage)
+            output = tmp_path / f"{naming}_{storage}_out"
+            result = replay_bag(bag, output, typestore=typestore, storage=storage)
+            assert result.ekf.rows == reference.ekf.rows, (naming, storage)
+            assert result.total.rows == reference.total.rows, (naming, storage)
+            with Reader(output) as reader:
+                qos = {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
+            outputs = {"/beams/pose", "/beams/pose_cov", "/beams/ekf/odometry", "/beams/ekf/pose"}
+            assert set(qos) == {"/odom", "/beams/bearings", "/beams/sim/ground_truth"} | outputs, naming
+            assert all(profiles == [offered_qos(10)] for profiles in qos.values()), qos
+
+    # A recording whose bearings were offered best effort keeps that profile in the replay's copy.
+    best_effort = offered_qos(5, reliable=False)
+    bag = tmp_path / "best_effort"
+    with BagRecorder(bag, typestore) as recorder:
+        for t, topic, msgtype, message in messages:
+            raw = typestore.serialize_cdr(message, msgtype)
+            recorder.write(topic, msgtype, t, raw, [best_effort] if topic == "/beams/bearings" else [])
+    replay_bag(bag, tmp_path / "best_effort_out", typestore=typestore)
+    with Reader(tmp_path / "best_effort_out") as reader:
+        qos = {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
+    assert [p.reliability for p in qos["/beams/bearings"]] == [QosReliability.BEST_EFFORT]
+    assert qos["/odom"] == [offered_qos(10)]  # none recorded: the nodes' profile

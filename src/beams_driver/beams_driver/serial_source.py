@@ -4,8 +4,11 @@
 `RevolutionEdges` stamped on the host's clock, and never raises once the source is open: a device that
 disappears (unplugged, USB reset) is closed and reopened with an exponential back-off, its loss and
 return are logged and counted, and bad bytes are counted drops (see `FrameParser` and
-`RevolutionAssembler`). Only `open()` raises, with a message that says what to fix, when the device
-path does not exist or cannot be opened at start-up.
+`RevolutionAssembler`). A device that comes back at the same path (a udev /dev/serial/by-id/ link) is
+reopened on the next read, whatever the back-off. Only `open()` raises, with a one-line message that
+says what to fix, when the device path does not exist or cannot be opened at start-up (permission
+denied, a baud rate the port refuses). Bytes that never form a valid frame (the sensor talks at
+another baud rate) are reported by `stream_problem`.
 
 Device time to host time: the device's timer starts anywhere, so the source maps it onto the host clock
 with the smallest observed (arrival - capture) offset, the one with the least transmission delay;
@@ -13,6 +16,8 @@ the offset may grow by `max_clock_drift` s/s to follow a device clock that runs 
 """
 
 import contextlib
+import errno
+import grp
 import os
 import time
 from collections import Counter
@@ -24,7 +29,17 @@ import serial
 from beams_common.parameters import ParameterSpec
 from beams_driver.edge_source import EdgeSourceKind, SourceHealth, SourceHost, SourcePoll
 from beams_driver.edges import RevolutionEdges
-from beams_driver.serial_protocol import DEFAULT_BAUDRATE, FrameEvent, FrameParser, RevolutionAssembler
+from beams_driver.serial_protocol import (
+    DEFAULT_BAUDRATE,
+    FRAME_SIZE,
+    FrameEvent,
+    FrameParser,
+    RevolutionAssembler,
+)
+
+# Bytes without one valid frame among them after which the stream is called unreadable: a wrong baud
+# rate turns every frame into garbage, while a sound stream has a frame every FRAME_SIZE bytes.
+UNREADABLE_STREAM_BYTES = 64 * FRAME_SIZE
 
 
 class DeviceNotFoundError(FileNotFoundError):
@@ -83,6 +98,10 @@ class SerialEdgeSource:
         self._last_arrival_s = 0.0
         self._logged_drops: Counter[str] = Counter()
         self._next_drop_log_s = 0.0
+        self._device_missing = False
+        self._bytes_since_frame = 0
+        self.stream_problem = ""  # why the bytes that arrive are not frames ("" while frames arrive)
+        self.last_error = ""  # why the last (re)connection attempt failed
 
     # ---- life cycle ----
 
@@ -138,16 +157,31 @@ class SerialEdgeSource:
         if not data:
             return []
         events = self.parser.feed(data)
+        self._check_stream(events, len(data))
         self._update_clock(events, self._clock())
         revolutions = self.assembler.feed(events)
         self._log_new_drops()
         return revolutions
 
+    def _check_stream(self, events: list[FrameEvent], n_bytes: int) -> None:
+        """Bytes keep arriving and none forms a frame: say so once, with the likely cause."""
+        if events:
+            self._bytes_since_frame = 0
+            self.stream_problem = ""
+            return
+        self._bytes_since_frame += n_bytes
+        if self._bytes_since_frame >= UNREADABLE_STREAM_BYTES and not self.stream_problem:
+            self.stream_problem = (
+                f"serial device {self.device}: {self._bytes_since_frame} bytes and no valid frame: is "
+                f"baud_rate {self.baudrate} the sensor's (its default is {DEFAULT_BAUDRATE})?"
+            )
+            self._log(self.stream_problem)
+
     def _open_port(self) -> Any:
         try:
             return self._serial_factory(port=self.device, baudrate=self.baudrate, timeout=self.read_timeout_s)
-        except (serial.SerialException, OSError) as error:
-            raise DeviceOpenError(f"cannot open serial device {self.device!r}: {error}") from None
+        except (serial.SerialException, OSError, ValueError) as error:
+            raise DeviceOpenError(open_failure_reason(self.device, self.baudrate, error)) from None
 
     def _close_port(self) -> None:
         port, self._port = self._port, None
@@ -160,29 +194,39 @@ class SerialEdgeSource:
         """The device vanished: close it and schedule the first reconnection attempt."""
         self._close_port()
         self.disconnections += 1
+        self._device_missing = not os.path.exists(self.device)
         self._backoff_s = self.reconnect_initial_s
         self._next_attempt_s = time.monotonic() + self._backoff_s
         self._log(f"serial device {self.device} lost ({error}); reconnecting")
 
     def _reconnect(self) -> bool:
-        """One attempt when the back-off allows it, else sleep a little; True when connected again."""
+        """One attempt when the back-off allows it or the missing device path is back, else sleep a
+        little; True when connected again."""
         now = time.monotonic()
-        if now < self._next_attempt_s:
+        back = self._device_missing and os.path.exists(self.device)
+        if now < self._next_attempt_s and not back:
             self._sleep(min(self.read_timeout_s, self._next_attempt_s - now))
             return False
         try:
-            if not os.path.exists(self.device):
-                raise DeviceNotFoundError(f"{self.device} does not exist")
+            self._device_missing = not os.path.exists(self.device)
+            if self._device_missing:
+                raise DeviceNotFoundError(f"serial device {self.device} does not exist")
             self._port = self._open_port()
-        except OSError:
+        except OSError as error:
             self.failed_reconnections += 1
             self._backoff_s = min(2.0 * self._backoff_s, self.reconnect_max_s)
             self._next_attempt_s = now + self._backoff_s
+            if str(error) != self.last_error:
+                self.last_error = str(error)
+                self._log(self.last_error)
             return False
         # A new stream: its sequence numbers, timer epoch and open revolution are unrelated to the old one.
         self.parser.new_stream()
         self.assembler.reset()
         self._offset_s = None
+        self._bytes_since_frame = 0
+        self.stream_problem = ""
+        self.last_error = ""
         self.reconnections += 1
         self._log(f"serial device {self.device} reconnected")
         return True
@@ -214,6 +258,22 @@ class SerialEdgeSource:
         self.assembler.time_offset_s = self._offset_s
 
 
+def open_failure_reason(device: str, baudrate: int, error: Exception) -> str:
+    """One line saying why the device could not be opened, and what to do about it."""
+    if getattr(error, "errno", None) == errno.EACCES or "Permission denied" in str(error):
+        try:
+            group = grp.getgrgid(os.stat(device).st_gid).gr_name
+        except (OSError, KeyError):
+            group = "dialout"
+        return (
+            f"cannot open serial device {device!r}: permission denied: add the user to its group "
+            f"(sudo usermod -aG {group} $USER, then log in again) or give it a udev rule"
+        )
+    if isinstance(error, ValueError) or "baud" in str(error).lower():
+        return f"cannot open serial device {device!r} at baud_rate {baudrate}: {error}"
+    return f"cannot open serial device {device!r}: {error}"
+
+
 # ---- the serial device as the driver's EdgeSource (`source: serial`) ----
 
 SERIAL_PARAMETERS = (
@@ -243,11 +303,15 @@ class SerialSource:
         return SourcePoll(revolutions, continuity_broken=broken)
 
     def health(self) -> SourceHealth:
-        drops = self.serial.drops.items()
-        values: dict[str, Any] = {f"serial_drops_{reason}": count for reason, count in drops}
-        values.update(serial_connected=self.serial.connected, serial_reconnections=self.serial.reconnections)
-        if not self.serial.connected:
-            return SourceHealth("error", f"serial device {self.serial.device} lost, reconnecting", values)
+        serial = self.serial
+        values: dict[str, Any] = {f"serial_drops_{reason}": count for reason, count in serial.drops.items()}
+        values.update(serial_connected=serial.connected, serial_disconnections=serial.disconnections,
+                      serial_reconnections=serial.reconnections)
+        if not serial.connected:
+            why = f" ({serial.last_error})" if serial.last_error else ""
+            return SourceHealth("error", f"serial device {serial.device} lost, reconnecting{why}", values)
+        if serial.stream_problem:
+            return SourceHealth("error", serial.stream_problem, values)
         return SourceHealth("ok", None, values)
 
     def close(self) -> None:

@@ -1,9 +1,13 @@
 """SerialEdgeSource through a real pseudo-terminal pair, with the sensor simulator as the device."""
 
 import contextlib
+import grp
 import math
 import os
 import pathlib
+import shutil
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -16,7 +20,12 @@ from beams_driver.decoder import BearingDecoder
 from beams_driver.edges import RevolutionEdges
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_driver.serial_protocol import FRAME_SIZE, TICKS_PER_REVOLUTION, FrameEncoder
-from beams_driver.serial_source import DeviceNotFoundError, DeviceOpenError, SerialEdgeSource
+from beams_driver.serial_source import (
+    UNREADABLE_STREAM_BYTES,
+    DeviceNotFoundError,
+    DeviceOpenError,
+    SerialEdgeSource,
+)
 from beams_driver.variance import VarianceModel
 
 HALF_TICK_RAD = math.pi / TICKS_PER_REVOLUTION
@@ -44,6 +53,23 @@ class FakeDevice:
                     os.write(self.master, data[offset : offset + chunk])
                 except OSError:
                     return  # the test unplugged the device mid-write
+
+        thread = threading.Thread(target=run, daemon=True)
+        thread.start()
+        return thread
+
+    def stream_in_background(self, revolutions: list[RevolutionEdges]) -> threading.Thread:
+        """Send one revolution per turret period, as the sensor does (opening the port flushes what
+        arrived before)."""
+        encoder = FrameEncoder()
+
+        def run() -> None:
+            for edges in revolutions:
+                try:
+                    os.write(self.master, encoder.revolution(edges))
+                except OSError:
+                    return
+                time.sleep(edges.period_s)
 
         thread = threading.Thread(target=run, daemon=True)
         thread.start()
@@ -190,3 +216,86 @@ def test_device_that_disappears_is_reopened_with_back_off(link: pathlib.Path) ->
         source.close()
     assert any("lost" in line for line in logs) and any("reconnected" in line for line in logs)
     assert source.read() == []  # closed sources stay quiet
+
+
+def test_device_back_at_its_path_is_read_again_within_a_second(link: pathlib.Path) -> None:
+    """Unplugged long enough for the back-off to grow past a second, the sensor is read again within
+    a second of its return: a reappearing path is tried at once (issue 14)."""
+    first = FakeDevice(link)
+    source = SerialEdgeSource(str(link), reconnect_initial_s=0.1, reconnect_max_s=5.0)
+    source.open()
+    try:
+        first.write_in_background(FrameEncoder().revolutions(simulated_revolutions(2, seed=21))).join(WAIT_S)
+        assert len(read_until(source, 2)) == 2
+        first.unplug()
+        deadline = time.monotonic() + WAIT_S
+        while source.failed_reconnections < 5 and time.monotonic() < deadline:
+            assert source.read() == []
+        # 0.1 s doubled at each failed attempt: the next one is 3.2 s away when the sensor returns.
+        assert source.reconnect_delay_s == pytest.approx(3.2)
+        second = FakeDevice(link)
+        try:
+            returned_s = time.monotonic()
+            second.stream_in_background(simulated_revolutions(20, seed=22))
+            received = read_until(source, 1, timeout_s=WAIT_S)
+            assert received and time.monotonic() - returned_s < 1.0
+        finally:
+            second.unplug()
+    finally:
+        source.close()
+    assert source.disconnections == 1 and source.reconnections == 1
+
+
+def test_permission_denied_is_one_line_that_says_what_to_do(device: FakeDevice, link: pathlib.Path) -> None:
+    """A device the user may not open (not in its group): one line naming the group to join."""
+    os.chmod(device.slave_path, 0o000)  # nobody's, not even its owner's
+    opener = [
+        sys.executable,
+        "-c",
+        f"""
+from beams_driver.serial_source import DeviceOpenError, SerialEdgeSource
+try:
+    SerialEdgeSource({str(link)!r}).open()
+except DeviceOpenError as error:
+    print(error)
+""",
+    ]
+    if os.geteuid() == 0:
+        if shutil.which("setpriv") is None:
+            pytest.skip("running as root and setpriv is missing: cannot take away root's permission bypass")
+        opener = ["setpriv", "--bounding-set", "-dac_override,-dac_read_search", *opener]
+    environment = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    result = subprocess.run(opener, capture_output=True, text=True, timeout=60, env=environment)
+    lines = result.stdout.strip().splitlines()
+    assert len(lines) == 1 and not result.stderr, result.stdout + result.stderr
+    group = grp.getgrgid(os.stat(device.slave_path).st_gid).gr_name
+    assert lines[0] == (
+        f"cannot open serial device {str(link)!r}: permission denied: add the user to its group "
+        f"(sudo usermod -aG {group} $USER, then log in again) or give it a udev rule"
+    )
+
+
+def test_baud_rate_the_port_refuses_is_one_clear_line(device: FakeDevice, link: pathlib.Path) -> None:
+    with pytest.raises(DeviceOpenError) as raised:
+        SerialEdgeSource(str(link), baudrate=-9600).open()
+    message = str(raised.value)
+    assert message.startswith(f"cannot open serial device {str(link)!r} at baud_rate -9600: ")
+    assert "\n" not in message
+
+
+def test_stream_at_another_baud_rate_is_named_once(device: FakeDevice, link: pathlib.Path) -> None:
+    """Bytes that never form a frame (what a sensor at another baud rate sends) are reported once,
+    in one line naming the baud rate; the first valid frame clears the report."""
+    logs: list[str] = []
+    garbage = np.random.default_rng(5).integers(0, 256, UNREADABLE_STREAM_BYTES * 3, dtype=np.uint8)
+    with SerialEdgeSource(str(link), log=logs.append) as source:
+        device.write_in_background(garbage.tobytes()).join(WAIT_S)
+        deadline = time.monotonic() + WAIT_S
+        while not source.stream_problem and time.monotonic() < deadline:
+            assert source.read() == []
+        assert source.stream_problem.endswith(
+            "no valid frame: is baud_rate 460800 the sensor's (its default is 460800)?"
+        )
+        assert [line for line in logs if "no valid frame" in line] == [source.stream_problem]
+        device.write_in_background(FrameEncoder().revolutions(simulated_revolutions(3, seed=23)))
+        assert read_until(source, 2) and source.stream_problem == ""
