@@ -427,5 +427,5 @@ def test_nodes_under_sim_time_without_clock_say_they_wait(start_node, rclpy_node
     assert rclpy_node.spin_until(
         lambda: waiting("triangulation_node") and waiting("ekf_node"), START_TIMEOUT_S
     )
-    for node in nodes:  # the log line is written with the status; give the log file its flush
+    for node in nodes:  # and a log line (a process's output reaches its file a moment later)
         assert rclpy_node.spin_until(lambda node=node: "waiting for /clock" in node.log(), 5.0), node.log()

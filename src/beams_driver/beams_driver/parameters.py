@@ -10,6 +10,7 @@ from typing import Any
 
 from beams_common.geometry_parameters import CALIBRATION_FILE
 from beams_common.parameters import ParameterSpec, ParameterTable
+from beams_common.validation import MIN_BEARING_VARIANCE_RAD2
 from beams_driver.codes import BIT_TIME_S, BeaconCode, code_family, codes_from_strings, validate_codes
 from beams_driver.sensor_sim import SensorSimConfig
 from beams_driver.variance import VARIANCE_MODES, VarianceModel

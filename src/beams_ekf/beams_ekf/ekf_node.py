@@ -128,9 +128,10 @@ class EkfNode(Node):
         bearings = message_bearings(msg, stamp_to_seconds)
         counts = self.localiser.stats.counts
         invalid_before = counts["bearings_invalid measurement"] + counts["bearings_unknown beacon"]
-        note = self.localiser.on_revolution(bearings)
-        if note:
-            self.diagnostics.refuse("revolutions_repeated_beacon", f"revolution {msg.revolution}: {note}")
+        refused = self.localiser.on_revolution(bearings)
+        if refused:
+            self.diagnostics.refuse("revolutions_conflicting_beacon", f"revolution {msg.revolution}: "
+                                    + refused)
         invalid = counts["bearings_invalid measurement"] + counts["bearings_unknown beacon"] - invalid_before
         if invalid:
             self.diagnostics.refuse("revolutions_with_invalid_bearings", f"revolution {msg.revolution}: "

@@ -376,28 +376,25 @@ class Localiser:
     # -- bearings -------------------------------------------------------------------------------------
     def on_revolution(self, bearings: Sequence[Bearing]) -> str:
         """One revolution's bearings (a beams/bearings message): refused whole beyond
-        MAX_BEARINGS_PER_REVOLUTION, one sighting per beacon (`validation.one_sighting_per_beacon`, the
-        triangulation's rule: a repeated sighting is dropped, a beacon seen twice at one instant refused),
-        then `on_bearings`. Returns why bearings were refused or dropped ('' when none was); counted."""
+        MAX_BEARINGS_PER_REVOLUTION, then one sighting per beacon (`validation.one_sighting_per_beacon`,
+        the triangulation's rule), then `on_bearings`. A beacon seen again at another instant (a robot
+        turning against the turret) keeps the sighting nearest the revolution's middle, counted in
+        `bearings_repeated_beacon`; a beacon seen twice at one instant is not physical: its bearings are
+        refused. Returns the reason of a refusal ('' when none); every case is counted."""
         problem = revolution_size_problem(len(bearings))
         if problem:
             self.stats.counts["revolutions_too_many_bearings"] += 1
             return problem
         sightings = one_sighting_per_beacon(bearings)
         conflicting = set(sightings.conflicting_ids)
-        usable = [b for b in sightings.kept if b.beacon_id not in conflicting]
-        notes = []
-        if conflicting:
-            refused = sum(b.beacon_id in conflicting for b in bearings)
-            self.stats.counts["bearings_conflicting_beacon"] += refused
-            notes.append(f"beacon(s) {sorted(conflicting)} seen twice at one instant: refused")
-        repeated = [b for b in sightings.dropped if b.beacon_id not in conflicting]
+        repeated = sum(b.beacon_id not in conflicting for b in sightings.dropped)
         if repeated:
-            self.stats.counts["bearings_repeated_beacon"] += len(repeated)
-            notes.append(f"beacon(s) {sorted({b.beacon_id for b in repeated})} seen again in the revolution: "
-                         "the sighting nearest the revolution's middle is used")
-        self.on_bearings(usable)
-        return "; ".join(notes)
+            self.stats.counts["bearings_repeated_beacon"] += repeated
+        self.on_bearings([b for b in sightings.kept if b.beacon_id not in conflicting])
+        if not conflicting:
+            return ""
+        self.stats.counts["bearings_conflicting_beacon"] += sum(b.beacon_id in conflicting for b in bearings)
+        return f"beacon(s) {sorted(conflicting)} seen twice at one instant (not physical): bearings refused"
 
     def on_bearing(self, stamp_s: float, beacon_id: int, bearing_rad: float,
                    variance_rad2: float) -> BearingOutcome:

@@ -164,7 +164,7 @@ def test_a_revolution_over_the_limit_is_refused_before_any_per_bearing_work():
     assert counts["revolutions_too_many_bearings"] == 1
     assert sum(v for k, v in counts.items() if k.startswith("bearings_")) == 0  # not one bearing looked at
     at_limit = (_true_revolution() * 22)[:MAX_BEARINGS_PER_REVOLUTION]
-    assert localiser.on_revolution(_ekf_bearings(at_limit)) != ""  # repeated sightings, not too many
+    assert "more than the limit" not in localiser.on_revolution(_ekf_bearings(at_limit))
     assert counts["revolutions_too_many_bearings"] == 1
 
 
@@ -175,13 +175,12 @@ def test_the_ekf_counts_a_beacon_seen_twice_and_uses_one_sighting():
     revolution = _true_revolution()
     again = EkfBearing(revolution[0].stamp_s + 0.09, 1, revolution[0].bearing + 0.5, VARIANCE_RAD2)
     localiser = _localiser()
-    note = localiser.on_revolution([*_ekf_bearings(revolution), again])
-    assert "beacon(s) [1] seen again" in note
+    assert localiser.on_revolution([*_ekf_bearings(revolution), again]) == ""  # handled, not refused
     assert localiser.stats.counts["bearings_repeated_beacon"] == 1
     assert localiser.stats.counts["bearings_accepted"] == 3
     same_instant = EkfBearing(revolution[0].stamp_s, 1, revolution[0].bearing + 0.5, VARIANCE_RAD2)
     localiser = _localiser()
-    note = localiser.on_revolution([*_ekf_bearings(revolution), same_instant])
-    assert "seen twice at one instant: refused" in note
+    refused = localiser.on_revolution([*_ekf_bearings(revolution), same_instant])
+    assert "beacon(s) [1] seen twice at one instant" in refused
     assert localiser.stats.counts["bearings_conflicting_beacon"] == 2
     assert localiser.stats.counts["bearings_accepted"] == 2

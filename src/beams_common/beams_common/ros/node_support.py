@@ -266,10 +266,10 @@ class Diagnostics:
         """Under use_sim_time: say so while the node's clock has not started (no /clock yet)."""
         if self._node.get_clock().now().nanoseconds != 0:
             return
-        self._send("warn", self.WAITING_FOR_CLOCK, Time())
         if self._clock_waits % self.WAITING_LOG_PERIOD == 0:
             self._node.get_logger().warning(self.WAITING_FOR_CLOCK)
         self._clock_waits += 1
+        self._send("warn", self.WAITING_FOR_CLOCK, Time())
 
 
 def _format_value(value: Any) -> str:
