@@ -8,6 +8,7 @@ Both go through the same decoder and variance model; the calibration file's bear
 """
 
 import sys
+from dataclasses import replace
 
 import numpy as np
 from nav_msgs.msg import Odometry
@@ -17,7 +18,7 @@ from beams_driver.angles import wrap_to_pi
 from beams_driver.bearing_correction import BearingCorrection
 from beams_driver.calibration_file import SensorCalibration, load_calibration
 from beams_driver.codes import BIT_TIME_S, code_family, codes_from_strings, validate_codes
-from beams_driver.decoder import BearingDecoder, DecodedRevolution
+from beams_driver.decoder import MIN_CODES_SEEN, BearingDecoder, DecodedRevolution
 from beams_driver.edges import TURRET_PERIOD_S
 from beams_driver.node_support import (
     BEARINGS_QOS,
@@ -39,6 +40,8 @@ from beams_driver.variance import VARIANCE_MODES, VarianceModel
 from beams_msgs.msg import BeaconBearing, BeaconBearingArray
 
 SERIAL_POLL_PERIOD_S = 0.01
+# The simulated sensor's noise models; the serial source's receiver is the thesis hardware.
+SIM_NOISE_MODELS = {"thesis_hardware": SensorSimConfig.thesis_hardware, "ideal": SensorSimConfig}
 
 
 class OcclusionSchedule:
@@ -95,7 +98,21 @@ class DriverNode(Node):
             self, "source", "sim", ("sim", "serial"), "Edge source: simulated sensor or serial device."
         )
         self.codes = self._declare_codes()
-        self.decoder = BearingDecoder(self.codes, self._declare_variance_model())
+        self.sim_config = self._declare_noise_model()
+        min_codes = declare_parameter(
+            self,
+            "min_complete_codes",
+            MIN_CODES_SEEN,
+            "Complete codes a window must show to give a bearing (thesis section 2.5.2: 2).",
+            minimum=1,
+            maximum=10,
+        )
+        self.decoder = BearingDecoder(
+            self.codes,
+            self._declare_variance_model(),
+            min_codes_seen=min_codes,
+            receiver=self.sim_config.receiver,
+        )
         calibration = load_calibration_parameter(self)
         self.correction = calibration.bearing_correction if calibration else BearingCorrection()
         serve_calibration_reload(self, self._apply_calibration)
@@ -132,6 +149,19 @@ class DriverNode(Node):
             raise ParameterValidationError(f"codes: {error}") from None
         return codes
 
+    def _declare_noise_model(self) -> SensorSimConfig:
+        """The simulated receiver (sim_noise_model), whose minimum burst the decoder and variances know."""
+        if self.source != "sim":
+            return SensorSimConfig.thesis_hardware(codes=tuple(self.codes))
+        name = declare_choice(
+            self,
+            "sim_noise_model",
+            "thesis_hardware",
+            tuple(SIM_NOISE_MODELS),
+            "Simulated sensor noise: thesis_hardware (sections 5.5-5.7) or ideal (OOK, constant edge noise).",
+        )
+        return SIM_NOISE_MODELS[name](codes=tuple(self.codes))
+
     def _declare_variance_model(self) -> VarianceModel:
         mode = declare_choice(self, "variance_mode", "exact", VARIANCE_MODES, "Bearing variance model.")
         natural = declare_parameter(
@@ -155,7 +185,8 @@ class DriverNode(Node):
             mode,
             natural_variance_rad2=natural,
             constant_variance_rad2=constant,
-            min_burst_fraction=SensorSimConfig().min_burst_fraction,
+            min_burst_fraction=self.sim_config.min_burst_fraction,
+            min_burst_gap_exponent=self.sim_config.min_burst_gap_exponent,
         )
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
@@ -216,7 +247,7 @@ class DriverNode(Node):
         seed = declare_parameter(
             self, "sim_seed", 1, "Seed of the simulated sensor's noise.", minimum=0, maximum=2**31
         )
-        config = SensorSimConfig(codes=tuple(self.codes), spurious_rate_hz=spurious_rate)
+        config = replace(self.sim_config, spurious_rate_hz=spurious_rate)
         self.simulator = SensorSimulator(
             config,
             beacons,

@@ -54,7 +54,11 @@ class ReceiverModel:
         gap_s = min(code.gap_bits) * code.bit_time_s
         if self.min_burst_gap_exponent == 1.0:
             return self.min_burst_fraction * gap_s
-        return self.min_burst_fraction * code.bit_time_s * (gap_s / code.bit_time_s) ** self.min_burst_gap_exponent
+        return (
+            self.min_burst_fraction
+            * code.bit_time_s
+            * (gap_s / code.bit_time_s) ** self.min_burst_gap_exponent
+        )
 
     def window_shortening_s(self, code: BeaconCode) -> float:
         """Mean of phi_W - Phi_w (s of turret time): sum over gaps of (G_j + m)^2 / T_c, plus the outer shift.
@@ -96,7 +100,9 @@ class HardwareNoise:
     def __post_init__(self) -> None:
         low, high = self.window_range_rad
         if not 0.0 < low < high:
-            raise ValueError(f"hardware noise: window range must satisfy 0 < low < high, got {self.window_range_rad}")
+            raise ValueError(
+                f"hardware noise: window range must satisfy 0 < low < high, got {self.window_range_rad}"
+            )
         if min(*self.rising_variance_deg2, *self.falling_variance_deg2, self.off_noise_gain) < 0.0:
             raise ValueError("hardware noise: variances and off_noise_gain must be >= 0")
 

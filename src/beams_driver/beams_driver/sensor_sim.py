@@ -99,8 +99,10 @@ class SensorSimConfig:
         """
         base = cls(rising_noise_rad=0.0, falling_noise_rad=0.0, min_burst_gap_exponent=-0.5)
         base = replace(base, **{k: v for k, v in overrides.items() if k != "hardware"})
-        window_range = (float(base.window_rad(EXPERIMENT_DISTANCES_M[0])),
-                        float(base.window_rad(EXPERIMENT_DISTANCES_M[1])))
+        window_range = (
+            float(base.window_rad(EXPERIMENT_DISTANCES_M[0])),
+            float(base.window_rad(EXPERIMENT_DISTANCES_M[1])),
+        )
         hardware = overrides.get("hardware") or HardwareNoise(
             window_range_rad=window_range,
             power_bias_coefficients=thesis_power_bias_coefficients(
@@ -112,7 +114,9 @@ class SensorSimConfig:
     @property
     def receiver(self) -> ReceiverModel:
         """The receiver's systematic behaviour, as the decoder and the variance model must know it."""
-        shortening = self.hardware.modulation_shortening_rad / self.turret_speed_rad_s if self.hardware else 0.0
+        shortening = (
+            self.hardware.modulation_shortening_rad / self.turret_speed_rad_s if self.hardware else 0.0
+        )
         return ReceiverModel(self.min_burst_fraction, self.min_burst_gap_exponent, shortening)
 
     @property
@@ -276,7 +280,9 @@ class SensorSimulator:
         """The threshold crossings as the AGC makes them jitter (HardwareNoise, fig. 5.3), in s."""
         omega = self.config.turret_speed_rad_s
         rising_std, falling_std = self.config.hardware.edge_std_rad((closes - opens) * omega, code)  # type: ignore[union-attr]
-        return opens + rng.normal(0.0, float(rising_std)) / omega, closes + rng.normal(0.0, float(falling_std)) / omega
+        return opens + rng.normal(0.0, float(rising_std)) / omega, closes + rng.normal(
+            0.0, float(falling_std)
+        ) / omega
 
     def _window_times(
         self, beacon: SimulatedBeacon, pose_at: PoseAt, t0: float, t_guess: float
@@ -446,9 +452,10 @@ def window_experiment(
     For each window (rad) and turn: (Phi_r - phi_R, Phi_f - phi_F) in rad, the first rising and last
     falling edge against the true window's boundaries, arrays (windows, turns); code None is the
     unmodulated carrier C_k. The beacon runs free (a uniform code phase per turn); edges carry the
-    config's hardware noise (when set), its minimum burst and outer shift, and the capture tick, as
-    `SensorSimulator` applies them to a pass (the inner edges' small jitter is left out). The windows
-    must be long enough for every turn to be detected.
+    config's hardware noise (when set, else its constant outer-edge noise, here before the AND), its
+    minimum burst and outer shift, and the capture tick, as `SensorSimulator` applies them to a pass
+    (the inner edges' small jitter is left out). The windows must be long enough for every turn to be
+    detected.
     """
     windows = np.asarray(windows_rad, dtype=float).reshape(-1, 1)
     omega = config.turret_speed_rad_s
@@ -458,12 +465,18 @@ def window_experiment(
         rising_std, falling_std = config.hardware.edge_std_rad(windows, code)
         opens = opens + rng.normal(0.0, 1.0, shape) * rising_std
         closes = closes + rng.normal(0.0, 1.0, shape) * falling_std
+    else:
+        # The constant noise on the outer edges (SensorSimulator adds it after the AND).
+        opens = opens + rng.normal(0.0, config.rising_noise_rad, shape)
+        closes = closes + rng.normal(0.0, config.falling_noise_rad, shape)
     if code is None:
         rising, falling = opens, closes
     else:
         phase_s = rng.uniform(0.0, code.duration_s, shape)
         min_burst_s = config.receiver.min_burst_s(code)
-        first, last, detected = first_last_edges(code, phase_s + opens / omega, phase_s + closes / omega, min_burst_s)
+        first, last, detected = first_last_edges(
+            code, phase_s + opens / omega, phase_s + closes / omega, min_burst_s
+        )
         if not np.all(detected):
             raise ValueError("window_experiment: a window too short for the code left turns undetected")
         shift_rad = 0.5 * config.hardware.modulation_shortening_rad if config.hardware is not None else 0.0
