@@ -6,8 +6,8 @@
 - `HardwareNoise`: the thesis hardware's receiver noise as chapter 5 measured it: asymmetric edge noise
   growing with the window (fig. 5.3), a natural noise growing with the code's OFF periods (the AGC,
   section 5.6), a small extra window shortening of modulated signals (table 5.1), and a power bias of
-  the bearing against the window within 0.23 deg (section 5.7), a cubic (eq. 7.19) so that the
-  chapter-7 calibration can remove it.
+  the bearing against the window fluctuating within 0.23 deg (section 5.7, fig. 5.6), a cubic
+  (eq. 7.19) so that the chapter-7 calibration can remove it.
 """
 
 import math
@@ -129,12 +129,17 @@ class HardwareNoise:
 
 
 def thesis_power_bias_coefficients(
-    window_range_rad: tuple[float, float], shape: tuple[float, float, float, float], range_rad: float
+    window_range_rad: tuple[float, float], range_rad: float
 ) -> tuple[float, float, float, float]:
-    """A cubic of the given shape (eq. 7.19 coefficients), scaled so that its range over the window range
-    is range_rad and shifted to zero mean there (a constant bias only turns the heading, section 5.7)."""
-    windows = np.linspace(*window_range_rad, 512)
-    a, b, c, d = shape
-    values = ((a * windows + b) * windows + c) * windows + d
-    scale = range_rad / float(np.ptp(values))
-    return (a * scale, b * scale, c * scale, d * scale - scale * float(np.mean(values)))
+    """Eq. 7.19 coefficients (a, b, c, d) of a bias fluctuating within range_rad over the window range.
+
+    Fig. 5.6 shows the mean bearing fluctuating with the window within 0.23 deg (section 5.7); the cubic
+    with the most fluctuation in a range is the Chebyshev T3(x) = 4x^3 - 3x, x the window mapped onto
+    [-1, 1]: it sweeps the whole range twice, and any part of the working windows sees most of it.
+    Zero mean over the range (a constant bias only turns the heading, section 5.7).
+    """
+    low, high = window_range_rad
+    windows = np.linspace(low, high, 16)
+    x = (2.0 * windows - low - high) / (high - low)
+    a, b, c, d = np.polyfit(windows, 0.5 * range_rad * (4.0 * x**3 - 3.0 * x), 3)
+    return (float(a), float(b), float(c), float(d))

@@ -28,7 +28,6 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike
 
-from beams_driver.bearing_correction import THESIS_POWER_BIAS_COEFFICIENTS
 from beams_driver.codes import BeaconCode, bursts_in_window, code_family, first_last_edges
 from beams_driver.edges import TIMER_HZ, TURRET_PERIOD_S, RevolutionEdges
 from beams_driver.receiver import (
@@ -94,8 +93,8 @@ class SensorSimConfig:
         The edge noise is the window-dependent jitter of `HardwareNoise` (over the windows of 1-6 m,
         section 5.3) instead of the constant outer-edge noise; the minimum burst is 56% of T0 for the
         family codes and falls as sqrt(T_b / G) for longer gaps G, which with the AGC's extra
-        shortening of modulated windows reproduces table 5.1's experiment column; the power bias has
-        the shape of the thesis's calibrated cubic (fig. 7.11) over the 0.23 deg range of section 5.7.
+        shortening of modulated windows reproduces table 5.1's experiment column; the power bias is a
+        cubic fluctuating over the 0.23 deg range of section 5.7 (`thesis_power_bias_coefficients`).
         """
         base = cls(rising_noise_rad=0.0, falling_noise_rad=0.0, min_burst_gap_exponent=-0.5)
         base = replace(base, **{k: v for k, v in overrides.items() if k != "hardware"})
@@ -106,7 +105,7 @@ class SensorSimConfig:
         hardware = overrides.get("hardware") or HardwareNoise(
             window_range_rad=window_range,
             power_bias_coefficients=thesis_power_bias_coefficients(
-                window_range, THESIS_POWER_BIAS_COEFFICIENTS, math.radians(THESIS_POWER_BIAS_RANGE_DEG)
+                window_range, math.radians(THESIS_POWER_BIAS_RANGE_DEG)
             ),
         )
         return replace(base, hardware=hardware)
