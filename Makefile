@@ -47,7 +47,7 @@ bench: build
 LINT_PATHS := src test bench scripts compat
 lint: $(VENV)/.installed
 	$(VENV)/bin/ruff check $(LINT_PATHS)
-	# FORMAT-CHECK-PENDING
+	$(VENV)/bin/ruff format --check $(LINT_PATHS)
 
 clean:
 	rm -rf $(BUILD_BASE) $(INSTALL_BASE) log

@@ -98,17 +98,31 @@ def kill(process: subprocess.Popen) -> None:
 
 def restart_delays(profile: pathlib.Path) -> list[float]:
     """Delays (s) to the first message of subscribers started right after the previous one's kill -9."""
-    env = dict(os.environ, FASTRTPS_DEFAULT_PROFILES_FILE=str(profile),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               ROS_DOMAIN_ID=os.environ.get("ROS_DOMAIN_ID", DEFAULT_DOMAIN_ID))
-    publisher = subprocess.Popen([sys.executable, "-c", PUBLISHER], env=env, stdout=subprocess.DEVNULL,
-                                 stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
+    env = dict(
+        os.environ,
+        FASTRTPS_DEFAULT_PROFILES_FILE=str(profile),
+        ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+        ROS_DOMAIN_ID=os.environ.get("ROS_DOMAIN_ID", DEFAULT_DOMAIN_ID),
+    )
+    publisher = subprocess.Popen(
+        [sys.executable, "-c", PUBLISHER],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        stdin=subprocess.DEVNULL,
+    )
     delays = []
     try:
         time.sleep(PUBLISHER_SETTLE_S)
         for restart in range(RESTARTS + 1):
-            subscriber = subprocess.Popen([sys.executable, "-c", SUBSCRIBER], env=env, stdout=subprocess.PIPE,
-                                          stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, text=True)
+            subscriber = subprocess.Popen(
+                [sys.executable, "-c", SUBSCRIBER],
+                env=env,
+                stdout=subprocess.PIPE,
+                stderr=subprocess.DEVNULL,
+                stdin=subprocess.DEVNULL,
+                text=True,
+            )
             delay = first_message_delay(subscriber)
             kill(subscriber)
             if restart:  # the first subscriber starts fresh: no killed process before it
@@ -125,16 +139,28 @@ def restart_delays(profile: pathlib.Path) -> list[float]:
 
 def rows() -> list[Row]:
     with tempfile.TemporaryDirectory(prefix="beams-dds-restart-") as directory:
-        profiles = {"shared memory": shared_memory_profile(pathlib.Path(directory)),
-                    "UDP (the project's profile)": PROFILE}
+        profiles = {
+            "shared memory": shared_memory_profile(pathlib.Path(directory)),
+            "UDP (the project's profile)": PROFILE,
+        }
         result = []
         for transport, profile in profiles.items():
             delays = restart_delays(profile)
             result += [
-                (f"plain subscriber restarted after kill -9, user data in {transport}: first message, median "
-                 f"of {RESTARTS}", float(np.median(delays)), "s", "issue 7: recovery within 2 s"),
-                (f"plain subscriber restarted after kill -9, user data in {transport}: first message, max of "
-                 f"{RESTARTS}", max(delays), "s", "issue 7: recovery within 2 s"),
+                (
+                    f"plain subscriber restarted after kill -9, user data in {transport}: first message, "
+                    f"median of {RESTARTS}",
+                    float(np.median(delays)),
+                    "s",
+                    "issue 7: recovery within 2 s",
+                ),
+                (
+                    f"plain subscriber restarted after kill -9, user data in {transport}: first message, "
+                    f"max of {RESTARTS}",
+                    max(delays),
+                    "s",
+                    "issue 7: recovery within 2 s",
+                ),
             ]
     return result
 

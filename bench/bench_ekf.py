@@ -62,13 +62,24 @@ def run_mode(match: SimulatedMatch, mode: str, config: SensorSimConfig | None = 
     variance = None
     if mode != "published":
         config = config or SensorSimConfig()
-        model = VarianceModel(config.codes, mode, turret_speed_rad_s=config.turret_speed_rad_s,
-                              natural_variance_rad2=config.natural_variance_rad2,
-                              min_burst_fraction=config.min_burst_fraction)
+        model = VarianceModel(
+            config.codes,
+            mode,
+            turret_speed_rad_s=config.turret_speed_rad_s,
+            natural_variance_rad2=config.natural_variance_rad2,
+            min_burst_fraction=config.min_burst_fraction,
+        )
         variance = lambda beacon_id, window: float(model.variance(beacon_id, window))  # noqa: E731
     pose, covariance = _start(match)
-    result = replay(_localiser(match), match.odometry.stamp_s, _odometry_array(match),
-                    bearing_events(match.revolutions, variance), match.truth_at, pose, covariance)
+    result = replay(
+        _localiser(match),
+        match.odometry.stamp_s,
+        _odometry_array(match),
+        bearing_events(match.revolutions, variance),
+        match.truth_at,
+        pose,
+        covariance,
+    )
     return ModeRun(mode, result, accuracy(result))
 
 
@@ -129,18 +140,28 @@ def timings_us() -> dict[str, float]:
             clock["pose"] = compose(clock["pose"], (0.008, 0.0, 0.01))
             localiser.on_odometry(clock["t"], clock["pose"])
         t = clock["t"]
-        localiser.on_bearings([Bearing(t - 0.09, 1, 0.0, 1e-6), Bearing(t - 0.05, 2, 0.0, 1e-6),
-                               Bearing(t - 0.01, 3, 0.0, 1e-6)])
+        localiser.on_bearings(
+            [
+                Bearing(t - 0.09, 1, 0.0, 1e-6),
+                Bearing(t - 0.05, 2, 0.0, 1e-6),
+                Bearing(t - 0.01, 3, 0.0, 1e-6),
+            ]
+        )
 
-    timers = (("predict", predict, 2000), ("update", update, 2000), ("restore", restore, 2000),
-              ("revolution", timeit.Timer(revolution), 200))
+    timers = (
+        ("predict", predict, 2000),
+        ("update", update, 2000),
+        ("restore", restore, 2000),
+        ("revolution", timeit.Timer(revolution), 200),
+    )
     cost = {name: 1e6 * min(timer.repeat(repeat=5, number=number)) / number for name, timer, number in timers}
     cost["update"] -= cost.pop("restore")
     return cost
 
 
-def plot_trajectory(match: SimulatedMatch, run: ModeRun, odometry_poses: np.ndarray, fixes: np.ndarray,
-                    path: str) -> None:
+def plot_trajectory(
+    match: SimulatedMatch, run: ModeRun, odometry_poses: np.ndarray, fixes: np.ndarray, path: str
+) -> None:
     """Truth, EKF, odometry alone and ToTal fixes on the table (PNG)."""
     import matplotlib
 
@@ -151,17 +172,29 @@ def plot_trajectory(match: SimulatedMatch, run: ModeRun, odometry_poses: np.ndar
     table.plot(match.ground_truth.x_m, match.ground_truth.y_m, color="black", lw=2.5, label="ground truth")
     table.plot(odometry_poses[:, 0], odometry_poses[:, 1], color="tab:orange", lw=1, label="odometry alone")
     table.plot(fixes[:, 0], fixes[:, 1], ".", ms=2, color="tab:green", label="ToTal alone (per revolution)")
-    table.plot(run.result.estimates[:, 0], run.result.estimates[:, 1], color="tab:blue", lw=1,
-               label="EKF (odometry + every bearing)")
+    table.plot(
+        run.result.estimates[:, 0],
+        run.result.estimates[:, 1],
+        color="tab:blue",
+        lw=1,
+        label="EKF (odometry + every bearing)",
+    )
     table.plot(*np.array(match.beacon_map.xy).T, "r^", ms=10, label="beacons")
     table.add_patch(plt.Rectangle((0, 0), 3, 2, fill=False, ls="--", color="grey"))
-    table.set(xlim=(-0.3, 3.3), ylim=(-0.3, 2.3), aspect="equal", xlabel="x (m)", ylabel="y (m)",
-              title="Simulated Eurobot match (map frame)")
+    table.set(
+        xlim=(-0.3, 3.3),
+        ylim=(-0.3, 2.3),
+        aspect="equal",
+        xlabel="x (m)",
+        ylabel="y (m)",
+        title="Simulated Eurobot match (map frame)",
+    )
     table.legend(loc="upper center", fontsize=8, ncol=2)
     errors = run.result.errors()
     sigma = np.sqrt(run.result.covariances[:, 0, 0] + run.result.covariances[:, 1, 1])
-    error.plot(run.result.times_s, 1000 * np.hypot(errors[:, 0], errors[:, 1]), lw=0.8,
-               label="EKF position error")
+    error.plot(
+        run.result.times_s, 1000 * np.hypot(errors[:, 0], errors[:, 1]), lw=0.8, label="EKF position error"
+    )
     error.plot(run.result.times_s, 1000 * sigma, lw=0.8, label="EKF sqrt(Pxx + Pyy)")
     error.set(xlabel="t (s)", ylabel="mm", title=f"EKF error ({run.mode} variance)", ylim=(0, None))
     error.legend(fontsize=8)
@@ -170,41 +203,67 @@ def plot_trajectory(match: SimulatedMatch, run: ModeRun, odometry_poses: np.ndar
     plt.close(figure)
 
 
-def rows(seed: int = DEFAULT_SEED, duration_s: float = DEFAULT_DURATION_S,
-         plot_path: str | None = None) -> list[tuple[str, float, str, str]]:
+def rows(
+    seed: int = DEFAULT_SEED, duration_s: float = DEFAULT_DURATION_S, plot_path: str | None = None
+) -> list[tuple[str, float, str, str]]:
     """(figure, value, unit, compared with) rows."""
     match = simulate_match(duration_s, seed)
     runs = [run_mode(match, mode) for mode in ("published", "exact", "bound", "constant")]
     odometry_position, odometry_heading, odometry_poses = odometry_alone(match)
     total_position, total_heading, total_median, fixes = total_alone(match)
     label = f"{duration_s:.0f} s match seed {seed}"
-    table = [
-        (f"EKF RMS position ({run.mode} R), {label}", 1000 * run.figures.rms_position_m, "mm",
-         "target <= 10 mm")
-        for run in runs
-    ] + [
-        (f"EKF RMS heading ({run.mode} R)", math.degrees(run.figures.rms_heading_rad), "deg",
-         "target <= 0.3 deg")
-        for run in runs
-    ] + [
-        (f"EKF NEES in 95% band ({run.mode} R)", 100 * run.figures.nees_in_band, "%",
-         f"target >= 90% (mean NEES {run.figures.nees_mean:.2f}, ideal 3)")
-        for run in runs
-    ] + [
-        ("EKF bearings gated (published R)", float(runs[0].result.counts.get("bearings_gated", 0)),
-         "bearings", f"of {sum(len(r.bearings) for r in match.revolutions)}"),
-        ("odometry alone RMS position", 1000 * odometry_position, "mm", "EKF row above"),
-        ("odometry alone RMS heading", math.degrees(odometry_heading), "deg", "EKF row above"),
-        ("ToTal alone, uncompensated, RMS position", 1000 * total_position, "mm", "EKF row above"),
-        ("ToTal alone, uncompensated, RMS heading", math.degrees(total_heading), "deg", "EKF row above"),
-        ("ToTal alone, uncompensated, median error", 1000 * total_median, "mm", "EKF row above"),
-    ]
+    table = (
+        [
+            (
+                f"EKF RMS position ({run.mode} R), {label}",
+                1000 * run.figures.rms_position_m,
+                "mm",
+                "target <= 10 mm",
+            )
+            for run in runs
+        ]
+        + [
+            (
+                f"EKF RMS heading ({run.mode} R)",
+                math.degrees(run.figures.rms_heading_rad),
+                "deg",
+                "target <= 0.3 deg",
+            )
+            for run in runs
+        ]
+        + [
+            (
+                f"EKF NEES in 95% band ({run.mode} R)",
+                100 * run.figures.nees_in_band,
+                "%",
+                f"target >= 90% (mean NEES {run.figures.nees_mean:.2f}, ideal 3)",
+            )
+            for run in runs
+        ]
+        + [
+            (
+                "EKF bearings gated (published R)",
+                float(runs[0].result.counts.get("bearings_gated", 0)),
+                "bearings",
+                f"of {sum(len(r.bearings) for r in match.revolutions)}",
+            ),
+            ("odometry alone RMS position", 1000 * odometry_position, "mm", "EKF row above"),
+            ("odometry alone RMS heading", math.degrees(odometry_heading), "deg", "EKF row above"),
+            ("ToTal alone, uncompensated, RMS position", 1000 * total_position, "mm", "EKF row above"),
+            ("ToTal alone, uncompensated, RMS heading", math.degrees(total_heading), "deg", "EKF row above"),
+            ("ToTal alone, uncompensated, median error", 1000 * total_median, "mm", "EKF row above"),
+        ]
+    )
     cost = timings_us()
     table += [
         ("EKF prediction (one odometry step)", cost["predict"], "us", "target < 50 us"),
         ("EKF bearing update (one accepted bearing, gate included)", cost["update"], "us", "target < 100 us"),
-        ("localiser revolution (5 odometry + 3 late bearings)", cost["revolution"], "us",
-         "100 ms revolution"),
+        (
+            "localiser revolution (5 odometry + 3 late bearings)",
+            cost["revolution"],
+            "us",
+            "100 ms revolution",
+        ),
     ]
     table += _ideal_receiver_rows(seed, duration_s)
     if plot_path:
@@ -221,17 +280,26 @@ def _ideal_receiver_rows(seed: int, duration_s: float) -> list[tuple[str, float,
     for mode in ("exact", "bound", "constant"):
         figures = run_mode(match, mode, config).figures
         rows += [
-            (f"ideal receiver: EKF RMS position ({mode} R)", 1000 * figures.rms_position_m, "mm",
-             "same match, OOK noise only"),
-            (f"ideal receiver: EKF NEES in 95% band ({mode} R)", 100 * figures.nees_in_band, "%",
-             f"mean NEES {figures.nees_mean:.2f}, ideal 3"),
+            (
+                f"ideal receiver: EKF RMS position ({mode} R)",
+                1000 * figures.rms_position_m,
+                "mm",
+                "same match, OOK noise only",
+            ),
+            (
+                f"ideal receiver: EKF NEES in 95% band ({mode} R)",
+                100 * figures.nees_in_band,
+                "%",
+                f"mean NEES {figures.nees_mean:.2f}, ideal 3",
+            ),
         ]
     return rows
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED)
     parser.add_argument("--duration", type=float, default=DEFAULT_DURATION_S)
     parser.add_argument("--plot", help="write the trajectory figure to this PNG")

@@ -34,25 +34,41 @@ def replay_once(duration_s: float, seed: int, storage: str) -> ReplayResult:
         return replay_bag(bag, pathlib.Path(directory) / "output", typestore=typestore, storage=storage)
 
 
-def rows(duration_s: float = DEFAULT_DURATION_S,
-         seed: int = DEFAULT_SEED) -> list[tuple[str, float, str, str]]:
+def rows(
+    duration_s: float = DEFAULT_DURATION_S, seed: int = DEFAULT_SEED
+) -> list[tuple[str, float, str, str]]:
     table = []
     for storage in ("mcap", "sqlite3"):
         result = replay_once(duration_s, seed, storage)
         table += [
-            (f"replay_bag speed, {duration_s:.0f} s match, {storage}", result.messages_per_s, "messages/s",
-             f"{LIVE_MESSAGES_PER_S:.0f} messages/s live"),
-            (f"replay_bag speed, {duration_s:.0f} s match, {storage}", result.real_time_factor, "x real time",
-             "1 x (the live nodes)"),
+            (
+                f"replay_bag speed, {duration_s:.0f} s match, {storage}",
+                result.messages_per_s,
+                "messages/s",
+                f"{LIVE_MESSAGES_PER_S:.0f} messages/s live",
+            ),
+            (
+                f"replay_bag speed, {duration_s:.0f} s match, {storage}",
+                result.real_time_factor,
+                "x real time",
+                "1 x (the live nodes)",
+            ),
         ]
-    table.append((f"replay_bag outputs written per input message ({duration_s:.0f} s match)",
-                  result.messages_out / result.messages_in, "messages", "1 (inputs copied) + outputs"))
+    table.append(
+        (
+            f"replay_bag outputs written per input message ({duration_s:.0f} s match)",
+            result.messages_out / result.messages_in,
+            "messages",
+            "1 (inputs copied) + outputs",
+        )
+    )
     return table
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--duration", type=float, default=DEFAULT_DURATION_S, help="match duration (s)")
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED, help="simulated match seed")
     options = parser.parse_args()

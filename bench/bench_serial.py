@@ -70,20 +70,40 @@ def rows() -> list[tuple[str, float, str, str]]:
 
     parser_rate = frames / parse_s
     return [
-        ("serial frames per revolution (3 beacons in sight, simulated)", frames_per_revolution, "frames",
-         f"link capacity {LINK_FRAMES_PER_S / 10.016:.0f} per revolution at {DEFAULT_BAUDRATE} baud"),
-        ("frame parser throughput", parser_rate, "frames/s",
-         f"{parser_rate / LINK_FRAMES_PER_S:.0f}x a saturated {DEFAULT_BAUDRATE} baud link"),
-        ("frame parser throughput", len(data) / parse_s / 1e6, "MB/s",
-         f"link: {DEFAULT_BAUDRATE / 10 / 1e6:.3f} MB/s"),
+        (
+            "serial frames per revolution (3 beacons in sight, simulated)",
+            frames_per_revolution,
+            "frames",
+            f"link capacity {LINK_FRAMES_PER_S / 10.016:.0f} per revolution at {DEFAULT_BAUDRATE} baud",
+        ),
+        (
+            "frame parser throughput",
+            parser_rate,
+            "frames/s",
+            f"{parser_rate / LINK_FRAMES_PER_S:.0f}x a saturated {DEFAULT_BAUDRATE} baud link",
+        ),
+        (
+            "frame parser throughput",
+            len(data) / parse_s / 1e6,
+            "MB/s",
+            f"link: {DEFAULT_BAUDRATE / 10 / 1e6:.3f} MB/s",
+        ),
         ("revolution assembly", assemble_s / REVOLUTIONS * 1e3, "ms/revolution", "period 99.84 ms"),
-        ("simulate + encode one revolution", encode_s / REVOLUTIONS * 1e3, "ms/revolution",
-         "period 99.84 ms"),
+        (
+            "simulate + encode one revolution",
+            encode_s / REVOLUTIONS * 1e3,
+            "ms/revolution",
+            "period 99.84 ms",
+        ),
         ("random 90 s trajectory construction", trajectory_s * 1e3, "ms", "once per match"),
         ("trajectory pose_at (scalar)", pose_s * 1e6, "us/call", "a few per beacon window (sensor_sim)"),
         ("odometry of a 90 s match at 50 Hz", odometry_s * 1e3, "ms", "4500 samples"),
-        ("simulate_match, 90 s (trajectory, sensor, decoder, odometry)", match_s, "s",
-         f"{90.0 / match_s:.0f}x real time"),
+        (
+            "simulate_match, 90 s (trajectory, sensor, decoder, odometry)",
+            match_s,
+            "s",
+            f"{90.0 / match_s:.0f}x real time",
+        ),
     ]
 
 

@@ -73,8 +73,9 @@ class Launcher:
         package, extra = NODES[executable]
         command = [str(INSTALL_BASE / package / "lib" / package / executable), "--ros-args", *extra]
         log = open(self.log_path(executable), "w")  # noqa: SIM115 (kept open while the node runs)
-        return subprocess.Popen(command, env=self.env, stdout=log, stderr=subprocess.STDOUT,
-                                stdin=subprocess.DEVNULL)
+        return subprocess.Popen(
+            command, env=self.env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL
+        )
 
 
 def stop_nodes(processes: dict[str, subprocess.Popen]) -> None:
@@ -142,8 +143,9 @@ class Probe:
         self.executor.add_node(self.node)
         self.arrivals = Arrivals()
         self.node.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings, 10)
-        self.node.create_subscription(Odometry, "beams/ekf/odometry",
-                                      lambda _: self.arrivals.ekf.append(time.monotonic()), 50)
+        self.node.create_subscription(
+            Odometry, "beams/ekf/odometry", lambda _: self.arrivals.ekf.append(time.monotonic()), 50
+        )
         self.node.create_subscription(TriangulatedPose, "beams/pose", self._on_total, 50)
         self.flood_publisher = self.node.create_publisher(BeaconBearingArray, "beams/bearings", 10)
         self.flooding = False
@@ -206,8 +208,13 @@ def restamped(msg, now_ns: int):
 
     newest = max((stamp_ns(b.header.stamp) for b in msg.bearings), default=stamp_ns(msg.header.stamp))
     shift = now_ns - newest
-    copy = BeaconBearingArray(header=msg.header, revolution=msg.revolution, period=msg.period,
-                              bearings=list(msg.bearings), rejected_windows=msg.rejected_windows)
+    copy = BeaconBearingArray(
+        header=msg.header,
+        revolution=msg.revolution,
+        period=msg.period,
+        bearings=list(msg.bearings),
+        rejected_windows=msg.rejected_windows,
+    )
     for stamped in [copy.header, *(b.header for b in copy.bearings)]:
         moved = stamp_ns(stamped.stamp) + shift
         stamped.stamp.sec, stamped.stamp.nanosec = divmod(moved, 1_000_000_000)
@@ -232,8 +239,7 @@ def measure(flood_s: float) -> list[Row]:
             probe.close()
 
 
-def run_measurements(probe: Probe, processes: dict[str, subprocess.Popen],
-                     flood_s: float) -> list[Row]:
+def run_measurements(probe: Probe, processes: dict[str, subprocess.Popen], flood_s: float) -> list[Row]:
     return latency_and_cpu_rows(probe, processes) + flood_rows(probe, processes, flood_s)
 
 
@@ -251,20 +257,26 @@ def latency_and_cpu_rows(probe: Probe, processes: dict[str, subprocess.Popen]) -
     causes = arrivals.bearings[first:-2]
     target = f"target p99 < {LATENCY_TARGET_MS:g} ms"
     for what, delays, compared in (
-            ("revolution -> EKF output", latencies_ms(causes, arrivals.ekf), target),
-            ("revolution -> its ToTal pose", pose_latencies_ms(arrivals, causes[0]), target)):
+        ("revolution -> EKF output", latencies_ms(causes, arrivals.ekf), target),
+        ("revolution -> its ToTal pose", pose_latencies_ms(arrivals, causes[0]), target),
+    ):
         rows.append((f"latency {what}, p50", float(np.percentile(delays, 50)), "ms", compared))
         rows.append((f"latency {what}, p99", float(np.percentile(delays, 99)), "ms", compared))
-    rows.append(("revolutions received during the latency window", len(causes) / window_s, "1/s",
-                 f"nominal {REVOLUTION_RATE_HZ:g}"))
+    rows.append(
+        (
+            "revolutions received during the latency window",
+            len(causes) / window_s,
+            "1/s",
+            f"nominal {REVOLUTION_RATE_HZ:g}",
+        )
+    )
     for name in processes:
         share = 100.0 * (cpu_after[name] - cpu_before[name]) / window_s
         rows.append((f"CPU {name} at 10 revolutions/s", share, "% of one core", "2-core machine"))
     return rows
 
 
-def flood_rows(probe: Probe, processes: dict[str, subprocess.Popen],
-               flood_s: float) -> list[Row]:
+def flood_rows(probe: Probe, processes: dict[str, subprocess.Popen], flood_s: float) -> list[Row]:
     """10x the revolutions for flood_s: each node's CPU share, peak RSS and RSS growth."""
     rows = []
     rss_before = {name: memory_kb(p.pid)["VmRSS"] for name, p in processes.items()}
@@ -272,13 +284,25 @@ def flood_rows(probe: Probe, processes: dict[str, subprocess.Popen],
     published = probe.flood(flood_s, FLOOD_RATE_FACTOR * REVOLUTION_RATE_HZ)
     cpu_after = {name: cpu_seconds(p.pid) for name, p in processes.items() if p.poll() is None}
     probe.spin_for(1.0)
-    rows.append((f"flood: revolutions published by the bench in {flood_s:g} s", published / flood_s, "1/s",
-                 f"{FLOOD_RATE_FACTOR}x nominal, on top of the driver's"))
+    rows.append(
+        (
+            f"flood: revolutions published by the bench in {flood_s:g} s",
+            published / flood_s,
+            "1/s",
+            f"{FLOOD_RATE_FACTOR}x nominal, on top of the driver's",
+        )
+    )
     for name, process in processes.items():
         alive = process.poll() is None
         memory = memory_kb(process.pid) if alive else {"VmHWM": float("nan"), "VmRSS": float("nan")}
-        rows.append((f"flood: {name} peak RSS (VmHWM)", memory["VmHWM"] / 1024, "MiB",
-                     "bounded" if alive else "NODE DIED"))
+        rows.append(
+            (
+                f"flood: {name} peak RSS (VmHWM)",
+                memory["VmHWM"] / 1024,
+                "MiB",
+                "bounded" if alive else "NODE DIED",
+            )
+        )
         growth_mib = (memory["VmRSS"] - rss_before[name]) / 1024
         share = 100.0 * (cpu_after.get(name, float("nan")) - cpu_before[name]) / flood_s
         rows.append((f"flood: CPU {name}", share, "% of one core", "2-core machine"))
@@ -286,8 +310,7 @@ def flood_rows(probe: Probe, processes: dict[str, subprocess.Popen],
     return rows
 
 
-def restart_rows(probe: Probe, processes: dict[str, subprocess.Popen],
-                 launcher: Launcher) -> list[Row]:
+def restart_rows(probe: Probe, processes: dict[str, subprocess.Popen], launcher: Launcher) -> list[Row]:
     """Stop and restart the triangulation and the EKF RESTARTS times each, by kill -9 and by SIGTERM: the
     delay from the new process's "ready" log line to its first output at the probe (DDS discovery
     included), and from its start (Python and rclpy start-up included)."""
@@ -302,8 +325,9 @@ def restart_rows(probe: Probe, processes: dict[str, subprocess.Popen],
                 started = time.monotonic()
                 processes[executable] = launcher.start(executable)
                 log = launcher.log_path(executable)
-                if not probe.spin_until(lambda log=log: "ready" in log.read_text(errors="replace"),
-                                        START_TIMEOUT_S):
+                if not probe.spin_until(
+                    lambda log=log: "ready" in log.read_text(errors="replace"), START_TIMEOUT_S
+                ):
                     raise RuntimeError(f"{executable} not ready {START_TIMEOUT_S} s after its restart")
                 ready = time.monotonic()
                 probe.spin_until(lambda ready=ready, arrivals=arrivals: arrivals[-1] > ready, START_TIMEOUT_S)
@@ -312,12 +336,24 @@ def restart_rows(probe: Probe, processes: dict[str, subprocess.Popen],
                 from_start.append(first - started)
                 probe.spin_for(1.0)
             rows += [
-                (f"restart after {how}: {executable} ready -> first output, median of {RESTARTS}",
-                 float(np.median(from_ready)), "s", "issue 7: recovery within 2 s"),
-                (f"restart after {how}: {executable} ready -> first output, max of {RESTARTS}",
-                 max(from_ready), "s", "issue 7: recovery within 2 s"),
-                (f"restart after {how}: {executable} process start -> first output, max of {RESTARTS}",
-                 max(from_start), "s", "Python and rclpy start-up included"),
+                (
+                    f"restart after {how}: {executable} ready -> first output, median of {RESTARTS}",
+                    float(np.median(from_ready)),
+                    "s",
+                    "issue 7: recovery within 2 s",
+                ),
+                (
+                    f"restart after {how}: {executable} ready -> first output, max of {RESTARTS}",
+                    max(from_ready),
+                    "s",
+                    "issue 7: recovery within 2 s",
+                ),
+                (
+                    f"restart after {how}: {executable} process start -> first output, max of {RESTARTS}",
+                    max(from_start),
+                    "s",
+                    "Python and rclpy start-up included",
+                ),
             ]
     return rows
 
@@ -327,8 +363,9 @@ def rows(flood_s: float = FLOOD_S) -> list[Row]:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--flood-s", type=float, default=FLOOD_S, help="flood duration (s), default 30")
     options = parser.parse_args()
     print("| figure | value | unit | compared with |\n|---|---|---|---|")

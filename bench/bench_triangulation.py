@@ -42,10 +42,18 @@ def scalar_rows() -> list[Row]:
         return gated_estimate(triangulate(beacons, bearings), beacons, variances, (1, 2, 3), config)
 
     return [
-        ("ToTal scalar call: pose + covariance + gate", _best_per_call_s(full_call, 20_000) * 1e6, "us",
-         "issue 4: under 10 us in CPython"),
-        ("ToTal scalar call: pose only (triangulate)",
-         _best_per_call_s(lambda: triangulate(beacons, bearings), 20_000) * 1e6, "us", "-"),
+        (
+            "ToTal scalar call: pose + covariance + gate",
+            _best_per_call_s(full_call, 20_000) * 1e6,
+            "us",
+            "issue 4: under 10 us in CPython",
+        ),
+        (
+            "ToTal scalar call: pose only (triangulate)",
+            _best_per_call_s(lambda: triangulate(beacons, bearings), 20_000) * 1e6,
+            "us",
+            "-",
+        ),
     ]
 
 
@@ -63,8 +71,12 @@ def vector_rows() -> list[Row]:
         pose_covariance_many(THESIS_BEACONS, (x, y, heading), [1e-6] * 3)
         best_covariance = min(best_covariance, time.perf_counter() - start)
     return [
-        ("ToTal vectorised, 10^6 triplets, one core", best_total / VECTOR_COUNT * 1e9, "ns/pose",
-         "issue 4: <= 60 ns; thesis table 6.1: 163 ns in C (i7 920)"),
+        (
+            "ToTal vectorised, 10^6 triplets, one core",
+            best_total / VECTOR_COUNT * 1e9,
+            "ns/pose",
+            "issue 4: <= 60 ns; thesis table 6.1: 163 ns in C (i7 920)",
+        ),
         ("pose covariance vectorised, 10^6 poses", best_covariance / VECTOR_COUNT * 1e9, "ns/pose", "-"),
     ]
 
@@ -78,8 +90,10 @@ def match_rows(seed: int = DEFAULT_SEED) -> list[Row]:
         return interpolate_pose(odometry.stamp_s, samples, t)
 
     rows: list[Row] = []
-    targets = {"with odometry": ("issue 4: >= 90%", "issue 4: < 20 mm", "issue 4: < 0.5 deg"),
-               "without odometry": ("issue 4: measured and recorded",) * 3}
+    targets = {
+        "with odometry": ("issue 4: >= 90%", "issue 4: < 20 mm", "issue 4: < 0.5 deg"),
+        "without odometry": ("issue 4: measured and recorded",) * 3,
+    }
     for label, source in (("with odometry", odometry_at), ("without odometry", None)):
         estimator = RevolutionEstimator(match.beacon_map, turret_offset_m=match.turret_offset_m)
         errors = []
@@ -92,12 +106,24 @@ def match_rows(seed: int = DEFAULT_SEED) -> list[Row]:
                 errors.append((math.hypot(estimate.x - x, estimate.y - y), heading_error))
         errors = np.array(errors)
         rows += [
-            (f"simulated match {label}: poses accepted", 100.0 * len(errors) / len(match.revolutions), "%",
-             targets[label][0]),
-            (f"simulated match {label}: position RMS (accepted)",
-             1000.0 * math.sqrt(np.mean(errors[:, 0] ** 2)), "mm", targets[label][1]),
-            (f"simulated match {label}: heading RMS (accepted)",
-             math.degrees(math.sqrt(np.mean(errors[:, 1] ** 2))), "deg", targets[label][2]),
+            (
+                f"simulated match {label}: poses accepted",
+                100.0 * len(errors) / len(match.revolutions),
+                "%",
+                targets[label][0],
+            ),
+            (
+                f"simulated match {label}: position RMS (accepted)",
+                1000.0 * math.sqrt(np.mean(errors[:, 0] ** 2)),
+                "mm",
+                targets[label][1],
+            ),
+            (
+                f"simulated match {label}: heading RMS (accepted)",
+                math.degrees(math.sqrt(np.mean(errors[:, 1] ** 2))),
+                "deg",
+                targets[label][2],
+            ),
         ]
     return rows
 

@@ -29,8 +29,9 @@ def differences(replayed, live) -> np.ndarray:
     """(position m, |heading| rad) differences of two `trajectory_metrics.Track`s at their common stamps."""
     live_poses = live.by_stamp()
     pairs = [(pose, live_poses[t]) for t, pose in replayed.by_stamp().items() if t in live_poses]
-    return np.array([(math.hypot(a[0] - b[0], a[1] - b[1]), abs(math.remainder(a[2] - b[2], math.tau)))
-                     for a, b in pairs]).reshape(-1, 2)
+    return np.array(
+        [(math.hypot(a[0] - b[0], a[1] - b[1]), abs(math.remainder(a[2] - b[2], math.tau))) for a, b in pairs]
+    ).reshape(-1, 2)
 
 
 def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
@@ -60,16 +61,32 @@ def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
     from beams_bringup.trajectory_metrics import errors_against_truth, rms
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    run([sys.executable, "-m", "beams_bringup.demo", "--duration", str(DEMO_DURATION_S),
-         "--output", str(tmp_path / "demo")], env)
+    run(
+        [
+            sys.executable,
+            "-m",
+            "beams_bringup.demo",
+            "--duration",
+            str(DEMO_DURATION_S),
+            "--output",
+            str(tmp_path / "demo"),
+        ],
+        env,
+    )
     bag = tmp_path / "demo" / "bag"
     typestore = beams_typestore()
     # Recorded as `ros2 bag record` does: fully qualified names, each with its publishers' offered
     # profiles (reliable, volatile, depth 10 for the nodes' topics; the graph does not report history).
     with Reader(bag) as reader:
         offered = {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
-    assert {"/odom", "/beams/bearings", "/beams/sim/ground_truth", "/beams/ekf/odometry", "/diagnostics",
-            "/tf"} <= set(offered), offered
+    assert {
+        "/odom",
+        "/beams/bearings",
+        "/beams/sim/ground_truth",
+        "/beams/ekf/odometry",
+        "/diagnostics",
+        "/tf",
+    } <= set(offered), offered
     assert all(topic.startswith("/") for topic in offered)
     for topic in ("/odom", "/beams/bearings", "/beams/ekf/odometry", "/beams/pose"):
         assert len(offered[topic]) == 1, (topic, offered[topic])
@@ -117,11 +134,19 @@ def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
 
     # The command as a user runs it: summary, plot, a new MCAP bag with the outputs and the inputs.
     replay_bag_command = INSTALL_BASE / "beams_bringup" / "lib" / "beams_bringup" / "replay_bag"
-    stdout = run([str(replay_bag_command), str(bag), str(tmp_path / "replay"), "--plot",
-                  str(tmp_path / "replay.png")])
+    stdout = run(
+        [str(replay_bag_command), str(bag), str(tmp_path / "replay"), "--plot", str(tmp_path / "replay.png")]
+    )
     assert "| EKF |" in stdout and "x real time" in stdout and "replayed EKF vs live" in stdout
     assert (tmp_path / "replay.png").stat().st_size > 10_000
     assert "mcap" in (tmp_path / "replay" / "metadata.yaml").read_text()
     topics = {topic for topic, _, _ in read_messages(tmp_path / "replay", typestore)}
-    assert {"/beams/pose", "/beams/pose_cov", "/beams/ekf/odometry", "/beams/ekf/pose", "/odom",
-            "/beams/bearings", "/beams/sim/ground_truth"} <= topics
+    assert {
+        "/beams/pose",
+        "/beams/pose_cov",
+        "/beams/ekf/odometry",
+        "/beams/ekf/pose",
+        "/odom",
+        "/beams/bearings",
+        "/beams/sim/ground_truth",
+    } <= topics

@@ -29,6 +29,8 @@ def _driver_params(**extra):
         "sim_beacon_x": truth.xy[:, 0].tolist(),
         "sim_beacon_y": truth.xy[:, 1].tolist(),
         "sim_static_pose": list(POSE),
+        # An unbiased sensor: the thesis_hardware default would add its 0.23 deg power bias.
+        "sim_noise_model": "ideal",
         **extra,
     }
 

@@ -84,8 +84,9 @@ class _Feeder:
         self.total = node.create_publisher(TriangulatedPose, "beams/pose", 10)
         self.initial_pose = node.create_publisher(PoseWithCovarianceStamped, "/initialpose", 10)
         publishers = (self.odom, self.bearings, self.total, self.initial_pose)
-        assert graph.spin_until(lambda: all(p.get_subscription_count() > 0 for p in publishers), 20.0), \
+        assert graph.spin_until(lambda: all(p.get_subscription_count() > 0 for p in publishers), 20.0), (
             "ekf_node did not subscribe to its inputs within 20 s"
+        )
 
     def play(self, match, until_s: float, start_s: float = 0.0, speed: float = 2.0) -> None:
         """Odometry (50 Hz) and revolutions in arrival order, `speed` times faster than real time."""
@@ -130,8 +131,11 @@ def _assert_map_to_odom_places_the_odometry_on_the_estimate(transforms, outputs,
         if estimate is None:
             continue
         q = transform.transform.rotation
-        map_to_odom = (transform.transform.translation.x, transform.transform.translation.y,
-                       2.0 * math.atan2(q.z, q.w))
+        map_to_odom = (
+            transform.transform.translation.x,
+            transform.transform.translation.y,
+            2.0 * math.atan2(q.z, q.w),
+        )
         # the odometry message of that stamp (the feeder's stamps are the match's instants + T0_S)
         k = int(np.argmin(np.abs(match.times_s + T0_S - stamp_to_seconds(transform.header.stamp))))
         x, y, yaw = compose(map_to_odom, tuple(match.odometry[k]))
@@ -168,8 +172,15 @@ def test_ekf_node_tracks_and_resets(start_node, rclpy_node, match):
     variances = [last.pose.covariance[0], last.pose.covariance[7], last.pose.covariance[35]]
     assert all(0.0 < v < 1e-3 for v in variances)
     assert rclpy_node.spin_until(
-        lambda: any(kv.key == "bearings_accepted" and int(kv.value) > 30
-                    for d in diagnostics for s in d.status if "ekf" in s.name for kv in s.values), 5.0)
+        lambda: any(
+            kv.key == "bearings_accepted" and int(kv.value) > 30
+            for d in diagnostics
+            for s in d.status
+            if "ekf" in s.name
+            for kv in s.values
+        ),
+        5.0,
+    )
     _assert_map_to_odom_places_the_odometry_on_the_estimate(transforms, outputs, match)
 
     answer = rclpy_node.call(Trigger, "beams/ekf/reset", Trigger.Request(), 10.0)
@@ -208,11 +219,14 @@ def test_ekf_node_takes_an_operator_pose(start_node, rclpy_node, match):
     assert not refused.success and "odom" in refused.message
 
 
-@pytest.mark.parametrize(("params", "named"), [
-    ({"beacon_ids": [1, 2, 3], "beacon_x": [0.0, 1.0], "beacon_y": [0.0, 1.0, 2.0]}, "beacon_x"),
-    # each in range, but more gated bearings than the window holds: the filter could never be "lost"
-    ({"kidnap_gated_bearings": 13, "kidnap_window_bearings": 12}, "kidnap_gated_bearings"),
-])
+@pytest.mark.parametrize(
+    ("params", "named"),
+    [
+        ({"beacon_ids": [1, 2, 3], "beacon_x": [0.0, 1.0], "beacon_y": [0.0, 1.0, 2.0]}, "beacon_x"),
+        # each in range, but more gated bearings than the window holds: the filter could never be "lost"
+        ({"kidnap_gated_bearings": 13, "kidnap_window_bearings": 12}, "kidnap_gated_bearings"),
+    ],
+)
 def test_ekf_node_refuses_bad_parameters(start_node, params, named):
     node = start_node("beams_ekf", "ekf_node", params)
     assert node.wait_exit(20) == 2

@@ -26,10 +26,15 @@ def result(match) -> ReplayResult:
     o = match.odometry
     x, y, theta = match.initial_pose
     # start one ToTal-sized error away from the truth
-    return replay(Localiser(BearingEkf(beacons, match.turret_offset_m)), o.stamp_s,
-                  np.column_stack([o.x_m, o.y_m, o.theta_rad]), bearing_events(match.revolutions),
-                  match.truth_at, (x + 0.01, y - 0.01, theta + math.radians(1.0)),
-                  np.diag([1e-4, 1e-4, math.radians(1.0) ** 2]))
+    return replay(
+        Localiser(BearingEkf(beacons, match.turret_offset_m)),
+        o.stamp_s,
+        np.column_stack([o.x_m, o.y_m, o.theta_rad]),
+        bearing_events(match.revolutions),
+        match.truth_at,
+        (x + 0.01, y - 0.01, theta + math.radians(1.0)),
+        np.diag([1e-4, 1e-4, math.radians(1.0) ** 2]),
+    )
 
 
 @pytest.fixture(scope="module")
@@ -55,6 +60,8 @@ def test_nearly_every_bearing_is_used(match, result):
 def test_filter_beats_odometry_alone(match, figures):
     o = match.odometry
     placed = [compose(match.initial_pose, pose) for pose in zip(o.x_m, o.y_m, o.theta_rad, strict=True)]
-    errors = [math.hypot(p[0] - match.truth_at(t)[0], p[1] - match.truth_at(t)[1])
-              for p, t in zip(placed, o.stamp_s, strict=True)]
+    errors = [
+        math.hypot(p[0] - match.truth_at(t)[0], p[1] - match.truth_at(t)[1])
+        for p, t in zip(placed, o.stamp_s, strict=True)
+    ]
     assert math.sqrt(np.mean(np.square(errors))) > 5 * figures.rms_position_m

@@ -21,7 +21,8 @@ pytestmark = pytest.mark.dds
 
 # The shared system-test helpers (robot parameters, the probe, errors against the truth).
 _spec = importlib.util.spec_from_file_location(
-    "system_faults_helpers", pathlib.Path(__file__).with_name("test_system_faults.py"))
+    "system_faults_helpers", pathlib.Path(__file__).with_name("test_system_faults.py")
+)
 system = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(system)
 
@@ -49,21 +50,26 @@ def test_two_robots_share_the_beacons_without_cross_talk(start_node, rclpy_node)
         probes[namespace].attach(rclpy_node)
         parameters = system.robot_parameters(seed, sim_world={"start_pose": start_pose})
         system.start_robot(start_node, parameters, namespace)
-    assert rclpy_node.spin_until(lambda: all(len(p.ekf) > 20 for p in probes.values()),
-                                 system.START_TIMEOUT_S), "a robot has no EKF estimate"
+    assert rclpy_node.spin_until(
+        lambda: all(len(p.ekf) > 20 for p in probes.values()), system.START_TIMEOUT_S
+    ), "a robot has no EKF estimate"
     started = {namespace: probe.ekf[0][0] for namespace, probe in probes.items()}
     assert rclpy_node.spin_until(
         lambda: all(p.latest_truth_stamp() > started[n] + system.SETTLE_S + RUN_S for n, p in probes.items()),
-        3 * RUN_S)
+        3 * RUN_S,
+    )
 
     for namespace, probe in probes.items():
         position, heading = probe.ekf_errors(started[namespace] + system.SETTLE_S)
         total_position, total_heading = probe.total_errors()
-        print(f"{namespace}: EKF RMS {system.rms(position):.4f} m {np.degrees(system.rms(heading)):.3f} deg, "
-              f"ToTal RMS {system.rms(total_position):.4f} m {np.degrees(system.rms(total_heading)):.3f} deg")
+        print(
+            f"{namespace}: EKF RMS {system.rms(position):.4f} m {np.degrees(system.rms(heading)):.3f} deg, "
+            f"ToTal RMS {system.rms(total_position):.4f} m {np.degrees(system.rms(total_heading)):.3f} deg"
+        )
         assert len(position) > 10 * RUN_S, f"{namespace}: {len(position)} EKF poses in {RUN_S} s"
-        assert system.rms(position) < system.EKF_RMS_BOUND_M, \
+        assert system.rms(position) < system.EKF_RMS_BOUND_M, (
             f"{namespace}: EKF RMS {system.rms(position):.4f} m"
+        )
         assert system.rms(heading) < system.EKF_HEADING_RMS_BOUND_RAD
         assert len(total_position) > 2 * RUN_S, f"{namespace}: {len(total_position)} accepted ToTal poses"
         assert system.rms(total_position) < system.TOTAL_RMS_BOUND_M
@@ -92,35 +98,55 @@ def test_a_robot_hides_the_beacon_behind_it_from_the_other(start_node, rclpy_nod
         probe.attach(rclpy_node)
     standing = {"trajectory": "static", "static_pose": list(STANDING_POSE), "start_pose": list(STANDING_POSE)}
     parameters = system.robot_parameters(
-        11, sim_world=standing,
-        driver={"sim_other_robots": ["/robot_b/beams/sim/ground_truth"],
-                "sim_other_robot_radius_m": BODY_RADIUS_M})
+        11,
+        sim_world=standing,
+        driver={
+            "sim_other_robots": ["/robot_b/beams/sim/ground_truth"],
+            "sim_other_robot_radius_m": BODY_RADIUS_M,
+        },
+    )
     system.start_robot(start_node, parameters, "robot_a")
-    start_node("beams_sim", "sim_world_node", {"trajectory": "waypoints", "waypoints_x": LOOP_X,
-                                                  "waypoints_y": LOOP_Y, "duration_s": system.MATCH_S,
-                                                  "publish_tf": False}, "robot_b")
+    start_node(
+        "beams_sim",
+        "sim_world_node",
+        {
+            "trajectory": "waypoints",
+            "waypoints_x": LOOP_X,
+            "waypoints_y": LOOP_Y,
+            "duration_s": system.MATCH_S,
+            "publish_tf": False,
+        },
+        "robot_b",
+    )
     assert rclpy_node.spin_until(lambda: len(probe_a.ekf) > 20 and probe_b.truth, system.START_TIMEOUT_S)
     started = max(probe_a.ekf[0][0], probe_b.truth[0][0])
-    assert rclpy_node.spin_until(lambda: probe_b.latest_truth_stamp() > started + system.SETTLE_S + RUN_S,
-                                 3 * RUN_S)
+    assert rclpy_node.spin_until(
+        lambda: probe_b.latest_truth_stamp() > started + system.SETTLE_S + RUN_S, 3 * RUN_S
+    )
 
     # When each revolution of A passed over beacon 3, where B stood, and whether A saw the beacon.
     x, y, heading = STANDING_POSE
     bearing = (math.atan2(BEACON_3[1] - y, BEACON_3[0] - x) - heading) % (2 * math.pi)
-    revolutions = [(t, ids) for t, ids in probe_a.revolutions if started + system.SETTLE_S <= t
-                   < probe_b.latest_truth_stamp() - TURRET_PERIOD_S]
+    revolutions = [
+        (t, ids)
+        for t, ids in probe_a.revolutions
+        if started + system.SETTLE_S <= t < probe_b.latest_truth_stamp() - TURRET_PERIOD_S
+    ]
     pass_s = np.array([t for t, _ in revolutions]) + bearing / (2 * math.pi) * TURRET_PERIOD_S
     b_truth = np.array(probe_b.truth)
-    b_xy = np.column_stack([np.interp(pass_s, b_truth[:, 0], b_truth[:, 1]),
-                            np.interp(pass_s, b_truth[:, 0], b_truth[:, 2])])
+    b_xy = np.column_stack(
+        [np.interp(pass_s, b_truth[:, 0], b_truth[:, 1]), np.interp(pass_s, b_truth[:, 0], b_truth[:, 2])]
+    )
     distance = distance_to_segment(b_xy, (x, y), BEACON_3)
     seen = np.array([3 in ids for _, ids in revolutions])
     behind = distance < BODY_RADIUS_M - SHADOW_EDGE_M
     clear = distance > BODY_RADIUS_M + SHADOW_EDGE_M
     hidden_windows = probe_a.counter("driver", "windows_hidden_by_other_robots")
-    print(f"robot B across the line of sight in {behind.sum()} of {len(revolutions)} revolutions: "
-          f"beacon 3 seen in {seen[behind].sum()} of them, and in {seen[clear].sum()} of the {clear.sum()} "
-          f"clear ones; driver: {hidden_windows:.0f} windows hidden")
+    print(
+        f"robot B across the line of sight in {behind.sum()} of {len(revolutions)} revolutions: "
+        f"beacon 3 seen in {seen[behind].sum()} of them, and in {seen[clear].sum()} of the {clear.sum()} "
+        f"clear ones; driver: {hidden_windows:.0f} windows hidden"
+    )
     assert behind.sum() >= 10, "robot B did not cross the line of sight: nothing was tested"
     assert not seen[behind].any(), "robot A saw beacon 3 through robot B"
     assert seen[clear].mean() > 0.95, "robot A lost beacon 3 with robot B out of the way"

@@ -40,8 +40,12 @@ def _run(match, with_odometry):
             accepted.append((math.hypot(estimate.x - x, estimate.y - y), heading_error))
             predicted_std.append(estimate.position_std_m)
     errors = np.array(accepted)
-    return (len(errors) / len(match.revolutions), math.sqrt(np.mean(errors[:, 0] ** 2)),
-            math.sqrt(np.mean(errors[:, 1] ** 2)), math.sqrt(np.mean(np.square(predicted_std))))
+    return (
+        len(errors) / len(match.revolutions),
+        math.sqrt(np.mean(errors[:, 0] ** 2)),
+        math.sqrt(np.mean(errors[:, 1] ** 2)),
+        math.sqrt(np.mean(np.square(predicted_std))),
+    )
 
 
 def test_with_odometry_most_poses_are_accepted_and_accurate(match):

@@ -70,8 +70,9 @@ def test_exact_pose_with_covariance_stamped_with_the_bearings(start_node, rclpy_
     node = start_node("beams_triangulation", "triangulation_node", PARAMS)
     publisher, poses, covariances = _probe(rclpy_node)
     pose = (1.3, 0.7, 2.4)
-    assert rclpy_node.publish_until(publisher, _static_revolution(pose), lambda: bool(covariances), WAIT_S), \
+    assert rclpy_node.publish_until(publisher, _static_revolution(pose), lambda: bool(covariances), WAIT_S), (
         node.log()
+    )
     message = poses[-1]
     assert message.accepted and message.reason == ""
     assert message.header.frame_id == "map"
@@ -158,8 +159,10 @@ def test_odometry_brings_the_bearings_to_one_instant(start_node, rclpy_node):
 
     def errors(message):
         p = message.pose.pose
-        return (math.hypot(p.position.x - x, p.position.y - y),
-                abs(math.remainder(_yaw(p.orientation) - heading, 2 * math.pi)))
+        return (
+            math.hypot(p.position.x - x, p.position.y - y),
+            abs(math.remainder(_yaw(p.orientation) - heading, 2 * math.pi)),
+        )
 
     assert rclpy_node.spin_until(lambda: odometry_publisher.get_subscription_count() > 0, WAIT_S)
     rclpy_node.spin_for(0.5)  # discovery both ways
@@ -178,8 +181,11 @@ def test_odometry_brings_the_bearings_to_one_instant(start_node, rclpy_node):
 
 
 def test_collinear_beacon_map_is_refused_with_exit_status_2(start_node):
-    node = start_node("beams_triangulation", "triangulation_node",
-                      {"beacon_x": [0.0, 1.0, 2.0], "beacon_y": [0.0, 0.0, 0.0]})
+    node = start_node(
+        "beams_triangulation",
+        "triangulation_node",
+        {"beacon_x": [0.0, 1.0, 2.0], "beacon_y": [0.0, 0.0, 0.0]},
+    )
     assert node.wait_exit(WAIT_S) == 2
     assert "all beacons lie on one line" in node.log()
     assert "Traceback" not in node.log()

@@ -116,11 +116,14 @@ def settings_from_parameters(triangulation: Mapping[str, Any], ekf: Mapping[str,
     triangulation = TRIANGULATION_PARAMETERS.validate(triangulation, ignore=ROS_NODE_PARAMETERS)
     ekf = EKF_PARAMETERS.validate(ekf, ignore=ROS_NODE_PARAMETERS)
     tri_geometry, ekf_geometry = geometry_of(triangulation), geometry_of(ekf)
-    return ReplaySettings(triangulation_map=tri_geometry.beacon_map,
-                          triangulation_offset_m=tri_geometry.turret_offset_m,
-                          triangulation=triangulation_settings(triangulation),
-                          ekf_map=ekf_geometry.beacon_map, ekf_offset_m=ekf_geometry.turret_offset_m,
-                          ekf=filter_settings(ekf))
+    return ReplaySettings(
+        triangulation_map=tri_geometry.beacon_map,
+        triangulation_offset_m=tri_geometry.turret_offset_m,
+        triangulation=triangulation_settings(triangulation),
+        ekf_map=ekf_geometry.beacon_map,
+        ekf_offset_m=ekf_geometry.turret_offset_m,
+        ekf=filter_settings(ekf),
+    )
 
 
 # -- message time ---------------------------------------------------------------------------------------
@@ -159,8 +162,11 @@ class Event:
 TIME_JUMP = None
 
 
-def in_stamp_order(events: Iterable[Event], window_ns: int = round(REORDER_WINDOW_S * _NS),
-                   jump_ns: int = round(TIME_JUMP_S * _NS)) -> Iterator[Event | None]:
+def in_stamp_order(
+    events: Iterable[Event],
+    window_ns: int = round(REORDER_WINDOW_S * _NS),
+    jump_ns: int = round(TIME_JUMP_S * _NS),
+) -> Iterator[Event | None]:
     """Events by due instant within a reorder window; TIME_JUMP where the stamps go back by > jump_ns
     in two consecutive messages (a bag loop; one stray message is not: `beams_common.time_jumps`).
 
@@ -190,7 +196,7 @@ def relative_topic(topic: str, namespace: str = "") -> str | None:
     name, prefix = topic.lstrip("/"), namespace.strip("/")
     if not prefix:
         return name
-    return name[len(prefix) + 1:] if name.startswith(prefix + "/") else None
+    return name[len(prefix) + 1 :] if name.startswith(prefix + "/") else None
 
 
 def namespaced_topic(topic: str, namespace: str = "") -> str:
@@ -226,8 +232,17 @@ def read_events(path: pathlib.Path, typestore: Any, counts: Counter, namespace: 
                 counts["messages_undecodable"] += 1
                 continue
             counts[f"messages_{topic}"] += 1
-            yield Event(due, _TOPIC_ORDER[topic], next(sequence), topic, bag_ns, connection.msgtype, raw,
-                        message, tuple(getattr(connection.ext, "offered_qos_profiles", ())))
+            yield Event(
+                due,
+                _TOPIC_ORDER[topic],
+                next(sequence),
+                topic,
+                bag_ns,
+                connection.msgtype,
+                raw,
+                message,
+                tuple(getattr(connection.ext, "offered_qos_profiles", ())),
+            )
 
 
 # -- the pipelines --------------------------------------------------------------------------------------
@@ -248,8 +263,9 @@ def live_estimates(input_bag: pathlib.Path, typestore: Any, namespace: str = "")
         wanted = [c for c in reader.connections if relative_topic(c.topic, namespace) == LIVE_EKF_TOPIC]
         for connection, _, raw in reader.messages(connections=wanted) if wanted else ():
             message = typestore.deserialize_cdr(raw, connection.msgtype)
-            estimates[stamp_ns(message.header.stamp)] = LiveStart(pose2d_of(message.pose.pose),
-                                                                  planar_covariance(message.pose.covariance))
+            estimates[stamp_ns(message.header.stamp)] = LiveStart(
+                pose2d_of(message.pose.pose), planar_covariance(message.pose.covariance)
+            )
     return estimates
 
 
@@ -269,8 +285,9 @@ class ReplayPipelines:
 
     def _new_triangulation(self) -> None:
         s = self.settings
-        self.triangulation = TriangulationPipeline(s.triangulation_map, s.triangulation,
-                                                   s.triangulation_offset_m)
+        self.triangulation = TriangulationPipeline(
+            s.triangulation_map, s.triangulation, s.triangulation_offset_m
+        )
 
     def reset(self) -> None:
         """A time jump: both pipelines start over (the EKF waits for a pose again); `flush` first."""
@@ -309,8 +326,9 @@ class ReplayPipelines:
         the middle of the streams, a case the nodes (started together) never meet.
         """
         first_odometry = self.first_odometry_s
-        if self.expect_odometry and (first_odometry is None
-                                     or stamp_to_seconds(message.header.stamp) < first_odometry):
+        if self.expect_odometry and (
+            first_odometry is None or stamp_to_seconds(message.header.stamp) < first_odometry
+        ):
             self.counts["revolutions_before_odometry"] += 1
             return []
         self.counts["revolutions"] += 1
@@ -328,9 +346,13 @@ class ReplayPipelines:
             if offer and isinstance(result, PoseEstimate) and result.accepted:
                 # ekf_node reads the stamp from the message, rounded to nanoseconds
                 message_stamp_s = stamp_to_seconds(seconds_to_stamp(outcome.stamp_s))
-                self.localiser.offer_pose(message_stamp_s, (result.x, result.y, result.heading),
-                                          result.covariance, self.settings.ekf.default_pose_covariance,
-                                          operator=False)
+                self.localiser.offer_pose(
+                    message_stamp_s,
+                    (result.x, result.y, result.heading),
+                    result.covariance,
+                    self.settings.ekf.default_pose_covariance,
+                    operator=False,
+                )
         return [outcome for _, outcome in completed]
 
     def _count_total(self, result: PoseEstimate | NoPose) -> None:
@@ -370,39 +392,69 @@ class MessageBuilder:
 
     def header(self, stamp: int, frame_id: str) -> Any:
         time_type = self.types["builtin_interfaces/msg/Time"]
-        return self.types["std_msgs/msg/Header"](stamp=time_type(sec=stamp // _NS, nanosec=stamp % _NS),
-                                                 frame_id=frame_id)
+        return self.types["std_msgs/msg/Header"](
+            stamp=time_type(sec=stamp // _NS, nanosec=stamp % _NS), frame_id=frame_id
+        )
 
     def pose_with_covariance(self, pose: Pose2D, covariance_6x6: np.ndarray) -> Any:
         t = self.types
         geometry = t["geometry_msgs/msg/Pose"](
             position=t["geometry_msgs/msg/Point"](x=float(pose[0]), y=float(pose[1]), z=0.0),
-            orientation=t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(0.5 * pose[2]),
-                                                          w=math.cos(0.5 * pose[2])))
-        return t["geometry_msgs/msg/PoseWithCovariance"](pose=geometry,
-                                                         covariance=covariance_6x6.ravel().astype(float))
+            orientation=t["geometry_msgs/msg/Quaternion"](
+                x=0.0, y=0.0, z=math.sin(0.5 * pose[2]), w=math.cos(0.5 * pose[2])
+            ),
+        )
+        return t["geometry_msgs/msg/PoseWithCovariance"](
+            pose=geometry, covariance=covariance_6x6.ravel().astype(float)
+        )
 
-    def odometry(self, stamp: int, frame_id: str, pose: Pose2D, speed_mps: float,
-                 yaw_rate_radps: float) -> Any:
+    def odometry(
+        self, stamp: int, frame_id: str, pose: Pose2D, speed_mps: float, yaw_rate_radps: float
+    ) -> Any:
         """nav_msgs/Odometry (to base_link) with a planar pose and twist, covariances zero."""
         t = self.types
         linear = t["geometry_msgs/msg/Vector3"](x=float(speed_mps), y=0.0, z=0.0)
         angular = t["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=float(yaw_rate_radps))
         twist = t["geometry_msgs/msg/TwistWithCovariance"](
-            twist=t["geometry_msgs/msg/Twist"](linear=linear, angular=angular), covariance=np.zeros(36))
-        return t[ODOMETRY_TYPE](header=self.header(stamp, frame_id), child_frame_id="base_link",
-                                pose=self.pose_with_covariance(pose, np.zeros((6, 6))), twist=twist)
+            twist=t["geometry_msgs/msg/Twist"](linear=linear, angular=angular), covariance=np.zeros(36)
+        )
+        return t[ODOMETRY_TYPE](
+            header=self.header(stamp, frame_id),
+            child_frame_id="base_link",
+            pose=self.pose_with_covariance(pose, np.zeros((6, 6))),
+            twist=twist,
+        )
 
-    def bearing_array(self, start: int, period_s: float, bearings: Iterable[tuple[int, int, float, float]],
-                      revolution: int, frame_id: str = "beams_sensor") -> Any:
+    def bearing_array(
+        self,
+        start: int,
+        period_s: float,
+        bearings: Iterable[tuple[int, int, float, float]],
+        revolution: int,
+        frame_id: str = "beams_sensor",
+    ) -> Any:
         """beams_msgs/BeaconBearingArray from (stamp ns, beacon id, bearing rad, variance rad^2) tuples."""
         bearing_type = self.types["beams_msgs/msg/BeaconBearing"]
-        items = [bearing_type(header=self.header(stamp, frame_id), beacon_id=int(beacon),
-                              bearing=float(angle), variance=float(variance), angular_window=0.0,
-                              rising_angle=0.0, falling_angle=0.0, codes_seen=1)
-                 for stamp, beacon, angle, variance in bearings]
-        return self.types[BEARINGS_TYPE](header=self.header(start, frame_id), revolution=revolution % 2**32,
-                                         period=float(period_s), bearings=items, rejected_windows=0)
+        items = [
+            bearing_type(
+                header=self.header(stamp, frame_id),
+                beacon_id=int(beacon),
+                bearing=float(angle),
+                variance=float(variance),
+                angular_window=0.0,
+                rising_angle=0.0,
+                falling_angle=0.0,
+                codes_seen=1,
+            )
+            for stamp, beacon, angle, variance in bearings
+        ]
+        return self.types[BEARINGS_TYPE](
+            header=self.header(start, frame_id),
+            revolution=revolution % 2**32,
+            period=float(period_s),
+            bearings=items,
+            rejected_windows=0,
+        )
 
     def triangulated_pose(self, estimate: PoseEstimate, stamp: int, frame_id: str) -> Any:
         full = np.asarray(ros_covariance(estimate.covariance))
@@ -410,15 +462,19 @@ class MessageBuilder:
             header=self.header(stamp, frame_id),
             pose=self.pose_with_covariance((estimate.x, estimate.y, estimate.heading), full),
             inverse_abs_d=float(estimate.inverse_abs_d),
-            beacon_ids=np.array(estimate.beacon_ids, dtype=np.uint16), accepted=bool(estimate.accepted),
-            reason=estimate.reason)
+            beacon_ids=np.array(estimate.beacon_ids, dtype=np.uint16),
+            accepted=bool(estimate.accepted),
+            reason=estimate.reason,
+        )
 
     def ekf_odometry(self, estimate: Estimate, stamp: int, odometry: Any, frame_id: str) -> Any:
         full = np.asarray(ros_covariance(estimate.covariance))
-        return self.types[ODOMETRY_TYPE](header=self.header(stamp, frame_id),
-                                         child_frame_id=odometry.child_frame_id or "base_link",
-                                         pose=self.pose_with_covariance(estimate.pose, full),
-                                         twist=odometry.twist)
+        return self.types[ODOMETRY_TYPE](
+            header=self.header(stamp, frame_id),
+            child_frame_id=odometry.child_frame_id or "base_link",
+            pose=self.pose_with_covariance(estimate.pose, full),
+            twist=odometry.twist,
+        )
 
     def stamped(self, header: Any, pose: Any) -> Any:
         return self.types[POSE_COV_TYPE](header=header, pose=pose)
@@ -439,21 +495,49 @@ def simulated_messages(match: Any, typestore: Any, epoch_ns: int = 0) -> list[Ba
     for k, t in enumerate(o.stamp_s):
         stamp = epoch_ns + round(t * 1e9)
         truth = (g.x_m[k], g.y_m[k], g.theta_rad[k])
-        messages.append((stamp, fully_qualified(TRUTH_TOPIC), ODOMETRY_TYPE,
-                         build.odometry(stamp, "map", truth, g.speed_mps[k], g.yaw_rate_radps[k])))
-        messages.append((stamp, fully_qualified(ODOMETRY_TOPIC), ODOMETRY_TYPE,
-                         build.odometry(stamp, "odom", o.pose(k), o.speed_mps[k], o.yaw_rate_radps[k])))
+        messages.append(
+            (
+                stamp,
+                fully_qualified(TRUTH_TOPIC),
+                ODOMETRY_TYPE,
+                build.odometry(stamp, "map", truth, g.speed_mps[k], g.yaw_rate_radps[k]),
+            )
+        )
+        messages.append(
+            (
+                stamp,
+                fully_qualified(ODOMETRY_TOPIC),
+                ODOMETRY_TYPE,
+                build.odometry(stamp, "odom", o.pose(k), o.speed_mps[k], o.yaw_rate_radps[k]),
+            )
+        )
     for r in match.revolutions:
         start = epoch_ns + round(r.start_time_s * 1e9)
-        bearings = [(epoch_ns + round(b.stamp_s * 1e9), b.beacon_id, b.bearing, b.variance)
-                    for b in r.bearings]
-        messages.append((start + round(r.period_s * 1e9), fully_qualified(BEARINGS_TOPIC), BEARINGS_TYPE,
-                         build.bearing_array(start, r.period_s, bearings, r.revolution)))
+        bearings = [
+            (epoch_ns + round(b.stamp_s * 1e9), b.beacon_id, b.bearing, b.variance) for b in r.bearings
+        ]
+        messages.append(
+            (
+                start + round(r.period_s * 1e9),
+                fully_qualified(BEARINGS_TOPIC),
+                BEARINGS_TYPE,
+                build.bearing_array(start, r.period_s, bearings, r.revolution),
+            )
+        )
     return messages
 
 
-def write_bag(path: pathlib.Path, messages: Iterable[BagMessage], typestore: Any, *, storage: str = "mcap",
-              passes: int = 1, pass_period_ns: int = 0, jitter_s: float = 0.0, seed: int = 0) -> pathlib.Path:
+def write_bag(
+    path: pathlib.Path,
+    messages: Iterable[BagMessage],
+    typestore: Any,
+    *,
+    storage: str = "mcap",
+    passes: int = 1,
+    pass_period_ns: int = 0,
+    jitter_s: float = 0.0,
+    seed: int = 0,
+) -> pathlib.Path:
     """A bag of the messages, recorded when published plus a random delivery delay in [0, jitter_s) (so
     that bag order is not stamp order); passes > 1 records them again pass_period_ns later each time
     with the same stamps (a bag played in a loop). Topic names are written as given; each topic
@@ -488,8 +572,13 @@ class _Run:
     segment: int = 0
 
     def write(self, topic: str, msgtype: str, stamp: int, message: Any) -> None:
-        self.recorder.write(namespaced_topic(topic, self.namespace), msgtype, stamp,
-                            self.typestore.serialize_cdr(message, msgtype), [NODES_QOS])
+        self.recorder.write(
+            namespaced_topic(topic, self.namespace),
+            msgtype,
+            stamp,
+            self.typestore.serialize_cdr(message, msgtype),
+            [NODES_QOS],
+        )
         self.result.messages_out += 1
 
     def handle(self, event: Event) -> None:
@@ -530,9 +619,17 @@ class _Run:
             self.write("beams/pose_cov", POSE_COV_TYPE, due, self.build.stamped(message.header, message.pose))
 
 
-def replay_bag(input_bag: pathlib.Path, output_bag: pathlib.Path, settings: ReplaySettings | None = None,
-               *, typestore: Any = None, storage: str = "mcap", map_frame: str = "map",
-               start_like_live: bool = False, namespace: str = "") -> ReplayResult:
+def replay_bag(
+    input_bag: pathlib.Path,
+    output_bag: pathlib.Path,
+    settings: ReplaySettings | None = None,
+    *,
+    typestore: Any = None,
+    storage: str = "mcap",
+    map_frame: str = "map",
+    start_like_live: bool = False,
+    namespace: str = "",
+) -> ReplayResult:
     """Replay a bag through both pipelines and write the outputs (with the inputs) to a new bag.
 
     namespace: the robot whose topics are replayed (a bag of several robots: one replay each); its
@@ -621,20 +718,27 @@ def summary(result: ReplayResult, live: tuple[Track, Track] | None = None) -> st
     truth = tracks["truth"]
     lines = []
     if len(truth):
-        names = (("odometry (from the first EKF pose)", "odometry"), ("ToTal (accepted)", "ToTal"),
-                 ("EKF", "EKF"))
+        names = (
+            ("odometry (from the first EKF pose)", "odometry"),
+            ("ToTal (accepted)", "ToTal"),
+            ("EKF", "EKF"),
+        )
         lines += rms_table(((label, tracks[name]) for label, name in names), truth)
         lines.append("")
     lines.append(", ".join(f"{key} {value}" for key, value in sorted(result.counts.items())))
-    lines.append(f"{result.messages_in} messages in {result.wall_s:.2f} s: {result.messages_per_s:.0f} "
-                 f"messages/s, {result.real_time_factor:.1f} x real time; {result.messages_out} written")
+    lines.append(
+        f"{result.messages_in} messages in {result.wall_s:.2f} s: {result.messages_per_s:.0f} "
+        f"messages/s, {result.real_time_factor:.1f} x real time; {result.messages_out} written"
+    )
     if live is not None:
         for name, replayed, recorded in (("ToTal", result.total, live[0]), ("EKF", result.ekf, live[1])):
             a = agreement(replayed, recorded)
             if a.matched:
-                lines.append(f"replayed {name} vs live at {a.matched} common stamps: max "
-                             f"{1000 * a.max_position_m:.2f} mm, {math.degrees(a.max_heading_rad):.3f} deg "
-                             f"(RMS {1000 * a.rms_position_m:.2f} mm)")
+                lines.append(
+                    f"replayed {name} vs live at {a.matched} common stamps: max "
+                    f"{1000 * a.max_position_m:.2f} mm, {math.degrees(a.max_heading_rad):.3f} deg "
+                    f"(RMS {1000 * a.rms_position_m:.2f} mm)"
+                )
     return "\n".join(lines)
 
 
@@ -644,30 +748,48 @@ def plot(result: ReplayResult, path: pathlib.Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="replay_bag", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        prog="replay_bag", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("input_bag", type=pathlib.Path, help="rosbag2 directory (sqlite3 or MCAP)")
     parser.add_argument("output_bag", type=pathlib.Path, help="new bag directory (must not exist)")
     parser.add_argument("--plot", type=pathlib.Path, help="trajectory plot (PNG)")
-    parser.add_argument("--start-like-live", action="store_true",
-                        help="start the EKF from the live EKF's first estimate recorded in the bag (to "
-                             "compare with the live run) instead of ToTal's first pose")
+    parser.add_argument(
+        "--start-like-live",
+        action="store_true",
+        help="start the EKF from the live EKF's first estimate recorded in the bag (to "
+        "compare with the live run) instead of ToTal's first pose",
+    )
     parser.add_argument("--storage", choices=("mcap", "sqlite3"), default="mcap", help="output storage")
-    parser.add_argument("--namespace", default="",
-                        help="the robot whose topics to replay (e.g. robot1 for /robot1/odom, ...); "
-                             "default: the topics without a namespace")
-    parser.add_argument("--params-file", type=pathlib.Path, default=installed_params_file(),
-                        help="ROS parameter file with triangulation_node and ekf_node sections, validated as "
-                             "the nodes validate it (default: beams_bringup's beams_params.yaml)")
+    parser.add_argument(
+        "--namespace",
+        default="",
+        help="the robot whose topics to replay (e.g. robot1 for /robot1/odom, ...); "
+        "default: the topics without a namespace",
+    )
+    parser.add_argument(
+        "--params-file",
+        type=pathlib.Path,
+        default=installed_params_file(),
+        help="ROS parameter file with triangulation_node and ekf_node sections, validated as "
+        "the nodes validate it (default: beams_bringup's beams_params.yaml)",
+    )
     options = parser.parse_args(argv)
     try:
         settings = settings_from_parameters(
             load_node_parameters(options.params_file, TRIANGULATION_PARAMETERS),
-            load_node_parameters(options.params_file, EKF_PARAMETERS))
+            load_node_parameters(options.params_file, EKF_PARAMETERS),
+        )
         typestore = beams_typestore()
-        result = replay_bag(options.input_bag, options.output_bag, settings, typestore=typestore,
-                            storage=options.storage, start_like_live=options.start_like_live,
-                            namespace=options.namespace)
+        result = replay_bag(
+            options.input_bag,
+            options.output_bag,
+            settings,
+            typestore=typestore,
+            storage=options.storage,
+            start_like_live=options.start_like_live,
+            namespace=options.namespace,
+        )
         live = live_tracks(options.input_bag, typestore, options.namespace)
     except (OSError, ValueError, ReaderError, WriterError) as error:
         print(f"replay_bag: {error}", file=sys.stderr)

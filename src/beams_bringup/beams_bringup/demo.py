@@ -246,8 +246,9 @@ def main() -> int:
 
     table = summary_table(record)
     (output / "summary.md").write_text(table + "\n")
-    plot_trajectories(record.in_map("truth"), output / "trajectory.png",
-                      "BeAMS demo: simulated Eurobot match")
+    plot_trajectories(
+        record.in_map("truth"), output / "trajectory.png", "BeAMS demo: simulated Eurobot match"
+    )
     print()
     print(table)
     print(f"\nbag: {output / 'bag'} ({recorder.messages_written} messages, MCAP)")

@@ -14,8 +14,9 @@ from beams_ekf.synthetic import BearingEvent
 from beams_triangulation.gating import estimate_revolution
 
 
-def bearing_events(revolutions: Iterable, variance_rad2: Callable[[int, float], float] | None = None
-                   ) -> list[BearingEvent]:
+def bearing_events(
+    revolutions: Iterable, variance_rad2: Callable[[int, float], float] | None = None
+) -> list[BearingEvent]:
     """The bearings of decoded revolutions (beams_driver.decoder.DecodedRevolution), arriving when their
     revolution ends; `variance_rad2(beacon_id, angular_window_rad)` replaces the published variance."""
     events = []
@@ -27,10 +28,16 @@ def bearing_events(revolutions: Iterable, variance_rad2: Callable[[int, float], 
     return events
 
 
-def total_fix_events(revolutions: Sequence, beacon_map: BeaconMap, turret_offset_m: tuple[float, float],
-                     odometry_times_s: np.ndarray, odometry_poses: np.ndarray) -> list[PoseEvent]:
+def total_fix_events(
+    revolutions: Sequence,
+    beacon_map: BeaconMap,
+    turret_offset_m: tuple[float, float],
+    odometry_times_s: np.ndarray,
+    odometry_poses: np.ndarray,
+) -> list[PoseEvent]:
     """ToTal's accepted fixes of decoded revolutions as triangulation_node gives them (motion-compensated
     with the odometry, gated), each arriving when its revolution ends."""
+
     def odometry_at(t: float) -> Pose2D | None:
         k = int(np.searchsorted(odometry_times_s, t, side="right"))
         if not 0 < k < len(odometry_times_s):
@@ -40,12 +47,19 @@ def total_fix_events(revolutions: Sequence, beacon_map: BeaconMap, turret_offset
 
     events = []
     for revolution in revolutions:
-        outcome = estimate_revolution(revolution.bearings, beacon_map, turret_offset_m=turret_offset_m,
-                                      odometry_at=odometry_at)
+        outcome = estimate_revolution(
+            revolution.bearings, beacon_map, turret_offset_m=turret_offset_m, odometry_at=odometry_at
+        )
         result = outcome.result
         if getattr(result, "accepted", False):
-            events.append(PoseEvent(revolution.start_time_s + revolution.period_s, outcome.stamp_s,
-                                    (result.x, result.y, result.heading), result.covariance))
+            events.append(
+                PoseEvent(
+                    revolution.start_time_s + revolution.period_s,
+                    outcome.stamp_s,
+                    (result.x, result.y, result.heading),
+                    result.covariance,
+                )
+            )
     return events
 
 
@@ -57,12 +71,30 @@ def match_odometry(match) -> np.ndarray:
 
 def match_fixes(match) -> list[PoseEvent]:
     """ToTal's accepted fixes of a SimulatedMatch (`total_fix_events`)."""
-    return total_fix_events(match.revolutions, match.beacon_map, match.turret_offset_m,
-                            match.odometry.stamp_s, match_odometry(match))
+    return total_fix_events(
+        match.revolutions,
+        match.beacon_map,
+        match.turret_offset_m,
+        match.odometry.stamp_s,
+        match_odometry(match),
+    )
 
 
-def replay_match(localiser: Localiser, match, initial_pose: Pose2D, initial_covariance: np.ndarray,
-                 fixes: Iterable[PoseEvent] = ()) -> ReplayResult:
+def replay_match(
+    localiser: Localiser,
+    match,
+    initial_pose: Pose2D,
+    initial_covariance: np.ndarray,
+    fixes: Iterable[PoseEvent] = (),
+) -> ReplayResult:
     """`replay` of a SimulatedMatch: its odometry, its published bearings, ToTal's `fixes`."""
-    return replay(localiser, match.odometry.stamp_s, match_odometry(match), bearing_events(match.revolutions),
-                  match.truth_at, initial_pose, initial_covariance, fixes)
+    return replay(
+        localiser,
+        match.odometry.stamp_s,
+        match_odometry(match),
+        bearing_events(match.revolutions),
+        match.truth_at,
+        initial_pose,
+        initial_covariance,
+        fixes,
+    )

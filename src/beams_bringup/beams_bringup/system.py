@@ -39,6 +39,7 @@ def installed_params_file() -> pathlib.Path | None:
         pass
     install_base = os.environ.get("BEAMS_INSTALL_BASE")
     if install_base:
-        candidates.append(pathlib.Path(install_base) / "beams_bringup" / "share" / "beams_bringup" / "config"
-                          / PARAMS_FILE)
+        candidates.append(
+            pathlib.Path(install_base) / "beams_bringup" / "share" / "beams_bringup" / "config" / PARAMS_FILE
+        )
     return next((path for path in candidates if path.exists()), None)

@@ -54,8 +54,12 @@ class RunTracks:
         """Every track in the map frame by name (truth, odometry, ToTal, EKF), the odometry placed at the
         first pose of the track named odometry_anchor ("truth" or "ekf", see `odometry_in_map`)."""
         anchor = getattr(self, odometry_anchor).array()
-        return {"truth": self.truth.array(), "odometry": odometry_in_map(self.odometry.array(), anchor),
-                "ToTal": self.total.array(), "EKF": self.ekf.array()}
+        return {
+            "truth": self.truth.array(),
+            "odometry": odometry_in_map(self.odometry.array(), anchor),
+            "ToTal": self.total.array(),
+            "EKF": self.ekf.array(),
+        }
 
 
 def errors_against_truth(track: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -105,8 +109,9 @@ def rms_table(tracks: Iterable[tuple[str, np.ndarray]], truth: np.ndarray) -> li
     lines = ["| source | poses | RMS position (mm) | RMS heading (deg) |", "|---|---|---|---|"]
     for name, track in tracks:
         position, heading = errors_against_truth(track, truth)
-        lines.append(f"| {name} | {len(position)} | {1000 * rms(position):.1f} | "
-                     f"{math.degrees(rms(heading)):.3f} |")
+        lines.append(
+            f"| {name} | {len(position)} | {1000 * rms(position):.1f} | {math.degrees(rms(heading)):.3f} |"
+        )
     return lines
 
 

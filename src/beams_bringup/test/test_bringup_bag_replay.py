@@ -71,8 +71,9 @@ def test_replay_meets_the_ekf_and_total_targets(replayed):
     truth = result.truth.array()
     ekf_position, ekf_heading = errors_against_truth(result.ekf.array(), truth)
     total_position, _ = errors_against_truth(result.total.array(), truth)
-    odometry_position, _ = errors_against_truth(odometry_in_map(result.odometry.array(), result.ekf.array()),
-                                                truth)
+    odometry_position, _ = errors_against_truth(
+        odometry_in_map(result.odometry.array(), result.ekf.array()), truth
+    )
     assert len(ekf_position) >= 0.95 * len(truth)
     assert rms(ekf_position) <= 0.01
     assert math.degrees(rms(ekf_heading)) <= 0.3
@@ -191,12 +192,15 @@ def test_settings_come_from_the_nodes_parameter_files():
     params_file = pathlib.Path(__file__).resolve().parents[1] / "config" / "beams_params.yaml"
     triangulation = load_node_parameters(params_file, TRIANGULATION_PARAMETERS)
     ekf = load_node_parameters(params_file, EKF_PARAMETERS)
-    settings = settings_from_parameters({**triangulation, "max_position_std_m": 0.07},
-                                        {**ekf, "history_span_s": 1.5, "turret_offset_m": [0.02, -0.01]})
+    settings = settings_from_parameters(
+        {**triangulation, "max_position_std_m": 0.07},
+        {**ekf, "history_span_s": 1.5, "turret_offset_m": [0.02, -0.01]},
+    )
     assert settings.triangulation.gates.max_inverse_abs_d == triangulation["max_inverse_abs_d"]
     assert settings.triangulation.gates.max_position_std_m == 0.07
-    assert (settings.triangulation.max_odometry_extrapolation_s
-            == triangulation["max_odometry_extrapolation_s"])
+    assert (
+        settings.triangulation.max_odometry_extrapolation_s == triangulation["max_odometry_extrapolation_s"]
+    )
     assert settings.ekf.localiser.history_span_s == 1.5
     assert settings.ekf.localiser.kidnap_gated_bearings == ekf["kidnap_gated_bearings"]
     assert settings.ekf.process_noise.translation_m2_per_m == ekf["translation_variance_m2_per_m"]
@@ -205,12 +209,15 @@ def test_settings_come_from_the_nodes_parameter_files():
     assert settings.ekf_map.ids == tuple(ekf["beacon_ids"])
 
 
-@pytest.mark.parametrize(("override", "reason"), [
-    ({"max_inverse_abs_d": -1.0}, "max_inverse_abs_d = -1.0 is below its minimum"),
-    ({"beacon_ids": [1, 2]}, "beacon_ids needs 3 to 64 values, got 2"),
-    ({"turret_offset_m": [float("nan"), 0.0]}, "turret_offset_m must be finite"),
-    ({"max_position_std": 0.1}, "triangulation_node has no parameter max_position_std"),
-])
+@pytest.mark.parametrize(
+    ("override", "reason"),
+    [
+        ({"max_inverse_abs_d": -1.0}, "max_inverse_abs_d = -1.0 is below its minimum"),
+        ({"beacon_ids": [1, 2]}, "beacon_ids needs 3 to 64 values, got 2"),
+        ({"turret_offset_m": [float("nan"), 0.0]}, "turret_offset_m must be finite"),
+        ({"max_position_std": 0.1}, "triangulation_node has no parameter max_position_std"),
+    ],
+)
 def test_replay_refuses_a_parameter_file_the_node_refuses(tmp_path, override, reason):
     """A parameter file with a value out of range, a short list, a NaN or a misspelt name is refused by
     the replay with the reason the node gives at start-up (test/test_parameters.py runs the node)."""

@@ -51,9 +51,7 @@ def _parser() -> argparse.ArgumentParser:
         "--table-7-5", action="store_true", help="also fit each method alone and in pairs, as table 7.5 does"
     )
     parser.add_argument("--dry-run", action="store_true", help="do not write the calibration file")
-    parser.add_argument(
-        "--force", action="store_true", help="write a calibration that makes the RMS worse"
-    )
+    parser.add_argument("--force", action="store_true", help="write a calibration that makes the RMS worse")
     parser.add_argument(
         "--simulate-thesis",
         action="store_true",

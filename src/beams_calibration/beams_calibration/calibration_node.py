@@ -89,9 +89,7 @@ class CalibrationNode(Node):
         self._capture: _Capture | None = None
         self._busy = False
         self._steady_clock = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_subscription(
-            BeaconBearingArray, "beams/bearings", self._on_bearings, BEARINGS_QOS
-        )
+        self.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings, BEARINGS_QOS)
         services = ReentrantCallbackGroup()
         self.create_service(CaptureReference, "capture_reference", self._on_capture, callback_group=services)
         self.create_service(Calibrate, "calibrate", self._on_calibrate, callback_group=services)
@@ -162,8 +160,9 @@ class CalibrationNode(Node):
             return self._capture_reply(response, BUSY)
         implausible = capture_pose_problem(*pose, self._dataset_map_or_prior())
         if implausible and not (request.force and all(math.isfinite(v) for v in pose)):
-            return self._capture_reply(response, f"refused: {implausible}" + ("" if request.force else
-                                                                              " (force: true records it)"))
+            return self._capture_reply(
+                response, f"refused: {implausible}" + ("" if request.force else " (force: true records it)")
+            )
         revolutions = int(request.revolutions) or int(self.default_revolutions)
         if revolutions > MAX_REVOLUTIONS:
             return self._capture_reply(response, f"refused: at most {MAX_REVOLUTIONS} revolutions")

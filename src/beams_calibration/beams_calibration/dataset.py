@@ -146,8 +146,9 @@ CAPTURE_POSE_MARGIN_M = 0.2
 MAX_CAPTURE_HEADING_RAD = 2.0 * math.pi
 
 
-def capture_pose_problem(x_m: float, y_m: float, theta_rad: float, beacon_map: BeaconMap,
-                         margin_m: float = CAPTURE_POSE_MARGIN_M) -> str:
+def capture_pose_problem(
+    x_m: float, y_m: float, theta_rad: float, beacon_map: BeaconMap, margin_m: float = CAPTURE_POSE_MARGIN_M
+) -> str:
     """Why a reference pose is implausible (not finite, outside the beacons' bounding box grown by
     margin_m, heading beyond one turn), or ''."""
     if not all(math.isfinite(v) for v in (x_m, y_m, theta_rad)):
@@ -155,9 +156,11 @@ def capture_pose_problem(x_m: float, y_m: float, theta_rad: float, beacon_map: B
     low = beacon_map.xy.min(axis=0) - margin_m
     high = beacon_map.xy.max(axis=0) + margin_m
     if not (low[0] <= x_m <= high[0] and low[1] <= y_m <= high[1]):
-        return (f"the position ({x_m:.4g}, {y_m:.4g}) m is outside the beacons' table: x in "
-                f"[{low[0]:.3f}, {high[0]:.3f}] m, y in [{low[1]:.3f}, {high[1]:.3f}] m (beacons' bounding "
-                f"box with a {margin_m} m margin)")
+        return (
+            f"the position ({x_m:.4g}, {y_m:.4g}) m is outside the beacons' table: x in "
+            f"[{low[0]:.3f}, {high[0]:.3f}] m, y in [{low[1]:.3f}, {high[1]:.3f}] m (beacons' bounding "
+            f"box with a {margin_m} m margin)"
+        )
     if abs(theta_rad) > MAX_CAPTURE_HEADING_RAD:
         return f"the heading {theta_rad:.4g} rad is beyond one turn: give it in (-pi, pi] or [0, 2 pi)"
     return ""
@@ -294,8 +297,12 @@ def dataset_from_dict(document: Any) -> Dataset:
     top = file_schema.header(document, DATASET_FORMAT, DATASET_VERSION)
     beacon_map = BeaconMap.from_lists(*file_schema.beacon_lists(top))
     configurations = file_schema.optional(top, "configurations", file_schema.items, "", [])
-    return Dataset(beacon_map, tuple(_configuration_from_dict(item, f"configurations[{k}]")
-                                     for k, item in enumerate(configurations)))
+    return Dataset(
+        beacon_map,
+        tuple(
+            _configuration_from_dict(item, f"configurations[{k}]") for k, item in enumerate(configurations)
+        ),
+    )
 
 
 def _configuration_from_dict(item: Any, path: str) -> Configuration:

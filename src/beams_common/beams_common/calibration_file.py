@@ -239,8 +239,11 @@ def calibration_from_dict(document: Any) -> SensorCalibration:
     beacon_map = BeaconMap.from_lists(*file_schema.beacon_lists(top))
     power, rotation, offset = (
         file_schema.mapping(file_schema.required(top, key), key, keys)
-        for key, keys in (("power_bias", _POWER_KEYS), ("rotation_bias", _ROTATION_KEYS),
-                          ("turret_offset_m", ("x", "y")))
+        for key, keys in (
+            ("power_bias", _POWER_KEYS),
+            ("rotation_bias", _ROTATION_KEYS),
+            ("turret_offset_m", ("x", "y")),
+        )
     )
     window_range = file_schema.optional(power, "window_range_rad", _window_range, "power_bias", None)
     correction = BearingCorrection(
@@ -248,8 +251,10 @@ def calibration_from_dict(document: Any) -> SensorCalibration:
         tuple(file_schema.number(rotation[key], f"rotation_bias.{key}") for key in _ROTATION_KEYS),
         window_range,
     )
-    turret_offset_m = (file_schema.number(offset["x"], "turret_offset_m.x"),
-                       file_schema.number(offset["y"], "turret_offset_m.y"))
+    turret_offset_m = (
+        file_schema.number(offset["x"], "turret_offset_m.x"),
+        file_schema.number(offset["y"], "turret_offset_m.y"),
+    )
     rms = file_schema.optional(top, "rms", lambda v, p: file_schema.items(v, p), "", [])
     warnings = file_schema.optional(top, "warnings", lambda v, p: file_schema.items(v, p), "", [])
     return SensorCalibration(
@@ -264,8 +269,10 @@ def calibration_from_dict(document: Any) -> SensorCalibration:
 
 
 def _window_range(value: Any, path: str) -> tuple[float, float]:
-    low, high = (file_schema.number(v, f"{path}[{k}]", minimum=0.0)
-                 for k, v in enumerate(file_schema.items(value, path, 2)))
+    low, high = (
+        file_schema.number(v, f"{path}[{k}]", minimum=0.0)
+        for k, v in enumerate(file_schema.items(value, path, 2))
+    )
     if not low <= high:
         raise file_schema.SchemaError(f"{path}: expected [low, high] with low <= high, got [{low}, {high}]")
     return (low, high)
@@ -273,7 +280,8 @@ def _window_range(value: Any, path: str) -> tuple[float, float]:
 
 def _rms_from_dict(item: Any, path: str) -> RmsFigures:
     entry = file_schema.mapping(item, path, ("stage", "position_rms_m", "orientation_rms_rad"))
-    return RmsFigures(file_schema.text(entry["stage"], f"{path}.stage"),
-                      file_schema.number(entry["position_rms_m"], f"{path}.position_rms_m", minimum=0.0),
-                      file_schema.number(entry["orientation_rms_rad"], f"{path}.orientation_rms_rad",
-                                         minimum=0.0))
+    return RmsFigures(
+        file_schema.text(entry["stage"], f"{path}.stage"),
+        file_schema.number(entry["position_rms_m"], f"{path}.position_rms_m", minimum=0.0),
+        file_schema.number(entry["orientation_rms_rad"], f"{path}.orientation_rms_rad", minimum=0.0),
+    )

@@ -7,8 +7,11 @@ from beams_common.pose_buffer import PoseBuffer
 
 
 def _close(a, b, tolerance=1e-9) -> bool:
-    return (abs(a[0] - b[0]) < tolerance and abs(a[1] - b[1]) < tolerance
-            and abs(wrap_to_pi(a[2] - b[2])) < tolerance)
+    return (
+        abs(a[0] - b[0]) < tolerance
+        and abs(a[1] - b[1]) < tolerance
+        and abs(wrap_to_pi(a[2] - b[2])) < tolerance
+    )
 
 
 def _history() -> PoseBuffer:

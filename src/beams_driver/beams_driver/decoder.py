@@ -5,7 +5,10 @@ inside a window every complete burst and gap is classified in bit counts and mat
 codes' cyclic run patterns; the code is identified by counting complete codes. Windows holding several
 codes (compound, section 2.4.5), durations that fit no code, or too few complete codes are rejected with
 a reason. An accepted window gives the bearing (phi_r + phi_f) / 2 (eq. 2.5) wrapped to (-pi, pi], the
-window phi_f - phi_r + p0 phi0 (eq. 5.2), its variance from the variance model, and its own instant.
+window phi_f - phi_r plus its mean shortening (eq. 5.2, p0 phi0 for the ideal receiver; with the minimum
+burst m of the AND hypothesis, sum over gaps of (phi_G + m)^2 / code period: `receiver.ReceiverModel`),
+its variance from the variance model at that window, and its own instant. Section 2.5.2 asks to see
+the code at least twice in the window: `min_codes_seen` complete codes (default 2).
 """
 
 from collections.abc import Sequence
@@ -18,12 +21,14 @@ import numpy as np
 from beams_common.angles import wrap_to_pi
 from beams_driver.codes import BeaconCode
 from beams_driver.edges import RevolutionEdges
+from beams_driver.receiver import IDEAL_RECEIVER, ReceiverModel
 
 TIMEOUT_BITS = 4.0
 DURATION_TOLERANCE_BITS = 0.35
 # The outer edges carry the receiver's AGC noise (section 5.6): judge outer bursts loosely.
 OUTER_BURST_TOLERANCE_BITS = 2.0
-MIN_CODES_SEEN = 1
+# Section 2.5.2: the code seen at least twice in the window.
+MIN_CODES_SEEN = 2
 _TWO_PI = 2.0 * np.pi
 
 
@@ -107,8 +112,10 @@ class BearingDecoder:
         timeout_bits: float = TIMEOUT_BITS,
         duration_tolerance_bits: float = DURATION_TOLERANCE_BITS,
         min_codes_seen: int = MIN_CODES_SEEN,
+        receiver: ReceiverModel = IDEAL_RECEIVER,
     ) -> None:
-        """codes: the valid code list; a window must show min_codes_seen complete codes to be accepted."""
+        """codes: the valid code list; a window must show min_codes_seen complete codes to be accepted;
+        receiver: whose minimum burst (and outer shift) the window correction accounts for."""
         if not codes:
             raise ValueError("decoder: empty code list")
         bit_times = {c.bit_time_s for c in codes}
@@ -116,6 +123,8 @@ class BearingDecoder:
             raise ValueError(f"decoder: all codes must share one bit time, got {sorted(bit_times)}")
         if not 0.0 < duration_tolerance_bits < 0.5:
             raise ValueError("decoder: duration tolerance must be in (0, 0.5) bit")
+        if int(min_codes_seen) < 1:
+            raise ValueError(f"decoder: min_codes_seen must be >= 1, got {min_codes_seen}")
         self.codes = tuple(codes)
         self.bit_time_s = bit_times.pop()
         self.variance_model = variance_model
@@ -123,6 +132,8 @@ class BearingDecoder:
         self.duration_tolerance_bits = float(duration_tolerance_bits)
         self.min_codes_seen = int(min_codes_seen)
         self._patterns = [_pattern(c) for c in self.codes]
+        self.receiver = receiver
+        self._window_shortening_s = {c.code_id: receiver.window_shortening_s(c) for c in self.codes}
         self._open: _OpenWindow | None = None
         # the last revolution decoded: a window at the start of the next one may have begun in it
         self._last_revolution: int | None = None
@@ -154,8 +165,9 @@ class BearingDecoder:
             # reference, or one within the timeout before it): decoded, the bearing would be biased by
             # half the missing part (1.4 deg on a driver's first revolution).
             where = float(wrap_to_pi(0.5 * (windows[0][0][0] + windows[0][0][-1])))
-            result.rejections.append(Rejection("truncated: the window began before the first decoded "
-                                               "revolution", where))
+            result.rejections.append(
+                Rejection("truncated: the window began before the first decoded revolution", where)
+            )
             windows.pop(0)
         if windows and (windows[-1][1][-1] or _TWO_PI - windows[-1][0][-1] <= timeout_rad):
             last_angles, last_rising = windows.pop()
@@ -251,10 +263,11 @@ class BearingDecoder:
     def _bearing(
         self, code: BeaconCode, codes_seen: int, angles: np.ndarray, start_time_s: float, omega: float
     ) -> DecodedBearing:
-        """Eq. 2.5 bearing, eq. 5.2 window, variance from the model, stamped at the mid-window instant."""
+        """Eq. 2.5 bearing, eq. 5.2 window (the receiver's mean shortening added back), variance from the
+        model at that window, stamped at the mid-window instant."""
         rising_angle, falling_angle = float(angles[0]), float(angles[-1])
         middle = 0.5 * (rising_angle + falling_angle)
-        window = falling_angle - rising_angle + code.window_bias_s * omega
+        window = falling_angle - rising_angle + self._window_shortening_s[code.code_id] * omega
         wrapped = wrap_to_pi(np.array([middle, rising_angle, falling_angle]))
         return DecodedBearing(
             beacon_id=code.code_id,

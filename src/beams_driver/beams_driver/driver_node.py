@@ -66,7 +66,15 @@ class DriverNode(Node):
             raise ParameterValidationError(str(error)) from None
         source_parameters = declare_table(self, ParameterTable("driver_node", kind.parameters, kind.together))
         self.codes = codes_of(self.parameters)
-        self.decoder = BearingDecoder(self.codes, variance_model_of(self.parameters, self.codes))
+        # the receiver the edges come through (the simulated one, or the thesis hardware's): the decoder's
+        # window correction and the variance model know its minimum burst
+        self.receiver = kind.receiver(source_parameters, self.codes)
+        self.decoder = BearingDecoder(
+            self.codes,
+            variance_model_of(self.parameters, self.codes, self.receiver),
+            min_codes_seen=self.parameters["min_complete_codes"],
+            receiver=self.receiver.receiver,
+        )
         self.frame_id = self.parameters["frame_id"]
         self.correction = self._correction_of(self.parameters["calibration_file"])
         serve_calibration_reload(self, self._apply_calibration)
@@ -109,7 +117,8 @@ class DriverNode(Node):
         if "calibration_file" in changed:
             path = values["calibration_file"]
             self.correction = load_calibration(path).bearing_correction if path else BearingCorrection()
-        self.decoder.variance_model = variance_model_of(values, self.codes)
+        self.decoder.variance_model = variance_model_of(values, self.codes, self.receiver)
+        self.decoder.min_codes_seen = values["min_complete_codes"]
         self.frame_id = values["frame_id"]
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:

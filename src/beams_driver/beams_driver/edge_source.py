@@ -19,6 +19,7 @@ from beams_common.parameters import ParameterSpec
 from beams_common.pose2d import Pose2D
 from beams_driver.codes import BeaconCode
 from beams_driver.edges import RevolutionEdges
+from beams_driver.sensor_sim import SensorSimConfig
 
 # A pose stream sample: (stamp s, pose (x, y, theta) m/rad, twist (speed m/s, yaw rate rad/s)).
 PoseCallback = Callable[[float, Pose2D, tuple[float, float]], None]
@@ -85,8 +86,9 @@ SourceFactory = Callable[[Mapping[str, Any], Sequence[BeaconCode], SourceHost], 
 class EdgeSourceKind:
     """A kind of source: its name, its parameters, its start-up checks across them, its factory.
 
-    poll_period_s is how often the driver polls it. The factory raises ValueError or OSError with the
-    reason when the source cannot start (a missing device): the driver then exits 2 with that line.
+    poll_period_s is how often the driver polls it; receiver gives the receiver model of its edges. The
+    factory raises ValueError or OSError with the reason when the source cannot start (a missing device):
+    the driver then exits 2 with that line.
     """
 
     name: str
@@ -94,6 +96,11 @@ class EdgeSourceKind:
     create: SourceFactory
     together: tuple[Callable[[Mapping[str, Any]], str | None], ...] = ()
     poll_period_s: float = 0.01
+    # the receiver the edges come through (its minimum burst shapes the window correction and the
+    # variance): the thesis hardware's unless the source says otherwise (a simulation of another one)
+    receiver: Callable[[Mapping[str, Any], Sequence[BeaconCode]], SensorSimConfig] = lambda _values, codes: (
+        SensorSimConfig.thesis_hardware(codes=tuple(codes))
+    )
 
 
 BUILT_IN_SOURCES = {

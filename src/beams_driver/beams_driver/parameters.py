@@ -10,8 +10,8 @@ from typing import Any
 
 from beams_common.geometry_parameters import CALIBRATION_FILE
 from beams_common.parameters import ParameterSpec, ParameterTable
-from beams_common.validation import MIN_BEARING_VARIANCE_RAD2
 from beams_driver.codes import BIT_TIME_S, BeaconCode, code_family, codes_from_strings, validate_codes
+from beams_driver.decoder import MIN_CODES_SEEN
 from beams_driver.sensor_sim import SensorSimConfig
 from beams_driver.variance import VARIANCE_MODES, VarianceModel
 
@@ -38,14 +38,18 @@ def _codes_check(values: Mapping[str, Any]) -> str | None:
     return None
 
 
-def variance_model_of(values: Mapping[str, Any], codes: tuple[BeaconCode, ...]) -> VarianceModel:
-    """The bearing variance model of the parameters (ch. 4 exact, theorem 3.1's bound, or a constant)."""
+def variance_model_of(
+    values: Mapping[str, Any], codes: tuple[BeaconCode, ...], receiver: SensorSimConfig
+) -> VarianceModel:
+    """The bearing variance model of the parameters (ch. 4 exact, theorem 3.1's bound, or a constant),
+    for the receiver the edges come through (its minimum burst, section 5.6)."""
     return VarianceModel(
         codes,
         values["variance_mode"],
         natural_variance_rad2=values["natural_variance_rad2"],
         constant_variance_rad2=values["constant_variance_rad2"],
-        min_burst_fraction=_SIMULATED.min_burst_fraction,
+        min_burst_fraction=receiver.min_burst_fraction,
+        min_burst_gap_exponent=receiver.min_burst_gap_exponent,
     )
 
 
@@ -86,6 +90,15 @@ DRIVER_PARAMETERS = ParameterTable(
             "Variance of every bearing in variance_mode 'constant' (rad^2).",
             minimum=1e-12,
             maximum=1e-2,
+            runtime=True,
+        ),
+        ParameterSpec(
+            "min_complete_codes",
+            MIN_CODES_SEEN,
+            "Complete codes a window must show to give a "
+            "bearing (thesis section 2.5.2: the code seen twice).",
+            minimum=1,
+            maximum=10,
             runtime=True,
         ),
         CALIBRATION_FILE,

@@ -13,6 +13,9 @@ turret revolution:
 - the receiver output is code AND window (section 3.2), OR-ed over beacons (beacons close in angle give
   compound windows, section 2.4.5) and over stray-IR pulses; clipped bursts shorter than about 56% of
   T_0 are not detected, and the window's first rising edge is noisier than its last falling edge (5.6);
+- two noise models: `SensorSimConfig()` (named `ideal` in driver_node: the OOK noise, the AND hypothesis
+  and constant edge noise) and `SensorSimConfig.thesis_hardware()` (sections 5.5-5.7, see `receiver`:
+  window-dependent asymmetric edge noise, AGC effects, table 5.1's window biases, a power bias);
 - injected hardware imperfections (chapter 7): power bias f(window), rotation bias f(angle), turret
   offset from the robot centre, beacons standing where the caller says (the true positions);
 - the robot moves during the revolution: the pose is taken from pose_at(t) at each window's edges.
@@ -27,6 +30,14 @@ from numpy.typing import ArrayLike
 
 from beams_driver.codes import BeaconCode, bursts_in_window, code_family, first_last_edges
 from beams_driver.edges import TIMER_HZ, TURRET_PERIOD_S, RevolutionEdges
+from beams_driver.receiver import (
+    EXPERIMENT_DISTANCES_M,
+    THESIS_MIN_BURST_FRACTION,
+    THESIS_POWER_BIAS_RANGE_DEG,
+    HardwareNoise,
+    ReceiverModel,
+    thesis_power_bias_coefficients,
+)
 
 PoseAt = Callable[[float], tuple[float, float, float]]
 BiasFunction = Callable[[np.ndarray], np.ndarray]
@@ -52,12 +63,14 @@ class SensorSimConfig:
     tick_s: float = 1.0 / TIMER_HZ
     beam_sigma_rad: float = float(np.radians(1.437))
     power_ratio_at_1m: float = 48.0
-    min_burst_fraction: float = 0.56
+    min_burst_fraction: float = THESIS_MIN_BURST_FRACTION
+    min_burst_gap_exponent: float = 1.0
     rising_noise_rad: float = float(np.radians(0.06))
     falling_noise_rad: float = float(np.radians(0.02))
     edge_jitter_s: float = 0.3e-6
     spurious_rate_hz: float = 0.0
     spurious_burst_s: tuple[float, float] = (15e-6, 150e-6)
+    hardware: HardwareNoise | None = None
 
     def __post_init__(self) -> None:
         if not self.period_s > 0.0 or not self.tick_s > 0.0:
@@ -73,6 +86,38 @@ class SensorSimConfig:
         base = cls(min_burst_fraction=0.0, rising_noise_rad=0.0, falling_noise_rad=0.0, edge_jitter_s=0.0)
         return replace(base, **overrides)
 
+    @classmethod
+    def thesis_hardware(cls, **overrides: object) -> "SensorSimConfig":
+        """The receiver the thesis measured (sections 5.5-5.7; driver_node's default `thesis_hardware`).
+
+        The edge noise is the window-dependent jitter of `HardwareNoise` (over the windows of 1-6 m,
+        section 5.3) instead of the constant outer-edge noise; the minimum burst is 56% of T0 for the
+        family codes and falls as sqrt(T_b / G) for longer gaps G, which with the AGC's extra
+        shortening of modulated windows reproduces table 5.1's experiment column; the power bias is a
+        cubic fluctuating over the 0.23 deg range of section 5.7 (`thesis_power_bias_coefficients`).
+        """
+        base = cls(rising_noise_rad=0.0, falling_noise_rad=0.0, min_burst_gap_exponent=-0.5)
+        base = replace(base, **{k: v for k, v in overrides.items() if k != "hardware"})
+        window_range = (
+            float(base.window_rad(EXPERIMENT_DISTANCES_M[0])),
+            float(base.window_rad(EXPERIMENT_DISTANCES_M[1])),
+        )
+        hardware = overrides.get("hardware") or HardwareNoise(
+            window_range_rad=window_range,
+            power_bias_coefficients=thesis_power_bias_coefficients(
+                window_range, math.radians(THESIS_POWER_BIAS_RANGE_DEG)
+            ),
+        )
+        return replace(base, hardware=hardware)
+
+    @property
+    def receiver(self) -> ReceiverModel:
+        """The receiver's systematic behaviour, as the decoder and the variance model must know it."""
+        shortening = (
+            self.hardware.modulation_shortening_rad / self.turret_speed_rad_s if self.hardware else 0.0
+        )
+        return ReceiverModel(self.min_burst_fraction, self.min_burst_gap_exponent, shortening)
+
     @property
     def turret_speed_rad_s(self) -> float:
         """omega (rad/s), eq. 2.1."""
@@ -80,7 +125,14 @@ class SensorSimConfig:
 
     @property
     def natural_variance_rad2(self) -> float:
-        """Bearing variance the edge noise adds: (sigma_r^2 + sigma_f^2) / 4 (eq. 3.13, independent edges)."""
+        """Bearing variance the edge noise adds: (sigma_r^2 + sigma_f^2) / 4 (eq. 3.13, independent edges).
+
+        With the hardware noise, which grows with the window, its mean over the 1-6 m windows (C_k).
+        """
+        if self.hardware is not None:
+            windows = np.linspace(*self.hardware.window_range_rad, 101)
+            rising, falling = self.hardware.edge_std_rad(windows, None)
+            return float(np.mean(rising**2 + falling**2)) / 4.0
         return (self.rising_noise_rad**2 + self.falling_noise_rad**2) / 4.0
 
     def code(self, beacon_id: int) -> BeaconCode:
@@ -212,11 +264,24 @@ class SensorSimulator:
         code = self._codes[k]
         # Code time of instant t0 + r: the beacon's clock runs from its own phase.
         phase = float(np.mod(t0 + self._phase_s[k], code.duration_s))
-        min_burst = self.config.min_burst_fraction * _gap_time(code)
-        starts, ends = bursts_in_window(code, window[0] - t0 + phase, window[1] - t0 + phase, min_burst)
         pass_index = int(np.floor(0.5 * (window[0] + window[1]) / self.config.period_s))
         noise = np.random.Generator(np.random.Philox(key=[self._noise_key + k, pass_index % 2**63]))
+        opens, closes = window
+        if self.config.hardware is not None:
+            opens, closes = self._jitter_window(code, opens, closes, noise)
+        min_burst = self.config.receiver.min_burst_s(code)
+        starts, ends = bursts_in_window(code, opens - t0 + phase, closes - t0 + phase, min_burst)
         return self._add_edge_noise(starts - phase, ends - phase, noise)
+
+    def _jitter_window(
+        self, code: BeaconCode, opens: float, closes: float, rng: np.random.Generator
+    ) -> tuple[float, float]:
+        """The threshold crossings as the AGC makes them jitter (HardwareNoise, fig. 5.3), in s."""
+        omega = self.config.turret_speed_rad_s
+        rising_std, falling_std = self.config.hardware.edge_std_rad((closes - opens) * omega, code)  # type: ignore[union-attr]
+        return opens + rng.normal(0.0, float(rising_std)) / omega, closes + rng.normal(
+            0.0, float(falling_std)
+        ) / omega
 
     def _window_times(
         self, beacon: SimulatedBeacon, pose_at: PoseAt, t0: float, t_guess: float
@@ -263,8 +328,10 @@ class SensorSimulator:
         return (math.atan2(dy, dx) - float(pose[2])) % _TWO_PI, math.hypot(dx, dy)
 
     def _bias(self, window_rad: float, bearing_rad: float) -> float:
-        """Injected chapter-7 biases (rad) added to the bearing this window gives."""
+        """Injected chapter-7 biases (rad) added to the bearing this window gives (and the hardware's)."""
         total = 0.0
+        if self.config.hardware is not None:
+            total += float(self.config.hardware.power_bias_rad(window_rad))
         if self._power_bias is not None:
             total += float(np.asarray(self._power_bias(np.array([window_rad]))).reshape(-1)[0])
         if self._rotation_bias is not None:
@@ -292,6 +359,10 @@ class SensorSimulator:
         # Keep each outer burst at least one tick long so the edge order never changes.
         starts[0] = min(starts[0] + rng.normal(0.0, cfg.rising_noise_rad / omega), ends[0] - cfg.tick_s)
         ends[-1] = max(ends[-1] + rng.normal(0.0, cfg.falling_noise_rad / omega), starts[-1] + cfg.tick_s)
+        if cfg.hardware is not None:
+            half_shift_s = 0.5 * cfg.hardware.modulation_shortening_rad / omega
+            starts[0] = min(starts[0] + half_shift_s, ends[0] - cfg.tick_s)
+            ends[-1] = max(ends[-1] - half_shift_s, starts[-1] + cfg.tick_s)
         return starts, ends
 
     def _spurious_bursts(self) -> tuple[np.ndarray, np.ndarray]:
@@ -324,11 +395,6 @@ class SensorSimulator:
 
 def _is_beacon_sequence(beacons: object) -> bool:
     return isinstance(beacons, Sequence) and all(isinstance(b, SimulatedBeacon) for b in beacons)
-
-
-def _gap_time(code: BeaconCode) -> float:
-    """T_0 (s) of the code (its shortest gap when they differ)."""
-    return min(code.gap_bits) * code.bit_time_s
 
 
 def _wrap(angle: float) -> float:
@@ -371,3 +437,50 @@ def fixed_window_bearing_errors(
     rising, falling, detected = first_last_edges(code, starts, ends, min_burst_s)
     error = 0.5 * ((rising - starts) + (falling - ends))
     return np.where(detected, error, 0.0), detected
+
+
+def window_experiment(
+    config: SensorSimConfig,
+    code: BeaconCode | None,
+    windows_rad: ArrayLike,
+    n_turns: int,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The measurements of section 5.3 on the simulated receiver: one beacon, fixed true windows.
+
+    For each window (rad) and turn: (Phi_r - phi_R, Phi_f - phi_F) in rad, the first rising and last
+    falling edge against the true window's boundaries, arrays (windows, turns); code None is the
+    unmodulated carrier C_k. The beacon runs free (a uniform code phase per turn); edges carry the
+    config's hardware noise (when set, else its constant outer-edge noise, here before the AND), its
+    minimum burst and outer shift, and the capture tick, as `SensorSimulator` applies them to a pass
+    (the inner edges' small jitter is left out). The windows must be long enough for every turn to be
+    detected.
+    """
+    windows = np.asarray(windows_rad, dtype=float).reshape(-1, 1)
+    omega = config.turret_speed_rad_s
+    shape = (windows.size, n_turns)
+    opens, closes = np.zeros(shape), np.broadcast_to(windows, shape).copy()
+    if config.hardware is not None:
+        rising_std, falling_std = config.hardware.edge_std_rad(windows, code)
+        opens = opens + rng.normal(0.0, 1.0, shape) * rising_std
+        closes = closes + rng.normal(0.0, 1.0, shape) * falling_std
+    else:
+        # The constant noise on the outer edges (SensorSimulator adds it after the AND).
+        opens = opens + rng.normal(0.0, config.rising_noise_rad, shape)
+        closes = closes + rng.normal(0.0, config.falling_noise_rad, shape)
+    if code is None:
+        rising, falling = opens, closes
+    else:
+        phase_s = rng.uniform(0.0, code.duration_s, shape)
+        min_burst_s = config.receiver.min_burst_s(code)
+        first, last, detected = first_last_edges(
+            code, phase_s + opens / omega, phase_s + closes / omega, min_burst_s
+        )
+        if not np.all(detected):
+            raise ValueError("window_experiment: a window too short for the code left turns undetected")
+        shift_rad = 0.5 * config.hardware.modulation_shortening_rad if config.hardware is not None else 0.0
+        rising = (first - phase_s) * omega + shift_rad
+        falling = (last - phase_s) * omega - shift_rad
+    tick_rad = config.tick_s * omega
+    captured = np.round(rising / tick_rad) * tick_rad, np.round(falling / tick_rad) * tick_rad
+    return captured[0], captured[1] - windows

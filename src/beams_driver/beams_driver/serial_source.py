@@ -288,9 +288,13 @@ class SerialSource:
     reason), read at every poll; a reconnection breaks the revolutions' continuity."""
 
     def __init__(self, values: Mapping[str, Any], _codes: Sequence[Any], host: SourceHost) -> None:
-        self.serial = SerialEdgeSource(values["device"], values["baud_rate"],
-                                       read_timeout_s=SERIAL_POLL_PERIOD_S / 2, clock=host.now_s,
-                                       log=host.log_warning)
+        self.serial = SerialEdgeSource(
+            values["device"],
+            values["baud_rate"],
+            read_timeout_s=SERIAL_POLL_PERIOD_S / 2,
+            clock=host.now_s,
+            log=host.log_warning,
+        )
         self.serial.open()
         self._log_info = host.log_info
         self._reconnections = 0
@@ -305,8 +309,11 @@ class SerialSource:
     def health(self) -> SourceHealth:
         serial = self.serial
         values: dict[str, Any] = {f"serial_drops_{reason}": count for reason, count in serial.drops.items()}
-        values.update(serial_connected=serial.connected, serial_disconnections=serial.disconnections,
-                      serial_reconnections=serial.reconnections)
+        values.update(
+            serial_connected=serial.connected,
+            serial_disconnections=serial.disconnections,
+            serial_reconnections=serial.reconnections,
+        )
         if not serial.connected:
             why = f" ({serial.last_error})" if serial.last_error else ""
             return SourceHealth("error", f"serial device {serial.device} lost, reconnecting{why}", values)

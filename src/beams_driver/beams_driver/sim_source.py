@@ -5,6 +5,7 @@ the pose streams.
 """
 
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -77,7 +78,24 @@ def _topics_check(value: list[str]) -> str | None:
     return f"sim_other_robots: {bad} are not valid topic names" if bad else None
 
 
+# The simulated sensor's noise models (sensor_sim.SensorSimConfig).
+SIM_NOISE_MODELS = {"thesis_hardware": SensorSimConfig.thesis_hardware, "ideal": SensorSimConfig}
+
+
+def simulated_receiver(values: Mapping[str, Any], codes: Sequence[BeaconCode]) -> SensorSimConfig:
+    """The simulated receiver of sim_noise_model, the one the decoder then expects."""
+    return SIM_NOISE_MODELS[values["sim_noise_model"]](codes=tuple(codes))
+
+
 PARAMETERS = (
+    ParameterSpec(
+        "sim_noise_model",
+        "thesis_hardware",
+        "Simulated sensor noise: thesis_hardware (sections "
+        "5.5-5.7: window-dependent asymmetric edge noise, AGC, table 5.1's window biases, a 0.23 deg "
+        "power bias) or ideal (OOK noise, constant edge noise).",
+        choices=tuple(SIM_NOISE_MODELS),
+    ),
     *beacon_map_specs("sim_beacon_", "Simulated beacon (true position)", runtime=False),
     ParameterSpec(
         "sim_static_pose",
@@ -158,7 +176,7 @@ class SimulatedSource:
         )
         offset = values["sim_turret_offset_m"]
         self.simulator = SensorSimulator(
-            SensorSimConfig(codes=tuple(codes), spurious_rate_hz=values["sim_stray_ir_rate_hz"]),
+            replace(simulated_receiver(values, codes), spurious_rate_hz=values["sim_stray_ir_rate_hz"]),
             beacons_from_map(simulated_map),
             np.random.default_rng(values["sim_sensor_seed"]),
             power_bias_rad=injected.power_bias if injected else None,
@@ -238,4 +256,5 @@ EDGE_SOURCE = EdgeSourceKind(
     SimulatedSource,
     together=(beacon_map_check("sim_beacon_"), _windows_check),
     poll_period_s=TURRET_PERIOD_S,
+    receiver=simulated_receiver,
 )

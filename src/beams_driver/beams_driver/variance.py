@@ -19,6 +19,7 @@ from numpy.typing import ArrayLike
 
 from beams_driver.codes import BeaconCode, first_last_edges, is_family_code
 from beams_driver.edges import TURRET_SPEED_RAD_S
+from beams_driver.receiver import ReceiverModel
 
 VarianceMode = Literal["exact", "bound", "constant"]
 Polynomial = Callable[[np.ndarray], np.ndarray]
@@ -214,7 +215,9 @@ class VarianceModel:
         natural_variance_rad2: float = 0.0,
         constant_variance_rad2: float = MEASURED_VARIANCE_RAD2,
         min_burst_fraction: float = 0.0,
+        min_burst_gap_exponent: float = 1.0,
     ) -> None:
+        """min_burst_fraction, min_burst_gap_exponent: the minimum burst, as receiver.ReceiverModel has it."""
         if mode not in VARIANCE_MODES:
             raise ValueError(f"variance mode {mode!r} is not one of {VARIANCE_MODES}")
         if natural_variance_rad2 < 0.0 or constant_variance_rad2 < 0.0 or min_burst_fraction < 0.0:
@@ -226,6 +229,7 @@ class VarianceModel:
         self.natural_variance_rad2 = float(natural_variance_rad2)
         self.constant_variance_rad2 = float(constant_variance_rad2)
         self.min_burst_fraction = float(min_burst_fraction)
+        self._receiver = ReceiverModel(self.min_burst_fraction, float(min_burst_gap_exponent))
         self._codes = {c.code_id: c for c in codes}
         # The closed form applies to family codes under the ideal AND receiver only.
         self._families = {
@@ -280,7 +284,7 @@ class VarianceModel:
         return float(np.sum(gaps_s**3) / (6.0 * code.duration_s)) * self.turret_speed_rad_s**2
 
     def _min_burst_s(self, code: BeaconCode) -> float:
-        return self.min_burst_fraction * min(code.gap_bits) * code.bit_time_s
+        return self._receiver.min_burst_s(code)
 
     def _family(self, code: BeaconCode) -> tuple[int, int] | None:
         """(i, Nc) when the closed form applies to this code, else None."""

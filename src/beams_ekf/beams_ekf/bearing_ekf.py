@@ -60,20 +60,30 @@ class ProcessNoise:
         per metre driven and 1 / B per radian turned on the spot (each wheel rolls B / 2 per radian);
         no cross-track noise (the odometry integrates arcs: wheels do not slide sideways)."""
         if not (wheel_variance_m2_per_m >= 0.0 and wheel_base_m > 0.0):
-            raise ValueError(f"need a wheel variance >= 0 and a wheel base > 0, got "
-                             f"{wheel_variance_m2_per_m}, {wheel_base_m}")
-        return cls(translation_m2_per_m=0.5 * wheel_variance_m2_per_m,
-                   rotation_rad2_per_rad=wheel_variance_m2_per_m / wheel_base_m,
-                   rotation_rad2_per_m=2.0 * wheel_variance_m2_per_m / wheel_base_m**2,
-                   cross_track_m2_per_m=0.0)
+            raise ValueError(
+                f"need a wheel variance >= 0 and a wheel base > 0, got "
+                f"{wheel_variance_m2_per_m}, {wheel_base_m}"
+            )
+        return cls(
+            translation_m2_per_m=0.5 * wheel_variance_m2_per_m,
+            rotation_rad2_per_rad=wheel_variance_m2_per_m / wheel_base_m,
+            rotation_rad2_per_m=2.0 * wheel_variance_m2_per_m / wheel_base_m**2,
+            cross_track_m2_per_m=0.0,
+        )
 
     def __post_init__(self) -> None:
-        if self.cross_track_m2_per_m is not None and not (isfinite(self.cross_track_m2_per_m)
-                                                          and self.cross_track_m2_per_m >= 0.0):
-            raise ValueError(f"process noise cross_track_m2_per_m must be finite and >= 0, got "
-                             f"{self.cross_track_m2_per_m}")
-        for name in ("translation_m2_per_m", "rotation_rad2_per_rad", "rotation_rad2_per_m",
-                     "floor_variance"):
+        if self.cross_track_m2_per_m is not None and not (
+            isfinite(self.cross_track_m2_per_m) and self.cross_track_m2_per_m >= 0.0
+        ):
+            raise ValueError(
+                f"process noise cross_track_m2_per_m must be finite and >= 0, got {self.cross_track_m2_per_m}"
+            )
+        for name in (
+            "translation_m2_per_m",
+            "rotation_rad2_per_rad",
+            "rotation_rad2_per_m",
+            "floor_variance",
+        ):
             value = getattr(self, name)
             if not (isfinite(value) and value >= 0.0):
                 raise ValueError(f"process noise {name} must be finite and >= 0, got {value}")
@@ -83,10 +93,16 @@ class ProcessNoise:
         distance_m = hypot(increment[0], increment[1])
         rotation_rad = abs(increment[2])
         translation = self.translation_m2_per_m * distance_m + self.floor_variance
-        cross = (translation if self.cross_track_m2_per_m is None
-                 else self.cross_track_m2_per_m * distance_m + self.floor_variance)
-        heading = (self.rotation_rad2_per_rad * rotation_rad + self.rotation_rad2_per_m * distance_m
-                   + self.floor_variance)
+        cross = (
+            translation
+            if self.cross_track_m2_per_m is None
+            else self.cross_track_m2_per_m * distance_m + self.floor_variance
+        )
+        heading = (
+            self.rotation_rad2_per_rad * rotation_rad
+            + self.rotation_rad2_per_m * distance_m
+            + self.floor_variance
+        )
         return translation, cross, heading
 
 
@@ -106,8 +122,9 @@ def turret_pose(robot_pose: Pose2D, sensor_offset_m: tuple[float, float]) -> Pos
     return compose(robot_pose, (sensor_offset_m[0], sensor_offset_m[1], 0.0))
 
 
-def bearing_measurement(pose: Pose2D, beacon_xy: tuple[float, float],
-                        lever: Pose2D) -> tuple[float, np.ndarray]:
+def bearing_measurement(
+    pose: Pose2D, beacon_xy: tuple[float, float], lever: Pose2D
+) -> tuple[float, np.ndarray]:
     """h(x) = atan2(yb - ys, xb - xs) - theta - ptheta for a robot at `pose`, the turret at `lever`
     (px, py, ptheta) in its frame, and dh/d(x, y, theta) (3,). Raises ZeroDivisionError when the
     turret stands on the beacon."""
@@ -155,8 +172,13 @@ class BearingEkf:
         self._ekf = _OdometryEkf(dim_x=self.dim, dim_z=1)
         self._initialised = False
 
-    def configure(self, beacons_xy: Mapping[int, Sequence[float]], sensor_offset_m: tuple[float, float],
-                  process_noise: ProcessNoise, gate_probability: float) -> None:
+    def configure(
+        self,
+        beacons_xy: Mapping[int, Sequence[float]],
+        sensor_offset_m: tuple[float, float],
+        process_noise: ProcessNoise,
+        gate_probability: float,
+    ) -> None:
         """Beacon geometry, process noise and gate; the estimate stays (PoseFilter.configure)."""
         self.beacons_xy = {int(k): (float(v[0]), float(v[1])) for k, v in beacons_xy.items()}
         self.sensor_offset_m = (float(sensor_offset_m[0]), float(sensor_offset_m[1]))
@@ -259,8 +281,9 @@ class BearingEkf:
         lever = lever if lever is not None else (self.sensor_offset_m[0], self.sensor_offset_m[1], 0.0)
         x = self._ekf.x
         try:
-            expected, d_pose = bearing_measurement((float(x[0, 0]), float(x[1, 0]), float(x[2, 0])),
-                                                   self.beacons_xy[beacon_id], lever)
+            expected, d_pose = bearing_measurement(
+                (float(x[0, 0]), float(x[1, 0]), float(x[2, 0])), self.beacons_xy[beacon_id], lever
+            )
         except ZeroDivisionError:
             raise ZeroDivisionError(f"the sensor is on beacon {beacon_id}") from None
         jacobian = np.zeros((1, self.dim))

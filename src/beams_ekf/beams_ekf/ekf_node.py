@@ -90,8 +90,7 @@ class EkfNode(Node):
         self.pose_publisher = self.create_publisher(PoseWithCovarianceStamped, "beams/ekf/pose", 10)
         self.tf_publisher = self.create_publisher(TFMessage, "/tf", TF_QOS) if publish_tf else None
         self.create_subscription(Odometry, "odom", self._on_odometry, qos_profile_sensor_data)
-        self.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings,
-                                 BEARINGS_QOS)
+        self.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings, BEARINGS_QOS)
         self.create_subscription(TriangulatedPose, "beams/pose", self._on_total_pose, 10)
         self.create_subscription(PoseWithCovarianceStamped, "/initialpose", self._on_initial_pose, 10)
         self.create_service(SetPose, "beams/ekf/set_pose", self._on_set_pose)
@@ -99,8 +98,10 @@ class EkfNode(Node):
         serve_calibration_reload(self, self._apply_calibration)
         apply_runtime_changes(self, EKF_PARAMETERS, self.parameters, self._apply_parameters)
         self.create_timer(1.0 / rate_hz, self._publish)
-        self.get_logger().info(f"ekf_node ready: {len(self.localiser.ekf.beacons_xy)} beacons, turret offset "
-                               f"{self.localiser.ekf.sensor_offset_m} m, gate {self.localiser.ekf.gate:.2f}")
+        self.get_logger().info(
+            f"ekf_node ready: {len(self.localiser.ekf.beacons_xy)} beacons, turret offset "
+            f"{self.localiser.ekf.sensor_offset_m} m, gate {self.localiser.ekf.gate:.2f}"
+        )
 
     # -- parameters -----------------------------------------------------------------------------------
     def _apply_parameters(self, values: dict, changed: set[str]) -> None:
@@ -130,13 +131,17 @@ class EkfNode(Node):
         invalid_before = counts["bearings_invalid measurement"] + counts["bearings_unknown beacon"]
         refused = self.localiser.on_revolution(bearings)
         if refused:
-            self.diagnostics.refuse("revolutions_conflicting_beacon", f"revolution {msg.revolution}: "
-                                    + refused)
+            self.diagnostics.refuse(
+                "revolutions_conflicting_beacon", f"revolution {msg.revolution}: " + refused
+            )
         invalid = counts["bearings_invalid measurement"] + counts["bearings_unknown beacon"] - invalid_before
         if invalid:
-            self.diagnostics.refuse("revolutions_with_invalid_bearings", f"revolution {msg.revolution}: "
-                                    f"{invalid} bearing(s) refused (unknown beacon, non-finite value or "
-                                    "non-physical variance)")
+            self.diagnostics.refuse(
+                "revolutions_with_invalid_bearings",
+                f"revolution {msg.revolution}: "
+                f"{invalid} bearing(s) refused (unknown beacon, non-finite value or "
+                "non-physical variance)",
+            )
         self._changed = True
         self._publish()  # at once: the end-to-end latency from a revolution to the estimate stays small
 
@@ -161,8 +166,9 @@ class EkfNode(Node):
             self.diagnostics.refuse("poses_wrong_frame", message)
             return False, bounded(message)
         position, q = msg.pose.pose.position, msg.pose.pose.orientation
-        problem = operator_pose_problem((position.x, position.y, position.z), (q.x, q.y, q.z, q.w),
-                                        msg.pose.covariance)
+        problem = operator_pose_problem(
+            (position.x, position.y, position.z), (q.x, q.y, q.z, q.w), msg.pose.covariance
+        )
         if problem:
             self.diagnostics.refuse("operator_poses_refused", problem)
             return False, f"operator pose refused: {problem}"
@@ -180,9 +186,13 @@ class EkfNode(Node):
         return f"beacons {list(beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
 
     def _offer_pose(self, stamp, pose_with_covariance, *, operator: bool) -> str:
-        return self.localiser.offer_pose(stamp_to_seconds(stamp), pose2d_of(pose_with_covariance.pose),
-                                         planar_covariance(pose_with_covariance.covariance),
-                                         self.settings.default_pose_covariance, operator=operator)
+        return self.localiser.offer_pose(
+            stamp_to_seconds(stamp),
+            pose2d_of(pose_with_covariance.pose),
+            planar_covariance(pose_with_covariance.covariance),
+            self.settings.default_pose_covariance,
+            operator=operator,
+        )
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self.localiser.reset("manual_resets")
@@ -237,8 +247,11 @@ class EkfNode(Node):
         self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
         self.diagnostics.set("recent_gated_bearings", self.localiser.recent_gated_bearings)
         self.diagnostics.set("lost_nis_window_sum", self.localiser.nis_monitor.window_sum)
-        since_s = (estimate.stamp_s - stats.last_bearing_stamp_s if stats.last_bearing_stamp_s is not None
-                   else float("inf"))
+        since_s = (
+            estimate.stamp_s - stats.last_bearing_stamp_s
+            if stats.last_bearing_stamp_s is not None
+            else float("inf")
+        )
         self.diagnostics.set("time_since_last_bearing_s", since_s)
         if since_s > 1.0:
             self.diagnostics.set_level("warn", "no accepted bearing for more than 1 s: odometry only")

@@ -76,13 +76,17 @@ class LocaliserConfig:
 
     def __post_init__(self) -> None:
         if self.lost_nis_window_bearings < 0 or not 0.0 < self.lost_nis_probability < 1.0:
-            raise ValueError(f"need lost_nis_window_bearings >= 0 and lost_nis_probability in (0, 1), got "
-                             f"{self.lost_nis_window_bearings} and {self.lost_nis_probability}")
+            raise ValueError(
+                f"need lost_nis_window_bearings >= 0 and lost_nis_probability in (0, 1), got "
+                f"{self.lost_nis_window_bearings} and {self.lost_nis_probability}"
+            )
         if not (self.history_span_s > 0.0 and self.max_extrapolation_s >= 0.0 and self.odometry_gap_s > 0.0):
             raise ValueError("history_span_s and odometry_gap_s must be > 0, max_extrapolation_s >= 0")
         if not 1 <= self.kidnap_gated_bearings <= self.kidnap_window_bearings:
-            raise ValueError(f"need 1 <= kidnap_gated_bearings <= kidnap_window_bearings, got "
-                             f"{self.kidnap_gated_bearings} and {self.kidnap_window_bearings}")
+            raise ValueError(
+                f"need 1 <= kidnap_gated_bearings <= kidnap_window_bearings, got "
+                f"{self.kidnap_gated_bearings} and {self.kidnap_window_bearings}"
+            )
         if self.time_jump_confirmations < 1:
             raise ValueError(f"time_jump_confirmations must be >= 1, got {self.time_jump_confirmations}")
         if not 0.0 < self.kidnap_probability < 1.0:
@@ -90,14 +94,18 @@ class LocaliserConfig:
 
 
 # ekf_node's parameter name of each ProcessNoise field (those of LocaliserConfig are its field names)
-PROCESS_NOISE_PARAMETERS = {"translation_m2_per_m": "translation_variance_m2_per_m",
-                            "rotation_rad2_per_rad": "rotation_variance_rad2_per_rad",
-                            "rotation_rad2_per_m": "rotation_variance_rad2_per_m",
-                            "cross_track_m2_per_m": "cross_track_variance_m2_per_m"}
+PROCESS_NOISE_PARAMETERS = {
+    "translation_m2_per_m": "translation_variance_m2_per_m",
+    "rotation_rad2_per_rad": "rotation_variance_rad2_per_rad",
+    "rotation_rad2_per_m": "rotation_variance_rad2_per_m",
+    "cross_track_m2_per_m": "cross_track_variance_m2_per_m",
+}
 # ekf_node's parameter name of each OdometryErrorStates prior (odometry_error_states switches them on)
-ODOMETRY_ERROR_PARAMETERS = {"scale_sigma": "odometry_scale_sigma",
-                             "rotation_scale_sigma": "odometry_rotation_scale_sigma",
-                             "heading_drift_sigma_rad_per_m": "odometry_heading_drift_sigma_rad_per_m"}
+ODOMETRY_ERROR_PARAMETERS = {
+    "scale_sigma": "odometry_scale_sigma",
+    "rotation_scale_sigma": "odometry_rotation_scale_sigma",
+    "heading_drift_sigma_rad_per_m": "odometry_heading_drift_sigma_rad_per_m",
+}
 
 # The wheels' random error, variance per metre rolled, of the simulated robot (sim_world's OdometryDrift:
 # noise 1 mm/sqrt(m) is 1.0e-6; the random part of the half-normal slip, 0.005^2 (1 - 2/pi) of a step's
@@ -116,7 +124,8 @@ class FilterSettings:
     """
 
     process_noise: ProcessNoise = field(
-        default_factory=lambda: ProcessNoise.wheel_noise(WHEEL_VARIANCE_M2_PER_M, WHEEL_BASE_M))
+        default_factory=lambda: ProcessNoise.wheel_noise(WHEEL_VARIANCE_M2_PER_M, WHEEL_BASE_M)
+    )
     odometry_errors: OdometryErrorStates | None = field(default_factory=OdometryErrorStates)
     # chi-square (1 dof) probability of the per-bearing gate
     gate_probability: float = 0.999
@@ -135,14 +144,19 @@ class FilterSettings:
 def filter_parameter_defaults() -> dict[str, Any]:
     """ekf_node's filter parameters by name with their defaults (FilterSettings'), for declaring them."""
     defaults = FilterSettings()
-    values: dict[str, Any] = {parameter: getattr(defaults.process_noise, name)
-                              for name, parameter in PROCESS_NOISE_PARAMETERS.items()}
+    values: dict[str, Any] = {
+        parameter: getattr(defaults.process_noise, name)
+        for name, parameter in PROCESS_NOISE_PARAMETERS.items()
+    }
     errors = defaults.odometry_errors or OdometryErrorStates()
     values.update({parameter: getattr(errors, name) for name, parameter in ODOMETRY_ERROR_PARAMETERS.items()})
     values["odometry_error_states"] = defaults.odometry_errors is not None
     values.update({f.name: getattr(defaults.localiser, f.name) for f in fields(LocaliserConfig)})
-    values.update(gate_probability=defaults.gate_probability, use_total_pose=defaults.use_total_pose,
-                  default_pose_sigma=list(defaults.default_pose_sigma))
+    values.update(
+        gate_probability=defaults.gate_probability,
+        use_total_pose=defaults.use_total_pose,
+        default_pose_sigma=list(defaults.default_pose_sigma),
+    )
     return values
 
 
@@ -152,20 +166,35 @@ def filter_settings(parameters: Mapping[str, Any]) -> FilterSettings:
     Raises ValueError for values the settings refuse, alone or together (kidnap counts, sigma length).
     """
     defaults = FilterSettings()
-    noise = ProcessNoise(**{name: float(parameters.get(parameter, getattr(defaults.process_noise, name)))
-                            for name, parameter in PROCESS_NOISE_PARAMETERS.items()})
-    config = LocaliserConfig(**{f.name: parameters[f.name] for f in fields(LocaliserConfig)
-                                if f.name in parameters})
+    noise = ProcessNoise(
+        **{
+            name: float(parameters.get(parameter, getattr(defaults.process_noise, name)))
+            for name, parameter in PROCESS_NOISE_PARAMETERS.items()
+        }
+    )
+    config = LocaliserConfig(
+        **{f.name: parameters[f.name] for f in fields(LocaliserConfig) if f.name in parameters}
+    )
     sigma = tuple(float(v) for v in parameters.get("default_pose_sigma", defaults.default_pose_sigma))
     if len(sigma) != 3:
         raise ValueError(f"default_pose_sigma needs 3 values (x, y, yaw), got {list(sigma)}")
     errors = None
     if parameters.get("odometry_error_states", defaults.odometry_errors is not None):
         prior = defaults.odometry_errors or OdometryErrorStates()
-        errors = OdometryErrorStates(**{name: float(parameters.get(parameter, getattr(prior, name)))
-                                        for name, parameter in ODOMETRY_ERROR_PARAMETERS.items()})
-    return FilterSettings(noise, errors, float(parameters.get("gate_probability", defaults.gate_probability)),
-                          config, bool(parameters.get("use_total_pose", defaults.use_total_pose)), sigma)
+        errors = OdometryErrorStates(
+            **{
+                name: float(parameters.get(parameter, getattr(prior, name)))
+                for name, parameter in ODOMETRY_ERROR_PARAMETERS.items()
+            }
+        )
+    return FilterSettings(
+        noise,
+        errors,
+        float(parameters.get("gate_probability", defaults.gate_probability)),
+        config,
+        bool(parameters.get("use_total_pose", defaults.use_total_pose)),
+        sigma,
+    )
 
 
 def usable_covariance(covariance: np.ndarray, default: np.ndarray) -> np.ndarray:
@@ -198,8 +227,10 @@ class Bearing:
 def message_bearings(message: Any, seconds: Callable[[Any], float]) -> list[Bearing]:
     """The bearings of a beams_msgs/BeaconBearingArray (an rclpy or a rosbags message), seconds(stamp)
     converting their stamps."""
-    return [Bearing(seconds(b.header.stamp), int(b.beacon_id), float(b.bearing), float(b.variance))
-            for b in message.bearings]
+    return [
+        Bearing(seconds(b.header.stamp), int(b.beacon_id), float(b.bearing), float(b.variance))
+        for b in message.bearings
+    ]
 
 
 @dataclass
@@ -223,8 +254,9 @@ class NisMonitor:
         self._nis: deque[float] = deque(maxlen=max(window_bearings, 1))
         self.enabled = window_bearings > 0
         self._gate = gate
-        self._thresholds = [float("inf")] + [float(chi2.ppf(probability, df=n))
-                                             for n in range(1, max(window_bearings, 1) + 1)]
+        self._thresholds = [float("inf")] + [
+            float(chi2.ppf(probability, df=n)) for n in range(1, max(window_bearings, 1) + 1)
+        ]
 
     def add(self, nis: float) -> bool:
         """Record one new bearing's NIS (gated ones too); True when that makes the filter lost."""
@@ -288,11 +320,13 @@ class Localiser:
         self.stats = LocaliserCounters()
         # gated (True) or accepted (False), for the last new bearings: the kidnap evidence
         self._recent_gated: deque[bool] = deque(maxlen=self.config.kidnap_window_bearings)
-        self._time_jumps = TimeJumpDetector(self.config.time_jump_tolerance_s,
-                                            self.config.time_jump_confirmations)
+        self._time_jumps = TimeJumpDetector(
+            self.config.time_jump_tolerance_s, self.config.time_jump_confirmations
+        )
         self._kidnap_threshold = float(chi2.ppf(self.config.kidnap_probability, df=3))
-        self.nis_monitor = NisMonitor(self.config.lost_nis_window_bearings, self.config.lost_nis_probability,
-                                      ekf.gate)
+        self.nis_monitor = NisMonitor(
+            self.config.lost_nis_window_bearings, self.config.lost_nis_probability, ekf.gate
+        )
         self._stamp_s: float | None = None
         # bearings stamped after the newest odometry, waiting for the odometry that covers them
         self._pending: list[Bearing] = []
@@ -302,8 +336,12 @@ class Localiser:
         """True once a pose initialised the filter (and no reset since)."""
         return self.ekf.initialised
 
-    def configure(self, beacons_xy: Mapping[int, Sequence[float]], sensor_offset_m: tuple[float, float],
-                  settings: "FilterSettings") -> None:
+    def configure(
+        self,
+        beacons_xy: Mapping[int, Sequence[float]],
+        sensor_offset_m: tuple[float, float],
+        settings: "FilterSettings",
+    ) -> None:
         """New beacon geometry, process noise and bearing gate (a runtime parameter change, a calibration
         reload); the estimate and the odometry history stay."""
         self.ekf.configure(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability)
@@ -361,8 +399,10 @@ class Localiser:
         step_s = to_s - from_s
         if step_s > self.config.odometry_gap_s:
             duration_s = min(step_s, self.config.max_gap_inflation_s)
-            self.ekf.add_time_noise(self.config.gap_position_variance_m2_per_s * duration_s,
-                                    self.config.gap_heading_variance_rad2_per_s * duration_s)
+            self.ekf.add_time_noise(
+                self.config.gap_position_variance_m2_per_s * duration_s,
+                self.config.gap_heading_variance_rad2_per_s * duration_s,
+            )
 
     def _motion_since(self, stamp_s: float) -> Pose2D | None:
         """Odometry motion from stamp_s to the filter's instant (robot frame at stamp_s); None if unknown
@@ -396,8 +436,9 @@ class Localiser:
         self.stats.counts["bearings_conflicting_beacon"] += sum(b.beacon_id in conflicting for b in bearings)
         return f"beacon(s) {sorted(conflicting)} seen twice at one instant (not physical): bearings refused"
 
-    def on_bearing(self, stamp_s: float, beacon_id: int, bearing_rad: float,
-                   variance_rad2: float) -> BearingOutcome:
+    def on_bearing(
+        self, stamp_s: float, beacon_id: int, bearing_rad: float, variance_rad2: float
+    ) -> BearingOutcome:
         """Apply one bearing (sensor frame) at its own stamp."""
         return self.on_bearings([Bearing(stamp_s, beacon_id, bearing_rad, variance_rad2)])[0]
 
@@ -442,8 +483,13 @@ class Localiser:
     def _invalid_reason(self, bearing: Bearing) -> str:
         """Why the filter can never use a bearing (`validation.bearing_problem`, the triangulation's rule
         too), as a counter name, or an empty string."""
-        problem = bearing_problem(bearing.beacon_id, bearing.bearing_rad, bearing.variance_rad2,
-                                  bearing.stamp_s, self.ekf.beacons_xy)
+        problem = bearing_problem(
+            bearing.beacon_id,
+            bearing.bearing_rad,
+            bearing.variance_rad2,
+            bearing.stamp_s,
+            self.ekf.beacons_xy,
+        )
         if not problem:
             return ""
         return "unknown beacon" if bearing.beacon_id not in self.ekf.beacons_xy else "invalid measurement"
@@ -477,8 +523,9 @@ class Localiser:
                 return index + 1
         return 0
 
-    def _replay(self, scheduled: dict[int, list[tuple[Bearing, int]]],
-                outcomes: dict[int, BearingOutcome]) -> None:
+    def _replay(
+        self, scheduled: dict[int, list[tuple[Bearing, int]]], outcomes: dict[int, BearingOutcome]
+    ) -> None:
         """Go back to the earliest scheduled sample and filter forward through the history."""
         first = min(scheduled)
         for index in range(first, 0):
@@ -558,8 +605,15 @@ class Localiser:
             return self._initialise(stamp_s, pose_now, covariance, "lost_reinitialisations")
         return "ignored"
 
-    def offer_pose(self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, default_covariance: np.ndarray,
-                   *, operator: bool) -> str:
+    def offer_pose(
+        self,
+        stamp_s: float,
+        pose: Pose2D,
+        covariance: np.ndarray,
+        default_covariance: np.ndarray,
+        *,
+        operator: bool,
+    ) -> str:
         """`on_pose` for a pose from a message: an unusable covariance replaced by the default
         (`usable_covariance`), an operator's stamp by "now" (`operator_pose_stamp_s`)."""
         if operator:
@@ -579,9 +633,11 @@ class Localiser:
             distance2 = float(difference @ np.linalg.solve(combined, difference))
         except np.linalg.LinAlgError:
             distance2 = float("inf")
-        return (not distance2 <= self._kidnap_threshold
-                or hypot(difference[0], difference[1]) > self.config.kidnap_distance_m
-                or abs(difference[2]) > self.config.kidnap_heading_rad)
+        return (
+            not distance2 <= self._kidnap_threshold
+            or hypot(difference[0], difference[1]) > self.config.kidnap_distance_m
+            or abs(difference[2]) > self.config.kidnap_heading_rad
+        )
 
     def _initialise(self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, counter: str) -> str:
         try:
@@ -620,9 +676,15 @@ class Localiser:
         return (dx / step_s, dy / step_s, dtheta / step_s)
 
 
-def build_localiser(beacons_xy: Mapping[int, Sequence[float]], sensor_offset_m: tuple[float, float],
-                    settings: FilterSettings) -> Localiser:
+def build_localiser(
+    beacons_xy: Mapping[int, Sequence[float]], sensor_offset_m: tuple[float, float], settings: FilterSettings
+) -> Localiser:
     """The Localiser of a beacon map ({id: (x, y)}), a turret offset (m) and the filter settings."""
-    ekf = BearingEkf(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability,
-                     settings.odometry_errors)
+    ekf = BearingEkf(
+        beacons_xy,
+        sensor_offset_m,
+        settings.process_noise,
+        settings.gate_probability,
+        settings.odometry_errors,
+    )
     return Localiser(ekf, settings.localiser)

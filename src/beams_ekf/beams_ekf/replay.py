@@ -88,8 +88,13 @@ def replay(
             estimates.append(estimate.pose)
             covariances.append(estimate.covariance)
             truths.append(truth_at(estimate.stamp_s))
-    return ReplayResult(np.array(times), np.array(estimates), np.array(covariances), np.array(truths),
-                        dict(localiser.stats.counts))
+    return ReplayResult(
+        np.array(times),
+        np.array(estimates),
+        np.array(covariances),
+        np.array(truths),
+        dict(localiser.stats.counts),
+    )
 
 
 def accuracy(result: ReplayResult, settle_s: float = 1.0) -> Accuracy:

@@ -51,8 +51,14 @@ def lissajous_pose(t_s: float) -> Pose2D:
     return (x, y, atan2(vy, vx))
 
 
-def _drifting_odometry(truth: np.ndarray, rng: np.random.Generator, scale_error: float,
-                       rotation_error: float, noise_m: float, noise_rad: float) -> np.ndarray:
+def _drifting_odometry(
+    truth: np.ndarray,
+    rng: np.random.Generator,
+    scale_error: float,
+    rotation_error: float,
+    noise_m: float,
+    noise_rad: float,
+) -> np.ndarray:
     """Integrate true increments corrupted by a scale error, a rotation (wheel-base) error and a noise
     whose variance grows with the distance (noise_m and noise_rad are standard deviations per sqrt(m))."""
     odometry = np.zeros_like(truth)
@@ -60,9 +66,11 @@ def _drifting_odometry(truth: np.ndarray, rng: np.random.Generator, scale_error:
     for k in range(1, len(truth)):
         dx, dy, dtheta = between(tuple(truth[k - 1]), tuple(truth[k]))
         root_distance = hypot(dx, dy) ** 0.5
-        step = ((1.0 + scale_error) * dx + noise_m * root_distance * rng.standard_normal(),
-                (1.0 + scale_error) * dy + noise_m * root_distance * rng.standard_normal(),
-                (1.0 + rotation_error) * dtheta + noise_rad * root_distance * rng.standard_normal())
+        step = (
+            (1.0 + scale_error) * dx + noise_m * root_distance * rng.standard_normal(),
+            (1.0 + scale_error) * dy + noise_m * root_distance * rng.standard_normal(),
+            (1.0 + rotation_error) * dtheta + noise_rad * root_distance * rng.standard_normal(),
+        )
         pose = compose(pose, step)
         odometry[k] = pose
     return odometry
@@ -82,27 +90,46 @@ def _pointing_time(revolution_start_s: float, period_s: float, bearing_at) -> fl
     return t
 
 
-def synthetic_match(duration_s: float = 30.0, seed: int = 1, *, bearing_sigma_rad: float = 3.0e-4,
-                    sensor_offset_m: tuple[float, float] = (0.0, 0.0), odometry_rate_hz: float = 50.0,
-                    revolution_period_s: float = 0.1, scale_error: float = 0.02, rotation_error: float = 0.01,
-                    odometry_noise_m: float = 3.0e-3, odometry_noise_rad: float = 5.0e-3,
-                    beacons_xy: dict[int, tuple[float, float]] | None = None) -> SyntheticMatch:
+def synthetic_match(
+    duration_s: float = 30.0,
+    seed: int = 1,
+    *,
+    bearing_sigma_rad: float = 3.0e-4,
+    sensor_offset_m: tuple[float, float] = (0.0, 0.0),
+    odometry_rate_hz: float = 50.0,
+    revolution_period_s: float = 0.1,
+    scale_error: float = 0.02,
+    rotation_error: float = 0.01,
+    odometry_noise_m: float = 3.0e-3,
+    odometry_noise_rad: float = 5.0e-3,
+    beacons_xy: dict[int, tuple[float, float]] | None = None,
+) -> SyntheticMatch:
     """The synthetic match (deterministic from the seed)."""
     beacons_xy = beacons_xy or EUROBOT_BEACON_MAP.as_dict()
     rng = np.random.default_rng(seed)
     times_s = np.arange(0.0, duration_s, 1.0 / odometry_rate_hz)
     truth = np.array([lissajous_pose(t) for t in times_s])
-    odometry = _drifting_odometry(truth, rng, scale_error, rotation_error, odometry_noise_m,
-                                  odometry_noise_rad)
+    odometry = _drifting_odometry(
+        truth, rng, scale_error, rotation_error, odometry_noise_m, odometry_noise_rad
+    )
     bearings = []
     for start_s in np.arange(0.0, duration_s - revolution_period_s, revolution_period_s):
         for beacon_id, xy in beacons_xy.items():
-            stamp_s = _pointing_time(float(start_s), revolution_period_s,
-                                     lambda t, xy=xy: _sensor_bearing(lissajous_pose(t), xy, sensor_offset_m))
+            stamp_s = _pointing_time(
+                float(start_s),
+                revolution_period_s,
+                lambda t, xy=xy: _sensor_bearing(lissajous_pose(t), xy, sensor_offset_m),
+            )
             measured = _sensor_bearing(lissajous_pose(stamp_s), xy, sensor_offset_m)
-            bearings.append(BearingEvent(float(start_s) + revolution_period_s, stamp_s, beacon_id,
-                                         wrap_to_pi(measured + bearing_sigma_rad * rng.standard_normal()),
-                                         bearing_sigma_rad**2))
+            bearings.append(
+                BearingEvent(
+                    float(start_s) + revolution_period_s,
+                    stamp_s,
+                    beacon_id,
+                    wrap_to_pi(measured + bearing_sigma_rad * rng.standard_normal()),
+                    bearing_sigma_rad**2,
+                )
+            )
     return SyntheticMatch(times_s, truth, odometry, bearings)
 
 

@@ -47,12 +47,15 @@ def match() -> SyntheticMatch:
 def live_stream(match: SyntheticMatch, seed: int = 3) -> list[Arrival]:
     """Every message of the match in arrival order (ties: odometry, then bearings, then poses)."""
     rng = np.random.default_rng(seed)
-    arrivals = [Arrival(float(t) + ODOMETRY_DELAY_S, "odometry", (float(t), tuple(pose)))
-                for t, pose in zip(match.times_s, match.odometry, strict=True)]
+    arrivals = [
+        Arrival(float(t) + ODOMETRY_DELAY_S, "odometry", (float(t), tuple(pose)))
+        for t, pose in zip(match.times_s, match.odometry, strict=True)
+    ]
     revolutions: dict[float, list[Bearing]] = {}
     for b in match.bearings:
-        revolutions.setdefault(b.arrival_s, []).append(Bearing(b.stamp_s, b.beacon_id, b.bearing_rad,
-                                                                b.variance_rad2))
+        revolutions.setdefault(b.arrival_s, []).append(
+            Bearing(b.stamp_s, b.beacon_id, b.bearing_rad, b.variance_rad2)
+        )
     for end_s, bearings in revolutions.items():
         arrivals.append(Arrival(end_s + DRIVER_DELAY_S, "bearings", bearings))
         stamp_s = end_s - 0.05  # the revolution's middle
@@ -62,8 +65,9 @@ def live_stream(match: SyntheticMatch, seed: int = 3) -> list[Arrival]:
     return sorted(arrivals, key=lambda a: (a.arrival_s, order[a.kind]))
 
 
-def feed(localiser: Localiser, stream: list[Arrival], start_s: float, stop_s: float = float("inf"),
-         truth_at=None) -> list[tuple[float, float, float]]:
+def feed(
+    localiser: Localiser, stream: list[Arrival], start_s: float, stop_s: float = float("inf"), truth_at=None
+) -> list[tuple[float, float, float]]:
     """Deliver the messages arriving in [start_s, stop_s); (time, position error, heading error) after
     each odometry once initialised, when `truth_at` is given."""
     errors = []

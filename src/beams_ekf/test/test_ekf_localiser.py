@@ -38,8 +38,16 @@ def _revolutions(match: SyntheticMatch):
         yield arrival_s, [Bearing(b.stamp_s, b.beacon_id, b.bearing_rad, b.variance_rad2) for b in group]
 
 
-def _drive(localiser: Localiser, match: SyntheticMatch, start_s: float, stop_s: float, *,
-           bearings=None, pose_source=None, skip_odometry=lambda t: False) -> None:
+def _drive(
+    localiser: Localiser,
+    match: SyntheticMatch,
+    start_s: float,
+    stop_s: float,
+    *,
+    bearings=None,
+    pose_source=None,
+    skip_odometry=lambda t: False,
+) -> None:
     """Feed odometry and revolutions arriving in [start_s, stop_s); optionally offer a pose per revolution."""
     times = match.times_s
     k = int(np.searchsorted(times, start_s))
@@ -63,8 +71,15 @@ def _position_error(localiser: Localiser, truth) -> float:
 
 
 def test_accuracy_and_consistency_on_a_synthetic_match(match):
-    result = replay(_localiser(), match.times_s, match.odometry, match.bearings, match.truth_at,
-                    tuple(match.truth[0]), START_COVARIANCE)
+    result = replay(
+        _localiser(),
+        match.times_s,
+        match.odometry,
+        match.bearings,
+        match.truth_at,
+        tuple(match.truth[0]),
+        START_COVARIANCE,
+    )
     figures = accuracy(result)
     assert figures.rms_position_m < 0.004
     assert np.degrees(figures.rms_heading_rad) < 0.1
@@ -224,8 +239,15 @@ def test_heading_error_stays_small_through_a_wrap_of_pi(match):
     # the synthetic trajectory crosses heading +-pi several times in 20 s
     headings = match.truth[:, 2]
     assert np.any(np.abs(np.diff(headings)) > np.pi)
-    result = replay(_localiser(), match.times_s, match.odometry, match.bearings, match.truth_at,
-                    tuple(match.truth[0]), START_COVARIANCE)
+    result = replay(
+        _localiser(),
+        match.times_s,
+        match.odometry,
+        match.bearings,
+        match.truth_at,
+        tuple(match.truth[0]),
+        START_COVARIANCE,
+    )
     assert max(abs(wrap_to_pi(float(e))) for e in result.errors()[:, 2]) < np.radians(0.5)
 
 

@@ -67,8 +67,12 @@ def _run(match: SyntheticMatch, spoil: bool) -> tuple[Localiser, list[tuple]]:
 
 def _bad_bearings(stamp_s: float) -> list[Bearing]:
     """Unknown id, NaN bearing, NaN stamp, zero variance."""
-    return [Bearing(stamp_s, 9, 0.3, 1e-6), Bearing(stamp_s, 1, math.nan, 1e-6),
-            Bearing(math.nan, 2, 0.3, 1e-6), Bearing(stamp_s, 3, 0.3, 0.0)]
+    return [
+        Bearing(stamp_s, 9, 0.3, 1e-6),
+        Bearing(stamp_s, 1, math.nan, 1e-6),
+        Bearing(math.nan, 2, 0.3, 1e-6),
+        Bearing(stamp_s, 3, 0.3, 0.0),
+    ]
 
 
 def test_bad_bearings_change_nothing_bit_for_bit(match):
@@ -88,17 +92,24 @@ def test_usable_covariance_falls_back_on_the_default():
     good = np.diag([1e-4, 2e-4, 1e-3])
     assert usable_covariance(good, DEFAULT) is not DEFAULT
     np.testing.assert_array_equal(usable_covariance(good, DEFAULT), good)
-    for bad in (np.zeros((3, 3)), np.diag([1e-4, math.nan, 1e-3]), np.diag([1e-4, -1e-4, 1e-3]),
-                np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]])):  # eigenvalues 3, -1, 1
+    for bad in (
+        np.zeros((3, 3)),
+        np.diag([1e-4, math.nan, 1e-3]),
+        np.diag([1e-4, -1e-4, 1e-3]),
+        np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
+    ):  # eigenvalues 3, -1, 1
         assert usable_covariance(bad, DEFAULT) is DEFAULT
 
 
-@pytest.mark.parametrize(("stamp_s", "newest_s", "expected"), [
-    (0.0, 12.5, 12.5),  # unstamped (RViz, the service): now
-    (13.0, 12.5, 12.5),  # ahead of the odometry: now
-    (12.2, 12.5, 12.2),  # in the odometry's past: kept
-    (7.0, None, 7.0),  # no odometry yet: kept
-])
+@pytest.mark.parametrize(
+    ("stamp_s", "newest_s", "expected"),
+    [
+        (0.0, 12.5, 12.5),  # unstamped (RViz, the service): now
+        (13.0, 12.5, 12.5),  # ahead of the odometry: now
+        (12.2, 12.5, 12.2),  # in the odometry's past: kept
+        (7.0, None, 7.0),  # no odometry yet: kept
+    ],
+)
 def test_operator_pose_stamp_rule(stamp_s, newest_s, expected):
     assert operator_pose_stamp_s(stamp_s, newest_s) == expected
 
@@ -110,8 +121,10 @@ def test_offer_pose_applies_both_rules():
     for k in range(10):
         localiser.on_odometry(5.0 + 0.02 * k, (0.01 * k, 0.0, 0.0))
     assert localiser.offer_pose(4.0, (1.0, 1.0, 0.0), np.eye(3), DEFAULT, operator=False) == "outside_history"
-    assert localiser.offer_pose(0.0, (1.0, 1.0, 0.0), np.zeros((3, 3)), DEFAULT,
-                                operator=True) == "initialisations"
+    assert (
+        localiser.offer_pose(0.0, (1.0, 1.0, 0.0), np.zeros((3, 3)), DEFAULT, operator=True)
+        == "initialisations"
+    )
     estimate = localiser.estimate()
     assert estimate.stamp_s == 5.18
     np.testing.assert_array_equal(estimate.covariance, DEFAULT)
@@ -122,12 +135,16 @@ def test_settings_from_the_node_parameter_file():
     takes its default."""
     parameters = node_section(yaml.safe_load(CONFIG.read_text()), "ekf_node")
     settings = filter_settings({**parameters, "history_span_s": 1.5, "default_pose_sigma": [0.1, 0.2, 0.3]})
-    assert settings.process_noise == ProcessNoise(parameters["translation_variance_m2_per_m"],
-                                                  parameters["rotation_variance_rad2_per_rad"],
-                                                  parameters["rotation_variance_rad2_per_m"],
-                                                  cross_track_m2_per_m=parameters["cross_track_variance_m2_per_m"])
-    assert settings.odometry_errors.heading_drift_sigma_rad_per_m == parameters[
-        "odometry_heading_drift_sigma_rad_per_m"]
+    assert settings.process_noise == ProcessNoise(
+        parameters["translation_variance_m2_per_m"],
+        parameters["rotation_variance_rad2_per_rad"],
+        parameters["rotation_variance_rad2_per_m"],
+        cross_track_m2_per_m=parameters["cross_track_variance_m2_per_m"],
+    )
+    assert (
+        settings.odometry_errors.heading_drift_sigma_rad_per_m
+        == parameters["odometry_heading_drift_sigma_rad_per_m"]
+    )
     assert settings.localiser.lost_nis_window_bearings == parameters["lost_nis_window_bearings"]
     assert settings.gate_probability == parameters["gate_probability"]
     assert settings.localiser.history_span_s == 1.5
@@ -149,11 +166,14 @@ def test_declared_defaults_are_the_settings_and_the_documented_ones():
     assert {name: defaults[name] for name in shared} == {name: documented[name] for name in shared}
 
 
-@pytest.mark.parametrize("parameters", [
-    {"default_pose_sigma": [0.1, 0.1]},
-    {"kidnap_gated_bearings": 13, "kidnap_window_bearings": 12},
-    {"translation_variance_m2_per_m": -1.0},
-])
+@pytest.mark.parametrize(
+    "parameters",
+    [
+        {"default_pose_sigma": [0.1, 0.1]},
+        {"kidnap_gated_bearings": 13, "kidnap_window_bearings": 12},
+        {"translation_variance_m2_per_m": -1.0},
+    ],
+)
 def test_settings_refuse_inconsistent_values(parameters):
     with pytest.raises(ValueError):
         filter_settings(parameters)

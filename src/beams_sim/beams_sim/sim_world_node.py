@@ -39,7 +39,10 @@ class SimWorldNode(Node):
         self.diagnostics = Diagnostics(self, "sim_world")
         values = declare_table(self, SIM_WORLD_PARAMETERS)
         self.map_frame, self.odom_frame, self.base_frame = (
-            values["map_frame"], values["odom_frame"], values["base_frame"])
+            values["map_frame"],
+            values["odom_frame"],
+            values["base_frame"],
+        )
         rate_hz = values["rate_hz"]
         try:
             self.trajectory = trajectory_of(values)

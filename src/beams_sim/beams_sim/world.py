@@ -34,12 +34,17 @@ MATCH_DURATION_S = 90.0
 Pose2D = tuple[float, float, float]
 
 # Uniform cubic B-spline: position on a segment is [u^3 u^2 u 1] @ _BSPLINE @ [Q0 Q1 Q2 Q3].
-_BSPLINE = np.array([
-    [-1.0, 3.0, -3.0, 1.0],
-    [3.0, -6.0, 3.0, 0.0],
-    [-3.0, 0.0, 3.0, 0.0],
-    [1.0, 4.0, 1.0, 0.0],
-]) / 6.0
+_BSPLINE = (
+    np.array(
+        [
+            [-1.0, 3.0, -3.0, 1.0],
+            [3.0, -6.0, 3.0, 0.0],
+            [-3.0, 0.0, 3.0, 0.0],
+            [1.0, 4.0, 1.0, 0.0],
+        ]
+    )
+    / 6.0
+)
 _SAMPLES_PER_SEGMENT = 1024
 
 
@@ -54,8 +59,12 @@ class MotionLimits:
     robot_radius_m: float = 0.15
 
     def __post_init__(self) -> None:
-        values = (self.max_speed_mps, self.max_yaw_rate_radps, self.max_acceleration_mps2,
-                  self.max_lateral_acceleration_mps2)
+        values = (
+            self.max_speed_mps,
+            self.max_yaw_rate_radps,
+            self.max_acceleration_mps2,
+            self.max_lateral_acceleration_mps2,
+        )
         if not all(v > 0.0 and math.isfinite(v) for v in values):
             raise ValueError(f"motion limits must be positive and finite, got {self}")
         if not 0.0 <= self.robot_radius_m < TABLE_WIDTH_M / 2:
@@ -268,16 +277,18 @@ def _time_profile(
     arc_m: np.ndarray, curvature: np.ndarray, limits: MotionLimits, duration_s: float
 ) -> _SpeedProfile:
     """Speed along the path within the limits, from rest, braking to rest within duration_s.
- The forward and backward passes of the
-    classic time-optimal profile have closed forms on v^2: v^2(s) <= min_j (limit_j^2 + 2 a |s - s_j|).
+    The forward and backward passes of the
+       classic time-optimal profile have closed forms on v^2: v^2(s) <= min_j (limit_j^2 + 2 a |s - s_j|).
     """
     a = limits.max_acceleration_mps2
     bend = np.maximum(np.abs(curvature), 1e-9)
-    limit = np.minimum.reduce([
-        np.full_like(arc_m, limits.max_speed_mps),
-        limits.max_yaw_rate_radps / bend,
-        np.sqrt(limits.max_lateral_acceleration_mps2 / bend),
-    ])
+    limit = np.minimum.reduce(
+        [
+            np.full_like(arc_m, limits.max_speed_mps),
+            limits.max_yaw_rate_radps / bend,
+            np.sqrt(limits.max_lateral_acceleration_mps2 / bend),
+        ]
+    )
     limit_sq = limit**2
     limit_sq[0] = 0.0  # start at rest
     limit_sq[-1] = 0.0  # the path's end is a stop

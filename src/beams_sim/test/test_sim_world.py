@@ -324,16 +324,18 @@ def test_other_robot_hides_the_beacons_behind_it_while_it_is_on_the_table() -> N
     sensor_pose = (0.4, 1.0, 0.0)
     beacons = {1: (-0.062, -0.062), 2: (-0.062, 2.062), 3: (3.062, 1.0)}
 
-    def bearings_seen(b_position: tuple[float, float],
-                      truth_until_s: float) -> tuple[int, list[tuple[float, set[int]]]]:
+    def bearings_seen(
+        b_position: tuple[float, float], truth_until_s: float
+    ) -> tuple[int, list[tuple[float, set[int]]]]:
         """Windows hidden, and (start time, beacons seen) of each revolution."""
         other = OtherRobots(beacons, 0.1, lambda t: sensor_pose[:2])
         for t in np.arange(0.0, truth_until_s, 0.02):
             assert other.add("robot_b", t, *b_position, math.pi, 0.0, 0.0)
         still = EurobotTrajectory.static(sensor_pose, duration_s)
         match = simulate_match(duration_s, seed=3, trajectory=still, occlusion=other)
-        return other.hidden_windows, [(r.start_time_s, {b.beacon_id for b in r.bearings})
-                                      for r in match.revolutions]
+        return other.hidden_windows, [
+            (r.start_time_s, {b.beacon_id for b in r.bearings}) for r in match.revolutions
+        ]
 
     hidden, seen = bearings_seen((2.6, 1.0), duration_s)
     assert len(seen) >= 15 and all(ids == {1, 2} for _, ids in seen)

@@ -46,8 +46,15 @@ def grid(area: Sequence[float], step_m: float) -> tuple[np.ndarray, np.ndarray]:
     return np.meshgrid(xs, ys)
 
 
-def monte_carlo_maps(beacons_xy: np.ndarray, x: np.ndarray, y: np.ndarray, sigma_rad: float, draws: int,
-                     rng: np.random.Generator, heading_rad: float = 0.0) -> ErrorMaps:
+def monte_carlo_maps(
+    beacons_xy: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    sigma_rad: float,
+    draws: int,
+    rng: np.random.Generator,
+    heading_rad: float = 0.0,
+) -> ErrorMaps:
     """Section 6.4.1: `draws` noisy bearing triplets per point (sigma_rad on each), std of eq. 6.25-6.26.
 
     The robot orientation is fixed (the thesis uses 0 deg); 1/|D| is averaged over the draws.
@@ -61,8 +68,10 @@ def monte_carlo_maps(beacons_xy: np.ndarray, x: np.ndarray, y: np.ndarray, sigma
         count = len(points[rows])
         noisy = exact[rows, None, :] + rng.normal(0.0, sigma_rad, (count, draws, 3))
         batch = triangulate_many(beacons_xy, noisy.reshape(-1, 3))
-        distance = np.hypot(batch.x.reshape(count, draws) - points[rows, 0:1],
-                            batch.y.reshape(count, draws) - points[rows, 1:2])
+        distance = np.hypot(
+            batch.x.reshape(count, draws) - points[rows, 0:1],
+            batch.y.reshape(count, draws) - points[rows, 1:2],
+        )
         heading_error = wrap_to_pi(batch.heading.reshape(count, draws) - heading_rad)
         position_std[rows] = distance.std(axis=1)
         heading_std[rows] = heading_error.std(axis=1)
@@ -70,18 +79,25 @@ def monte_carlo_maps(beacons_xy: np.ndarray, x: np.ndarray, y: np.ndarray, sigma
         capped = np.minimum(batch.inverse_abs_d, 1.0 / MIN_ABS_D_M2)
         mean_inverse_d[rows] = capped.reshape(count, draws).mean(axis=1)
     shape = x.shape
-    return ErrorMaps(x, y, position_std.reshape(shape), heading_std.reshape(shape),
-                     mean_inverse_d.reshape(shape))
+    return ErrorMaps(
+        x, y, position_std.reshape(shape), heading_std.reshape(shape), mean_inverse_d.reshape(shape)
+    )
 
 
-def predicted_maps(beacons_xy: np.ndarray, x: np.ndarray, y: np.ndarray, sigma_rad: float,
-                   heading_rad: float = 0.0) -> ErrorMaps:
+def predicted_maps(
+    beacons_xy: np.ndarray, x: np.ndarray, y: np.ndarray, sigma_rad: float, heading_rad: float = 0.0
+) -> ErrorMaps:
     """The same maps from the propagated covariance (first order, no drawing), and the exact 1/|D|."""
     heading = np.full(x.size, heading_rad)
     covariance = pose_covariance_many(beacons_xy, (x.ravel(), y.ravel(), heading), [sigma_rad**2] * 3)
     fixes = triangulate_many(beacons_xy, expected_bearings(beacons_xy, (x.ravel(), y.ravel(), heading)))
-    return ErrorMaps(x, y, distance_error_std_m(covariance).reshape(x.shape),
-                     np.sqrt(covariance[:, 2, 2]).reshape(x.shape), fixes.inverse_abs_d.reshape(x.shape))
+    return ErrorMaps(
+        x,
+        y,
+        distance_error_std_m(covariance).reshape(x.shape),
+        np.sqrt(covariance[:, 2, 2]).reshape(x.shape),
+        fixes.inverse_abs_d.reshape(x.shape),
+    )
 
 
 def draw_maps(beacons_xy: np.ndarray, columns: Sequence[tuple[str, ErrorMaps]], path: str) -> None:
@@ -94,9 +110,11 @@ def draw_maps(beacons_xy: np.ndarray, columns: Sequence[tuple[str, ErrorMaps]], 
     import matplotlib.pyplot as plt
     from matplotlib.colors import LogNorm
 
-    rows = (("position error std (m)", "position_std_m", 1.0),
-            ("orientation error std (deg)", "heading_std_rad", 180.0 / np.pi),
-            ("1/|D| (1/m^2)", "inverse_abs_d", 1.0))
+    rows = (
+        ("position error std (m)", "position_std_m", 1.0),
+        ("orientation error std (deg)", "heading_std_rad", 180.0 / np.pi),
+        ("1/|D| (1/m^2)", "inverse_abs_d", 1.0),
+    )
     figure, axes = plt.subplots(3, len(columns), figsize=(4.2 * len(columns), 10.5), squeeze=False)
     for column, (title, maps) in enumerate(columns):
         for row, (label, field, scale) in enumerate(rows):
@@ -104,10 +122,17 @@ def draw_maps(beacons_xy: np.ndarray, columns: Sequence[tuple[str, ErrorMaps]], 
             values = getattr(maps, field) * scale
             finite = values[np.isfinite(values) & (values > 0)]
             low, high = np.percentile(finite, [1.0, 99.0]) if finite.size else (1e-9, 1.0)
-            image = axis.pcolormesh(maps.x, maps.y, np.clip(values, low, high), shading="nearest",
-                                    norm=LogNorm(vmin=max(low, high * 1e-9), vmax=high), cmap="viridis")
-            axis.plot(beacons_xy[:, 0], beacons_xy[:, 1], "o", markerfacecolor="white",
-                      markeredgecolor="black")
+            image = axis.pcolormesh(
+                maps.x,
+                maps.y,
+                np.clip(values, low, high),
+                shading="nearest",
+                norm=LogNorm(vmin=max(low, high * 1e-9), vmax=high),
+                cmap="viridis",
+            )
+            axis.plot(
+                beacons_xy[:, 0], beacons_xy[:, 1], "o", markerfacecolor="white", markeredgecolor="black"
+            )
             axis.set_aspect("equal")
             axis.set_title(f"{title}\n{label}", fontsize=9)
             figure.colorbar(image, ax=axis, fraction=0.046, pad=0.04)
@@ -132,24 +157,41 @@ def _parse_floats(count: int):
         if len(values) != count:
             raise argparse.ArgumentTypeError(f"expected {count} comma-separated numbers, got {text!r}")
         return values
+
     return parse
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line: draw figure 6.5 for a beacon layout to a PNG."""
     parser = argparse.ArgumentParser(prog="error_map", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--beacons", type=_parse_beacons, default=_parse_beacons(EUROBOT_LAYOUT),
-                        help="three beacons 'x1,y1;x2,y2;x3,y3' in m (default: the Eurobot layout)")
-    parser.add_argument("--area", type=_parse_floats(4), default=[-0.5, 3.5, -0.5, 2.5],
-                        help="x_min,x_max,y_min,y_max in m, e.g. --area=-2,2,-2,2 (default: the table "
-                             "and a 0.5 m border)")
-    parser.add_argument("--step", type=float, default=0.02,
-                        help="grid step in m (default 0.02, the thesis's)")
-    parser.add_argument("--sigma-deg", type=_parse_floats(1), action="append",
-                        help="bearing noise std in deg; repeat for several columns (default 0.01, 0.1 and 1)")
-    parser.add_argument("--draws", type=int, default=0,
-                        help="Monte Carlo draws per point as in the thesis (1000 there); 0 (default) "
-                             "predicts the maps from the covariance instead, in a fraction of a second")
+    parser.add_argument(
+        "--beacons",
+        type=_parse_beacons,
+        default=_parse_beacons(EUROBOT_LAYOUT),
+        help="three beacons 'x1,y1;x2,y2;x3,y3' in m (default: the Eurobot layout)",
+    )
+    parser.add_argument(
+        "--area",
+        type=_parse_floats(4),
+        default=[-0.5, 3.5, -0.5, 2.5],
+        help="x_min,x_max,y_min,y_max in m, e.g. --area=-2,2,-2,2 (default: the table and a 0.5 m border)",
+    )
+    parser.add_argument(
+        "--step", type=float, default=0.02, help="grid step in m (default 0.02, the thesis's)"
+    )
+    parser.add_argument(
+        "--sigma-deg",
+        type=_parse_floats(1),
+        action="append",
+        help="bearing noise std in deg; repeat for several columns (default 0.01, 0.1 and 1)",
+    )
+    parser.add_argument(
+        "--draws",
+        type=int,
+        default=0,
+        help="Monte Carlo draws per point as in the thesis (1000 there); 0 (default) "
+        "predicts the maps from the covariance instead, in a fraction of a second",
+    )
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("-o", "--output", default="error_map.png", help="PNG file to write")
     args = parser.parse_args(argv)
@@ -167,8 +209,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             maps = predicted_maps(args.beacons, x, y, sigma)
         columns.append((f"sigma = {sigma_deg:g} deg", maps))
     draw_maps(args.beacons, columns, args.output)
-    print(f"wrote {args.output}: {x.size} points, sigma {sigmas} deg, "
-          f"{'Monte Carlo ' + str(args.draws) + ' draws' if args.draws else 'predicted from the covariance'}")
+    print(
+        f"wrote {args.output}: {x.size} points, sigma {sigmas} deg, "
+        f"{'Monte Carlo ' + str(args.draws) + ' draws' if args.draws else 'predicted from the covariance'}"
+    )
     return 0
 
 

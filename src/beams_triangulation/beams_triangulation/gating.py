@@ -109,8 +109,9 @@ def gate(inverse_abs_d: float, covariance: np.ndarray, config: GateConfig) -> tu
     return True, ""
 
 
-def best_triplet(beacons_xy: np.ndarray, bearings_rad: np.ndarray, variances_rad2: np.ndarray,
-                 by: str = "covariance") -> tuple[int, int, int] | None:
+def best_triplet(
+    beacons_xy: np.ndarray, bearings_rad: np.ndarray, variances_rad2: np.ndarray, by: str = "covariance"
+) -> tuple[int, int, int] | None:
     """Indices of the triplet to trust among more than three beacons, or None when none gives a fix.
 
     Every triplet is solved at once by the vectorised ToTal. by="covariance" (default) picks the
@@ -126,14 +127,20 @@ def best_triplet(beacons_xy: np.ndarray, bearings_rad: np.ndarray, variances_rad
     if by == "inverse_abs_d":
         score = batch.inverse_abs_d
     else:
-        covariance = pose_covariance_many(beacons_xy[triplets], (batch.x, batch.y, batch.heading),
-                                          variances_rad2[triplets])
+        covariance = pose_covariance_many(
+            beacons_xy[triplets], (batch.x, batch.y, batch.heading), variances_rad2[triplets]
+        )
         score = np.where(batch.ok, np.nan_to_num(position_std_m(covariance), nan=np.inf), np.inf)
     return tuple(int(i) for i in triplets[int(np.argmin(score))])
 
 
-def _validate(beacon_ids: Sequence[int], bearings: np.ndarray, variances: np.ndarray, stamps: np.ndarray,
-              beacon_map: BeaconMap) -> str:
+def _validate(
+    beacon_ids: Sequence[int],
+    bearings: np.ndarray,
+    variances: np.ndarray,
+    stamps: np.ndarray,
+    beacon_map: BeaconMap,
+) -> str:
     """The reason the input cannot give a pose (`validation.bearing_problem`, the EKF's rule too, on each
     bearing; a beacon seen twice at one instant), or an empty string."""
     if len(set(beacon_ids)) != len(beacon_ids):
@@ -159,8 +166,12 @@ def message_bearings(message: Any, seconds: Callable[[Any], float]) -> list[Bear
     """The bearings of a beams_msgs/BeaconBearingArray (an rclpy or a rosbags message), seconds(stamp)
     converting its stamps; a bearing stamped zero takes the revolution's stamp."""
     revolution_s = seconds(message.header.stamp)
-    return [Bearing(int(b.beacon_id), float(b.bearing), float(b.variance),
-                    seconds(b.header.stamp) or revolution_s) for b in message.bearings]
+    return [
+        Bearing(
+            int(b.beacon_id), float(b.bearing), float(b.variance), seconds(b.header.stamp) or revolution_s
+        )
+        for b in message.bearings
+    ]
 
 
 def estimate_pose(
@@ -184,14 +195,20 @@ def estimate_pose(
     return estimate_revolution(bearings, beacon_map, config, turret_offset_m).result
 
 
-def gated_estimate(fix: ToTalFix, beacons_xy: np.ndarray, variances_rad2: Sequence[float],
-                   beacon_ids: tuple[int, int, int], config: GateConfig,
-                   turret_offset_m: Sequence[float] = (0.0, 0.0)) -> PoseEstimate:
+def gated_estimate(
+    fix: ToTalFix,
+    beacons_xy: np.ndarray,
+    variances_rad2: Sequence[float],
+    beacon_ids: tuple[int, int, int],
+    config: GateConfig,
+    turret_offset_m: Sequence[float] = (0.0, 0.0),
+) -> PoseEstimate:
     """Covariance and gate decision for one ToTal fix (the scalar path the benchmark times)."""
     covariance = pose_covariance(beacons_xy, (fix.x, fix.y, fix.heading), variances_rad2, turret_offset_m)
     accepted, reason = gate(fix.inverse_abs_d, covariance, config)
-    return PoseEstimate(fix.x, fix.y, fix.heading, covariance, fix.inverse_abs_d, beacon_ids, accepted,
-                        reason)
+    return PoseEstimate(
+        fix.x, fix.y, fix.heading, covariance, fix.inverse_abs_d, beacon_ids, accepted, reason
+    )
 
 
 class BearingLike(Protocol):
@@ -263,8 +280,9 @@ def estimate_revolution(
     odometry = _odometry_at_stamps(odometry_at, stamps[picked], target)
     if odometry is not None:
         odom_at_bearings, odom_at_target = odometry
-        fix = triangulate_compensated(beacons_xy[picked], angles[picked], odom_at_bearings, odom_at_target,
-                                      turret_offset_m)
+        fix = triangulate_compensated(
+            beacons_xy[picked], angles[picked], odom_at_bearings, odom_at_target, turret_offset_m
+        )
     else:
         fix = triangulate(beacons_xy[picked], angles[picked], turret_offset_m)
     if not fix.ok:
@@ -299,15 +317,22 @@ class RevolutionEstimator:
     """`estimate_revolution` for a stream of revolutions, remembering the last pose so that, without
     odometry, the motion seen between revolutions inflates the variances (what the node runs)."""
 
-    def __init__(self, beacon_map: BeaconMap, config: GateConfig = GateConfig(),
-                 turret_offset_m: Sequence[float] = (0.0, 0.0)) -> None:
+    def __init__(
+        self,
+        beacon_map: BeaconMap,
+        config: GateConfig = GateConfig(),
+        turret_offset_m: Sequence[float] = (0.0, 0.0),
+    ) -> None:
         self.beacon_map = beacon_map
         self.config = config
         self.turret_offset_m = (float(turret_offset_m[0]), float(turret_offset_m[1]))
         self._last: tuple[tuple[float, float, float], float] | None = None
 
-    def update(self, bearings: Sequence[BearingLike],
-               odometry_at: Callable[[float], Sequence[float] | None] | None = None) -> RevolutionPose:
+    def update(
+        self,
+        bearings: Sequence[BearingLike],
+        odometry_at: Callable[[float], Sequence[float] | None] | None = None,
+    ) -> RevolutionPose:
         """The gated pose of one revolution (see `estimate_revolution`)."""
         settings = (self.beacon_map, self.config, self.turret_offset_m)
         outcome = estimate_revolution(bearings, *settings, odometry_at)
@@ -336,8 +361,12 @@ class TriangulationPipeline:
     (tag, outcome) pairs of the revolutions it completed, oldest first.
     """
 
-    def __init__(self, beacon_map: BeaconMap, settings: TriangulationSettings = TriangulationSettings(),
-                 turret_offset_m: Sequence[float] = (0.0, 0.0)) -> None:
+    def __init__(
+        self,
+        beacon_map: BeaconMap,
+        settings: TriangulationSettings = TriangulationSettings(),
+        turret_offset_m: Sequence[float] = (0.0, 0.0),
+    ) -> None:
         self.settings = settings
         self.estimator = RevolutionEstimator(beacon_map, settings.gates, turret_offset_m)
         self.odometry = odometry_buffer(settings.odometry_history_s, settings.max_odometry_extrapolation_s)
@@ -350,8 +379,9 @@ class TriangulationPipeline:
         self.settings = replace(self.settings, gates=gates)
         self.estimator = RevolutionEstimator(beacon_map, gates, turret_offset_m)
 
-    def on_odometry(self, stamp_s: float, pose: Sequence[float],
-                    twist: tuple[float, float]) -> list[tuple[Tag, RevolutionPose]]:
+    def on_odometry(
+        self, stamp_s: float, pose: Sequence[float], twist: tuple[float, float]
+    ) -> list[tuple[Tag, RevolutionPose]]:
         """An odometry sample (odom frame; speed m/s, yaw rate rad/s); ignored without use_odometry."""
         if not self.settings.use_odometry:
             return []

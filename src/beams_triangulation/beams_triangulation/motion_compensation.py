@@ -54,8 +54,9 @@ def interpolate_pose(stamps_s: ArrayLike, poses: ArrayLike, t: float) -> tuple[f
     return float(x), float(y), wrap_to_pi(before[2] + weight * wrap_to_pi(after[2] - before[2]))
 
 
-def _predicted_bearing(beacon: Sequence[float], robot_map: Sequence[float],
-                       turret_offset_m: Sequence[float]) -> float:
+def _predicted_bearing(
+    beacon: Sequence[float], robot_map: Sequence[float], turret_offset_m: Sequence[float]
+) -> float:
     """Bearing of a beacon in the turret frame of a robot at robot_map (x, y, theta)."""
     turret = compose(robot_map, (turret_offset_m[0], turret_offset_m[1], 0.0))
     return math.atan2(beacon[1] - turret[1], beacon[0] - turret[0]) - robot_map[2]
@@ -86,8 +87,10 @@ def compensate_bearings(
             continue
         beacon = np.asarray(beacons_xy, dtype=float)[i]
         then_map = compose(approx_pose_map, increment)
-        corrected[i] = bearing + (_predicted_bearing(beacon, approx_pose_map, turret_offset_m)
-                                  - _predicted_bearing(beacon, then_map, turret_offset_m))
+        corrected[i] = bearing + (
+            _predicted_bearing(beacon, approx_pose_map, turret_offset_m)
+            - _predicted_bearing(beacon, then_map, turret_offset_m)
+        )
     return np.asarray(wrap_to_pi(corrected), dtype=float).reshape(bearings.shape)
 
 
@@ -108,8 +111,14 @@ def triangulate_compensated(
     for _ in range(iterations):
         if not fix.ok:
             break
-        bearings = compensate_bearings(bearings_rad, odom_at_bearings, odom_at_target, beacons,
-                                       (fix.x, fix.y, fix.heading), turret_offset_m)
+        bearings = compensate_bearings(
+            bearings_rad,
+            odom_at_bearings,
+            odom_at_target,
+            beacons,
+            (fix.x, fix.y, fix.heading),
+            turret_offset_m,
+        )
         fix = triangulate(beacons, bearings, turret_offset_m)
     return fix
 

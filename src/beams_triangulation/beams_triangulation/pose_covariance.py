@@ -60,9 +60,14 @@ def _covariance_entries(rows, variances):
     v1, v2, v3 = variances
     xv1, xv2, xv3 = x1 * v1, x2 * v2, x3 * v3
     yv1, yv2, yv3 = y1 * v1, y2 * v2, y3 * v3
-    return (xv1 * x1 + xv2 * x2 + xv3 * x3, xv1 * y1 + xv2 * y2 + xv3 * y3, xv1 * t1 + xv2 * t2 + xv3 * t3,
-            yv1 * y1 + yv2 * y2 + yv3 * y3, yv1 * t1 + yv2 * t2 + yv3 * t3,
-            t1 * t1 * v1 + t2 * t2 * v2 + t3 * t3 * v3)
+    return (
+        xv1 * x1 + xv2 * x2 + xv3 * x3,
+        xv1 * y1 + xv2 * y2 + xv3 * y3,
+        xv1 * t1 + xv2 * t2 + xv3 * t3,
+        yv1 * y1 + yv2 * y2 + yv3 * y3,
+        yv1 * t1 + yv2 * t2 + yv3 * t3,
+        t1 * t1 * v1 + t2 * t2 * v2 + t3 * t3 * v3,
+    )
 
 
 def _turret_position(x, y, cos_h, sin_h, offset):

@@ -65,8 +65,14 @@ class ToTalBatch:
     def fix(self, index: int) -> ToTalFix:
         """Row `index` as a ToTalFix."""
         ok = bool(self.ok[index])
-        return ToTalFix(float(self.x[index]), float(self.y[index]), float(self.heading[index]),
-                        float(self.inverse_abs_d[index]), ok, "" if ok else REASON_CRITICAL)
+        return ToTalFix(
+            float(self.x[index]),
+            float(self.y[index]),
+            float(self.heading[index]),
+            float(self.inverse_abs_d[index]),
+            ok,
+            "" if ok else REASON_CRITICAL,
+        )
 
 
 def _bounded_ratio_scalar(numerator: float, denominator: float) -> float:
@@ -157,8 +163,14 @@ def triangulate(
     yr = y2 + num_y / d
     if not (math.isfinite(xr) and math.isfinite(yr)):
         return _no_fix(REASON_CRITICAL)
-    heading = _combined_heading((math.atan2(y1 - yr, x1 - xr) - phi1, math.atan2(y2 - yr, x2 - xr) - phi2,
-                                 math.atan2(y3 - yr, x3 - xr) - phi3), round)
+    heading = _combined_heading(
+        (
+            math.atan2(y1 - yr, x1 - xr) - phi1,
+            math.atan2(y2 - yr, x2 - xr) - phi2,
+            math.atan2(y3 - yr, x3 - xr) - phi3,
+        ),
+        round,
+    )
     offset_x, offset_y = turret_offset_m
     if offset_x or offset_y:
         ox, oy = _offset_in_map(math.cos(heading), math.sin(heading), offset_x, offset_y)
@@ -183,8 +195,10 @@ def triangulate_many(
     bearings = np.asarray(bearings_rad, dtype=float)
     beacons = np.asarray(beacons_xy, dtype=float)
     if bearings.ndim != 2 or bearings.shape[1] != 3 or beacons.shape not in ((3, 2), (len(bearings), 3, 2)):
-        raise ValueError(f"expected bearings (N, 3) and beacons (3, 2) or (N, 3, 2), got "
-                         f"{bearings.shape} and {beacons.shape}")
+        raise ValueError(
+            f"expected bearings (N, 3) and beacons (3, 2) or (N, 3, 2), got "
+            f"{bearings.shape} and {beacons.shape}"
+        )
     offset = tuple(float(v) for v in turret_offset_m)
     outputs = [np.empty(len(bearings)) for _ in range(4)] + [np.empty(len(bearings), dtype=bool)]
     # Blocks that fit in the CPU cache: numpy's temporaries then cost about a third of full-size ones.
@@ -204,13 +218,22 @@ def _triangulate_block(beacons: np.ndarray, bearings: np.ndarray, offset: tuple[
     with np.errstate(divide="ignore", invalid="ignore"):
         t12, t23, t31 = _cotangents(np.tan(phi2 - phi1), np.tan(phi3 - phi2), _bounded_ratio_array)
         num_x, num_y, d = _power_centre(x1 - x2, y1 - y2, x3 - x2, y3 - y2, t12, t23, t31)
-        saturated = ((np.abs(t12) >= COT_BOUND).view(np.uint8) + (np.abs(t23) >= COT_BOUND).view(np.uint8)
-                     + (np.abs(t31) >= COT_BOUND).view(np.uint8))
+        saturated = (
+            (np.abs(t12) >= COT_BOUND).view(np.uint8)
+            + (np.abs(t23) >= COT_BOUND).view(np.uint8)
+            + (np.abs(t31) >= COT_BOUND).view(np.uint8)
+        )
         ok = (np.abs(d) > MIN_ABS_D_M2) & (saturated < 2)
         xr = x2 + num_x / d
         yr = y2 + num_y / d
-        heading = _combined_heading((np.arctan2(y1 - yr, x1 - xr) - phi1, np.arctan2(y2 - yr, x2 - xr) - phi2,
-                                     np.arctan2(y3 - yr, x3 - xr) - phi3), np.rint)
+        heading = _combined_heading(
+            (
+                np.arctan2(y1 - yr, x1 - xr) - phi1,
+                np.arctan2(y2 - yr, x2 - xr) - phi2,
+                np.arctan2(y3 - yr, x3 - xr) - phi3,
+            ),
+            np.rint,
+        )
         inverse_abs_d = 1.0 / np.abs(d)
     ok &= np.isfinite(xr) & np.isfinite(yr) & np.isfinite(heading)
     if offset != (0.0, 0.0):
@@ -222,8 +245,9 @@ def _triangulate_block(beacons: np.ndarray, bearings: np.ndarray, offset: tuple[
     return xr, yr, heading, inverse_abs_d, ok
 
 
-def expected_bearings(beacons_xy: ArrayLike, pose: Sequence[float],
-                      turret_offset_m: Sequence[float] = (0.0, 0.0)) -> np.ndarray:
+def expected_bearings(
+    beacons_xy: ArrayLike, pose: Sequence[float], turret_offset_m: Sequence[float] = (0.0, 0.0)
+) -> np.ndarray:
     """Noise-free bearings (rad, wrapped to (-pi, pi]) of the beacons seen from a robot pose (x, y, theta).
 
     The inverse of `triangulate`, used by tests, the error maps and motion compensation. beacons_xy may

@@ -77,23 +77,24 @@ class TriangulationNode(Node):
         self.pose_publisher = self.create_publisher(TriangulatedPose, "beams/pose", 10)
         self.pose_cov_publisher = self.create_publisher(PoseWithCovarianceStamped, "beams/pose_cov", 10)
         self.marker_publisher = self.create_publisher(MarkerArray, "beams/markers", 10)
-        self.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings,
-                                 BEARINGS_QOS)
+        self.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings, BEARINGS_QOS)
         if self.use_odometry:
             self.create_subscription(Odometry, "odom", self._on_odometry, qos_profile_sensor_data)
         config = settings.gates
         self.get_logger().info(
             f"triangulation_node ready: beacons {list(geometry.beacon_map.ids)}, turret offset "
             f"{geometry.turret_offset_m} m, gates 1/|D| < {config.max_inverse_abs_d:g} m^-2 and std < "
-            f"{config.max_position_std_m:g} m, odometry {'on' if self.use_odometry else 'off'}")
+            f"{config.max_position_std_m:g} m, odometry {'on' if self.use_odometry else 'off'}"
+        )
 
     # -- parameters -----------------------------------------------------------------------------------
     def _apply_parameters(self, values: dict, changed: set[str]) -> None:
         """A runtime change (validated by the table): the gates, the beacon geometry, the frame, markers."""
         refuse_overridden_geometry(values, changed)
         geometry = geometry_of(values)
-        self.pipeline.configure(geometry.beacon_map, triangulation_settings(values).gates,
-                                geometry.turret_offset_m)
+        self.pipeline.configure(
+            geometry.beacon_map, triangulation_settings(values).gates, geometry.turret_offset_m
+        )
         self.map_frame = values["map_frame"]
         self.publish_markers = values["publish_markers"]
 
@@ -106,8 +107,9 @@ class TriangulationNode(Node):
     def _on_odometry(self, msg: Odometry) -> None:
         twist = (msg.twist.twist.linear.x, msg.twist.twist.angular.z)
         rejected = self.pipeline.rejected_odometry
-        self._handle(self.pipeline.on_odometry(stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose),
-                                               twist))
+        self._handle(
+            self.pipeline.on_odometry(stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose), twist)
+        )
         if self.pipeline.rejected_odometry > rejected:
             self.diagnostics.refuse("odometry_rejected_non_finite", "odometry with a non-finite value")
 

@@ -25,8 +25,13 @@ def _numerical_jacobian(pose, offset, step=1e-7):
         shift[k] = step
         plus = triangulate(BEACONS, bearings + shift, offset)
         minus = triangulate(BEACONS, bearings - shift, offset)
-        columns.append([(plus.x - minus.x) / (2 * step), (plus.y - minus.y) / (2 * step),
-                        math.remainder(plus.heading - minus.heading, 2 * math.pi) / (2 * step)])
+        columns.append(
+            [
+                (plus.x - minus.x) / (2 * step),
+                (plus.y - minus.y) / (2 * step),
+                math.remainder(plus.heading - minus.heading, 2 * math.pi) / (2 * step),
+            ]
+        )
     return np.array(columns).T
 
 

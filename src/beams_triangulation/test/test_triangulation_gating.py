@@ -77,8 +77,9 @@ def test_robot_on_the_critical_circle_gives_no_pose():
 
 
 # The Eurobot beacons and a fourth one at the corner (3.062, -0.062).
-FOUR_BEACONS = BeaconMap.from_lists([1, 2, 3, 4], [-0.062, -0.062, 3.062, 3.062],
-                                    [-0.062, 2.062, 1.0, -0.062])
+FOUR_BEACONS = BeaconMap.from_lists(
+    [1, 2, 3, 4], [-0.062, -0.062, 3.062, 3.062], [-0.062, 2.062, 1.0, -0.062]
+)
 
 
 @pytest.mark.parametrize("pose", [(1.0, 0.5, 0.3), (2.5, 1.8, -1.0), (0.4, 1.9, 2.0), (1.5, 1.0, 0.0)])
@@ -87,13 +88,16 @@ def test_more_than_three_beacons_use_the_triplet_with_the_smallest_std(pose):
     variances = np.full(4, SIGMA_RAD**2)
     triplets = list(itertools.combinations(range(4), 3))
     fixes = {t: triangulate(FOUR_BEACONS.xy[list(t)], bearings[list(t)]) for t in triplets}
-    covariances = {t: pose_covariance(FOUR_BEACONS.xy[list(t)], (f.x, f.y, f.heading), variances[:3])
-                   for t, f in fixes.items()}
+    covariances = {
+        t: pose_covariance(FOUR_BEACONS.xy[list(t)], (f.x, f.y, f.heading), variances[:3])
+        for t, f in fixes.items()
+    }
     std = {t: c[0, 0] + c[1, 1] for t, c in covariances.items()}
     inverse_abs_d = {t: f.inverse_abs_d for t, f in fixes.items()}
     assert best_triplet(FOUR_BEACONS.xy, bearings, variances) == min(std, key=std.get)
     assert best_triplet(FOUR_BEACONS.xy, bearings, variances, by="inverse_abs_d") == min(
-        inverse_abs_d, key=inverse_abs_d.get)
+        inverse_abs_d, key=inverse_abs_d.get
+    )
     chosen = best_triplet(FOUR_BEACONS.xy, bearings, variances)
     estimate = estimate_pose([1, 2, 3, 4], bearings, variances, FOUR_BEACONS)
     assert estimate.beacon_ids == tuple(FOUR_BEACONS.ids[i] for i in chosen)
@@ -157,8 +161,12 @@ def _circumcircle(points):
 def test_a_beacon_seen_twice_keeps_the_sighting_closest_in_time():
     pose = (1.0, 1.2, 0.5)
     bearings = _bearings(EUROBOT_BEACON_MAP, pose, [3, 2, 1])
-    revolution = [Bearing(3, 0.9, 1e-6, 0.001), Bearing(2, bearings[1], 1e-6, 0.03),
-                  Bearing(1, bearings[2], 1e-6, 0.06), Bearing(3, bearings[0], 1e-6, 0.098)]
+    revolution = [
+        Bearing(3, 0.9, 1e-6, 0.001),
+        Bearing(2, bearings[1], 1e-6, 0.03),
+        Bearing(1, bearings[2], 1e-6, 0.06),
+        Bearing(3, bearings[0], 1e-6, 0.098),
+    ]
     kept = drop_repeated_beacons(revolution)
     assert [b.beacon_id for b in kept] == [3, 2, 1]
     # Median instant 0.045 s: the sighting at 0.001 s (0.044 s away) is closer than the one at 0.098 s.
@@ -170,8 +178,12 @@ def test_a_beacon_seen_twice_keeps_the_sighting_closest_in_time():
 
 
 def test_a_beacon_twice_at_the_same_instant_is_bad_input():
-    revolution = [Bearing(1, 0.1, 1e-6, 0.0), Bearing(1, 0.2, 1e-6, 0.0), Bearing(2, 0.5, 1e-6, 0.03),
-                  Bearing(3, 1.0, 1e-6, 0.06)]
+    revolution = [
+        Bearing(1, 0.1, 1e-6, 0.0),
+        Bearing(1, 0.2, 1e-6, 0.0),
+        Bearing(2, 0.5, 1e-6, 0.03),
+        Bearing(3, 1.0, 1e-6, 0.06),
+    ]
     outcome = estimate_revolution(revolution, EUROBOT_BEACON_MAP)
     assert isinstance(outcome.result, NoPose) and outcome.result.bad_input
     assert "duplicated" in outcome.result.reason

@@ -28,7 +28,9 @@ def _truth(t):
 
 
 def _revolution(stamps, target):
-    bearings = np.array([expected_bearings(BEACONS[i:i + 1], _truth(stamps[i]), OFFSET)[0] for i in range(3)])
+    bearings = np.array(
+        [expected_bearings(BEACONS[i : i + 1], _truth(stamps[i]), OFFSET)[0] for i in range(3)]
+    )
     odom = np.array([between(ODOM_IN_MAP, _truth(t)) for t in stamps])
     return bearings, odom, between(ODOM_IN_MAP, _truth(target))
 
@@ -55,8 +57,9 @@ def test_compensation_recovers_the_pose_at_the_target_instant():
 def test_more_iterations_converge():
     stamps, target = (0.0, 0.04, 0.09), 0.09
     bearings, odom, odom_target = _revolution(stamps, target)
-    fixes = [triangulate_compensated(BEACONS, bearings, odom, odom_target, OFFSET, iterations=k)
-             for k in range(4)]
+    fixes = [
+        triangulate_compensated(BEACONS, bearings, odom, odom_target, OFFSET, iterations=k) for k in range(4)
+    ]
     errors = [_errors(fix, target)[0] for fix in fixes]
     assert errors == sorted(errors, reverse=True)
     assert errors[3] < 1e-6
@@ -74,8 +77,6 @@ def test_pure_rotation_shifts_each_bearing_by_the_turn():
     odom = np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.1], [0.0, 0.0, 0.2]])
     corrected = compensate_bearings([1.0, 2.0, 3.0], odom, (0.0, 0.0, 0.2))
     np.testing.assert_allclose(corrected, [1.0 - 0.2, 2.0 - 0.1, 3.0], atol=1e-15)
-
-
 
 
 def test_interpolate_pose_between_odometry_samples():

@@ -55,8 +55,15 @@ def _buffer(start_s: float, stop_s: float, span_s: float = 2.0) -> PoseBuffer:
 def _revolution(start_s: float) -> list[Bearing]:
     """Each beacon's exact bearing at its own instant of a 0.1 s revolution."""
     stamps = (start_s + 0.01, start_s + 0.04, start_s + 0.075)
-    return [Bearing(beacon_id, float(expected_bearings(EUROBOT_BEACON_MAP.subset([beacon_id]), _truth(t))[0]),
-                    VARIANCE_RAD2, t) for beacon_id, t in zip(EUROBOT_BEACON_MAP.ids, stamps, strict=True)]
+    return [
+        Bearing(
+            beacon_id,
+            float(expected_bearings(EUROBOT_BEACON_MAP.subset([beacon_id]), _truth(t))[0]),
+            VARIANCE_RAD2,
+            t,
+        )
+        for beacon_id, t in zip(EUROBOT_BEACON_MAP.ids, stamps, strict=True)
+    ]
 
 
 def _position_error(estimate: PoseEstimate, t: float) -> float:
@@ -121,8 +128,9 @@ def test_revolution_odometry_does_not_cover_is_rejected_with_the_reason():
 
 def test_a_gate_rejection_keeps_its_reason_first():
     tight = GateConfig(max_inverse_abs_d=1e-6)
-    estimate = estimate_revolution(_revolution(0.0), EUROBOT_BEACON_MAP, tight,
-                                   odometry_at=_buffer(0.5, 1.0).pose_at).result
+    estimate = estimate_revolution(
+        _revolution(0.0), EUROBOT_BEACON_MAP, tight, odometry_at=_buffer(0.5, 1.0).pose_at
+    ).result
     assert not estimate.accepted
     assert estimate.reason.startswith("1/|D|") and estimate.reason.endswith(REASON_NOT_COMPENSATED)
 
@@ -142,8 +150,10 @@ def test_settings_from_the_node_parameter_file():
 
 
 def _odometry_messages(start_s: float, stop_s: float):
-    return [(float(t), _odometry(float(t)), (SPEED_MPS, YAW_RATE_RAD_S))
-            for t in np.arange(start_s, stop_s + 1e-9, 0.02)]
+    return [
+        (float(t), _odometry(float(t)), (SPEED_MPS, YAW_RATE_RAD_S))
+        for t in np.arange(start_s, stop_s + 1e-9, 0.02)
+    ]
 
 
 def test_pipeline_result_does_not_depend_on_arrival_order():
@@ -163,8 +173,12 @@ def test_pipeline_result_does_not_depend_on_arrival_order():
     [(tag, waited)] = [c for sample in late for c in revolution_first.on_odometry(*sample)]
     assert tag == 7 and waited.stamp_s == expected.stamp_s and waited.compensated
     pose = (waited.result.x, waited.result.y, waited.result.heading, waited.result.covariance.tobytes())
-    assert pose == (expected.result.x, expected.result.y, expected.result.heading,
-                    expected.result.covariance.tobytes())
+    assert pose == (
+        expected.result.x,
+        expected.result.y,
+        expected.result.heading,
+        expected.result.covariance.tobytes(),
+    )
     assert _position_error(expected.result, expected.stamp_s) < 1e-3
 
 

@@ -65,7 +65,9 @@ def test_scalar_and_vectorised_forms_give_the_same_numbers():
         np.testing.assert_allclose(
             [fix.x, fix.y, fix.heading, fix.inverse_abs_d],
             [batch.x[index], batch.y[index], batch.heading[index], batch.inverse_abs_d[index]],
-            rtol=1e-11, atol=1e-11)
+            rtol=1e-11,
+            atol=1e-11,
+        )
         assert fix.ok == batch.ok[index]
 
 

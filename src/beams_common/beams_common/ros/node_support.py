@@ -202,8 +202,9 @@ class Diagnostics:
         self._clock_waits = 0
         if node.get_parameter("use_sim_time").value:
             # the node's timers run on /clock: without it they never fire, so watch on the steady clock
-            self._clock_watch = node.create_timer(period_s, self._watch_clock,
-                                                  clock=Clock(clock_type=ClockType.STEADY_TIME))
+            self._clock_watch = node.create_timer(
+                period_s, self._watch_clock, clock=Clock(clock_type=ClockType.STEADY_TIME)
+            )
 
     def increment(self, key: str, count: int = 1) -> None:
         self._values[key] = self._values.get(key, 0) + count

@@ -1,0 +1,145 @@
+"""What the infrared receiver does to code AND window (thesis sections 5.5-5.7), for simulator and decoder.
+
+- `ReceiverModel`: the systematic part the decoder and the variance model must know: the minimum burst
+  that triggers the receiver (the "AND hypothesis", section 5.6) and the mean window shortening it
+  causes (eq. 5.2 generalised), plus any inward shift of the window's outer edges.
+- `HardwareNoise`: the thesis hardware's receiver noise as chapter 5 measured it: asymmetric edge noise
+  growing with the window (fig. 5.3), a natural noise growing with the code's OFF periods (the AGC,
+  section 5.6), a small extra window shortening of modulated signals (table 5.1), and a power bias of
+  the bearing against the window fluctuating within 0.23 deg (section 5.7, fig. 5.6), a cubic
+  (eq. 7.19) so that the chapter-7 calibration can remove it.
+"""
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from beams_driver.codes import BeaconCode
+
+# The AND hypothesis: bursts shorter than 56% of T0 do not trigger the receiver (section 5.6).
+THESIS_MIN_BURST_FRACTION = 0.56
+# Fig. 5.3, code C_k: variance of the first rising and last falling edge (deg^2) over the windows
+# of the experiment, smallest to largest (section 5.6).
+THESIS_RISING_VARIANCE_DEG2 = (0.0018, 0.0137)
+THESIS_FALLING_VARIANCE_DEG2 = (0.000066, 0.0023)
+# Section 5.7: the bias fluctuates with the received power within 0.23 deg.
+THESIS_POWER_BIAS_RANGE_DEG = 0.23
+# Distances whose windows the experiment of section 5.3 spans (4-150 mW at 1 m: 1 m to 6 m).
+EXPERIMENT_DISTANCES_M = (6.0, 1.0)
+
+
+@dataclass(frozen=True)
+class ReceiverModel:
+    """Minimum detectable burst and mean window shortening of a receiver (sections 5.3 and 5.6).
+
+    The minimum burst for a code whose shortest gap is G (s) and bit time T_b is
+    min_burst_fraction * T_b * (G / T_b)^min_burst_gap_exponent: exponent 1 scales it with the gap
+    (the simulator's original AND hypothesis), -0.5 lets a longer OFF period (the AGC's gain
+    recovering) lower it; both give the thesis's 56% of T0 for the family codes, whose gaps are one bit.
+    outer_shortening_s moves the window's first rising and last falling edges inwards by half of it each.
+    """
+
+    min_burst_fraction: float = 0.0
+    min_burst_gap_exponent: float = 1.0
+    outer_shortening_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.min_burst_fraction < 0.0 or self.outer_shortening_s < 0.0:
+            raise ValueError("receiver: min_burst_fraction and outer_shortening_s must be >= 0")
+
+    def min_burst_s(self, code: BeaconCode) -> float:
+        """Shortest clipped burst (s) that still triggers the receiver for this code."""
+        gap_s = min(code.gap_bits) * code.bit_time_s
+        if self.min_burst_gap_exponent == 1.0:
+            return self.min_burst_fraction * gap_s
+        return (
+            self.min_burst_fraction
+            * code.bit_time_s
+            * (gap_s / code.bit_time_s) ** self.min_burst_gap_exponent
+        )
+
+    def window_shortening_s(self, code: BeaconCode) -> float:
+        """Mean of phi_W - Phi_w (s of turret time): sum over gaps of (G_j + m)^2 / T_c, plus the outer shift.
+
+        Eq. 5.2 generalised: the first rising edge comes late by the rest of the gap the window opens in
+        (G^2 / 2 per gap), or, when it opens in the last m of a burst (too short to trigger), by that rest
+        plus the next gap (m^2 / 2 + m G); the same for the last falling edge. With m = 0 it is p0 T0.
+        """
+        gaps_s = np.array(code.gap_bits, dtype=float) * code.bit_time_s
+        m = self.min_burst_s(code)
+        return float(np.sum((gaps_s + m) ** 2) / code.duration_s) + self.outer_shortening_s
+
+
+IDEAL_RECEIVER = ReceiverModel()
+
+
+@dataclass(frozen=True)
+class HardwareNoise:
+    """The thesis hardware's receiver noise (sections 5.5-5.7), applied by the simulator to each window.
+
+    Edge noise: the receiver sees the beacon from the instant the power crosses its threshold; the AGC
+    makes that crossing jitter, much more at the window's start (the gain is high after a long silence)
+    than at its end (fig. 5.3). Modelled as zero-mean Gaussian jitter of the window's two boundaries
+    (then code AND window, so a code adds its own error on top), with variances linear in the true
+    window between the experiment's extremes (fig. 5.3: "quasi linear"), held constant outside them.
+    off_noise_gain: a modulated code's natural variance is multiplied by 1 + gain (G / T_b - 1), G its
+    longest gap: the AGC's gain recovers during OFF periods (section 5.6: the real noise of C_5b and
+    C_5c exceeds natural plus code variance). power_bias_coefficients: the bearing bias (rad) against
+    the window (rad), cubic (eq. 7.19), phi_biased = phi_real + f(w) (eq. 7.17).
+    """
+
+    window_range_rad: tuple[float, float]
+    power_bias_coefficients: tuple[float, float, float, float]
+    rising_variance_deg2: tuple[float, float] = THESIS_RISING_VARIANCE_DEG2
+    falling_variance_deg2: tuple[float, float] = THESIS_FALLING_VARIANCE_DEG2
+    off_noise_gain: float = 0.7
+    modulation_shortening_rad: float = math.radians(3.5e-3)
+
+    def __post_init__(self) -> None:
+        low, high = self.window_range_rad
+        if not 0.0 < low < high:
+            raise ValueError(
+                f"hardware noise: window range must satisfy 0 < low < high, got {self.window_range_rad}"
+            )
+        if min(*self.rising_variance_deg2, *self.falling_variance_deg2, self.off_noise_gain) < 0.0:
+            raise ValueError("hardware noise: variances and off_noise_gain must be >= 0")
+
+    def edge_std_rad(self, window_rad: ArrayLike, code: BeaconCode | None) -> tuple[np.ndarray, np.ndarray]:
+        """(rising, falling) standard deviations (rad) of the window boundaries; code None is C_k."""
+        low, high = self.window_range_rad
+        fraction = np.clip((np.asarray(window_rad, dtype=float) - low) / (high - low), 0.0, 1.0)
+        scale = self.off_gain(code) * math.radians(1.0) ** 2
+        rising = self.rising_variance_deg2[0] + fraction * np.diff(self.rising_variance_deg2)[0]
+        falling = self.falling_variance_deg2[0] + fraction * np.diff(self.falling_variance_deg2)[0]
+        return np.sqrt(rising * scale), np.sqrt(falling * scale)
+
+    def off_gain(self, code: BeaconCode | None) -> float:
+        """Factor on the natural variance for a code's OFF periods (1 for C_k and one-bit gaps)."""
+        if code is None:
+            return 1.0
+        return 1.0 + self.off_noise_gain * (max(code.gap_bits) - 1)
+
+    def power_bias_rad(self, window_rad: ArrayLike) -> np.ndarray:
+        """Power bias f(w) (rad) of the bearing for true windows w (rad), eq. 7.19."""
+        a, b, c, d = self.power_bias_coefficients
+        w = np.asarray(window_rad, dtype=float)
+        return ((a * w + b) * w + c) * w + d
+
+
+def thesis_power_bias_coefficients(
+    window_range_rad: tuple[float, float], range_rad: float
+) -> tuple[float, float, float, float]:
+    """Eq. 7.19 coefficients (a, b, c, d) of a bias fluctuating within range_rad over the window range.
+
+    Fig. 5.6 shows the mean bearing fluctuating with the window within 0.23 deg (section 5.7); the cubic
+    with the most fluctuation in a range is the Chebyshev T3(x) = 4x^3 - 3x, x the window mapped onto
+    [-1, 1]: it sweeps the whole range twice, and any part of the working windows sees most of it.
+    Zero mean over the range (a constant bias only turns the heading, section 5.7).
+    """
+    low, high = window_range_rad
+    windows = np.linspace(low, high, 16)
+    x = (2.0 * windows - low - high) / (high - low)
+    a, b, c, d = np.polyfit(windows, 0.5 * range_rad * (4.0 * x**3 - 3.0 * x), 3)
+    return (float(a), float(b), float(c), float(d))
