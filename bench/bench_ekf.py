@@ -16,11 +16,12 @@ import numpy as np
 
 from beams_bringup.match_replay import bearing_events
 from beams_common.angles import wrap_to_pi
+from beams_common.bearing import Bearing
 from beams_common.pose2d import compose
 from beams_driver.sensor_sim import SensorSimConfig
 from beams_driver.variance import VarianceModel
 from beams_ekf.bearing_ekf import BearingEkf
-from beams_ekf.localiser import Bearing, FilterSettings, Localiser, build_localiser
+from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
 from beams_ekf.replay import Accuracy, ReplayResult, accuracy, replay
 from beams_sim.simulated_match import SimulatedMatch, simulate_match
 

@@ -51,13 +51,15 @@ def _capture(rclpy_node, x, y, theta, revolutions=REVOLUTIONS):
     from beams_msgs.srv import CaptureReference
 
     request = CaptureReference.Request(x=x, y=y, theta=theta, revolutions=revolutions)
-    return rclpy_node.call(CaptureReference, "capture_reference", request, TIMEOUT_S)
+    return rclpy_node.call(CaptureReference, "/calibration_node/capture_reference", request, TIMEOUT_S)
 
 
 def _list(rclpy_node):
     from beams_msgs.srv import ListConfigurations
 
-    return rclpy_node.call(ListConfigurations, "list_configurations", ListConfigurations.Request(), TIMEOUT_S)
+    return rclpy_node.call(
+        ListConfigurations, "/calibration_node/list_configurations", ListConfigurations.Request(), TIMEOUT_S
+    )
 
 
 def test_capture_list_and_clear(start_node, rclpy_node, tmp_path):
@@ -90,7 +92,7 @@ def test_capture_list_and_clear(start_node, rclpy_node, tmp_path):
     assert listing.configurations == 1 and listing.dataset_file == str(tmp_path / "dataset.yaml")
     assert listing.summaries[0].startswith("1: x=0.6000 m y=0.3600 m theta=90.0 deg")
 
-    cleared = rclpy_node.call(Trigger, "clear_dataset", Trigger.Request(), TIMEOUT_S)
+    cleared = rclpy_node.call(Trigger, "/calibration_node/clear_dataset", Trigger.Request(), TIMEOUT_S)
     assert cleared.success and "cleared 1 configurations" in cleared.message
     assert _list(rclpy_node).configurations == 0
     assert len(load_dataset(tmp_path / "dataset.yaml.bak").configurations) == 1
@@ -121,11 +123,13 @@ def test_calibrate_service_writes_the_calibration_file(start_node, rclpy_node, t
     params = _calibration_params(tmp_path, leave_one_out=False, plots_directory=str(tmp_path / "plots"))
     start_node("beams_calibration", "calibration_node", params)
 
-    refused = rclpy_node.call(Calibrate, "calibrate", Calibrate.Request(), TIMEOUT_S)
+    refused = rclpy_node.call(Calibrate, "/calibration_node/calibrate", Calibrate.Request(), TIMEOUT_S)
     assert not refused.success and "calibration refused: 6 usable configurations" in refused.message
 
     save_dataset(dataset, dataset_file)
-    response = rclpy_node.call(Calibrate, "calibrate", Calibrate.Request(dry_run=False), 120.0)
+    response = rclpy_node.call(
+        Calibrate, "/calibration_node/calibrate", Calibrate.Request(dry_run=False), 120.0
+    )
     assert response.success, response.message
     assert response.position_rms_before > 3e-3 and response.position_rms_after < 0.1e-3
     assert response.orientation_rms_after < math.radians(0.01) < response.orientation_rms_before

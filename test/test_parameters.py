@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from beams_bringup.bag_replay import load_node_parameters
+from beams_bringup.replay_settings import load_node_parameters
 from beams_common.parameters import ParameterError
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 

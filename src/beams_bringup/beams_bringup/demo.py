@@ -30,8 +30,8 @@ from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, Qo
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
+from beams_bringup.bag_events import stamp_ns
 from beams_bringup.bag_io import BagRecorder, beams_typestore, fully_qualified
-from beams_bringup.bag_replay import stamp_ns
 from beams_bringup.system import PARAMS_FILE, ROBOT_NODES, installed_params_file
 from beams_bringup.trajectory_metrics import (
     RunTracks,
@@ -40,6 +40,7 @@ from beams_bringup.trajectory_metrics import (
     rms,
     rms_table,
 )
+from beams_common import topics
 from beams_common.ros.messages import pose2d_of
 from beams_common.ros.node_support import BEARINGS_QOS
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
@@ -48,16 +49,16 @@ ROOT = pathlib.Path.cwd()
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
 # Every topic of the suite, with its type, recorded to the bag.
 TOPICS = {
-    "beams/sim/ground_truth": Odometry,
-    "odom": Odometry,
-    "beams/bearings": BeaconBearingArray,
-    "beams/pose": TriangulatedPose,
-    "beams/pose_cov": PoseWithCovarianceStamped,
-    "beams/ekf/odometry": Odometry,
-    "beams/ekf/pose": PoseWithCovarianceStamped,
-    "beams/markers": MarkerArray,
-    "/diagnostics": DiagnosticArray,
-    "/tf": TFMessage,
+    topics.GROUND_TRUTH: Odometry,
+    topics.ODOMETRY: Odometry,
+    topics.BEARINGS: BeaconBearingArray,
+    topics.POSE: TriangulatedPose,
+    topics.POSE_COV: PoseWithCovarianceStamped,
+    topics.EKF_ODOMETRY: Odometry,
+    topics.EKF_POSE: PoseWithCovarianceStamped,
+    topics.MARKERS: MarkerArray,
+    topics.DIAGNOSTICS: DiagnosticArray,
+    topics.TF: TFMessage,
 }
 PROGRESS_PERIOD_S = 5.0
 START_TIMEOUT_S = 30.0
@@ -102,14 +103,18 @@ class MatchRecord(RunTracks):
     poses_rejected: int = 0
 
     def on_message(self, topic: str, msg) -> None:
-        tracks = {"beams/sim/ground_truth": self.truth, "odom": self.odometry, "beams/ekf/odometry": self.ekf}
+        tracks = {
+            topics.GROUND_TRUTH: self.truth,
+            topics.ODOMETRY: self.odometry,
+            topics.EKF_ODOMETRY: self.ekf,
+        }
         if topic in tracks:
             tracks[topic].add(0, stamp_ns(msg.header.stamp), pose2d_of(msg.pose.pose))
-        elif topic == "beams/bearings":
+        elif topic == topics.BEARINGS:
             self.revolutions += 1
             self.bearings += len(msg.bearings)
             self.rejected_windows += msg.rejected_windows
-        elif topic == "beams/pose":
+        elif topic == topics.POSE:
             if msg.accepted:
                 self.total.add(0, stamp_ns(msg.header.stamp), pose2d_of(msg.pose.pose))
             else:
@@ -218,7 +223,7 @@ def main() -> int:
                     recorder.write(fully_qualified(topic), ros_type_name(msg_type), stamp_ns, raw, offered)
                     record.on_message(topic, msg)
 
-                qos = BEARINGS_QOS if topic == "beams/bearings" else 50
+                qos = BEARINGS_QOS if topic == topics.BEARINGS else 50
                 node.create_subscription(msg_type, topic, on_raw, qos, raw=True)
             started = time.monotonic()
             next_progress = started + PROGRESS_PERIOD_S

@@ -13,6 +13,7 @@ import sys
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
 
+from beams_common import topics
 from beams_common.angles import wrap_to_pi
 from beams_common.bearing_correction import BearingCorrection
 from beams_common.calibration_file import SensorCalibration, load_calibration
@@ -79,7 +80,7 @@ class DriverNode(Node):
         self.correction = self._correction_of(self.parameters["calibration_file"])
         serve_calibration_reload(self, self._apply_calibration)
         apply_runtime_changes(self, DRIVER_PARAMETERS, self.parameters, self._apply_parameters)
-        self.publisher = self.create_publisher(BeaconBearingArray, "beams/bearings", BEARINGS_QOS)
+        self.publisher = self.create_publisher(BeaconBearingArray, topics.BEARINGS, BEARINGS_QOS)
         self.host = RosSourceHost(self)
         try:
             self.source: EdgeSource = kind.create(source_parameters, self.codes, self.host)

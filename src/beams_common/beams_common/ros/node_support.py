@@ -21,6 +21,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from std_srvs.srv import Trigger
 
+from beams_common import topics
 from beams_common.calibration_file import SensorCalibration, load_calibration
 from beams_common.geometry_parameters import BeaconGeometry, geometry_of
 from beams_common.ros.parameters import ParameterValidationError
@@ -175,7 +176,7 @@ def serve_calibration_reload(node: Node, apply: Callable[[SensorCalibration], st
                 node.get_logger().error(response.message)
         return response
 
-    node.create_service(Trigger, "~/reload_calibration", reload)
+    node.create_service(Trigger, topics.RELOAD_CALIBRATION, reload)
 
 
 class Diagnostics:
@@ -197,7 +198,7 @@ class Diagnostics:
         self._level = "ok"
         self._message = "running"
         self._refusal: tuple[str, str] | None = None  # (level, reason) not yet published
-        self._publisher = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._publisher = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self._timer = node.create_timer(period_s, self.publish)
         self._clock_waits = 0
         if node.get_parameter("use_sim_time").value:
