@@ -5,6 +5,7 @@ Parameters are declared from their specs by beams_common.ros.parameters.
 
 import os
 import signal
+import sys
 import traceback
 from collections.abc import Callable
 from typing import Any
@@ -61,7 +62,13 @@ def run_node(
     stop_signals = _catch_stop_signals()
     # No rclpy signal handlers: they shut the context down under callbacks still running (a timer's
     # publish then fails) and chain to KeyboardInterrupt; the spin loop stops on stop_signals instead.
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except _rclpy.RCLError as error:  # a malformed --ros-args (an unquoted list, a bad remap)
+        reason = str(error).splitlines()[0]
+        print(f"invalid command-line arguments (--ros-args): {reason}", file=sys.stderr)
+        _ignore_stop_signals()
+        return EXIT_INVALID_PARAMETERS
     node: Node | None = None
     try:
         node = node_class()
