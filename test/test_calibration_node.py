@@ -145,3 +145,39 @@ def test_an_unreadable_dataset_is_refused_at_start_up(start_node, tmp_path):
     assert node.wait_exit(TIMEOUT_S) == 2
     log = node.log()
     assert "invalid parameters: dataset_file:" in log and "not valid YAML" in log and "Traceback" not in log
+
+
+def test_non_finite_bearings_in_a_capture_are_left_out_and_counted(rclpy_node, start_node, tmp_path):
+    """A bearing with a NaN in a captured revolution is left out of the average, counted and shown."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from beams_msgs.msg import BeaconBearing, BeaconBearingArray
+    from beams_msgs.srv import CaptureReference
+
+    start_node("beams_calibration", "calibration_node", _calibration_params(tmp_path))
+    rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
+    publisher = rclpy_node.node.create_publisher(BeaconBearingArray, "beams/bearings", 10)
+    assert rclpy_node.spin_until(lambda: publisher.get_subscription_count() > 0, TIMEOUT_S)
+    prior = _setup().PRIOR_BEACONS
+    revolution = BeaconBearingArray(period=0.1)
+    for beacon_id, (bx, by) in zip(prior.ids, prior.xy, strict=True):
+        bearing = math.remainder(math.atan2(by - POSE[1], bx - POSE[0]) - POSE[2], 2 * math.pi)
+        revolution.bearings.append(BeaconBearing(beacon_id=beacon_id, bearing=bearing, angular_window=0.1))
+    revolution.bearings.append(BeaconBearing(beacon_id=9, bearing=math.nan, angular_window=0.1))
+    client = rclpy_node.node.create_client(CaptureReference, "/calibration_node/capture_reference")
+    assert client.wait_for_service(timeout_sec=TIMEOUT_S)
+    future = client.call_async(CaptureReference.Request(x=POSE[0], y=POSE[1], theta=POSE[2], revolutions=5))
+
+    def captured() -> bool:
+        publisher.publish(revolution)
+        rclpy_node.spin_for(0.1)
+        return future.done()
+
+    assert rclpy_node.spin_until(captured, TIMEOUT_S)
+    assert future.result().success, future.result().message
+
+    def counted() -> bool:
+        values = rclpy_node.diagnostic_values("calibration")
+        return int(values.get("bearings_refused_non_finite", 0)) >= 5
+
+    assert rclpy_node.spin_until(counted, TIMEOUT_S), rclpy_node.diagnostic_values("calibration")

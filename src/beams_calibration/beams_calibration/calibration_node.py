@@ -149,11 +149,19 @@ class CalibrationNode(Node):
         capture = self._capture
         if capture is None or capture.done.done():
             return
+        if self.diagnostics.oversized_revolution(msg):
+            return
         revolution = {
             int(b.beacon_id): (float(b.bearing), float(b.angular_window))
             for b in msg.bearings
             if math.isfinite(b.bearing) and math.isfinite(b.angular_window)
         }
+        if len(revolution) < len(msg.bearings):  # a capture averages what is left: say what was not
+            self.diagnostics.refuse(
+                "bearings_refused_non_finite",
+                f"revolution {msg.revolution}: {len(msg.bearings) - len(revolution)} bearing(s) with a "
+                "non-finite bearing or window (or a beacon repeated) left out of the capture",
+            )
         capture.revolutions.append(revolution)
         if len(capture.revolutions) >= capture.target:
             capture.done.set_result(True)
