@@ -83,7 +83,7 @@ def test_table_7_5_ordering_of_the_methods(table):
 
     - Uncalibrated: thesis 8.75 mm, 0.43 deg; band 7-12 mm, 0.3-0.7 deg (seen 9.8-10.6 mm, 0.48-0.61).
     - A pair with the rotation bias (lines 7, 8) is less than half of any single method or of power
-      bias + beacons (lines 2-6), band < 0.7: thesis 2.95 / 6.21 = 0.48 (0.61 seen for seed 3).
+      bias + beacons (lines 2-6), band < 0.7: thesis 2.95 / 6.21 = 0.48 (0.58 for seed 3, 0.61 for seed 1).
     - Without the turret offset the rotation bias alone is a little worse (line 4 vs 3): thesis +0.9%,
       band 0-5% (seen 1-2.5%).
     - The global calibration beats every pair (line 11 < lines 7, 8), the final optimisation adds a gain
