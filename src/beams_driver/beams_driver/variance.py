@@ -277,6 +277,20 @@ class VarianceModel:
         result = lookup(window / self.turret_speed_rad_s) * self.turret_speed_rad_s**2
         return float(result) if result.ndim == 0 else result
 
+    def window_variance_rad2(
+        self, code: int | BeaconCode, angular_window_rad: ArrayLike
+    ) -> np.ndarray | float:
+        """OOK variance (rad^2) of the decoded window, chapter 3's edges: the window opens uniformly over
+        the code, so each outer edge is late by e, uniform over a gap G stretched by the minimum burst m:
+        E[e^2] = sum (G + m)^3 / (3 T_c) = 2 bound, E[e] = sum (G + m)^2 / (2 T_c); the bearing error is
+        (e_r - e_f) / 2 and the window error -(e_r + e_f), so Var(window) = 4 Var(e) - 4 Var(bearing)."""
+        code = self.code(code)
+        mean_delay_rad = 0.5 * self._receiver.window_shortening_s(code) * self.turret_speed_rad_s
+        edge_variance = 2.0 * self.bound_rad2(code) - mean_delay_rad**2
+        artificial = np.asarray(self.artificial_variance_rad2(code, angular_window_rad))
+        result = np.maximum(4.0 * (edge_variance - artificial), 0.0)
+        return float(result) if result.ndim == 0 else result
+
     def bound_rad2(self, code: int | BeaconCode) -> float:
         """Theorem 3.1 for the code, with gaps stretched by the minimum detectable burst (section 5.6)."""
         code = self.code(code)
