@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_driver.decoder import BearingDecoder
 from beams_driver.estimate_noise import driver_models, estimate
 from beams_driver.noise_estimation import (
     TOLERATED_RATIO,
@@ -19,9 +18,10 @@ from beams_driver.noise_estimation import (
     StaticRecording,
     beacon_spread,
     recordings_from_bearings,
+    simulated_bearings,
 )
 from beams_driver.parameters import DRIVER_PARAMETERS, codes_of, variance_model_of
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
+from beams_driver.sensor_sim import SensorSimConfig, beacons_from_map
 from beams_driver.variance import VarianceModel
 
 HARDWARE = SensorSimConfig.thesis_hardware()
@@ -35,15 +35,8 @@ LIMITS = {"max_std_rad": math.radians(0.3), "max_drift_rad": math.radians(0.1), 
 
 def _record(config, model, pose, seed, revolutions=REVOLUTIONS, pose_at=None):
     """(beacon, bearing, published variance, window) of a driver decoder on a simulated still robot."""
-    simulator = SensorSimulator(config, beacons_from_map(EUROBOT_BEACON_MAP), np.random.default_rng(seed))
-    decoder = BearingDecoder(CODES, model, receiver=config.receiver)
-    rows = []
-    for n in range(revolutions):
-        edges = simulator.revolution(pose_at or (lambda _t: pose), n * config.period_s)
-        rows += [
-            (b.beacon_id, b.bearing, b.variance, b.angular_window) for b in decoder.decode(edges).bearings
-        ]
-    return rows
+    beacons = beacons_from_map(EUROBOT_BEACON_MAP)
+    return simulated_bearings(config, model, beacons, pose_at or (lambda _t: pose), revolutions, seed)
 
 
 def _recordings(config, model, seed0, revolutions=REVOLUTIONS):
