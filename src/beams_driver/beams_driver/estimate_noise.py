@@ -26,6 +26,10 @@ from beams_common.calibration_file import atomic_write_text
 from beams_common.parameters import ParameterError, ParameterTable, load_parameter_file
 from beams_driver.edge_source import BUILT_IN_SOURCES, source_kind
 from beams_driver.noise_estimation import (
+    MAX_DRIFT_RAD,
+    MAX_STD_RAD,
+    MIN_SAMPLES,
+    SLOPE_Z_THRESHOLD,
     BeaconSpread,
     NaturalVarianceFit,
     NoiseEstimationError,
@@ -225,10 +229,18 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--plot", type=pathlib.Path, help="PNG figure to write")
     parser.add_argument("--driver-params", type=pathlib.Path, help="the driver's parameter file (codes)")
     parser.add_argument("--topic", default=BEARINGS_TOPIC, help=f"bearings topic (default {BEARINGS_TOPIC})")
-    parser.add_argument("--min-samples", type=int, default=50, help="fewest bearings of a beacon used")
-    parser.add_argument("--max-std-deg", type=float, default=0.3, help="spread of a still robot (deg)")
-    parser.add_argument("--max-drift-deg", type=float, default=0.1, help="drift of a still robot (deg)")
-    parser.add_argument("--slope-z", type=float, default=3.0, help="significance of a window slope (sigma)")
+    parser.add_argument(
+        "--min-samples", type=int, default=MIN_SAMPLES, help="fewest bearings of a beacon used"
+    )
+    parser.add_argument(
+        "--max-std-deg", type=float, default=MAX_STD_RAD / DEG, help="spread of a still robot (deg)"
+    )
+    parser.add_argument(
+        "--max-drift-deg", type=float, default=MAX_DRIFT_RAD / DEG, help="drift of a still robot (deg)"
+    )
+    parser.add_argument(
+        "--slope-z", type=float, default=SLOPE_Z_THRESHOLD, help="significance of a window slope (sigma)"
+    )
     return parser
 
 
