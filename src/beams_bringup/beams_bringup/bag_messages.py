@@ -77,11 +77,12 @@ class MessageBuilder:
         self,
         start: int,
         period_s: float,
-        bearings: Iterable[tuple[int, int, float, float]],
+        bearings: Iterable[tuple[int, int, float, float] | tuple[int, int, float, float, float]],
         revolution: int,
         frame_id: str = "beams_sensor",
     ) -> Any:
-        """beams_msgs/BeaconBearingArray from (stamp ns, beacon id, bearing rad, variance rad^2) tuples."""
+        """beams_msgs/BeaconBearingArray from (stamp ns, beacon id, bearing rad, variance rad^2) tuples,
+        optionally followed by the angular window (rad; 0 without it)."""
         bearing_type = self.types["beams_msgs/msg/BeaconBearing"]
         items = [
             bearing_type(
@@ -89,12 +90,12 @@ class MessageBuilder:
                 beacon_id=int(beacon),
                 bearing=float(angle),
                 variance=float(variance),
-                angular_window=0.0,
+                angular_window=float(window[0]) if window else 0.0,
                 rising_angle=0.0,
                 falling_angle=0.0,
                 codes_seen=1,
             )
-            for stamp, beacon, angle, variance in bearings
+            for stamp, beacon, angle, variance, *window in bearings
         ]
         return self.types[BEARINGS_TYPE](
             header=self.header(start, frame_id),
@@ -162,7 +163,8 @@ def simulated_messages(match: Any, typestore: Any, epoch_ns: int = 0) -> list[Ba
     for r in match.revolutions:
         start = epoch_ns + round(r.start_time_s * 1e9)
         bearings = [
-            (epoch_ns + round(b.stamp_s * 1e9), b.beacon_id, b.bearing, b.variance) for b in r.bearings
+            (epoch_ns + round(b.stamp_s * 1e9), b.beacon_id, b.bearing, b.variance, b.angular_window)
+            for b in r.bearings
         ]
         messages.append(
             (

@@ -10,6 +10,7 @@ rotation experiment (figure 7.7).
 real recordings.
 """
 
+import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 
@@ -209,6 +210,10 @@ def capture_dataset(
     return Dataset(prior_map, tuple(configurations))
 
 
+# the angular windows of the calibration grid (0.3-1.3 m from the beacons: 7.4-10.3 deg), with a margin
+THESIS_GRID_WINDOW_RANGE_RAD = (math.radians(5.0), math.radians(13.0))
+
+
 def thesis_hardware_config() -> SensorSimConfig:
     """The thesis-hardware receiver (`SensorSimConfig.thesis_hardware`) with chapter 7's power bias.
 
@@ -220,7 +225,12 @@ def thesis_hardware_config() -> SensorSimConfig:
     """
     base = SensorSimConfig.thesis_hardware()
     assert base.hardware is not None  # thesis_hardware always has its receiver noise
-    hardware = replace(base.hardware, power_bias_coefficients=THESIS_POWER_BIAS_COEFFICIENTS)
+    # the figure's cubic holds over the whole calibration grid (its windows), not only section 5.7's range
+    hardware = replace(
+        base.hardware,
+        power_bias_coefficients=THESIS_POWER_BIAS_COEFFICIENTS,
+        power_bias_range_rad=THESIS_GRID_WINDOW_RANGE_RAD,
+    )
     return SensorSimConfig.thesis_hardware(hardware=hardware)
 
 

@@ -1,8 +1,8 @@
 """driver_node's parameters: one spec each (the chosen edge source adds its own, edge_source.py).
 
-Runtime-changeable: the variance model (mode, natural and constant variances: the next revolution's
-bearings get them), the frame and the calibration file (its corrections are applied at once). The codes
-and the source define what the sensor is and stay read-only.
+Runtime-changeable: the variance model (mode, natural variance and its window slope, constant variance:
+the next revolution's bearings get them), the frame and the calibration file (its corrections are applied
+at once). The codes and the source define what the sensor is and stay read-only.
 """
 
 from collections.abc import Mapping
@@ -47,6 +47,8 @@ def variance_model_of(
         codes,
         values["variance_mode"],
         natural_variance_rad2=values["natural_variance_rad2"],
+        natural_variance_slope_rad2_per_rad=values["natural_variance_slope_rad2_per_rad"],
+        natural_variance_reference_window_rad=values["natural_variance_reference_window_rad"],
         constant_variance_rad2=values["constant_variance_rad2"],
         min_burst_fraction=receiver.min_burst_fraction,
         min_burst_gap_exponent=receiver.min_burst_gap_exponent,
@@ -79,9 +81,27 @@ DRIVER_PARAMETERS = ParameterTable(
         ParameterSpec(
             "natural_variance_rad2",
             _SIMULATED.natural_variance_rad2,
-            "Natural (noise) variance added to the code variance (rad^2).",
+            "Natural (noise) variance added to the code variance (rad^2), at "
+            "natural_variance_reference_window_rad when it depends on the window.",
             minimum=0.0,
             maximum=1e-2,
+            runtime=True,
+        ),
+        ParameterSpec(
+            "natural_variance_slope_rad2_per_rad",
+            0.0,
+            "Growth of the natural variance with the angular window (rad^2 per rad; thesis section 5.5), "
+            "as estimate_noise fits it; 0: constant natural variance.",
+            minimum=-1e-2,
+            maximum=1e-2,
+            runtime=True,
+        ),
+        ParameterSpec(
+            "natural_variance_reference_window_rad",
+            0.0,
+            "Angular window (rad) at which natural_variance_rad2 holds when the slope is not 0.",
+            minimum=0.0,
+            maximum=1.0,
             runtime=True,
         ),
         ParameterSpec(

@@ -88,7 +88,8 @@ class HardwareNoise:
     off_noise_gain: a modulated code's natural variance is multiplied by 1 + gain (G / T_b - 1), G its
     longest gap: the AGC's gain recovers during OFF periods (section 5.6: the real noise of C_5b and
     C_5c exceeds natural plus code variance). power_bias_coefficients: the bearing bias (rad) against
-    the window (rad), cubic (eq. 7.19), phi_biased = phi_real + f(w) (eq. 7.17).
+    the window (rad), cubic (eq. 7.19), phi_biased = phi_real + f(w) (eq. 7.17), held constant outside
+    power_bias_range_rad (default: window_range_rad, where section 5.7 measured it).
     """
 
     window_range_rad: tuple[float, float]
@@ -97,6 +98,7 @@ class HardwareNoise:
     falling_variance_deg2: tuple[float, float] = THESIS_FALLING_VARIANCE_DEG2
     off_noise_gain: float = 0.7
     modulation_shortening_rad: float = math.radians(3.5e-3)
+    power_bias_range_rad: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         low, high = self.window_range_rad
@@ -131,7 +133,8 @@ class HardwareNoise:
     def power_bias_correction(self) -> BearingCorrection:
         """The chapter-7 correction that removes this power bias exactly (eq. 7.18): what a perfect
         calibration of this receiver finds (its window range the experiment's)."""
-        return BearingCorrection(self.power_bias_coefficients, window_range_rad=self.window_range_rad)
+        bias_range = self.power_bias_range_rad or self.window_range_rad
+        return BearingCorrection(self.power_bias_coefficients, window_range_rad=bias_range)
 
     def natural_variance_rad2(self, window_rad: ArrayLike, code: BeaconCode | None) -> np.ndarray:
         """Bearing variance (rad^2) the edge noise adds at true windows w: (sigma_r^2 + sigma_f^2) / 4
