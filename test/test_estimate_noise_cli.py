@@ -9,7 +9,7 @@ import subprocess
 import pytest
 
 from beams_bringup.bag_io import beams_typestore
-from beams_bringup.bag_replay import simulated_messages, write_bag
+from beams_bringup.bag_messages import simulated_messages, write_bag
 from beams_common.parameters import ParameterTable, load_parameter_file
 from beams_driver.parameters import DRIVER_PARAMETERS
 from beams_driver.sensor_sim import SensorSimConfig
