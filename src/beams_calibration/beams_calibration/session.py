@@ -296,6 +296,8 @@ def progress_bar(fraction: float, width: int = 30) -> str:
 
 # --- checks on a capture ----------------------------------------------------------------------------
 
+# No bearings reached the node: every other capture would be refused the same way.
+NO_DRIVER = re.compile(r"revolutions received in time|no revolution")
 # A refusal's reason (dataset.average_capture, calibration_node) and what the person does about it.
 _HINTS = (
     (re.compile(r"beacon (\d+) seen in"), "clear the line of sight to beacon {0}, check it is powered"),
@@ -558,6 +560,9 @@ def _capture_pose(
         hint = capture_hint(result.message)
         console.say(f"REFUSED {result.message}" + (f"\n  -> {hint}" if hint else ""))
         if console.assume_yes and attempts >= max_attempts:
+            if NO_DRIVER.search(result.message):
+                console.say(f"no bearings after {attempts} attempts: stopping (nothing else would take)")
+                return False
             console.say(f"{planned.label} skipped after {attempts} attempts")
             outcome.skipped.append(planned)
             return True

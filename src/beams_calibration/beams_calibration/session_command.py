@@ -26,7 +26,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from nav_msgs.msg import Odometry
 from rcl_interfaces.srv import GetParameters
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import parameter_value_to_python
 from rclpy.utilities import remove_ros_args
@@ -298,7 +298,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SetupError as error:
         print(f"calibration_session: {error}", file=sys.stderr)
         return EXIT_REFUSED
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):
         console.say("\nstopped; run the same command again to resume (the captured poses are skipped)")
         return EXIT_STOPPED
     finally:
