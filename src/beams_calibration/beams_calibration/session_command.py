@@ -67,6 +67,13 @@ class SetupError(RuntimeError):
     """The session cannot start (no node, a bad plan); says why."""
 
 
+def _area(text: str) -> TableArea:
+    try:
+        return TableArea.parse(text)
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(str(error)) from None
+
+
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="calibration_session",
@@ -77,7 +84,7 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--orientations", type=int, default=4, help="headings per position (4: eq. 7.3)")
     parser.add_argument(
         "--area",
-        type=TableArea.parse,
+        type=_area,
         help="x_min,x_max,y_min,y_max (m) to spread the positions over (default: the beacons' bounding box)",
     )
     parser.add_argument(
