@@ -2,7 +2,8 @@
 
 Runtime-changeable: the variance model (mode, natural and constant variances: the next revolution's
 bearings get them), the frame and the calibration file (its corrections are applied at once). The codes
-and the source define what the sensor is and stay read-only.
+and the source define what the sensor is and stay read-only. `autostart` (read-only) is the lifecycle's:
+declared first and alone, so the node knows whether to exit or to wait when another parameter is bad.
 """
 
 from collections.abc import Mapping
@@ -52,6 +53,14 @@ def variance_model_of(
         min_burst_gap_exponent=receiver.min_burst_gap_exponent,
     )
 
+
+AUTOSTART = ParameterSpec(
+    "autostart",
+    True,
+    "Configure and activate the (lifecycle) node at start-up, exiting with the reason when it cannot; "
+    "false: wait unconfigured for a lifecycle manager (ros2 lifecycle set).",
+)
+LIFECYCLE_PARAMETERS = ParameterTable("driver_node", (AUTOSTART,))
 
 DRIVER_PARAMETERS = ParameterTable(
     "driver_node",
