@@ -11,6 +11,7 @@ state does not offer is refused. The default (autostart) publishes as before and
 import contextlib
 import os
 import pathlib
+import signal
 import threading
 import time
 from collections.abc import Iterator
@@ -181,6 +182,19 @@ def test_serial_driver_walks_the_lifecycle_and_opens_the_port_only_while_configu
     assert node.process.poll() is None, "the node process ended at shutdown"
     assert node.log().count(f"serial device {device} released") == 2
     assert "Traceback" not in node.log()
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_stop_signal_while_inactive_releases_the_port_and_exits_0(rclpy_node, start_node, sensor_pty, sig):
+    device, _ = sensor_pty
+    node = start_node(
+        "beams_driver", "driver_node", params={"autostart": False, "source": "serial", "device": device}
+    )
+    driver = Managed(rclpy_node, node)
+    assert driver.change("configure") and driver.change("activate") and driver.change("deactivate")
+    assert driver.holds(device)
+    node.assert_clean_exit(sig)
+    assert f"serial device {device} released" in node.log()
 
 
 def test_simulated_driver_drops_the_revolutions_of_its_inactive_time_and_releases_its_subscription(
