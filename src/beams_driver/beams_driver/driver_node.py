@@ -22,7 +22,7 @@ from collections.abc import Callable
 from lifecycle_msgs.srv import ChangeState
 from nav_msgs.msg import Odometry
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
-from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
 from rclpy.subscription import Subscription
 from rclpy.timer import Timer
@@ -144,7 +144,7 @@ class DriverNode(LifecycleNode):
         self.failure = ""  # the last failed transition's reason
         self.unexpected: Exception | None = None
         self.decoder: BearingDecoder | None = None
-        self.publisher = None
+        self.publisher: LifecyclePublisher | None = None
         self.source: EdgeSource | None = None
         self._poll_timer: Timer | None = None
         self._stale_before_s: float | None = None
@@ -290,7 +290,7 @@ class DriverNode(LifecycleNode):
     @staticmethod
     def _correction_of(path: str) -> BearingCorrection:
         """The calibration file's bearing corrections (none without a file); a file that cannot be read
-        stops the node at start-up."""
+        refuses the configuration (autostart: stops the node)."""
         if not path:
             return BearingCorrection()
         try:
