@@ -2,6 +2,12 @@
 the three bearing-variance modes, odometry alone and ToTal alone, and the cost of a prediction and of
 a bearing update.
 
+Both sensor models, thesis_hardware first (the simulator's default), then ideal: the match as a
+calibrated robot's driver publishes it (beams_sim.simulated_match.calibrated_match; see
+bench_ekf_consistency.py). "published R" is that driver's variance (for thesis_hardware it includes
+the power-bias correction's part); the other modes replace it by the driver's variance model in that
+mode, with the same natural variance.
+
 Usage: python bench/bench_ekf.py [--seed N] [--duration S] [--plot PATH.png]
 (`rows()` is what bench/run_all.py collects.)
 """
@@ -16,13 +22,21 @@ import numpy as np
 
 from beams_bringup.match_replay import bearing_events
 from beams_common.angles import wrap_to_pi
+from beams_common.bearing import Bearing
 from beams_common.pose2d import compose
 from beams_driver.sensor_sim import SensorSimConfig
 from beams_driver.variance import VarianceModel
 from beams_ekf.bearing_ekf import BearingEkf
-from beams_ekf.localiser import Bearing, FilterSettings, Localiser, build_localiser
+from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
 from beams_ekf.replay import Accuracy, ReplayResult, accuracy, replay
-from beams_sim.simulated_match import SimulatedMatch, simulate_match
+from beams_sim.simulated_match import (
+    SENSOR_MODELS,
+    SimulatedMatch,
+    calibrated_match,
+    sensor_config_of,
+    simulate_match,
+    table_natural_variance_rad2,
+)
 
 DEFAULT_SEED = 1
 DEFAULT_DURATION_S = 90.0
@@ -66,8 +80,9 @@ def run_mode(match: SimulatedMatch, mode: str, config: SensorSimConfig | None = 
             config.codes,
             mode,
             turret_speed_rad_s=config.turret_speed_rad_s,
-            natural_variance_rad2=config.natural_variance_rad2,
+            natural_variance_rad2=table_natural_variance_rad2(config),
             min_burst_fraction=config.min_burst_fraction,
+            min_burst_gap_exponent=config.min_burst_gap_exponent,
         )
         variance = lambda beacon_id, window: float(model.variance(beacon_id, window))  # noqa: E731
     pose, covariance = _start(match)
@@ -206,9 +221,38 @@ def plot_trajectory(
 def rows(
     seed: int = DEFAULT_SEED, duration_s: float = DEFAULT_DURATION_S, plot_path: str | None = None
 ) -> list[tuple[str, float, str, str]]:
-    """(figure, value, unit, compared with) rows."""
-    match = simulate_match(duration_s, seed)
-    runs = [run_mode(match, mode) for mode in ("published", "exact", "bound", "constant")]
+    """(figure, value, unit, compared with) rows: each sensor model's, then the costs, then the ideal
+    receiver's variance modes."""
+    table = []
+    for sensor_model in SENSOR_MODELS:
+        plot = plot_path if sensor_model == SENSOR_MODELS[0] else None
+        table += [
+            (f"{sensor_model} sensor: {figure}", value, unit, compared)
+            for figure, value, unit, compared in _match_rows(sensor_model, seed, duration_s, plot)
+        ]
+    cost = timings_us()
+    table += [
+        ("EKF prediction (one odometry step)", cost["predict"], "us", "target < 50 us"),
+        ("EKF bearing update (one accepted bearing, gate included)", cost["update"], "us", "target < 100 us"),
+        (
+            "localiser revolution (5 odometry + 3 late bearings)",
+            cost["revolution"],
+            "us",
+            "100 ms revolution",
+        ),
+    ]
+    table += _ideal_receiver_rows(seed, duration_s)
+    return table
+
+
+def _match_rows(
+    sensor_model: str, seed: int, duration_s: float, plot_path: str | None
+) -> list[tuple[str, float, str, str]]:
+    """The EKF's accuracy and consistency in each variance mode, odometry alone and ToTal alone, on the
+    match of one sensor model."""
+    config = sensor_config_of(sensor_model)
+    match = calibrated_match(sensor_model, duration_s, seed)
+    runs = [run_mode(match, mode, config) for mode in ("published", "exact", "bound", "constant")]
     odometry_position, odometry_heading, odometry_poses = odometry_alone(match)
     total_position, total_heading, total_median, fixes = total_alone(match)
     label = f"{duration_s:.0f} s match seed {seed}"
@@ -254,18 +298,6 @@ def rows(
             ("ToTal alone, uncompensated, median error", 1000 * total_median, "mm", "EKF row above"),
         ]
     )
-    cost = timings_us()
-    table += [
-        ("EKF prediction (one odometry step)", cost["predict"], "us", "target < 50 us"),
-        ("EKF bearing update (one accepted bearing, gate included)", cost["update"], "us", "target < 100 us"),
-        (
-            "localiser revolution (5 odometry + 3 late bearings)",
-            cost["revolution"],
-            "us",
-            "100 ms revolution",
-        ),
-    ]
-    table += _ideal_receiver_rows(seed, duration_s)
     if plot_path:
         plot_trajectory(match, runs[0], odometry_poses, fixes, plot_path)
     return table

@@ -14,14 +14,23 @@ variance (the exact variance plus the natural one, at the true window the simula
 odometry's systematic errors as unknowns with the filter's prior ("bound, errors unknown") or as known
 ("bound, errors known": what an estimator told the simulator's drift could reach).
 
-Usage: python bench/bench_ekf_consistency.py [--seeds N] [--duration S] [--sensor-model ideal]
-(`rows()` is what bench/run_all.py collects.) `--sensor-model thesis_hardware` passes
-`sim_noise_model` to simulate_match once the simulator has that model; its true bearing variance for
-the bound is then `true_bearing_variances` below, to be given the model's own (window-dependent) noise.
+Sensor models (`--sensor-model`, driver_node's sim_noise_model; `rows()`, what bench/run_all.py
+collects, reports both, thesis_hardware first): the EKF gets the bearings of a calibrated robot
+(beams_sim.simulated_match.calibrated_match):
+- thesis_hardware: the power bias of HardwareNoise removed by a perfect chapter-7 calibration (the
+  injected cubic's inverse over the experiment's windows, not a fit: beams_calibration's fit is measured
+  by bench_calibration); variances from the driver's exact model with one constant natural variance,
+  as the driver's VarianceModel holds one: the mean of the hardware's window-dependent edge noise
+  (sigma_r^2 + sigma_f^2) / 4 over the Eurobot table (table_natural_variance_rad2, a model figure, not
+  fitted to a match), plus the variance the correction adds through its slope at the decoded window
+  (CorrectedVariance: first-order, from the same model). Its bound's true bearing variance is the code
+  variance plus the hardware's edge noise at the true window (the correction's part is left out).
+- ideal: the OOK noise and the constant edge noise, no bias, the driver's default variances.
+
+Usage: python bench/bench_ekf_consistency.py [--seeds N] [--duration S] [--sensor-model M ...]
 """
 
 import argparse
-import inspect
 import itertools
 import math
 import sys
@@ -40,7 +49,13 @@ from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
 from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.pcrb import PcrbTrack, WheelNoiseModel, trajectory_pcrb
 from beams_ekf.replay import PoseEvent, ReplayResult
-from beams_sim.simulated_match import SimulatedMatch, default_variance_model, simulate_match
+from beams_sim.simulated_match import (
+    SENSOR_MODELS,
+    SimulatedMatch,
+    calibrated_match,
+    default_variance_model,
+    sensor_config_of,
+)
 from beams_sim.world import OdometryDrift
 
 DEFAULT_SEEDS = 10
@@ -76,20 +91,15 @@ FILTERS = (
 
 
 def sensor_match(duration_s: float, seed: int, sensor_model: str, **options) -> SimulatedMatch:
-    """The simulated match of one sensor model ("ideal": today's simulator)."""
-    if sensor_model != "ideal":
-        if "sim_noise_model" not in inspect.signature(simulate_match).parameters:
-            raise SystemExit(
-                f"sensor model {sensor_model!r}: simulate_match has no sim_noise_model argument yet"
-            )
-        options["sim_noise_model"] = sensor_model
-    return simulate_match(duration_s, seed, **options)
+    """The simulated match of one sensor model, as a calibrated robot's driver publishes it."""
+    return calibrated_match(sensor_model, duration_s, seed, **options)
 
 
 def true_bearing_variances(match: SimulatedMatch, config: SensorSimConfig) -> list[tuple[float, int, float]]:
     """(stamp, beacon id, true variance) of every decoded bearing: the simulator's exact variance
-    plus natural variance at the true window (beam geometry at the true distance), not the decoded one."""
-    model = default_variance_model(config.codes, config)
+    plus natural variance at the true window (beam geometry at the true distance), not the decoded one;
+    the thesis hardware's natural variance is its edge noise at that window."""
+    model = default_variance_model(config.codes, config, 0.0)
     beacons = {b.beacon_id: b for b in match.true_beacons}
     result = []
     for revolution in match.revolutions:
@@ -104,7 +114,12 @@ def true_bearing_variances(match: SimulatedMatch, config: SensorSimConfig) -> li
             window = config.window_rad(
                 math.hypot(beacon.x_m - turret[0], beacon.y_m - turret[1]), beacon.power_scale
             )
-            result.append((b.stamp_s, b.beacon_id, float(model.variance(b.beacon_id, window))))
+            natural = (
+                config.natural_variance_rad2
+                if config.hardware is None
+                else float(config.hardware.natural_variance_rad2(window, config.code(b.beacon_id)))
+            )
+            result.append((b.stamp_s, b.beacon_id, float(model.variance(b.beacon_id, window)) + natural))
     return result
 
 
@@ -212,10 +227,21 @@ def lost_recovery_s(seeds: range, sensor_model: str) -> tuple[float, int]:
 
 
 def rows(
-    seeds: int = DEFAULT_SEEDS, duration_s: float = DEFAULT_DURATION_S, sensor_model: str = "ideal"
+    seeds: int = DEFAULT_SEEDS,
+    duration_s: float = DEFAULT_DURATION_S,
+    sensor_models: tuple[str, ...] = SENSOR_MODELS,
 ) -> list[tuple[str, float, str, str]]:
-    """(figure, value, unit, compared with) rows."""
-    config = SensorSimConfig()
+    """(figure, value, unit, compared with) rows of every sensor model, each row named by its model."""
+    return [
+        (f"{model} sensor: {figure}", value, unit, compared)
+        for model in sensor_models
+        for figure, value, unit, compared in model_rows(seeds, duration_s, model)
+    ]
+
+
+def model_rows(seeds: int, duration_s: float, sensor_model: str) -> list[tuple[str, float, str, str]]:
+    """(figure, value, unit, compared with) rows of one sensor model."""
+    config = sensor_config_of(sensor_model)
     pooled = {f.name: Pooled([], [], [], []) for f in FILTERS}
     occluded: dict[str, list[tuple[float, float]]] = {f.name: [] for f in FILTERS}
     for seed in range(seeds):
@@ -228,7 +254,7 @@ def rows(
             hidden_match = sensor_match(duration_s, seed, sensor_model, occlusion=hidden)
             for filter_ in FILTERS:
                 occluded[filter_.name].append(occlusion_growth(run(filter_, hidden_match, [])))
-    label = f"{seeds} seeds x {duration_s:.0f} s, sensor {sensor_model}"
+    label = f"{seeds} seeds x {duration_s:.0f} s"
     table = []
     for name, pool in pooled.items():
         f = pool.figures()
@@ -305,11 +331,13 @@ def main() -> int:
     )
     parser.add_argument("--seeds", type=int, default=DEFAULT_SEEDS)
     parser.add_argument("--duration", type=float, default=DEFAULT_DURATION_S)
-    parser.add_argument("--sensor-model", default="ideal", choices=("ideal", "thesis_hardware"))
+    parser.add_argument(
+        "--sensor-model", nargs="+", default=list(SENSOR_MODELS), choices=SENSOR_MODELS, dest="sensor_models"
+    )
     options = parser.parse_args()
     started = time.monotonic()
     print("| figure | value | unit | compared with |\n|---|---|---|---|")
-    for figure, value, unit, compared in rows(options.seeds, options.duration, options.sensor_model):
+    for figure, value, unit, compared in rows(options.seeds, options.duration, tuple(options.sensor_models)):
         print(f"| {figure} | {value:.4g} | {unit} | {compared} |")
     print(f"({time.monotonic() - started:.0f} s)", file=sys.stderr)
     return 0

@@ -15,7 +15,9 @@ import sys
 import tempfile
 
 from beams_bringup.bag_io import beams_typestore
-from beams_bringup.bag_replay import ReplayResult, replay_bag, simulated_messages, write_bag
+from beams_bringup.bag_messages import simulated_messages, write_bag
+from beams_bringup.bag_replay import replay_bag
+from beams_bringup.replay_pipelines import ReplayResult
 from beams_sim.simulated_match import simulate_match
 
 DEFAULT_DURATION_S = 90.0

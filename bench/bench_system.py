@@ -28,7 +28,7 @@ import numpy as np
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
 NODES = {
-    "sim_world_node": ("beams_driver", ["-p", "duration_s:=300.0"]),
+    "sim_world_node": ("beams_sim", ["-p", "duration_s:=300.0"]),
     "driver_node": ("beams_driver", []),
     "triangulation_node": ("beams_triangulation", ["-p", "publish_markers:=false"]),
     "ekf_node": ("beams_ekf", []),

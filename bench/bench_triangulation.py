@@ -16,8 +16,9 @@ import numpy as np
 from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_sim.simulated_match import simulate_match
-from beams_triangulation.gating import GateConfig, PoseEstimate, RevolutionEstimator, gated_estimate
+from beams_triangulation.gating import GateConfig, PoseEstimate, gated_estimate
 from beams_triangulation.motion_compensation import interpolate_pose
+from beams_triangulation.pipeline import RevolutionEstimator
 from beams_triangulation.pose_covariance import pose_covariance_many
 from beams_triangulation.total import expected_bearings, triangulate, triangulate_many
 
@@ -98,7 +99,7 @@ def match_rows(seed: int = DEFAULT_SEED) -> list[Row]:
         estimator = RevolutionEstimator(match.beacon_map, turret_offset_m=match.turret_offset_m)
         errors = []
         for revolution in match.revolutions:
-            outcome = estimator.update(revolution.bearings, source)
+            outcome = estimator.update([b.as_bearing() for b in revolution.bearings], source)
             estimate = outcome.result
             if isinstance(estimate, PoseEstimate) and estimate.accepted:
                 x, y, theta = match.truth_at(outcome.stamp_s)

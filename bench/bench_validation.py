@@ -11,8 +11,9 @@ import timeit
 import numpy as np
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.bearing import Bearing
 from beams_common.validation import bearing_problem, one_sighting_per_beacon, planar_estimate_problem
-from beams_ekf.localiser import Bearing, FilterSettings, build_localiser
+from beams_ekf.localiser import FilterSettings, build_localiser
 from beams_triangulation.total import expected_bearings
 
 Row = tuple[str, float, str, str]

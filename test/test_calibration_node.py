@@ -51,13 +51,15 @@ def _capture(rclpy_node, x, y, theta, revolutions=REVOLUTIONS):
     from beams_msgs.srv import CaptureReference
 
     request = CaptureReference.Request(x=x, y=y, theta=theta, revolutions=revolutions)
-    return rclpy_node.call(CaptureReference, "capture_reference", request, TIMEOUT_S)
+    return rclpy_node.call(CaptureReference, "/calibration_node/capture_reference", request, TIMEOUT_S)
 
 
 def _list(rclpy_node):
     from beams_msgs.srv import ListConfigurations
 
-    return rclpy_node.call(ListConfigurations, "list_configurations", ListConfigurations.Request(), TIMEOUT_S)
+    return rclpy_node.call(
+        ListConfigurations, "/calibration_node/list_configurations", ListConfigurations.Request(), TIMEOUT_S
+    )
 
 
 def test_capture_list_and_clear(start_node, rclpy_node, tmp_path):
@@ -90,7 +92,7 @@ def test_capture_list_and_clear(start_node, rclpy_node, tmp_path):
     assert listing.configurations == 1 and listing.dataset_file == str(tmp_path / "dataset.yaml")
     assert listing.summaries[0].startswith("1: x=0.6000 m y=0.3600 m theta=90.0 deg")
 
-    cleared = rclpy_node.call(Trigger, "clear_dataset", Trigger.Request(), TIMEOUT_S)
+    cleared = rclpy_node.call(Trigger, "/calibration_node/clear_dataset", Trigger.Request(), TIMEOUT_S)
     assert cleared.success and "cleared 1 configurations" in cleared.message
     assert _list(rclpy_node).configurations == 0
     assert len(load_dataset(tmp_path / "dataset.yaml.bak").configurations) == 1
@@ -121,11 +123,13 @@ def test_calibrate_service_writes_the_calibration_file(start_node, rclpy_node, t
     params = _calibration_params(tmp_path, leave_one_out=False, plots_directory=str(tmp_path / "plots"))
     start_node("beams_calibration", "calibration_node", params)
 
-    refused = rclpy_node.call(Calibrate, "calibrate", Calibrate.Request(), TIMEOUT_S)
+    refused = rclpy_node.call(Calibrate, "/calibration_node/calibrate", Calibrate.Request(), TIMEOUT_S)
     assert not refused.success and "calibration refused: 6 usable configurations" in refused.message
 
     save_dataset(dataset, dataset_file)
-    response = rclpy_node.call(Calibrate, "calibrate", Calibrate.Request(dry_run=False), 120.0)
+    response = rclpy_node.call(
+        Calibrate, "/calibration_node/calibrate", Calibrate.Request(dry_run=False), 120.0
+    )
     assert response.success, response.message
     assert response.position_rms_before > 3e-3 and response.position_rms_after < 0.1e-3
     assert response.orientation_rms_after < math.radians(0.01) < response.orientation_rms_before
@@ -141,3 +145,39 @@ def test_an_unreadable_dataset_is_refused_at_start_up(start_node, tmp_path):
     assert node.wait_exit(TIMEOUT_S) == 2
     log = node.log()
     assert "invalid parameters: dataset_file:" in log and "not valid YAML" in log and "Traceback" not in log
+
+
+def test_non_finite_bearings_in_a_capture_are_left_out_and_counted(rclpy_node, start_node, tmp_path):
+    """A bearing with a NaN in a captured revolution is left out of the average, counted and shown."""
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from beams_msgs.msg import BeaconBearing, BeaconBearingArray
+    from beams_msgs.srv import CaptureReference
+
+    start_node("beams_calibration", "calibration_node", _calibration_params(tmp_path))
+    rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
+    publisher = rclpy_node.node.create_publisher(BeaconBearingArray, "beams/bearings", 10)
+    assert rclpy_node.spin_until(lambda: publisher.get_subscription_count() > 0, TIMEOUT_S)
+    prior = _setup().PRIOR_BEACONS
+    revolution = BeaconBearingArray(period=0.1)
+    for beacon_id, (bx, by) in zip(prior.ids, prior.xy, strict=True):
+        bearing = math.remainder(math.atan2(by - POSE[1], bx - POSE[0]) - POSE[2], 2 * math.pi)
+        revolution.bearings.append(BeaconBearing(beacon_id=beacon_id, bearing=bearing, angular_window=0.1))
+    revolution.bearings.append(BeaconBearing(beacon_id=9, bearing=math.nan, angular_window=0.1))
+    client = rclpy_node.node.create_client(CaptureReference, "/calibration_node/capture_reference")
+    assert client.wait_for_service(timeout_sec=TIMEOUT_S)
+    future = client.call_async(CaptureReference.Request(x=POSE[0], y=POSE[1], theta=POSE[2], revolutions=5))
+
+    def captured() -> bool:
+        publisher.publish(revolution)
+        rclpy_node.spin_for(0.1)
+        return future.done()
+
+    assert rclpy_node.spin_until(captured, TIMEOUT_S)
+    assert future.result().success, future.result().message
+
+    def counted() -> bool:
+        values = rclpy_node.diagnostic_values("calibration")
+        return int(values.get("bearings_refused_non_finite", 0)) >= 5
+
+    assert rclpy_node.spin_until(counted, TIMEOUT_S), rclpy_node.diagnostic_values("calibration")

@@ -179,3 +179,45 @@ def test_reloaded_calibration_corrects_the_published_bearings(rclpy_node, start_
     path.unlink()
     refused = rclpy_node.call(Trigger, "/driver_node/reload_calibration", Trigger.Request(), WAIT_S)
     assert not refused.success and "calibration.yaml" in refused.message
+
+
+def test_driver_publishes_with_the_natural_variance_estimate_noise_writes(rclpy_node, start_node, tmp_path):
+    """The parameter file estimate_noise writes, given after another `--params-file`: every published
+    variance is the exact code variance at its window plus the window-dependent natural variance; a
+    runtime change of the slope to 0 (ros2 param set) makes the natural part the constant again."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    from beams_driver.noise_estimation import NATURAL_REFERENCE_WINDOW, NATURAL_SLOPE, NATURAL_VARIANCE
+    from beams_driver.parameters import DRIVER_PARAMETERS, codes_of, variance_model_of
+    from beams_driver.sensor_sim import SensorSimConfig
+
+    fitted = {NATURAL_VARIANCE: 9.7e-7, NATURAL_SLOPE: 1.0e-5, NATURAL_REFERENCE_WINDOW: 0.115}
+    lines = ["/**/driver_node:", "  ros__parameters:"] + [f"    {k}: {v:.6e}" for k, v in fitted.items()]
+    noise_file = tmp_path / "noise.yaml"
+    noise_file.write_text("\n".join(lines) + "\n")
+    start_node(
+        "beams_driver",
+        "driver_node",
+        params={"sim_static_pose": list(STATIC_POSE)},
+        extra_args=["--params-file", str(noise_file)],
+    )
+    values = {**DRIVER_PARAMETERS.defaults(), **fitted}
+    codes = codes_of(values)
+    receiver = SensorSimConfig.thesis_hardware(codes=codes)
+    revolutions = collect_revolutions(rclpy_node, 5)
+    for step, expected in enumerate((values, {**values, NATURAL_SLOPE: 0.0})):
+        model = variance_model_of(expected, codes, receiver)
+        # the revolutions published from now on (a change applies from the next revolution)
+        first = len(revolutions) + 1
+        assert rclpy_node.spin_until(lambda n=first: len(revolutions) >= n + 5, WAIT_S)
+        published = [b for r in revolutions[first:] for b in r.bearings]
+        assert len(published) >= 10
+        for b in published:
+            assert b.variance == pytest.approx(model.variance(b.beacon_id, b.angular_window), rel=1e-9), (
+                step,
+                b.beacon_id,
+            )
+        request = SetParameters.Request(parameters=[Parameter(NATURAL_SLOPE, value=0.0).to_parameter_msg()])
+        results = rclpy_node.call(SetParameters, "/driver_node/set_parameters", request, WAIT_S).results
+        assert results[0].successful, results[0].reason

@@ -183,7 +183,7 @@ def test_ekf_node_tracks_and_resets(start_node, rclpy_node, match):
     )
     _assert_map_to_odom_places_the_odometry_on_the_estimate(transforms, outputs, match)
 
-    answer = rclpy_node.call(Trigger, "beams/ekf/reset", Trigger.Request(), 10.0)
+    answer = rclpy_node.call(Trigger, "/ekf_node/reset", Trigger.Request(), 10.0)
     assert answer.success
     rclpy_node.spin_for(0.3)
     count = len(outputs)
@@ -207,7 +207,7 @@ def test_ekf_node_takes_an_operator_pose(start_node, rclpy_node, match):
     x, y, theta = match.truth_at(0.18)
     pose.pose.pose.position.x, pose.pose.pose.position.y = x, y
     pose.pose.pose.orientation.z, pose.pose.pose.orientation.w = math.sin(theta / 2), math.cos(theta / 2)
-    reply = rclpy_node.call(SetPose, "beams/ekf/set_pose", SetPose.Request(pose=pose), 10.0)
+    reply = rclpy_node.call(SetPose, "/ekf_node/set_pose", SetPose.Request(pose=pose), 10.0)
     assert reply.success, reply.message
     feeder.play(match, start_s=0.2, until_s=2.0)
     assert rclpy_node.spin_until(lambda: len(outputs) > 10, 10.0), "no estimate after set_pose"
@@ -215,7 +215,7 @@ def test_ekf_node_takes_an_operator_pose(start_node, rclpy_node, match):
 
     wrong_frame = SetPose.Request(pose=pose)
     wrong_frame.pose.header.frame_id = "odom"
-    refused = rclpy_node.call(SetPose, "beams/ekf/set_pose", wrong_frame, 10.0)
+    refused = rclpy_node.call(SetPose, "/ekf_node/set_pose", wrong_frame, 10.0)
     assert not refused.success and "odom" in refused.message
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from beams_bringup.bag_replay import load_node_parameters
+from beams_bringup.replay_settings import load_node_parameters
 from beams_common.parameters import ParameterError
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 
@@ -34,6 +34,16 @@ VARIANCE_RAD2 = float(np.deg2rad(0.1) ** 2)
         ),
         ("beams_triangulation", "triangulation_node", {"max_inverse_abs_d": -1.0}, "max_inverse_abs_d"),
         ("beams_sim", "sim_world_node", {"trajectory": "spiral"}, "trajectory must be one of"),
+        ("beams_triangulation", "triangulation_node", {"beacon_ids": []}, "beacon_ids has no value"),
+        ("beams_driver", "driver_node", {"sim_turret_offset_m": [math.nan]}, "sim_turret_offset_m needs 2"),
+        ("beams_driver", "driver_node", {"sim_turret_offset_m": [math.nan, 0.0]}, "must be finite"),
+        (
+            "beams_driver",
+            "driver_node",
+            {"sim_static_pose": [math.nan, 1.0, 0.0]},
+            "sim_static_pose must be finite",
+        ),
+        ("beams_driver", "driver_node", {"sim_other_robots": ["not a topic!"]}, "are not valid topic names"),
     ],
 )
 def test_a_bad_start_up_value_is_one_line_and_exit_2(start_node, package, executable, params, reason):
@@ -42,6 +52,13 @@ def test_a_bad_start_up_value_is_one_line_and_exit_2(start_node, package, execut
     log = node.log()
     assert reason in log and "invalid parameters" in log, log
     assert "Traceback" not in log
+
+
+def test_a_malformed_command_line_is_one_line_and_exit_2(start_node):
+    """An unquoted list on the command line is rcl's parse error: one line, exit 2, no traceback."""
+    node = start_node("beams_driver", "driver_node", extra_args=["-p", "sim_other_robots:=['not"])
+    assert node.wait_exit(WAIT_S) == 2, node.log()
+    assert "invalid command-line arguments" in node.log() and "Traceback" not in node.log()
 
 
 def test_the_replay_refuses_a_parameter_file_with_the_reason_the_node_gives(start_node, tmp_path):

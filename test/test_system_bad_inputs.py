@@ -350,13 +350,13 @@ def test_set_pose_with_a_nan_answers_success_false(start_node, rclpy_node):
     pose.header.frame_id = "map"
     pose.pose.pose.position.x, pose.pose.pose.position.y = math.nan, 1.0
     pose.pose.pose.orientation.w = 1.0
-    reply = rclpy_node.call(SetPose, "beams/ekf/set_pose", SetPose.Request(pose=pose), START_TIMEOUT_S)
+    reply = rclpy_node.call(SetPose, "/ekf_node/set_pose", SetPose.Request(pose=pose), START_TIMEOUT_S)
     assert not reply.success and "not finite" in reply.message
     pose.pose.pose.position.x = 1.0
-    reply = rclpy_node.call(SetPose, "beams/ekf/set_pose", SetPose.Request(pose=pose), 10.0)
+    reply = rclpy_node.call(SetPose, "/ekf_node/set_pose", SetPose.Request(pose=pose), 10.0)
     assert reply.success, reply.message  # the same pose, finite, is taken
     pose.pose.pose.orientation.w = 0.0
-    reply = rclpy_node.call(SetPose, "beams/ekf/set_pose", SetPose.Request(pose=pose), 10.0)
+    reply = rclpy_node.call(SetPose, "/ekf_node/set_pose", SetPose.Request(pose=pose), 10.0)
     assert not reply.success and "zero norm" in reply.message  # and after a success: no stale "true"
     assert ekf.process.poll() is None
 
@@ -391,12 +391,12 @@ def test_calibration_services_answer_success_only_when_they_did_it(start_node, r
             "beacon_y": prior.xy[:, 1].tolist(),
         },
     )
-    reply = rclpy_node.call(Trigger, "clear_dataset", Trigger.Request(), START_TIMEOUT_S)
+    reply = rclpy_node.call(Trigger, "/calibration_node/clear_dataset", Trigger.Request(), START_TIMEOUT_S)
     assert reply.success and ".bak" not in reply.message.replace("no .bak made", "")
     assert sorted(p.name for p in work.iterdir()) == ["a_file"], "clear_dataset made a file"
 
     request = CaptureReference.Request(x=1e6, y=-1e6, theta=100.0, revolutions=1)
-    reply = rclpy_node.call(CaptureReference, "capture_reference", request, 10.0)
+    reply = rclpy_node.call(CaptureReference, "/calibration_node/capture_reference", request, 10.0)
     assert not reply.success and "outside the beacons' table" in reply.message
 
     save_dataset(
@@ -404,7 +404,7 @@ def test_calibration_services_answer_success_only_when_they_did_it(start_node, r
     )
     (work / "calibration.yaml").write_text("previous")
     before = _files(work)
-    reply = rclpy_node.call(Calibrate, "calibrate", Calibrate.Request(dry_run=False), 60.0)
+    reply = rclpy_node.call(Calibrate, "/calibration_node/calibrate", Calibrate.Request(dry_run=False), 60.0)
     assert not reply.success and reply.calibration_file == ""
     assert "no file changed" in reply.message
     assert _files(work) == before, "a failed calibration changed files"

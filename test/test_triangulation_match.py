@@ -12,8 +12,9 @@ import pytest
 
 from beams_common.angles import wrap_to_pi
 from beams_sim.simulated_match import simulate_match
-from beams_triangulation.gating import PoseEstimate, RevolutionEstimator
+from beams_triangulation.gating import PoseEstimate
 from beams_triangulation.motion_compensation import interpolate_pose
+from beams_triangulation.pipeline import RevolutionEstimator
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +32,9 @@ def _run(match, with_odometry):
     estimator = RevolutionEstimator(match.beacon_map, turret_offset_m=match.turret_offset_m)
     accepted, predicted_std = [], []
     for revolution in match.revolutions:
-        outcome = estimator.update(revolution.bearings, odometry_at if with_odometry else None)
+        outcome = estimator.update(
+            [b.as_bearing() for b in revolution.bearings], odometry_at if with_odometry else None
+        )
         estimate = outcome.result
         assert outcome.compensated == (with_odometry and isinstance(estimate, PoseEstimate))
         if isinstance(estimate, PoseEstimate) and estimate.accepted:

@@ -25,6 +25,7 @@ setup(
         "console_scripts": [
             "driver_node = beams_driver.driver_node:main",
             "variance_plot = beams_driver.variance_plot:main",
+            "estimate_noise = beams_driver.estimate_noise:entry_point",
         ]
     },
 )

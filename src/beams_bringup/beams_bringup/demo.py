@@ -5,6 +5,11 @@ tree (the executables `ros2 run` starts), records every topic to an MCAP bag as 
 (fully qualified names, the publishers' offered QoS profiles in the metadata), prints live progress
 (pose errors against the truth, bearings per second, rejected windows), stops the nodes with SIGINT and
 leaves a trajectory plot and a summary table in the output directory.
+
+`--sensor-model` chooses the simulated receiver (driver_node's sim_noise_model). With thesis_hardware
+the driver runs as on a calibrated robot: a calibration file in the output directory whose power-bias
+correction is the simulated receiver's bias inverted (a perfect chapter-7 calibration), and the natural
+variance that matches the receiver's edge noise on the table (beams_sim.simulated_match).
 """
 
 import argparse
@@ -30,8 +35,8 @@ from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, Qo
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
+from beams_bringup.bag_events import stamp_ns
 from beams_bringup.bag_io import BagRecorder, beams_typestore, fully_qualified
-from beams_bringup.bag_replay import stamp_ns
 from beams_bringup.system import PARAMS_FILE, ROBOT_NODES, installed_params_file
 from beams_bringup.trajectory_metrics import (
     RunTracks,
@@ -40,24 +45,33 @@ from beams_bringup.trajectory_metrics import (
     rms,
     rms_table,
 )
+from beams_common import topics
+from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.calibration_file import SensorCalibration, save_calibration
 from beams_common.ros.messages import pose2d_of
 from beams_common.ros.node_support import BEARINGS_QOS
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
+from beams_sim.simulated_match import (
+    SENSOR_MODELS,
+    calibration_of,
+    sensor_config_of,
+    table_natural_variance_rad2,
+)
 
 ROOT = pathlib.Path.cwd()
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
 # Every topic of the suite, with its type, recorded to the bag.
 TOPICS = {
-    "beams/sim/ground_truth": Odometry,
-    "odom": Odometry,
-    "beams/bearings": BeaconBearingArray,
-    "beams/pose": TriangulatedPose,
-    "beams/pose_cov": PoseWithCovarianceStamped,
-    "beams/ekf/odometry": Odometry,
-    "beams/ekf/pose": PoseWithCovarianceStamped,
-    "beams/markers": MarkerArray,
-    "/diagnostics": DiagnosticArray,
-    "/tf": TFMessage,
+    topics.GROUND_TRUTH: Odometry,
+    topics.ODOMETRY: Odometry,
+    topics.BEARINGS: BeaconBearingArray,
+    topics.POSE: TriangulatedPose,
+    topics.POSE_COV: PoseWithCovarianceStamped,
+    topics.EKF_ODOMETRY: Odometry,
+    topics.EKF_POSE: PoseWithCovarianceStamped,
+    topics.MARKERS: MarkerArray,
+    topics.DIAGNOSTICS: DiagnosticArray,
+    topics.TF: TFMessage,
 }
 PROGRESS_PERIOD_S = 5.0
 START_TIMEOUT_S = 30.0
@@ -102,21 +116,56 @@ class MatchRecord(RunTracks):
     poses_rejected: int = 0
 
     def on_message(self, topic: str, msg) -> None:
-        tracks = {"beams/sim/ground_truth": self.truth, "odom": self.odometry, "beams/ekf/odometry": self.ekf}
+        tracks = {
+            topics.GROUND_TRUTH: self.truth,
+            topics.ODOMETRY: self.odometry,
+            topics.EKF_ODOMETRY: self.ekf,
+        }
         if topic in tracks:
             tracks[topic].add(0, stamp_ns(msg.header.stamp), pose2d_of(msg.pose.pose))
-        elif topic == "beams/bearings":
+        elif topic == topics.BEARINGS:
             self.revolutions += 1
             self.bearings += len(msg.bearings)
             self.rejected_windows += msg.rejected_windows
-        elif topic == "beams/pose":
+        elif topic == topics.POSE:
             if msg.accepted:
                 self.total.add(0, stamp_ns(msg.header.stamp), pose2d_of(msg.pose.pose))
             else:
                 self.poses_rejected += 1
 
 
-def start_nodes(output: pathlib.Path, duration_s: float, env: dict[str, str]) -> list[subprocess.Popen]:
+@dataclass(frozen=True)
+class SensorSetup:
+    """The simulated receiver and how the driver is configured for it (its summary line)."""
+
+    model: str
+    driver_arguments: tuple[str, ...]
+    description: str
+
+
+def sensor_setup(sensor_model: str, output: pathlib.Path) -> SensorSetup:
+    """driver_node's arguments for a sensor model: sim_noise_model, the matching natural variance and,
+    for a receiver with a power bias, a calibration file that removes it (written to the output)."""
+    config = sensor_config_of(sensor_model)
+    natural_rad2 = table_natural_variance_rad2(config)
+    arguments = ["-p", f"sim_noise_model:={sensor_model}", "-p", f"natural_variance_rad2:={natural_rad2!r}"]
+    description = f"sensor model {sensor_model}, natural variance {natural_rad2:.3g} rad^2"
+    correction = calibration_of(config)
+    if not correction.is_identity:
+        path = output / "calibration.yaml"
+        # the driver takes only the bearing correction from it; the geometry is the default map's
+        save_calibration(
+            SensorCalibration(EUROBOT_BEACON_MAP, correction, created_utc=SensorCalibration.now_utc()),
+            path,
+        )
+        arguments += ["-p", f"calibration_file:={path}"]
+        description += f", power bias corrected by {path.name} (the simulated bias inverted)"
+    return SensorSetup(sensor_model, tuple(arguments), description)
+
+
+def start_nodes(
+    output: pathlib.Path, duration_s: float, env: dict[str, str], sensor: SensorSetup
+) -> list[subprocess.Popen]:
     processes = []
     params_file = installed_params_file()
     if params_file is None:
@@ -131,6 +180,8 @@ def start_nodes(output: pathlib.Path, duration_s: float, env: dict[str, str]) ->
         ]
         if executable == "sim_world_node":
             command += ["-p", f"duration_s:={duration_s}"]
+        if executable == "driver_node":
+            command += list(sensor.driver_arguments)
         log = open(output / f"{executable}.log", "w")  # noqa: SIM115 (kept open while the node runs)
         processes.append(subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT))
     return processes
@@ -166,10 +217,10 @@ def progress_line(record: MatchRecord, elapsed_s: float, bearings_per_s: float) 
     )
 
 
-def summary_table(record: MatchRecord) -> str:
+def summary_table(record: MatchRecord, sensor: SensorSetup) -> str:
     tracks = record.in_map("truth")  # dead reckoning from the true start
     rows = (("odometry", tracks["odometry"]), ("ToTal (accepted)", tracks["ToTal"]), ("EKF", tracks["EKF"]))
-    lines = rms_table(rows, tracks["truth"])
+    lines = [f"Simulated {sensor.description}.", "", *rms_table(rows, tracks["truth"])]
     lines += [
         "",
         f"revolutions {record.revolutions}, bearings {record.bearings}, "
@@ -186,14 +237,24 @@ def main() -> int:
     parser.add_argument(
         "--output", type=pathlib.Path, default=None, help="output directory (default out/demo-<time>)"
     )
+    parser.add_argument(
+        "--sensor-model",
+        choices=SENSOR_MODELS,
+        default=SENSOR_MODELS[0],
+        help="simulated receiver (driver_node's sim_noise_model), default %(default)s",
+    )
     options = parser.parse_args()
     output = options.output or ROOT / "out" / f"demo-{datetime.datetime.now():%Y%m%d-%H%M%S}"
     output.mkdir(parents=True, exist_ok=True)
+    sensor = sensor_setup(options.sensor_model, output)
     env = dict(os.environ)
     env.setdefault("ROS_DOMAIN_ID", "0")  # ROS 2's default: `ros2 topic echo` in another shell sees the demo
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
-    print(f"demo: {options.duration:.0f} s match, domain {env['ROS_DOMAIN_ID']}, output in {output}")
+    print(
+        f"demo: {options.duration:.0f} s match, {sensor.description}, domain {env['ROS_DOMAIN_ID']}, "
+        f"output in {output}"
+    )
 
     rclpy.init(signal_handler_options=rclpy.signals.SignalHandlerOptions.NO)
     node = rclpy.create_node("beams_demo_recorder")
@@ -201,7 +262,7 @@ def main() -> int:
     executor.add_node(node)
     record = MatchRecord()
     typestore = beams_typestore()
-    processes = start_nodes(output, options.duration, env)
+    processes = start_nodes(output, options.duration, env, sensor)
     statuses: list[int] = []
     interrupted = False
     try:
@@ -218,7 +279,7 @@ def main() -> int:
                     recorder.write(fully_qualified(topic), ros_type_name(msg_type), stamp_ns, raw, offered)
                     record.on_message(topic, msg)
 
-                qos = BEARINGS_QOS if topic == "beams/bearings" else 50
+                qos = BEARINGS_QOS if topic == topics.BEARINGS else 50
                 node.create_subscription(msg_type, topic, on_raw, qos, raw=True)
             started = time.monotonic()
             next_progress = started + PROGRESS_PERIOD_S
@@ -244,7 +305,7 @@ def main() -> int:
         node.destroy_node()
         rclpy.try_shutdown()
 
-    table = summary_table(record)
+    table = summary_table(record, sensor)
     (output / "summary.md").write_text(table + "\n")
     plot_trajectories(
         record.in_map("truth"), output / "trajectory.png", "BeAMS demo: simulated Eurobot match"

@@ -48,7 +48,10 @@ def total_fix_events(
     events = []
     for revolution in revolutions:
         outcome = estimate_revolution(
-            revolution.bearings, beacon_map, turret_offset_m=turret_offset_m, odometry_at=odometry_at
+            [b.as_bearing() for b in revolution.bearings],
+            beacon_map,
+            turret_offset_m=turret_offset_m,
+            odometry_at=odometry_at,
         )
         result = outcome.result
         if getattr(result, "accepted", False):

@@ -9,19 +9,12 @@ import numpy as np
 import pytest
 import yaml
 
+from beams_bringup.bag_events import BEARINGS_TYPE, ODOMETRY_TYPE
 from beams_bringup.bag_io import BagRecorder, beams_typestore, read_messages
-from beams_bringup.bag_replay import (
-    BEARINGS_TYPE,
-    ODOMETRY_TYPE,
-    MessageBuilder,
-    ReplayResult,
-    load_node_parameters,
-    main,
-    replay_bag,
-    settings_from_parameters,
-    simulated_messages,
-    write_bag,
-)
+from beams_bringup.bag_messages import MessageBuilder, simulated_messages, write_bag
+from beams_bringup.bag_replay import main, replay_bag
+from beams_bringup.replay_pipelines import ReplayResult
+from beams_bringup.replay_settings import load_node_parameters, settings_from_parameters
 from beams_bringup.trajectory_metrics import errors_against_truth, odometry_in_map, rms
 from beams_common.parameters import ParameterError
 from beams_ekf.parameters import EKF_PARAMETERS
@@ -194,14 +187,14 @@ def test_settings_come_from_the_nodes_parameter_files():
     ekf = load_node_parameters(params_file, EKF_PARAMETERS)
     settings = settings_from_parameters(
         {**triangulation, "max_position_std_m": 0.07},
-        {**ekf, "history_span_s": 1.5, "turret_offset_m": [0.02, -0.01]},
+        {**ekf, "odometry_history_s": 1.5, "turret_offset_m": [0.02, -0.01]},
     )
     assert settings.triangulation.gates.max_inverse_abs_d == triangulation["max_inverse_abs_d"]
     assert settings.triangulation.gates.max_position_std_m == 0.07
     assert (
         settings.triangulation.max_odometry_extrapolation_s == triangulation["max_odometry_extrapolation_s"]
     )
-    assert settings.ekf.localiser.history_span_s == 1.5
+    assert settings.ekf.localiser.odometry_history_s == 1.5
     assert settings.ekf.localiser.kidnap_gated_bearings == ekf["kidnap_gated_bearings"]
     assert settings.ekf.process_noise.translation_m2_per_m == ekf["translation_variance_m2_per_m"]
     assert settings.ekf.default_pose_sigma == tuple(ekf["default_pose_sigma"])

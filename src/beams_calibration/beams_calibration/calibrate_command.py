@@ -16,8 +16,6 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-import numpy as np
-
 from beams_calibration import thesis_setup
 from beams_calibration.calibrate import (
     DEFAULT_ETA_M_PER_RAD,
@@ -28,7 +26,6 @@ from beams_calibration.calibrate import (
 )
 from beams_calibration.dataset import DatasetError, load_dataset, save_dataset
 from beams_calibration.outputs import rms_regression, write_outputs
-from beams_common.bearing_correction import THESIS_CORRECTION
 
 EXIT_REFUSED = 2
 
@@ -62,20 +59,9 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def simulate_thesis_dataset(path: Path, seed: int) -> None:
-    """The 48 configurations of section 7.3.1 measured by the simulator with thesis-sized biases."""
-    sensor = thesis_setup.SimulatedSensor(
-        thesis_setup.TRUE_BEACONS,
-        np.random.default_rng(seed),
-        correction=THESIS_CORRECTION,
-        turret_offset_m=thesis_setup.THESIS_TURRET_OFFSET_M,
-    )
-    dataset = thesis_setup.capture_dataset(
-        sensor,
-        thesis_setup.reference_poses(),
-        placement_sigma=thesis_setup.PLACEMENT_SIGMA,
-        rng=np.random.default_rng(seed + 1),
-    )
-    save_dataset(dataset, path)
+    """The 48 configurations of section 7.3.1 as the thesis's prototype would record them
+    (`thesis_setup.thesis_dataset`: the thesis-hardware receiver with chapter 7's biases)."""
+    save_dataset(thesis_setup.thesis_dataset(seed), path)
 
 
 def format_report(result: CalibrationResult) -> str:

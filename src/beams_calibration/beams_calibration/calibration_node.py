@@ -1,6 +1,7 @@
 """calibration_node: the chapter-7 calibration of BeAMS as ROS services, from capture to calibration file.
 
-Subscribes `beams/bearings` (beams_msgs/BeaconBearingArray, reliable). Services (relative names):
+Subscribes `beams/bearings` (beams_msgs/BeaconBearingArray, reliable). Services (private, under the
+node's name: `/calibration_node/calibrate`):
 
 - `capture_reference` (beams_msgs/CaptureReference): the operator has placed the robot at a known pose;
   average that many revolutions per beacon and append the configuration to the dataset file
@@ -48,6 +49,7 @@ from beams_calibration.dataset import (
 )
 from beams_calibration.outputs import rms_regression, write_outputs
 from beams_calibration.parameters import CALIBRATION_PARAMETERS, coverage_requirements
+from beams_common import topics
 from beams_common.beacon_map import BeaconMap
 from beams_common.geometry_parameters import beacon_map_of
 from beams_common.ros.node_support import (
@@ -89,12 +91,16 @@ class CalibrationNode(Node):
         self._capture: _Capture | None = None
         self._busy = False
         self._steady_clock = Clock(clock_type=ClockType.STEADY_TIME)
-        self.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings, BEARINGS_QOS)
+        self.create_subscription(BeaconBearingArray, topics.BEARINGS, self._on_bearings, BEARINGS_QOS)
         services = ReentrantCallbackGroup()
-        self.create_service(CaptureReference, "capture_reference", self._on_capture, callback_group=services)
-        self.create_service(Calibrate, "calibrate", self._on_calibrate, callback_group=services)
-        self.create_service(ListConfigurations, "list_configurations", self._on_list, callback_group=services)
-        self.create_service(Trigger, "clear_dataset", self._on_clear, callback_group=services)
+        self.create_service(
+            CaptureReference, topics.CAPTURE_REFERENCE, self._on_capture, callback_group=services
+        )
+        self.create_service(Calibrate, topics.CALIBRATE, self._on_calibrate, callback_group=services)
+        self.create_service(
+            ListConfigurations, topics.LIST_CONFIGURATIONS, self._on_list, callback_group=services
+        )
+        self.create_service(Trigger, topics.CLEAR_DATASET, self._on_clear, callback_group=services)
         self.get_logger().info(
             f"dataset {self.dataset_file} ({self._count()} configurations), "
             f"calibration file {self.output_file}; listening to {self.resolve_topic_name('beams/bearings')} "
@@ -143,11 +149,19 @@ class CalibrationNode(Node):
         capture = self._capture
         if capture is None or capture.done.done():
             return
+        if self.diagnostics.oversized_revolution(msg):
+            return
         revolution = {
             int(b.beacon_id): (float(b.bearing), float(b.angular_window))
             for b in msg.bearings
             if math.isfinite(b.bearing) and math.isfinite(b.angular_window)
         }
+        if len(revolution) < len(msg.bearings):  # a capture averages what is left: say what was not
+            self.diagnostics.refuse(
+                "bearings_refused_non_finite",
+                f"revolution {msg.revolution}: {len(msg.bearings) - len(revolution)} bearing(s) with a "
+                "non-finite bearing or window (or a beacon repeated) left out of the capture",
+            )
         capture.revolutions.append(revolution)
         if len(capture.revolutions) >= capture.target:
             capture.done.set_result(True)

@@ -84,6 +84,16 @@ class BearingCorrection:
             w = np.clip(w, *self.window_range_rad)
         return _as_output(((a * w + b) * w + c) * w + d)
 
+    def power_bias_slope(self, window_rad: ArrayLike) -> np.ndarray | float:
+        """df_corr1/dw (rad/rad) at windows w, eq. 7.19 differentiated; 0 where w is clamped: how much a
+        window error moves the corrected bearing."""
+        a, b, c, _ = self.power_bias_coefficients
+        w = np.asarray(window_rad, dtype=float)
+        slope = (3.0 * a * w + 2.0 * b) * w + c
+        if self.window_range_rad is not None:
+            slope = np.where((w < self.window_range_rad[0]) | (w > self.window_range_rad[1]), 0.0, slope)
+        return _as_output(np.asarray(slope))
+
     def rotation_bias(self, angle_rad: ArrayLike) -> np.ndarray | float:
         """Rotation bias f_corr2(phi) (rad) for turret angles phi (rad), eq. 7.25 with E = 0."""
         a, b, c, d = self.rotation_bias_coefficients

@@ -61,6 +61,8 @@ class ParameterSpec:
 
     def reason(self, value: Any) -> str | None:
         """Why value is not valid for this parameter, or None when it is."""
+        if value is None:  # ROS gives an empty list (`[]`, no element to type it) no value at all
+            return f"{self.name} has no value (an empty list?): {self._expected()}"
         if isinstance(self.default, list):
             if not isinstance(value, list | tuple):
                 return f"{self.name} must be a list, got {value!r}"
@@ -76,6 +78,14 @@ class ParameterSpec:
             if problem:
                 return problem
         return self.check(value) if self.check else None
+
+    def _expected(self) -> str:
+        if isinstance(self.default, list):
+            low, high = (
+                (self.length, self.length) if isinstance(self.length, int) else (self.length or (1, "n"))
+            )
+            return f"give {low}" + ("" if low == high else f" to {high}") + f" values, e.g. {self.default}"
+        return f"give a value, e.g. {self.default!r}"
 
     def _item_reason(self, item: Any) -> str | None:
         kind = self.item_type

@@ -27,6 +27,7 @@ from rclpy.node import Node
 from rclpy.subscription import Subscription
 from rclpy.timer import Timer
 
+from beams_common import topics
 from beams_common.angles import wrap_to_pi
 from beams_common.bearing_correction import BearingCorrection
 from beams_common.calibration_file import SensorCalibration, load_calibration
@@ -37,7 +38,13 @@ from beams_common.ros.parameters import ParameterValidationError, apply_runtime_
 from beams_driver.decoder import BearingDecoder, DecodedRevolution
 from beams_driver.edge_source import EdgeSource, PoseCallback, source_kind
 from beams_driver.edges import RevolutionEdges
-from beams_driver.parameters import DRIVER_PARAMETERS, LIFECYCLE_PARAMETERS, codes_of, variance_model_of
+from beams_driver.parameters import (
+    DRIVER_PARAMETERS,
+    LIFECYCLE_PARAMETERS,
+    SENSOR_PARAMETERS,
+    codes_of,
+    variance_model_of,
+)
 from beams_msgs.msg import BeaconBearing, BeaconBearingArray
 
 # Sources that deliver revolutions as they arrive: the host buffers this many pose messages per topic.
@@ -165,7 +172,7 @@ class DriverNode(LifecycleNode):
 
     def _declare_parameters(self) -> None:
         """Declare the driver's and its source's parameters, validated (ParameterValidationError)."""
-        self.parameters = declare_table(self, DRIVER_PARAMETERS)
+        self.parameters = {"autostart": self.autostart, **declare_table(self, SENSOR_PARAMETERS)}
         try:
             self.kind = source_kind(self.parameters["source"])
         except ValueError as error:
@@ -208,7 +215,7 @@ class DriverNode(LifecycleNode):
             receiver=self.receiver.receiver,
         )
         self.frame_id = self.parameters["frame_id"]
-        self.publisher = self.create_lifecycle_publisher(BeaconBearingArray, "beams/bearings", BEARINGS_QOS)
+        self.publisher = self.create_lifecycle_publisher(BeaconBearingArray, topics.BEARINGS, BEARINGS_QOS)
         self._show_state("inactive: configured, not publishing")
 
     def _activate(self) -> None:
@@ -228,7 +235,7 @@ class DriverNode(LifecycleNode):
         self._show_state("active")
         self.get_logger().info(
             f"{self.kind.name} source, codes {[str(c) for c in self.codes]}, variance mode "
-            f"{self.decoder.variance_model.mode}, publishing {self.resolve_topic_name('beams/bearings')}"
+            f"{self.decoder.variance_model.mode}, publishing {self.resolve_topic_name(topics.BEARINGS)}"
         )
 
     def _deactivate(self) -> None:

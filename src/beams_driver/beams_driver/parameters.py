@@ -1,9 +1,10 @@
 """driver_node's parameters: one spec each (the chosen edge source adds its own, edge_source.py).
 
-Runtime-changeable: the variance model (mode, natural and constant variances: the next revolution's
-bearings get them), the frame and the calibration file (its corrections are applied at once). The codes
-and the source define what the sensor is and stay read-only. `autostart` (read-only) is the lifecycle's:
-declared first and alone, so the node knows whether to exit or to wait when another parameter is bad.
+Runtime-changeable: the variance model (mode, natural variance and its window slope, constant variance:
+the next revolution's bearings get them), the frame and the calibration file (its corrections are applied
+at once). The codes and the source define what the sensor is and stay read-only. `autostart` (read-only)
+is the lifecycle's: the node declares it first and alone (LIFECYCLE_PARAMETERS), so it knows whether to
+exit or to wait for a lifecycle manager when another parameter is bad; DRIVER_PARAMETERS holds them all.
 """
 
 from collections.abc import Mapping
@@ -48,6 +49,8 @@ def variance_model_of(
         codes,
         values["variance_mode"],
         natural_variance_rad2=values["natural_variance_rad2"],
+        natural_variance_slope_rad2_per_rad=values["natural_variance_slope_rad2_per_rad"],
+        natural_variance_reference_window_rad=values["natural_variance_reference_window_rad"],
         constant_variance_rad2=values["constant_variance_rad2"],
         min_burst_fraction=receiver.min_burst_fraction,
         min_burst_gap_exponent=receiver.min_burst_gap_exponent,
@@ -62,7 +65,7 @@ AUTOSTART = ParameterSpec(
 )
 LIFECYCLE_PARAMETERS = ParameterTable("driver_node", (AUTOSTART,))
 
-DRIVER_PARAMETERS = ParameterTable(
+SENSOR_PARAMETERS = ParameterTable(
     "driver_node",
     (
         ParameterSpec(
@@ -88,9 +91,27 @@ DRIVER_PARAMETERS = ParameterTable(
         ParameterSpec(
             "natural_variance_rad2",
             _SIMULATED.natural_variance_rad2,
-            "Natural (noise) variance added to the code variance (rad^2).",
+            "Natural (noise) variance added to the code variance (rad^2), at "
+            "natural_variance_reference_window_rad when it depends on the window.",
             minimum=0.0,
             maximum=1e-2,
+            runtime=True,
+        ),
+        ParameterSpec(
+            "natural_variance_slope_rad2_per_rad",
+            0.0,
+            "Growth of the natural variance with the angular window (rad^2 per rad; thesis section 5.5), "
+            "as estimate_noise fits it; 0: constant natural variance.",
+            minimum=-1e-2,
+            maximum=1e-2,
+            runtime=True,
+        ),
+        ParameterSpec(
+            "natural_variance_reference_window_rad",
+            0.0,
+            "Angular window (rad) at which natural_variance_rad2 holds when the slope is not 0.",
+            minimum=0.0,
+            maximum=1.0,
             runtime=True,
         ),
         ParameterSpec(
@@ -114,3 +135,4 @@ DRIVER_PARAMETERS = ParameterTable(
     ),
     (_codes_check,),
 )
+DRIVER_PARAMETERS = LIFECYCLE_PARAMETERS + SENSOR_PARAMETERS

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from beams_common.bearing_correction import BearingCorrection
 from beams_driver.codes import BeaconCode
 
 # The AND hypothesis: bursts shorter than 56% of T0 do not trigger the receiver (section 5.6).
@@ -87,7 +88,8 @@ class HardwareNoise:
     off_noise_gain: a modulated code's natural variance is multiplied by 1 + gain (G / T_b - 1), G its
     longest gap: the AGC's gain recovers during OFF periods (section 5.6: the real noise of C_5b and
     C_5c exceeds natural plus code variance). power_bias_coefficients: the bearing bias (rad) against
-    the window (rad), cubic (eq. 7.19), phi_biased = phi_real + f(w) (eq. 7.17).
+    the window (rad), cubic (eq. 7.19), phi_biased = phi_real + f(w) (eq. 7.17), held constant outside
+    power_bias_range_rad (default: window_range_rad, where section 5.7 measured it).
     """
 
     window_range_rad: tuple[float, float]
@@ -96,6 +98,7 @@ class HardwareNoise:
     falling_variance_deg2: tuple[float, float] = THESIS_FALLING_VARIANCE_DEG2
     off_noise_gain: float = 0.7
     modulation_shortening_rad: float = math.radians(3.5e-3)
+    power_bias_range_rad: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         low, high = self.window_range_rad
@@ -122,10 +125,22 @@ class HardwareNoise:
         return 1.0 + self.off_noise_gain * (max(code.gap_bits) - 1)
 
     def power_bias_rad(self, window_rad: ArrayLike) -> np.ndarray:
-        """Power bias f(w) (rad) of the bearing for true windows w (rad), eq. 7.19."""
-        a, b, c, d = self.power_bias_coefficients
-        w = np.asarray(window_rad, dtype=float)
-        return ((a * w + b) * w + c) * w + d
+        """Power bias f(w) (rad) of the bearing for true windows w (rad), eq. 7.19, the window held
+        inside the experiment's range: the cubic models the fluctuation within 0.23 deg that section 5.7
+        measured there, and would run away outside it (0.9 deg at 0.5 m)."""
+        return np.asarray(self.power_bias_correction().power_bias(window_rad), dtype=float)
+
+    def power_bias_correction(self) -> BearingCorrection:
+        """The chapter-7 correction that removes this power bias exactly (eq. 7.18): what a perfect
+        calibration of this receiver finds (its window range the experiment's)."""
+        bias_range = self.power_bias_range_rad or self.window_range_rad
+        return BearingCorrection(self.power_bias_coefficients, window_range_rad=bias_range)
+
+    def natural_variance_rad2(self, window_rad: ArrayLike, code: BeaconCode | None) -> np.ndarray:
+        """Bearing variance (rad^2) the edge noise adds at true windows w: (sigma_r^2 + sigma_f^2) / 4
+        (eq. 3.13 with independent edges)."""
+        rising, falling = self.edge_std_rad(window_rad, code)
+        return (rising**2 + falling**2) / 4.0
 
 
 def thesis_power_bias_coefficients(

@@ -131,8 +131,7 @@ class SensorSimConfig:
         """
         if self.hardware is not None:
             windows = np.linspace(*self.hardware.window_range_rad, 101)
-            rising, falling = self.hardware.edge_std_rad(windows, None)
-            return float(np.mean(rising**2 + falling**2)) / 4.0
+            return float(np.mean(self.hardware.natural_variance_rad2(windows, None)))
         return (self.rising_noise_rad**2 + self.falling_noise_rad**2) / 4.0
 
     def code(self, beacon_id: int) -> BeaconCode:

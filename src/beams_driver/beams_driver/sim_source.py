@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from beams_common import topics
 from beams_common.calibration_file import load_calibration
 from beams_common.geometry_parameters import beacon_map_check, beacon_map_of, beacon_map_specs
 from beams_common.parameters import ParameterSpec, is_topic_name
@@ -20,7 +21,7 @@ from beams_driver.edges import TURRET_PERIOD_S
 from beams_driver.occlusion import OtherRobots, truth_buffer, truth_covers
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
 
-GROUND_TRUTH_TOPIC = "beams/sim/ground_truth"
+GROUND_TRUTH_TOPIC = topics.GROUND_TRUTH
 # A clock that jumped this far ahead (s) restarts the simulation from now instead of catching up.
 MAX_CATCH_UP_S = 1.0
 

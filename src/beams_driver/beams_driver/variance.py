@@ -6,7 +6,8 @@
   the window, here integrated exactly (the errors are piecewise linear in the shift);
 - `VarianceModel`: what the decoder uses, per code and window, in one of three modes:
   "exact" (closed form for the family, a precomputed enumeration lookup otherwise),
-  "bound" (theorem 3.1, p0 phi0^2 / 6) or "constant"; plus a configurable natural variance.
+  "bound" (theorem 3.1, p0 phi0^2 / 6) or "constant"; plus a configurable natural variance, constant or
+  linear in the window (the AGC's edge noise grows with it, section 5.5; fitted by `noise_estimation`).
 """
 
 from bisect import bisect_right
@@ -204,6 +205,9 @@ class VarianceModel:
     precomputed at construction for other codes or when the minimum detectable burst of section 5.6 is
     modelled) plus natural_variance_rad2; "bound": p0 phi0^2 / 6 (theorem 3.1, phi0 and p0 stretched by
     the minimum burst) plus natural_variance_rad2; "constant": constant_variance_rad2 for every bearing.
+    The natural variance may grow with the window (section 5.5, fig. 5.3): natural_variance_rad2 +
+    natural_variance_slope_rad2_per_rad (w - natural_variance_reference_window_rad), never below 0; a
+    slope of 0 (the default) keeps it constant.
     """
 
     def __init__(
@@ -216,17 +220,26 @@ class VarianceModel:
         constant_variance_rad2: float = MEASURED_VARIANCE_RAD2,
         min_burst_fraction: float = 0.0,
         min_burst_gap_exponent: float = 1.0,
+        natural_variance_slope_rad2_per_rad: float = 0.0,
+        natural_variance_reference_window_rad: float = 0.0,
     ) -> None:
-        """min_burst_fraction, min_burst_gap_exponent: the minimum burst, as receiver.ReceiverModel has it."""
+        """min_burst_fraction, min_burst_gap_exponent: the minimum burst, as receiver.ReceiverModel has it;
+        natural_variance_rad2 is the natural variance at natural_variance_reference_window_rad."""
         if mode not in VARIANCE_MODES:
             raise ValueError(f"variance mode {mode!r} is not one of {VARIANCE_MODES}")
         if natural_variance_rad2 < 0.0 or constant_variance_rad2 < 0.0 or min_burst_fraction < 0.0:
             raise ValueError("variance model: variances and min_burst_fraction must be >= 0")
         if not turret_speed_rad_s > 0.0:
             raise ValueError("variance model: turret speed must be positive")
+        if not (
+            np.isfinite(natural_variance_slope_rad2_per_rad) and natural_variance_reference_window_rad >= 0
+        ):
+            raise ValueError("variance model: the natural variance's slope must be finite, its window >= 0")
         self.mode: VarianceMode = mode
         self.turret_speed_rad_s = float(turret_speed_rad_s)
         self.natural_variance_rad2 = float(natural_variance_rad2)
+        self.natural_variance_slope_rad2_per_rad = float(natural_variance_slope_rad2_per_rad)
+        self.natural_variance_reference_window_rad = float(natural_variance_reference_window_rad)
         self.constant_variance_rad2 = float(constant_variance_rad2)
         self.min_burst_fraction = float(min_burst_fraction)
         self._receiver = ReceiverModel(self.min_burst_fraction, float(min_burst_gap_exponent))
@@ -253,11 +266,26 @@ class VarianceModel:
     def variance(self, code: int | BeaconCode, angular_window_rad: ArrayLike) -> np.ndarray | float:
         """Bearing variance (rad^2) for a code (id or object) and angular window(s) (rad)."""
         if self.mode == "exact":
-            return self.artificial_variance_rad2(code, angular_window_rad) + self.natural_variance_rad2
-        value = self.constant_variance_rad2
+            return self.artificial_variance_rad2(code, angular_window_rad) + self.natural_variance(
+                angular_window_rad
+            )
         if self.mode == "bound":
-            value = self.bound_rad2(code) + self.natural_variance_rad2
+            return self.bound_rad2(code) + self.natural_variance(angular_window_rad)
+        value = self.constant_variance_rad2
         return value if np.ndim(angular_window_rad) == 0 else np.full(np.shape(angular_window_rad), value)
+
+    def natural_variance(self, angular_window_rad: ArrayLike) -> np.ndarray | float:
+        """The natural (edge noise) variance (rad^2) at angular window(s) (rad): constant, or linear in the
+        window (sections 5.5-5.6: the rising edge's noise grows with the window), at least 0."""
+        if self.natural_variance_slope_rad2_per_rad == 0.0:
+            if np.ndim(angular_window_rad) == 0:
+                return self.natural_variance_rad2
+            return np.full(np.shape(angular_window_rad), self.natural_variance_rad2)
+        offset = np.asarray(angular_window_rad, dtype=float) - self.natural_variance_reference_window_rad
+        value = np.maximum(
+            self.natural_variance_rad2 + self.natural_variance_slope_rad2_per_rad * offset, 0.0
+        )
+        return float(value) if value.ndim == 0 else value
 
     def artificial_variance_rad2(
         self, code: int | BeaconCode, angular_window_rad: ArrayLike
@@ -275,6 +303,20 @@ class VarianceModel:
         if lookup is None:
             lookup = self._lookups.setdefault(code.code_id, _EnumeratedLookup(code, self._min_burst_s(code)))
         result = lookup(window / self.turret_speed_rad_s) * self.turret_speed_rad_s**2
+        return float(result) if result.ndim == 0 else result
+
+    def window_variance_rad2(
+        self, code: int | BeaconCode, angular_window_rad: ArrayLike
+    ) -> np.ndarray | float:
+        """OOK variance (rad^2) of the decoded window, chapter 3's edges: the window opens uniformly over
+        the code, so each outer edge is late by e, uniform over a gap G stretched by the minimum burst m:
+        E[e^2] = sum (G + m)^3 / (3 T_c) = 2 bound, E[e] = sum (G + m)^2 / (2 T_c); the bearing error is
+        (e_r - e_f) / 2 and the window error -(e_r + e_f), so Var(window) = 4 Var(e) - 4 Var(bearing)."""
+        code = self.code(code)
+        mean_delay_rad = 0.5 * self._receiver.window_shortening_s(code) * self.turret_speed_rad_s
+        edge_variance = 2.0 * self.bound_rad2(code) - mean_delay_rad**2
+        artificial = np.asarray(self.artificial_variance_rad2(code, angular_window_rad))
+        result = np.maximum(4.0 * (edge_variance - artificial), 0.0)
         return float(result) if result.ndim == 0 else result
 
     def bound_rad2(self, code: int | BeaconCode) -> float:

@@ -11,8 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_driver.angles import wrap_to_pi
-from beams_driver.bearing_correction import BearingCorrection
+from beams_common.angles import wrap_to_pi
+from beams_common.bearing_correction import BearingCorrection
 from beams_driver.codes import BeaconCode, code_family, codes_from_strings, family_code, first_last_edges
 from beams_driver.decoder import BearingDecoder
 from beams_driver.edges import RevolutionEdges
@@ -125,7 +125,8 @@ def test_power_bias_spans_0_23_deg_and_a_cubic_calibration_removes_it():
     assert np.ptp(hardware.power_bias_rad(windows)) / DEG == pytest.approx(0.23, rel=1e-3)
     decoder = BearingDecoder(HARDWARE.codes, VarianceModel(HARDWARE.codes), receiver=HARDWARE.receiver)
     per_distance = []
-    for k, distance_m in enumerate(np.linspace(0.8, 4.4, 10)):
+    # the experiment's distances (1-6 m): outside its windows the bias is held (receiver.HardwareNoise)
+    for k, distance_m in enumerate(np.linspace(1.0, 4.4, 10)):
         simulator = SensorSimulator(HARDWARE, [SimulatedBeacon(3, distance_m, 0.0)], np.random.default_rng(k))
         decoder.reset()
         decoded = [
@@ -212,3 +213,43 @@ def test_detection_against_distance_with_one_or_two_complete_codes(distance_m, r
         ]
         rates.append(sum(len(d.bearings) for d in decoded[1:]) / 59)
     assert rates == pytest.approx([rate_one, rate_two], abs=0.05)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(0.0, 1.0))
+def test_power_bias_slope_is_the_cubics_derivative_and_zero_where_held(fraction):
+    """The correction's slope (what a window error does to a corrected bearing) against a central
+    difference of the simulated bias inside the experiment's windows; 0 outside them, where it is held."""
+    correction = HARDWARE.hardware.power_bias_correction()
+    low, high = HARDWARE.hardware.window_range_rad
+    window, step = low + 0.02 + fraction * (high - low - 0.04), 1e-6
+    difference = (
+        HARDWARE.hardware.power_bias_rad(window + step) - HARDWARE.hardware.power_bias_rad(window - step)
+    ) / (2 * step)
+    assert correction.power_bias_slope(window) == pytest.approx(float(difference), rel=1e-5, abs=1e-9)
+    assert correction.power_bias_slope(high + 0.01) == 0.0
+    assert HARDWARE.hardware.power_bias_rad(high + 0.1) == pytest.approx(
+        HARDWARE.hardware.power_bias_rad(high)
+    )
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.floats(20.0, 80.0))
+def test_window_variance_is_the_codes_outer_edges_variance(window_bits):
+    """The decoded window's OOK variance from the model against the first and last edges of code AND
+    window over a fine grid of code phases (the minimum burst of the thesis hardware included)."""
+    code = HARDWARE.codes[1]
+    model = VarianceModel(
+        HARDWARE.codes,
+        min_burst_fraction=HARDWARE.min_burst_fraction,
+        min_burst_gap_exponent=HARDWARE.min_burst_gap_exponent,
+    )
+    window_s = window_bits * code.bit_time_s
+    starts = np.linspace(0.0, code.duration_s, 40000, endpoint=False)
+    rising, falling, detected = first_last_edges(
+        code, starts, starts + window_s, HARDWARE.receiver.min_burst_s(code)
+    )
+    assert detected.all()
+    measured = np.var(falling - rising) * HARDWARE.turret_speed_rad_s**2
+    predicted = model.window_variance_rad2(code, window_s * HARDWARE.turret_speed_rad_s)
+    assert predicted == pytest.approx(measured, rel=0.02, abs=1e-4 * PHI0_RAD**2)

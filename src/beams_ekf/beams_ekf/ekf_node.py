@@ -4,12 +4,12 @@ Subscribes (relative names): `odom` (nav_msgs/Odometry, odom frame), `beams/bear
 (beams_msgs/BeaconBearingArray), `beams/pose` (beams_msgs/TriangulatedPose, accepted fixes initialise
 the filter or re-initialise it after a kidnapping), `/initialpose`
 (geometry_msgs/PoseWithCovarianceStamped, an operator's pose: always re-initialises; the service
-`beams/ekf/set_pose` (beams_msgs/SetPose) does the same).
+`~/set_pose` (beams_msgs/SetPose) does the same).
 Publishes `beams/ekf/odometry` (nav_msgs/Odometry, map -> base_link, pose and twist with covariance)
 and `beams/ekf/pose` (PoseWithCovarianceStamped) after each revolution's bearings and at
 `publish_rate_hz` as odometry moves it, the map -> odom transform on `/tf` (REP-105: the odometry's
 source publishes odom -> base_link), plus `/diagnostics`.
-Service `beams/ekf/reset` (std_srvs/Trigger) forgets the estimate until the next pose.
+Service `~/reset` (std_srvs/Trigger) forgets the estimate until the next pose.
 All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
 """
 
@@ -25,6 +25,8 @@ from rclpy.qos import qos_profile_sensor_data
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
+from beams_common import topics
+from beams_common.bearing import bearings_of_message
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import geometry_of, refuse_overridden_geometry
 from beams_common.ros.messages import (
@@ -54,7 +56,6 @@ from beams_ekf.localiser import (
     Estimate,
     build_localiser,
     filter_settings,
-    message_bearings,
 )
 from beams_ekf.parameters import EKF_PARAMETERS
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
@@ -86,15 +87,15 @@ class EkfNode(Node):
         self._published_stamp_s: float | None = None
         self._changed = False  # a bearing or pose changed the estimate since the last publication
 
-        self.odometry_publisher = self.create_publisher(Odometry, "beams/ekf/odometry", 10)
-        self.pose_publisher = self.create_publisher(PoseWithCovarianceStamped, "beams/ekf/pose", 10)
-        self.tf_publisher = self.create_publisher(TFMessage, "/tf", TF_QOS) if publish_tf else None
-        self.create_subscription(Odometry, "odom", self._on_odometry, qos_profile_sensor_data)
-        self.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings, BEARINGS_QOS)
-        self.create_subscription(TriangulatedPose, "beams/pose", self._on_total_pose, 10)
-        self.create_subscription(PoseWithCovarianceStamped, "/initialpose", self._on_initial_pose, 10)
-        self.create_service(SetPose, "beams/ekf/set_pose", self._on_set_pose)
-        self.create_service(Trigger, "beams/ekf/reset", self._on_reset)
+        self.odometry_publisher = self.create_publisher(Odometry, topics.EKF_ODOMETRY, 10)
+        self.pose_publisher = self.create_publisher(PoseWithCovarianceStamped, topics.EKF_POSE, 10)
+        self.tf_publisher = self.create_publisher(TFMessage, topics.TF, TF_QOS) if publish_tf else None
+        self.create_subscription(Odometry, topics.ODOMETRY, self._on_odometry, qos_profile_sensor_data)
+        self.create_subscription(BeaconBearingArray, topics.BEARINGS, self._on_bearings, BEARINGS_QOS)
+        self.create_subscription(TriangulatedPose, topics.POSE, self._on_total_pose, 10)
+        self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE, self._on_initial_pose, 10)
+        self.create_service(SetPose, topics.SET_POSE, self._on_set_pose)
+        self.create_service(Trigger, topics.RESET, self._on_reset)
         serve_calibration_reload(self, self._apply_calibration)
         apply_runtime_changes(self, EKF_PARAMETERS, self.parameters, self._apply_parameters)
         self.create_timer(1.0 / rate_hz, self._publish)
@@ -126,7 +127,7 @@ class EkfNode(Node):
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
         if self.diagnostics.oversized_revolution(msg):  # refused before any per-bearing work
             return
-        bearings = message_bearings(msg, stamp_to_seconds)
+        bearings = bearings_of_message(msg, stamp_to_seconds)
         counts = self.localiser.stats.counts
         invalid_before = counts["bearings_invalid measurement"] + counts["bearings_unknown beacon"]
         refused = self.localiser.on_revolution(bearings)
@@ -198,7 +199,7 @@ class EkfNode(Node):
         self.localiser.reset("manual_resets")
         self._published_stamp_s = None
         response.success = True
-        response.message = "EKF reset: waiting for a pose (beams/pose, beams/ekf/set_pose or /initialpose)"
+        response.message = "EKF reset: waiting for a pose (beams/pose, ~/set_pose or /initialpose)"
         self.get_logger().info(response.message)
         return response
 

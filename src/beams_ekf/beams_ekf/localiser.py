@@ -2,7 +2,7 @@
 ToTal (or an operator) to initialise it.
 
 `Localiser` owns the timing: the EKF state is kept at the newest odometry instant, with the states at
-the odometry samples of the last `history_span_s`; a bearing (stamped when the turret pointed at its
+the odometry samples of the last `odometry_history_s`; a bearing (stamped when the turret pointed at its
 beacon, so usually before the newest odometry) is applied at its own stamp by going back to the state
 of the odometry sample before it, the turret placed where the interpolated odometry puts it, and
 predicting again through the later samples (see `Localiser.on_bearings`); a pose (ToTal's accepted fix or an
@@ -18,12 +18,12 @@ stray; `beams_common.time_jumps`) resets everything; odometry gaps inflate the c
 freezing the filter.
 
 ekf_node and the offline replay (`bag_replay`) share what lies between their inputs and the filter:
-`filter_settings` (parameter values to the filter's settings), `build_localiser`, `message_bearings`,
+`filter_settings` (parameter values to the filter's settings), `build_localiser`,
 and `Localiser.offer_pose` with its rules (`usable_covariance`, `operator_pose_stamp_s`).
 """
 
 from collections import Counter, deque
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from math import hypot, isfinite
 from typing import Any
@@ -32,6 +32,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from beams_common.angles import wrap_to_pi
+from beams_common.bearing import Bearing
 from beams_common.pose2d import Pose2D, between, compose, inverse, is_finite_pose
 from beams_common.pose_buffer import PoseBuffer
 from beams_common.time_jumps import StampOrder, TimeJumpDetector
@@ -48,8 +49,8 @@ MAX_PENDING_BEARINGS = 64
 class LocaliserConfig:
     """Timing and re-initialisation parameters (defaults suit 50 Hz odometry and a 10 Hz turret)."""
 
-    history_span_s: float = 1.0
-    max_extrapolation_s: float = 0.05
+    odometry_history_s: float = 1.0
+    max_odometry_extrapolation_s: float = 0.05
     # an odometry step longer than this is a gap: the covariance grows with its duration
     odometry_gap_s: float = 0.25
     gap_position_variance_m2_per_s: float = 1.0e-3
@@ -80,8 +81,14 @@ class LocaliserConfig:
                 f"need lost_nis_window_bearings >= 0 and lost_nis_probability in (0, 1), got "
                 f"{self.lost_nis_window_bearings} and {self.lost_nis_probability}"
             )
-        if not (self.history_span_s > 0.0 and self.max_extrapolation_s >= 0.0 and self.odometry_gap_s > 0.0):
-            raise ValueError("history_span_s and odometry_gap_s must be > 0, max_extrapolation_s >= 0")
+        if not (
+            self.odometry_history_s > 0.0
+            and self.max_odometry_extrapolation_s >= 0.0
+            and self.odometry_gap_s > 0.0
+        ):
+            raise ValueError(
+                "odometry_history_s and odometry_gap_s must be > 0, max_odometry_extrapolation_s >= 0"
+            )
         if not 1 <= self.kidnap_gated_bearings <= self.kidnap_window_bearings:
             raise ValueError(
                 f"need 1 <= kidnap_gated_bearings <= kidnap_window_bearings, got "
@@ -214,25 +221,6 @@ def operator_pose_stamp_s(stamp_s: float, newest_odometry_s: float | None) -> fl
     return stamp_s
 
 
-@dataclass(frozen=True)
-class Bearing:
-    """One bearing of the driver: sensor frame, at the instant the turret pointed at the beacon."""
-
-    stamp_s: float
-    beacon_id: int
-    bearing_rad: float
-    variance_rad2: float
-
-
-def message_bearings(message: Any, seconds: Callable[[Any], float]) -> list[Bearing]:
-    """The bearings of a beams_msgs/BeaconBearingArray (an rclpy or a rosbags message), seconds(stamp)
-    converting their stamps."""
-    return [
-        Bearing(seconds(b.header.stamp), int(b.beacon_id), float(b.bearing), float(b.variance))
-        for b in message.bearings
-    ]
-
-
 @dataclass
 class _Slot:
     """What the localiser keeps with an odometry sample: the filter state there (before the bearings of
@@ -316,7 +304,7 @@ class Localiser:
     def __init__(self, ekf: PoseFilter, config: LocaliserConfig | None = None) -> None:
         self.ekf = ekf
         self.config = config or LocaliserConfig()
-        self.history = PoseBuffer(self.config.history_span_s, self.config.max_extrapolation_s)
+        self.history = PoseBuffer(self.config.odometry_history_s, self.config.max_odometry_extrapolation_s)
         self.stats = LocaliserCounters()
         # gated (True) or accepted (False), for the last new bearings: the kidnap evidence
         self._recent_gated: deque[bool] = deque(maxlen=self.config.kidnap_window_bearings)
@@ -497,7 +485,7 @@ class Localiser:
     def _ahead_of_odometry(self, stamp_s: float) -> bool:
         """True for a stamp after the newest odometry (past extrapolation) but within the history span."""
         newest_s = self.history.latest[0]
-        return newest_s < stamp_s <= newest_s + self.config.history_span_s
+        return newest_s < stamp_s <= newest_s + self.config.odometry_history_s
 
     def _defer(self, bearing: Bearing) -> BearingOutcome:
         """Keep a bearing until odometry reaches its stamp (the oldest goes when too many wait)."""

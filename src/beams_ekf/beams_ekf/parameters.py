@@ -34,9 +34,9 @@ _FILTER_PARAMETERS = (
         1.0,
     ),
     ("gate_probability", "Chi-square (1 dof) probability of the per-bearing validation gate.", 0.5, 0.999999),
-    ("history_span_s", "Odometry kept to apply late bearings (s).", 0.1, 10.0),
+    ("odometry_history_s", "Odometry kept to apply late bearings (s).", 0.1, 10.0),
     (
-        "max_extrapolation_s",
+        "max_odometry_extrapolation_s",
         "Bearings up to this far (s) past the newest odometry are applied at once; "
         "later ones wait for odometry.",
         0.0,

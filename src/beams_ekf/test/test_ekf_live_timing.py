@@ -13,9 +13,10 @@ import pytest
 
 from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.bearing import Bearing
 from beams_common.pose2d import Pose2D
 from beams_ekf.bearing_ekf import BearingEkf
-from beams_ekf.localiser import Bearing, Localiser, LocaliserConfig
+from beams_ekf.localiser import Localiser, LocaliserConfig
 from beams_ekf.synthetic import SyntheticMatch, synthetic_match
 
 EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()

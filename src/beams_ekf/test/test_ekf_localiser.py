@@ -11,9 +11,10 @@ from hypothesis import strategies as st
 
 from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.bearing import Bearing
 from beams_common.pose2d import compose
 from beams_ekf.bearing_ekf import BearingEkf
-from beams_ekf.localiser import Bearing, Localiser, LocaliserConfig
+from beams_ekf.localiser import Localiser, LocaliserConfig
 from beams_ekf.replay import accuracy, replay
 from beams_ekf.synthetic import SyntheticMatch, synthetic_match
 
@@ -289,7 +290,7 @@ def test_any_sequence_of_inputs_keeps_the_estimate_finite(events):
 def test_bearings_ahead_of_odometry_wait_for_it(match):
     """Bearings published before the odometry of their instant arrived give the same estimate."""
     # no extrapolation: every bearing ahead of the odometry has to wait
-    in_order, early = (_localiser(LocaliserConfig(max_extrapolation_s=0.0)) for _ in range(2))
+    in_order, early = (_localiser(LocaliserConfig(max_odometry_extrapolation_s=0.0)) for _ in range(2))
     for localiser in (in_order, early):
         localiser.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
     revolutions = [r for a, r in _revolutions(match) if a < 2.0]

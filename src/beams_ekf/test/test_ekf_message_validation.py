@@ -16,15 +16,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.bearing import Bearing
 from beams_common.validation import (
     MAX_BEARINGS_PER_REVOLUTION,
     MIN_BEARING_VARIANCE_RAD2,
     bearing_problem,
     planar_estimate_problem,
 )
-from beams_ekf.localiser import Bearing as EkfBearing
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
-from beams_triangulation.gating import Bearing, NoPose, PoseEstimate, RevolutionEstimator
+from beams_triangulation.gating import NoPose, PoseEstimate
+from beams_triangulation.pipeline import RevolutionEstimator
 from beams_triangulation.total import expected_bearings
 
 SEARCH = settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
@@ -39,7 +40,7 @@ IDS = st.sampled_from(EUROBOT_BEACON_MAP.ids) | st.integers(0, 65535)
 def _true_revolution(stamp_s: float = 10.0) -> list[Bearing]:
     angles = expected_bearings(EUROBOT_BEACON_MAP.xy, TRUE_POSE)
     return [
-        Bearing(beacon_id, float(angle), VARIANCE_RAD2, stamp_s + 0.03 * k)
+        Bearing(stamp_s + 0.03 * k, beacon_id, float(angle), VARIANCE_RAD2)
         for k, (beacon_id, angle) in enumerate(zip(EUROBOT_BEACON_MAP.ids, angles, strict=True))
     ]
 
@@ -54,24 +55,24 @@ def revolutions(draw) -> list[Bearing]:
         old = bearings[k]
         field = draw(st.sampled_from(["beacon_id", "bearing", "variance", "stamp_s", "repeat", "add"]))
         if field == "beacon_id":
-            bearings[k] = Bearing(draw(IDS), old.bearing, old.variance, old.stamp_s)
+            bearings[k] = Bearing(old.stamp_s, draw(IDS), old.bearing_rad, old.variance_rad2)
         elif field == "bearing":
-            bearings[k] = Bearing(old.beacon_id, draw(ANY_FLOAT), old.variance, old.stamp_s)
+            bearings[k] = Bearing(old.stamp_s, old.beacon_id, draw(ANY_FLOAT), old.variance_rad2)
         elif field == "variance":
-            bearings[k] = Bearing(old.beacon_id, old.bearing, draw(VARIANCES), old.stamp_s)
+            bearings[k] = Bearing(old.stamp_s, old.beacon_id, old.bearing_rad, draw(VARIANCES))
         elif field == "stamp_s":
-            bearings[k] = Bearing(old.beacon_id, old.bearing, old.variance, draw(ANY_FLOAT))
+            bearings[k] = Bearing(draw(ANY_FLOAT), old.beacon_id, old.bearing_rad, old.variance_rad2)
         elif field == "repeat":  # the same beacon again, at the same or another instant
             bearings.append(
                 Bearing(
+                    draw(st.sampled_from([old.stamp_s, old.stamp_s + 0.09])),
                     old.beacon_id,
                     draw(ANY_FLOAT),
-                    old.variance,
-                    draw(st.sampled_from([old.stamp_s, old.stamp_s + 0.09])),
+                    old.variance_rad2,
                 )
             )
         else:
-            bearings.append(Bearing(draw(IDS), draw(ANY_FLOAT), draw(VARIANCES), draw(ANY_FLOAT)))
+            bearings.append(Bearing(draw(ANY_FLOAT), draw(IDS), draw(ANY_FLOAT), draw(VARIANCES)))
     return bearings
 
 
@@ -81,16 +82,12 @@ def _localiser() -> Localiser:
     return localiser
 
 
-def _ekf_bearings(bearings: list[Bearing]) -> list[EkfBearing]:
-    return [EkfBearing(b.stamp_s, b.beacon_id, b.bearing, b.variance) for b in bearings]
-
-
 @SEARCH
 @given(revolutions())
 def test_the_triangulation_refuses_what_the_rule_refuses_and_publishes_only_valid_poses(bearings):
     outcome = RevolutionEstimator(EUROBOT_BEACON_MAP).update(bearings).result
     problems = [
-        bearing_problem(b.beacon_id, b.bearing, b.variance, b.stamp_s, EUROBOT_BEACON_MAP.ids)
+        bearing_problem(b.beacon_id, b.bearing_rad, b.variance_rad2, b.stamp_s, EUROBOT_BEACON_MAP.ids)
         for b in bearings
     ]
     if any(problems):
@@ -108,12 +105,12 @@ def test_the_triangulation_refuses_what_the_rule_refuses_and_publishes_only_vali
 @given(revolutions())
 def test_the_ekf_takes_only_bearings_the_rule_accepts_and_its_estimate_stays_valid(bearings):
     localiser = _localiser()
-    localiser.on_revolution(_ekf_bearings(bearings))
+    localiser.on_revolution(bearings)
     counts = localiser.stats.counts
     valid = [
         b
         for b in bearings
-        if not bearing_problem(b.beacon_id, b.bearing, b.variance, b.stamp_s, EUROBOT_BEACON_MAP.ids)
+        if not bearing_problem(b.beacon_id, b.bearing_rad, b.variance_rad2, b.stamp_s, EUROBOT_BEACON_MAP.ids)
     ]
     assert counts["bearings_accepted"] <= len({b.beacon_id for b in valid})
     estimate = localiser.estimate()
@@ -125,27 +122,27 @@ def test_the_ekf_takes_only_bearings_the_rule_accepts_and_its_estimate_stays_val
 def test_one_bearing_is_refused_by_both_or_by_neither(beacon_id, angle, variance):
     """The same bearing, the third of a true revolution, in the triangulation and in the EKF."""
     bearings = _true_revolution()
-    bearings[2] = Bearing(beacon_id, angle, variance, bearings[2].stamp_s)
+    bearings[2] = Bearing(bearings[2].stamp_s, beacon_id, angle, variance)
     if beacon_id in (1, 2):
         return  # a repeated sighting, the subject of the next tests
     refused = bool(bearing_problem(beacon_id, angle, variance, bearings[2].stamp_s, EUROBOT_BEACON_MAP.ids))
     total = RevolutionEstimator(EUROBOT_BEACON_MAP).update(bearings).result
     assert (isinstance(total, NoPose) and total.bad_input) == refused
     localiser = _localiser()
-    outcome = localiser.on_bearings(_ekf_bearings(bearings))[2]
+    outcome = localiser.on_bearings(bearings)[2]
     assert (outcome.reason in ("invalid measurement", "unknown beacon")) == refused
 
 
 def test_a_zero_or_tiny_variance_is_refused_by_both():
     """Issue 15: a variance of 0 (or 1e-30) gave an accepted ToTal pose with an all-zero covariance."""
     for variance in (0.0, 1e-30, 0.5 * MIN_BEARING_VARIANCE_RAD2):
-        bearings = [Bearing(b.beacon_id, b.bearing, variance, b.stamp_s) for b in _true_revolution()]
+        bearings = [Bearing(b.stamp_s, b.beacon_id, b.bearing_rad, variance) for b in _true_revolution()]
         total = RevolutionEstimator(EUROBOT_BEACON_MAP).update(bearings).result
         assert isinstance(total, NoPose) and total.bad_input and "invalid bearing variance" in total.reason
         localiser = _localiser()
-        assert {o.reason for o in localiser.on_bearings(_ekf_bearings(bearings))} == {"invalid measurement"}
+        assert {o.reason for o in localiser.on_bearings(bearings)} == {"invalid measurement"}
     at_floor = [
-        Bearing(b.beacon_id, b.bearing, MIN_BEARING_VARIANCE_RAD2, b.stamp_s) for b in _true_revolution()
+        Bearing(b.stamp_s, b.beacon_id, b.bearing_rad, MIN_BEARING_VARIANCE_RAD2) for b in _true_revolution()
     ]
     pose = RevolutionEstimator(EUROBOT_BEACON_MAP).update(at_floor).result
     assert isinstance(pose, PoseEstimate) and pose.accepted
@@ -154,17 +151,17 @@ def test_a_zero_or_tiny_variance_is_refused_by_both():
 
 def test_a_revolution_over_the_limit_is_refused_before_any_per_bearing_work():
     """Issue 15: 10,000 bearings made the triangulation log a 50 kB reason and froze the EKF for 0.5 s."""
-    flood = [Bearing(1 + k % 3, 0.1, VARIANCE_RAD2, 10.0 + 1e-5 * k) for k in range(10_000)]
+    flood = [Bearing(10.0 + 1e-5 * k, 1 + k % 3, 0.1, VARIANCE_RAD2) for k in range(10_000)]
     total = RevolutionEstimator(EUROBOT_BEACON_MAP).update(flood).result
     assert isinstance(total, NoPose) and total.bad_input
     assert f"more than the limit {MAX_BEARINGS_PER_REVOLUTION}" in total.reason and len(total.reason) < 100
     localiser = _localiser()
-    assert "more than the limit" in localiser.on_revolution(_ekf_bearings(flood))
+    assert "more than the limit" in localiser.on_revolution(flood)
     counts = localiser.stats.counts
     assert counts["revolutions_too_many_bearings"] == 1
     assert sum(v for k, v in counts.items() if k.startswith("bearings_")) == 0  # not one bearing looked at
     at_limit = (_true_revolution() * 22)[:MAX_BEARINGS_PER_REVOLUTION]
-    assert "more than the limit" not in localiser.on_revolution(_ekf_bearings(at_limit))
+    assert "more than the limit" not in localiser.on_revolution(at_limit)
     assert counts["revolutions_too_many_bearings"] == 1
 
 
@@ -173,14 +170,14 @@ def test_the_ekf_counts_a_beacon_seen_twice_and_uses_one_sighting():
     sighting keeps the one nearest the revolution's middle (as the triangulation does); two at one
     instant are refused."""
     revolution = _true_revolution()
-    again = EkfBearing(revolution[0].stamp_s + 0.09, 1, revolution[0].bearing + 0.5, VARIANCE_RAD2)
+    again = Bearing(revolution[0].stamp_s + 0.09, 1, revolution[0].bearing_rad + 0.5, VARIANCE_RAD2)
     localiser = _localiser()
-    assert localiser.on_revolution([*_ekf_bearings(revolution), again]) == ""  # handled, not refused
+    assert localiser.on_revolution([*revolution, again]) == ""  # handled, not refused
     assert localiser.stats.counts["bearings_repeated_beacon"] == 1
     assert localiser.stats.counts["bearings_accepted"] == 3
-    same_instant = EkfBearing(revolution[0].stamp_s, 1, revolution[0].bearing + 0.5, VARIANCE_RAD2)
+    same_instant = Bearing(revolution[0].stamp_s, 1, revolution[0].bearing_rad + 0.5, VARIANCE_RAD2)
     localiser = _localiser()
-    refused = localiser.on_revolution([*_ekf_bearings(revolution), same_instant])
+    refused = localiser.on_revolution([*revolution, same_instant])
     assert "beacon(s) [1] seen twice at one instant" in refused
     assert localiser.stats.counts["bearings_conflicting_beacon"] == 2
     assert localiser.stats.counts["bearings_accepted"] == 2

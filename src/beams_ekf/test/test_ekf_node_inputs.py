@@ -134,7 +134,9 @@ def test_settings_from_the_node_parameter_file():
     """Every value of the ekf_node section of beams_params.yaml reaches the settings; a missing one
     takes its default."""
     parameters = node_section(yaml.safe_load(CONFIG.read_text()), "ekf_node")
-    settings = filter_settings({**parameters, "history_span_s": 1.5, "default_pose_sigma": [0.1, 0.2, 0.3]})
+    settings = filter_settings(
+        {**parameters, "odometry_history_s": 1.5, "default_pose_sigma": [0.1, 0.2, 0.3]}
+    )
     assert settings.process_noise == ProcessNoise(
         parameters["translation_variance_m2_per_m"],
         parameters["rotation_variance_rad2_per_rad"],
@@ -147,7 +149,7 @@ def test_settings_from_the_node_parameter_file():
     )
     assert settings.localiser.lost_nis_window_bearings == parameters["lost_nis_window_bearings"]
     assert settings.gate_probability == parameters["gate_probability"]
-    assert settings.localiser.history_span_s == 1.5
+    assert settings.localiser.odometry_history_s == 1.5
     assert settings.localiser.kidnap_heading_rad == parameters["kidnap_heading_rad"]
     assert settings.use_total_pose is parameters["use_total_pose"]
     np.testing.assert_allclose(settings.default_pose_covariance, np.diag([0.01, 0.04, 0.09]))

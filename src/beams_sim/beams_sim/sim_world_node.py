@@ -21,6 +21,7 @@ from rclpy.node import Node
 from rclpy.time import Time
 from tf2_msgs.msg import TFMessage
 
+from beams_common import topics
 from beams_common.ros.messages import planar_tf_message, ros_covariance, set_pose2d
 from beams_common.ros.node_support import TF_QOS, Diagnostics, run_node
 from beams_common.ros.parameters import ParameterValidationError, declare_table
@@ -52,9 +53,11 @@ class SimWorldNode(Node):
         self.odometry_seed = values["odometry_seed"]
         self.wheel_base_m = values["wheel_base_m"]
         self.odometry_dropout_s = values["odometry_dropout_s"]
-        self.truth_publisher = self.create_publisher(Odometry, "beams/sim/ground_truth", QUEUE_DEPTH)
-        self.odom_publisher = self.create_publisher(Odometry, "odom", QUEUE_DEPTH)
-        self.tf_publisher = self.create_publisher(TFMessage, "/tf", TF_QOS) if values["publish_tf"] else None
+        self.truth_publisher = self.create_publisher(Odometry, topics.GROUND_TRUTH, QUEUE_DEPTH)
+        self.odom_publisher = self.create_publisher(Odometry, topics.ODOMETRY, QUEUE_DEPTH)
+        self.tf_publisher = (
+            self.create_publisher(TFMessage, topics.TF, TF_QOS) if values["publish_tf"] else None
+        )
         self.start_s: float | None = None
         self.last_s = -math.inf
         self.finished = False

@@ -20,14 +20,15 @@ A 90 s match takes about 2 s on one core (bench/bench_serial.py; per revolution:
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_common.bearing_correction import BearingCorrection
 from beams_driver.codes import BeaconCode
-from beams_driver.decoder import BearingDecoder, DecodedRevolution
+from beams_driver.decoder import BearingDecoder, DecodedRevolution, VarianceSource
 from beams_driver.edges import RevolutionEdges
 from beams_driver.sensor_sim import (
     BiasFunction,
@@ -38,9 +39,12 @@ from beams_driver.sensor_sim import (
     SimulatedBeacon,
     beacons_from_map,
 )
+from beams_driver.sim_source import SIM_NOISE_MODELS
 from beams_driver.variance import VarianceModel
 from beams_sim.world import (
     MATCH_DURATION_S,
+    TABLE_LENGTH_M,
+    TABLE_WIDTH_M,
     EurobotTrajectory,
     OdometryDrift,
     OdometrySimulator,
@@ -87,6 +91,21 @@ class SimulatedMatch:
                 errors.setdefault(bearing.beacon_id, []).append(float(error))
         return {beacon_id: np.array(values) for beacon_id, values in errors.items()}
 
+    def corrected(self, correction: BearingCorrection) -> "SimulatedMatch":
+        """The match with every bearing corrected as driver_node publishes it (eq. 7.18 and 7.24, at the
+        decoded window)."""
+        revolutions = [
+            replace(
+                revolution,
+                bearings=[
+                    replace(b, bearing=float(correction.correct(b.bearing, b.angular_window)))
+                    for b in revolution.bearings
+                ],
+            )
+            for revolution in self.revolutions
+        ]
+        return replace(self, revolutions=revolutions)
+
 
 def simulate_match(
     duration_s: float = MATCH_DURATION_S,
@@ -96,7 +115,7 @@ def simulate_match(
     beacon_map: BeaconMap = EUROBOT_BEACON_MAP,
     true_beacons: Sequence[SimulatedBeacon] | None = None,
     sensor_config: SensorSimConfig | None = None,
-    variance_model: VarianceModel | None = None,
+    variance_model: VarianceSource | None = None,
     power_bias_rad: BiasFunction | None = None,
     rotation_bias_rad: BiasFunction | None = None,
     turret_offset_m: tuple[float, float] = (0.0, 0.0),
@@ -129,7 +148,12 @@ def simulate_match(
         turret_offset_m=turret_offset_m,
         occlusion=occlusion,
     )
-    decoder = BearingDecoder(config.codes, variance_model or default_variance_model(config.codes, config))
+    # the receiver's minimum burst in the window correction, as driver_node decodes
+    decoder = BearingDecoder(
+        config.codes,
+        variance_model or default_variance_model(config.codes, config),
+        receiver=config.receiver,
+    )
     revolutions, edges = _run_sensor(
         simulator, decoder, trajectory.pose_at, duration_s, config.period_s, keep_edges
     )
@@ -151,15 +175,102 @@ def simulate_match(
     )
 
 
-def default_variance_model(codes: Sequence[BeaconCode], config: SensorSimConfig) -> VarianceModel:
-    """The exact variance (chapter 4) plus the simulated sensor's natural variance (section 5.6)."""
+def default_variance_model(
+    codes: Sequence[BeaconCode], config: SensorSimConfig, natural_variance_rad2: float | None = None
+) -> VarianceModel:
+    """The exact variance (chapter 4) plus a natural variance (section 5.6; default the simulated
+    sensor's), for the receiver's minimum burst."""
     return VarianceModel(
         codes,
         "exact",
         turret_speed_rad_s=config.turret_speed_rad_s,
-        natural_variance_rad2=config.natural_variance_rad2,
+        natural_variance_rad2=(
+            config.natural_variance_rad2 if natural_variance_rad2 is None else natural_variance_rad2
+        ),
         min_burst_fraction=config.min_burst_fraction,
+        min_burst_gap_exponent=config.min_burst_gap_exponent,
     )
+
+
+def table_natural_variance_rad2(
+    config: SensorSimConfig, beacon_map: BeaconMap = EUROBOT_BEACON_MAP, step_m: float = 0.05
+) -> float:
+    """The constant natural variance (rad^2) that matches the receiver's edge noise on the table.
+
+    The driver's variance model adds one constant natural variance to the exact one (section 5.6), while
+    the thesis hardware's edge noise grows with the window (fig. 5.3, `HardwareNoise`): the constant is
+    its mean over the places the robot can be, a grid of step_m over the 3 m x 2 m table, each beacon
+    of the map at the window its distance gives (C_k's noise: the family's gaps are one bit). A model
+    figure, the same for every match; the constant noise of the ideal receiver is returned as it is.
+    """
+    if config.hardware is None:
+        return config.natural_variance_rad2
+    xs = np.arange(0.5 * step_m, TABLE_LENGTH_M, step_m)
+    ys = np.arange(0.5 * step_m, TABLE_WIDTH_M, step_m)
+    grid = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 1, 2)
+    distances = np.linalg.norm(grid - np.asarray(beacon_map.xy, dtype=float)[None, :, :], axis=-1)
+    windows = config.window_rad(distances)
+    return float(np.mean(config.hardware.natural_variance_rad2(windows, None)))
+
+
+SENSOR_MODELS = tuple(SIM_NOISE_MODELS)
+
+
+def sensor_config_of(sensor_model: str, codes: Sequence[BeaconCode] | None = None) -> SensorSimConfig:
+    """The simulated receiver of a sensor model ("thesis_hardware" or "ideal"), as driver_node's
+    sim_noise_model names it."""
+    if sensor_model not in SIM_NOISE_MODELS:
+        raise ValueError(f"sensor model {sensor_model!r} is not one of {SENSOR_MODELS}")
+    config = SIM_NOISE_MODELS[sensor_model]()
+    return config if codes is None else replace(config, codes=tuple(codes))
+
+
+def calibration_of(config: SensorSimConfig) -> BearingCorrection:
+    """A perfect chapter-7 calibration of the receiver: the inverse of its power bias (none for ideal)."""
+    return config.hardware.power_bias_correction() if config.hardware is not None else BearingCorrection()
+
+
+@dataclass(frozen=True)
+class CorrectedVariance:
+    """The variance (rad^2) of a bearing the power-bias correction moved: a VarianceSource for the decoder.
+
+    The correction subtracts f(w) at the decoded window (eq. 7.18), so the window's error enters the
+    bearing through the slope f'(w): to first order, with bearing error db and window error dw,
+    Var = Var(db) + f'^2 Var(dw) - 2 f' Cov(db, dw). The receiver's edge noise (sigma_r, sigma_f of
+    `HardwareNoise`, before the code) gives Var(dw) = sigma_r^2 + sigma_f^2 plus the code's own window
+    variance and Cov(db, dw) = (sigma_f^2 - sigma_r^2) / 2 (the code part is uncorrelated: its rising
+    and falling delays are alike). Var(db) is the driver's model.
+    """
+
+    model: VarianceModel
+    config: SensorSimConfig
+    correction: BearingCorrection
+
+    def variance(self, code: int | BeaconCode, angular_window_rad: float) -> float:
+        variance = float(self.model.variance(code, angular_window_rad))
+        slope = float(self.correction.power_bias_slope(angular_window_rad))
+        if slope == 0.0 or self.config.hardware is None:
+            return variance
+        rising, falling = self.config.hardware.edge_std_rad(angular_window_rad, self.model.code(code))
+        window_variance = rising**2 + falling**2 + self.model.window_variance_rad2(code, angular_window_rad)
+        return variance + float(slope**2 * window_variance + slope * (rising**2 - falling**2))
+
+
+def calibrated_match(
+    sensor_model: str, duration_s: float = MATCH_DURATION_S, seed: int = 0, **options: object
+) -> SimulatedMatch:
+    """A match as a calibrated robot's driver publishes it (what ekf_node and triangulation_node get).
+
+    The receiver of sensor_model; the driver's exact variance with the natural variance of
+    `table_natural_variance_rad2`; bearings corrected by a perfect calibration (`calibration_of`);
+    other options go to `simulate_match`.
+    """
+    config = sensor_config_of(sensor_model)
+    correction = calibration_of(config)
+    model = default_variance_model(config.codes, config, table_natural_variance_rad2(config))
+    variance = model if correction.is_identity else CorrectedVariance(model, config, correction)
+    match = simulate_match(duration_s, seed, sensor_config=config, variance_model=variance, **options)  # type: ignore[arg-type]
+    return match if correction.is_identity else match.corrected(correction)
 
 
 def _run_sensor(

@@ -20,17 +20,15 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
-from typing import Any, Protocol
+from dataclasses import dataclass
 
 import numpy as np
 
 from beams_common.beacon_map import BeaconMap
-from beams_common.pose_buffer import twist_between
+from beams_common.bearing import Bearing
 from beams_common.validation import bearing_problem, one_sighting_per_beacon, revolution_size_problem
 from beams_triangulation.motion_compensation import (
     motion_variance_rad2,
-    odometry_buffer,
     triangulate_compensated,
 )
 from beams_triangulation.pose_covariance import pose_covariance, pose_covariance_many, position_std_m
@@ -52,17 +50,6 @@ class GateConfig:
     def __post_init__(self) -> None:
         if not (self.max_inverse_abs_d > 0.0 and self.max_position_std_m > 0.0):
             raise ValueError(f"gate thresholds must be positive, got {self}")
-
-
-@dataclass(frozen=True)
-class TriangulationSettings:
-    """What triangulation_node takes from its parameters (besides the beacon geometry)."""
-
-    gates: GateConfig = field(default_factory=GateConfig)
-    # bring each revolution's bearings to one instant with `odom` (and refuse the uncovered ones)
-    use_odometry: bool = True
-    odometry_history_s: float = 2.0
-    max_odometry_extrapolation_s: float = 0.05
 
 
 @dataclass(slots=True)
@@ -152,28 +139,6 @@ def _validate(
     return ""
 
 
-@dataclass(frozen=True)
-class Bearing:
-    """A bearing (rad, sensor frame) with its variance (rad^2) and instant (s): the BearingLike fields."""
-
-    beacon_id: int
-    bearing: float
-    variance: float
-    stamp_s: float = 0.0
-
-
-def message_bearings(message: Any, seconds: Callable[[Any], float]) -> list[Bearing]:
-    """The bearings of a beams_msgs/BeaconBearingArray (an rclpy or a rosbags message), seconds(stamp)
-    converting its stamps; a bearing stamped zero takes the revolution's stamp."""
-    revolution_s = seconds(message.header.stamp)
-    return [
-        Bearing(
-            int(b.beacon_id), float(b.bearing), float(b.variance), seconds(b.header.stamp) or revolution_s
-        )
-        for b in message.bearings
-    ]
-
-
 def estimate_pose(
     beacon_ids: Sequence[int],
     bearings_rad: Sequence[float],
@@ -191,7 +156,9 @@ def estimate_pose(
     if not len(beacon_ids) == len(bearings_rad) == len(variances_rad2):
         counts = (len(beacon_ids), len(bearings_rad), len(variances_rad2))
         return NoPose("{} ids, {} bearings and {} variances: the lists must match".format(*counts), True)
-    bearings = [Bearing(*values) for values in zip(beacon_ids, bearings_rad, variances_rad2, strict=True)]
+    bearings = [
+        Bearing(0.0, *values) for values in zip(beacon_ids, bearings_rad, variances_rad2, strict=True)
+    ]
     return estimate_revolution(bearings, beacon_map, config, turret_offset_m).result
 
 
@@ -211,16 +178,7 @@ def gated_estimate(
     )
 
 
-class BearingLike(Protocol):
-    """What a revolution's bearing must offer (beams_driver.decoder.DecodedBearing, or a message adapter)."""
-
-    beacon_id: int
-    bearing: float
-    variance: float
-    stamp_s: float
-
-
-def drop_repeated_beacons(bearings: Sequence[BearingLike]) -> list[BearingLike]:
+def drop_repeated_beacons(bearings: Sequence[Bearing]) -> list[Bearing]:
     """One bearing per beacon (`validation.one_sighting_per_beacon`, the EKF's rule too): a beacon seen
     twice at different instants keeps the sighting closest in time to the revolution's median instant.
     Two sightings at the same instant are not physical and stay, for the validation to refuse."""
@@ -240,7 +198,7 @@ class RevolutionPose:
 
 
 def estimate_revolution(
-    bearings: Sequence[BearingLike],
+    bearings: Sequence[Bearing],
     beacon_map: BeaconMap,
     config: GateConfig = GateConfig(),
     turret_offset_m: Sequence[float] = (0.0, 0.0),
@@ -260,8 +218,8 @@ def estimate_revolution(
         return RevolutionPose(NoPose(too_many, bad_input=True), math.nan, False)
     bearings = drop_repeated_beacons(bearings)
     ids = [b.beacon_id for b in bearings]
-    angles = np.array([b.bearing for b in bearings], dtype=float)
-    variances = np.array([b.variance for b in bearings], dtype=float)
+    angles = np.array([b.bearing_rad for b in bearings], dtype=float)
+    variances = np.array([b.variance_rad2 for b in bearings], dtype=float)
     stamps = np.array([b.stamp_s for b in bearings], dtype=float)
     mean_stamp = float(stamps.mean()) if len(stamps) else math.nan
     problem = _validate(ids, angles, variances, stamps, beacon_map)
@@ -311,111 +269,3 @@ def _odometry_at_stamps(odometry_at, stamps: np.ndarray, target: float):
     if any(p is None for p in poses):
         return None
     return np.array(poses[:-1], dtype=float), poses[-1]
-
-
-class RevolutionEstimator:
-    """`estimate_revolution` for a stream of revolutions, remembering the last pose so that, without
-    odometry, the motion seen between revolutions inflates the variances (what the node runs)."""
-
-    def __init__(
-        self,
-        beacon_map: BeaconMap,
-        config: GateConfig = GateConfig(),
-        turret_offset_m: Sequence[float] = (0.0, 0.0),
-    ) -> None:
-        self.beacon_map = beacon_map
-        self.config = config
-        self.turret_offset_m = (float(turret_offset_m[0]), float(turret_offset_m[1]))
-        self._last: tuple[tuple[float, float, float], float] | None = None
-
-    def update(
-        self,
-        bearings: Sequence[BearingLike],
-        odometry_at: Callable[[float], Sequence[float] | None] | None = None,
-    ) -> RevolutionPose:
-        """The gated pose of one revolution (see `estimate_revolution`)."""
-        settings = (self.beacon_map, self.config, self.turret_offset_m)
-        outcome = estimate_revolution(bearings, *settings, odometry_at)
-        estimate = outcome.result
-        if isinstance(estimate, PoseEstimate) and not outcome.compensated and self._last is not None:
-            motion = twist_between(*self._last, (estimate.x, estimate.y, estimate.heading), outcome.stamp_s)
-            if motion is not None:  # same bearings again, now with the motion in their variances
-                outcome = estimate_revolution(bearings, *settings, odometry_at, motion)
-                estimate = outcome.result
-        if isinstance(estimate, PoseEstimate):
-            self._last = ((estimate.x, estimate.y, estimate.heading), outcome.stamp_s)
-        return outcome
-
-
-Tag = Any  # what the caller attaches to a revolution (its number live, its due instant offline)
-
-
-class TriangulationPipeline:
-    """triangulation_node's logic on its two inputs, without ROS (the offline replay runs it as well):
-    odometry into an `odometry_buffer`, each revolution through a `RevolutionEstimator` with it.
-
-    With odometry in use, a revolution whose last bearing is newer than the newest odometry waits for the
-    odometry that covers it, at most until the next revolution: its bearings are then interpolated
-    between odometry samples rather than extrapolated, whatever order the two streams arrive in (over
-    DDS live, by stamp offline), so the node and the replay give the same poses. Each call returns the
-    (tag, outcome) pairs of the revolutions it completed, oldest first.
-    """
-
-    def __init__(
-        self,
-        beacon_map: BeaconMap,
-        settings: TriangulationSettings = TriangulationSettings(),
-        turret_offset_m: Sequence[float] = (0.0, 0.0),
-    ) -> None:
-        self.settings = settings
-        self.estimator = RevolutionEstimator(beacon_map, settings.gates, turret_offset_m)
-        self.odometry = odometry_buffer(settings.odometry_history_s, settings.max_odometry_extrapolation_s)
-        self.rejected_odometry = 0  # non-finite samples dropped
-        self._pending: tuple[Tag, list[BearingLike]] | None = None
-
-    def configure(self, beacon_map: BeaconMap, gates: GateConfig, turret_offset_m: Sequence[float]) -> None:
-        """New beacon geometry or gates (a runtime parameter change, a calibration reload); the odometry
-        and the waiting revolution stay."""
-        self.settings = replace(self.settings, gates=gates)
-        self.estimator = RevolutionEstimator(beacon_map, gates, turret_offset_m)
-
-    def on_odometry(
-        self, stamp_s: float, pose: Sequence[float], twist: tuple[float, float]
-    ) -> list[tuple[Tag, RevolutionPose]]:
-        """An odometry sample (odom frame; speed m/s, yaw rate rad/s); ignored without use_odometry."""
-        if not self.settings.use_odometry:
-            return []
-        if not self.odometry.add(stamp_s, tuple(pose), twist):
-            self.rejected_odometry += 1
-            return []
-        if self._pending is not None and self._covered(self._pending[1]):
-            return self.flush()
-        return []
-
-    def on_revolution(self, tag: Tag, bearings: Sequence[BearingLike]) -> list[tuple[Tag, RevolutionPose]]:
-        """A revolution's bearings: the waiting revolution goes first, with the odometry there is."""
-        completed = self.flush()
-        if self.settings.use_odometry and not self._covered(bearings):
-            self._pending = (tag, list(bearings))
-            return completed
-        return [*completed, (tag, self._estimate(bearings))]
-
-    def flush(self) -> list[tuple[Tag, RevolutionPose]]:
-        """The waiting revolution (if any), estimated now (when the streams stop or time jumps)."""
-        if self._pending is None:
-            return []
-        tag, bearings = self._pending
-        self._pending = None
-        return [(tag, self._estimate(bearings))]
-
-    def _covered(self, bearings: Sequence[BearingLike]) -> bool:
-        """True when no odometry can still help: the newest odometry is at or after every bearing, or
-        the stamps are not usable (bad input is reported at once)."""
-        stamps = [b.stamp_s for b in bearings]
-        if not (stamps and all(map(math.isfinite, stamps))):
-            return True
-        newest_s = self.odometry.newest_stamp_s
-        return newest_s is not None and newest_s >= max(stamps)
-
-    def _estimate(self, bearings: Sequence[BearingLike]) -> RevolutionPose:
-        return self.estimator.update(bearings, self.odometry.pose_at if self.settings.use_odometry else None)

@@ -5,7 +5,8 @@ from typing import Any
 
 from beams_common.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SPECS
 from beams_common.parameters import ParameterSpec, ParameterTable
-from beams_triangulation.gating import GateConfig, TriangulationSettings
+from beams_triangulation.gating import GateConfig
+from beams_triangulation.pipeline import TriangulationSettings
 
 _DEFAULTS = TriangulationSettings()
 

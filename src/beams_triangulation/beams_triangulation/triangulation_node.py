@@ -7,7 +7,8 @@ Publishes `beams/pose` (beams_msgs/TriangulatedPose, every pose, rejected ones w
 and the reason), `beams/pose_cov` (geometry_msgs/PoseWithCovarianceStamped, accepted poses only), both
 stamped with the bearings' mean instant in the map frame; `beams/markers` (visualization_msgs/
 MarkerArray: beacons, pose arrow, 2-sigma covariance ellipse) and `/diagnostics`. A revolution the
-odometry does not cover yet waits for it, at most until the next revolution (`gating.TriangulationPipeline`).
+odometry does not cover yet waits for it, at most until the next revolution
+(`pipeline.TriangulationPipeline`).
 Bad input (unknown beacon id, NaN bearing, duplicated beacon, fewer than three beacons) gives a log line
 and no pose. The beacon map and turret offset come from the calibration file when one is given.
 """
@@ -25,6 +26,8 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from visualization_msgs.msg import Marker, MarkerArray
 
+from beams_common import topics
+from beams_common.bearing import bearings_of_message
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import geometry_of, refuse_overridden_geometry
 from beams_common.ros.messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
@@ -42,14 +45,9 @@ from beams_common.validation import (
     planar_estimate_problem,
 )
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
-from beams_triangulation.gating import (
-    NoPose,
-    PoseEstimate,
-    RevolutionPose,
-    TriangulationPipeline,
-    message_bearings,
-)
+from beams_triangulation.gating import NoPose, PoseEstimate, RevolutionPose
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
+from beams_triangulation.pipeline import TriangulationPipeline
 
 
 def estimate_pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
@@ -58,7 +56,7 @@ def estimate_pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
 
 
 class TriangulationNode(Node):
-    """ROS wiring of `gating.TriangulationPipeline` (see the module docstring)."""
+    """ROS wiring of `pipeline.TriangulationPipeline` (see the module docstring)."""
 
     def __init__(self) -> None:
         super().__init__("triangulation_node")
@@ -74,12 +72,12 @@ class TriangulationNode(Node):
         self.diagnostics = Diagnostics(self, "triangulation")
         self.diagnostics.set_level("warn", "waiting for bearings")
 
-        self.pose_publisher = self.create_publisher(TriangulatedPose, "beams/pose", 10)
-        self.pose_cov_publisher = self.create_publisher(PoseWithCovarianceStamped, "beams/pose_cov", 10)
-        self.marker_publisher = self.create_publisher(MarkerArray, "beams/markers", 10)
-        self.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings, BEARINGS_QOS)
+        self.pose_publisher = self.create_publisher(TriangulatedPose, topics.POSE, 10)
+        self.pose_cov_publisher = self.create_publisher(PoseWithCovarianceStamped, topics.POSE_COV, 10)
+        self.marker_publisher = self.create_publisher(MarkerArray, topics.MARKERS, 10)
+        self.create_subscription(BeaconBearingArray, topics.BEARINGS, self._on_bearings, BEARINGS_QOS)
         if self.use_odometry:
-            self.create_subscription(Odometry, "odom", self._on_odometry, qos_profile_sensor_data)
+            self.create_subscription(Odometry, topics.ODOMETRY, self._on_odometry, qos_profile_sensor_data)
         config = settings.gates
         self.get_logger().info(
             f"triangulation_node ready: beacons {list(geometry.beacon_map.ids)}, turret offset "
@@ -117,7 +115,7 @@ class TriangulationNode(Node):
         self.diagnostics.increment("revolutions")
         if self.diagnostics.oversized_revolution(msg):  # refused before any per-bearing work
             return
-        bearings = message_bearings(msg, stamp_to_seconds)
+        bearings = bearings_of_message(msg, stamp_to_seconds)
         dropped = one_sighting_per_beacon(bearings).dropped
         if dropped:  # the pipeline keeps one sighting per beacon (gating.drop_repeated_beacons)
             self.diagnostics.increment("repeated_beacon_sightings", len(dropped))

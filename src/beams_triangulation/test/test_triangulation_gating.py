@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_common.bearing import Bearing
 from beams_triangulation.gating import (
-    Bearing,
     GateConfig,
     NoPose,
     PoseEstimate,
@@ -162,16 +162,16 @@ def test_a_beacon_seen_twice_keeps_the_sighting_closest_in_time():
     pose = (1.0, 1.2, 0.5)
     bearings = _bearings(EUROBOT_BEACON_MAP, pose, [3, 2, 1])
     revolution = [
-        Bearing(3, 0.9, 1e-6, 0.001),
-        Bearing(2, bearings[1], 1e-6, 0.03),
-        Bearing(1, bearings[2], 1e-6, 0.06),
-        Bearing(3, bearings[0], 1e-6, 0.098),
+        Bearing(0.001, 3, 0.9, 1e-6),
+        Bearing(0.03, 2, bearings[1], 1e-6),
+        Bearing(0.06, 1, bearings[2], 1e-6),
+        Bearing(0.098, 3, bearings[0], 1e-6),
     ]
     kept = drop_repeated_beacons(revolution)
     assert [b.beacon_id for b in kept] == [3, 2, 1]
     # Median instant 0.045 s: the sighting at 0.001 s (0.044 s away) is closer than the one at 0.098 s.
     assert kept[0].stamp_s == 0.001
-    revolution[0] = Bearing(3, 0.9, 1e-6, -0.02)
+    revolution[0] = Bearing(-0.02, 3, 0.9, 1e-6)
     assert drop_repeated_beacons(revolution)[0].stamp_s == 0.098
     outcome = estimate_revolution(revolution, EUROBOT_BEACON_MAP)
     assert (outcome.result.x, outcome.result.y) == pytest.approx(pose[:2], abs=1e-9)
@@ -179,10 +179,10 @@ def test_a_beacon_seen_twice_keeps_the_sighting_closest_in_time():
 
 def test_a_beacon_twice_at_the_same_instant_is_bad_input():
     revolution = [
-        Bearing(1, 0.1, 1e-6, 0.0),
-        Bearing(1, 0.2, 1e-6, 0.0),
-        Bearing(2, 0.5, 1e-6, 0.03),
-        Bearing(3, 1.0, 1e-6, 0.06),
+        Bearing(0.0, 1, 0.1, 1e-6),
+        Bearing(0.0, 1, 0.2, 1e-6),
+        Bearing(0.03, 2, 0.5, 1e-6),
+        Bearing(0.06, 3, 1.0, 1e-6),
     ]
     outcome = estimate_revolution(revolution, EUROBOT_BEACON_MAP)
     assert isinstance(outcome.result, NoPose) and outcome.result.bad_input

@@ -10,21 +10,14 @@ import pytest
 import yaml
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.bearing import Bearing
 from beams_common.parameters import node_section
 from beams_common.pose2d import between
 from beams_common.pose_buffer import PoseBuffer
-from beams_triangulation.gating import (
-    REASON_NOT_COMPENSATED,
-    Bearing,
-    GateConfig,
-    PoseEstimate,
-    RevolutionEstimator,
-    TriangulationPipeline,
-    TriangulationSettings,
-    estimate_revolution,
-)
+from beams_triangulation.gating import REASON_NOT_COMPENSATED, GateConfig, PoseEstimate, estimate_revolution
 from beams_triangulation.motion_compensation import odometry_buffer
 from beams_triangulation.parameters import triangulation_settings
+from beams_triangulation.pipeline import RevolutionEstimator, TriangulationPipeline, TriangulationSettings
 from beams_triangulation.total import expected_bearings
 
 ODOM_IN_MAP = (0.5, 0.2, 0.4)  # where the odometry frame stands in the map
@@ -57,10 +50,10 @@ def _revolution(start_s: float) -> list[Bearing]:
     stamps = (start_s + 0.01, start_s + 0.04, start_s + 0.075)
     return [
         Bearing(
+            t,
             beacon_id,
             float(expected_bearings(EUROBOT_BEACON_MAP.subset([beacon_id]), _truth(t))[0]),
             VARIANCE_RAD2,
-            t,
         )
         for beacon_id, t in zip(EUROBOT_BEACON_MAP.ids, stamps, strict=True)
     ]
@@ -204,7 +197,7 @@ def test_pipeline_counts_non_finite_odometry_and_keeps_the_rest():
     import math
 
     from beams_common.beacon_map import EUROBOT_BEACON_MAP
-    from beams_triangulation.gating import TriangulationPipeline
+    from beams_triangulation.pipeline import TriangulationPipeline
 
     pipeline = TriangulationPipeline(EUROBOT_BEACON_MAP, triangulation_settings({}), (0.0, 0.0))
     pipeline.on_odometry(1.0, (0.5, 0.5, 0.0), (0.1, 0.0))

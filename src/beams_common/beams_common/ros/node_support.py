@@ -5,6 +5,7 @@ Parameters are declared from their specs by beams_common.ros.parameters.
 
 import os
 import signal
+import sys
 import traceback
 from collections.abc import Callable
 from typing import Any
@@ -21,6 +22,7 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from std_srvs.srv import Trigger
 
+from beams_common import topics
 from beams_common.calibration_file import SensorCalibration, load_calibration
 from beams_common.geometry_parameters import BeaconGeometry, geometry_of
 from beams_common.ros.parameters import ParameterValidationError
@@ -60,7 +62,13 @@ def run_node(
     stop_signals = _catch_stop_signals()
     # No rclpy signal handlers: they shut the context down under callbacks still running (a timer's
     # publish then fails) and chain to KeyboardInterrupt; the spin loop stops on stop_signals instead.
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except _rclpy.RCLError as error:  # a malformed --ros-args (an unquoted list, a bad remap)
+        reason = str(error).splitlines()[0]
+        print(f"invalid command-line arguments (--ros-args): {reason}", file=sys.stderr)
+        _ignore_stop_signals()
+        return EXIT_INVALID_PARAMETERS
     node: Node | None = None
     try:
         node = node_class()
@@ -175,7 +183,7 @@ def serve_calibration_reload(node: Node, apply: Callable[[SensorCalibration], st
                 node.get_logger().error(response.message)
         return response
 
-    node.create_service(Trigger, "~/reload_calibration", reload)
+    node.create_service(Trigger, topics.RELOAD_CALIBRATION, reload)
 
 
 class Diagnostics:
@@ -197,7 +205,7 @@ class Diagnostics:
         self._level = "ok"
         self._message = "running"
         self._refusal: tuple[str, str] | None = None  # (level, reason) not yet published
-        self._publisher = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self._publisher = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self._timer = node.create_timer(period_s, self.publish)
         self._clock_waits = 0
         if node.get_parameter("use_sim_time").value:

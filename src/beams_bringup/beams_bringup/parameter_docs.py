@@ -1,0 +1,100 @@
+"""The README's parameter tables, written from the nodes' ParameterTables (one spec per parameter, so the
+documentation cannot drift from what the nodes declare).
+
+    python -m beams_bringup.parameter_docs            # print every node's table
+    python -m beams_bringup.parameter_docs --write README.md   # replace the tables between the markers
+
+Each table sits in README.md between `<!-- parameters: NAME -->` and `<!-- /parameters -->`;
+test_bringup_parameter_docs.py fails when one differs from what this module writes.
+"""
+
+import argparse
+import pathlib
+import re
+import sys
+
+from beams_calibration.parameters import CALIBRATION_PARAMETERS
+from beams_common.parameters import ParameterSpec
+from beams_driver import serial_source, sim_source
+from beams_driver.parameters import DRIVER_PARAMETERS
+from beams_ekf.parameters import EKF_PARAMETERS
+from beams_sim.parameters import SIM_WORLD_PARAMETERS
+from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
+
+TABLES: dict[str, tuple[ParameterSpec, ...]] = {
+    "driver_node": DRIVER_PARAMETERS.specs,
+    "driver_node source sim": sim_source.EDGE_SOURCE.parameters,
+    "driver_node source serial": serial_source.EDGE_SOURCE.parameters,
+    "sim_world_node": SIM_WORLD_PARAMETERS.specs,
+    "triangulation_node": TRIANGULATION_PARAMETERS.specs,
+    "ekf_node": EKF_PARAMETERS.specs,
+    "calibration_node": CALIBRATION_PARAMETERS.specs,
+}
+_BLOCK = re.compile(r"(<!-- parameters: (?P<name>[^>]+?) -->\n)(?P<body>.*?)(<!-- /parameters -->)", re.S)
+
+
+def _value(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, list):
+        return "[" + ", ".join(_value(v) for v in value) + "]"
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def _limits(spec: ParameterSpec) -> str:
+    parts = []
+    if spec.choices:
+        parts.append(" / ".join(spec.choices))
+    if spec.minimum is not None or spec.maximum is not None:
+        parts.append(f"[{_value(spec.minimum)}, {_value(spec.maximum)}]")
+    if spec.length is not None:
+        low, high = (spec.length, spec.length) if isinstance(spec.length, int) else spec.length
+        parts.append(f"{low} values" if low == high else f"{low}-{high} values")
+    return ", ".join(parts)
+
+
+def markdown_table(specs: tuple[ParameterSpec, ...]) -> str:
+    """The Markdown table of some parameters: name, default, limits, runtime or read-only, meaning."""
+    rows = ["| parameter | default | limits | `ros2 param set` | meaning |", "|---|---|---|---|---|"]
+    for spec in specs:
+        change = "applied" if spec.runtime else "read-only"
+        description = spec.description.replace("|", "&#124;")
+        rows.append(
+            f"| `{spec.name}` | `{_value(spec.default)}` | {_limits(spec)} | {change} | {description} |"
+        )
+    return "\n".join(rows) + "\n"
+
+
+def write(readme: str) -> str:
+    """The README with every marked table written anew."""
+
+    def replace(match: re.Match) -> str:
+        name = match.group("name").strip()
+        if name not in TABLES:
+            raise KeyError(f"README names a parameter table {name!r}; known: {sorted(TABLES)}")
+        return match.group(1) + markdown_table(TABLES[name]) + match.group(4)
+
+    return _BLOCK.sub(replace, readme)
+
+
+def tables_in(readme: str) -> dict[str, str]:
+    """The tables the README holds, by name."""
+    return {m.group("name").strip(): m.group("body") for m in _BLOCK.finditer(readme)}
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--write", type=pathlib.Path, help="README to update in place")
+    options = parser.parse_args(argv)
+    if options.write:
+        options.write.write_text(write(options.write.read_text()))
+        return 0
+    for name, specs in TABLES.items():
+        print(f"{name}\n\n{markdown_table(specs)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,167 @@
+"""The two nodes' pipelines fed with a bag's events (ToTal as triangulation_node runs it, the Localiser
+as ekf_node runs it), and what they produced."""
+
+from __future__ import annotations
+
+import math
+import pathlib
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from rosbags.rosbag2 import Reader
+
+from beams_bringup.bag_events import LIVE_EKF_TOPIC, relative_topic, stamp_ns
+from beams_bringup.replay_settings import ReplaySettings
+from beams_bringup.trajectory_metrics import RunTracks
+from beams_common.bearing import bearings_of_message
+from beams_common.pose2d import Pose2D, is_finite_pose
+from beams_common.ros.messages import (
+    planar_covariance,
+    pose2d_of,
+    seconds_to_stamp,
+    stamp_to_seconds,
+)
+from beams_ekf.localiser import Estimate, build_localiser
+from beams_triangulation.gating import NoPose, PoseEstimate, RevolutionPose
+from beams_triangulation.pipeline import TriangulationPipeline
+
+
+# -- the pipelines --------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class LiveStart:
+    """A live EKF estimate recorded in the bag: the replay's EKF can start from it at the odometry of the
+    same stamp (ToTal's poses are not offered before), so that replay and live share the initial state."""
+
+    pose: Pose2D
+    covariance: np.ndarray
+
+
+def live_estimates(input_bag: pathlib.Path, typestore: Any, namespace: str = "") -> dict[int, LiveStart]:
+    """The live EKF's estimates (beams/ekf/odometry) of a bag by stamp (ns), each stamped exactly with the
+    odometry message it followed."""
+    estimates = {}
+    with Reader(pathlib.Path(input_bag)) as reader:
+        wanted = [c for c in reader.connections if relative_topic(c.topic, namespace) == LIVE_EKF_TOPIC]
+        for connection, _, raw in reader.messages(connections=wanted) if wanted else ():
+            message = typestore.deserialize_cdr(raw, connection.msgtype)
+            estimates[stamp_ns(message.header.stamp)] = LiveStart(
+                pose2d_of(message.pose.pose), planar_covariance(message.pose.covariance)
+            )
+    return estimates
+
+
+class ReplayPipelines:
+    """triangulation_node's and ekf_node's message handling, without ROS: one call per input message."""
+
+    def __init__(self, settings: ReplaySettings) -> None:
+        self.settings = settings
+        self.localiser = build_localiser(settings.ekf_map.as_dict(), settings.ekf_offset_m, settings.ekf)
+        self.counts: Counter = Counter()
+        # set when the bag has odometry: revolutions before the first odometry are then skipped
+        self.expect_odometry = False
+        self.first_odometry_s: float | None = None
+        # live EKF estimates by stamp: the EKF starts from the first one at an odometry stamp of the bag
+        self.live_start: dict[int, LiveStart] | None = None
+        self._new_triangulation()
+
+    def _new_triangulation(self) -> None:
+        s = self.settings
+        self.triangulation = TriangulationPipeline(
+            s.triangulation_map, s.triangulation, s.triangulation_offset_m
+        )
+
+    def reset(self) -> None:
+        """A time jump: both pipelines start over (the EKF waits for a pose again); `flush` first."""
+        self._new_triangulation()
+        self.first_odometry_s = None
+        self.localiser.reset("time_jump_resets")
+
+    def flush(self) -> list[RevolutionPose]:
+        """The revolution ToTal still waits odometry for, estimated now (the streams ended or jumped)."""
+        return self._total_poses(self.triangulation.flush())
+
+    def on_odometry(self, message: Any) -> tuple[Estimate | None, list[RevolutionPose]]:
+        """Odometry to both pipelines: the EKF estimate at this odometry's instant (None before a pose)
+        and the revolutions ToTal completed (those that waited for this odometry)."""
+        stamp_s, pose = stamp_to_seconds(message.header.stamp), pose2d_of(message.pose.pose)
+        if self.first_odometry_s is None and is_finite_pose(pose):
+            self.first_odometry_s = stamp_s
+        twist = (message.twist.twist.linear.x, message.twist.twist.angular.z)
+        completed = self.triangulation.on_odometry(stamp_s, pose, twist)
+        outcome = self.localiser.on_odometry(stamp_s, pose)
+        start = None if self.live_start is None else self.live_start.get(stamp_ns(message.header.stamp))
+        if start is not None and outcome in ("reference", "predicted"):
+            self.localiser.on_pose(stamp_s, start.pose, start.covariance, operator=True)
+            self.live_start = None
+        estimate = self.localiser.estimate()
+        poses = self._total_poses(completed)  # after the odometry, as ekf_node receives them
+        if outcome not in ("reference", "predicted") or estimate is None or estimate.stamp_s != stamp_s:
+            return None, poses
+        return estimate, poses
+
+    def on_bearings(self, message: Any) -> list[RevolutionPose]:
+        """One revolution to ToTal and every bearing to the EKF; the revolutions ToTal completed (this one,
+        unless it waits for odometry, and the one that waited), their accepted poses offered to the EKF.
+
+        A revolution older than the first odometry of a bag that has odometry is skipped: a bag starts in
+        the middle of the streams, a case the nodes (started together) never meet.
+        """
+        first_odometry = self.first_odometry_s
+        if self.expect_odometry and (
+            first_odometry is None or stamp_to_seconds(message.header.stamp) < first_odometry
+        ):
+            self.counts["revolutions_before_odometry"] += 1
+            return []
+        self.counts["revolutions"] += 1
+        self.counts["bearings"] += len(message.bearings)
+        bearings = bearings_of_message(message, stamp_to_seconds)
+        completed = self.triangulation.on_revolution(None, bearings)
+        self.localiser.on_revolution(bearings)
+        return self._total_poses(completed)
+
+    def _total_poses(self, completed: list[tuple[Any, RevolutionPose]]) -> list[RevolutionPose]:
+        """Count ToTal's outcomes and offer its accepted poses to the EKF (as ekf_node takes beams/pose)."""
+        for _, outcome in completed:
+            result = outcome.result
+            self._count_total(result)
+            offer = self.settings.ekf.use_total_pose and self.live_start is None
+            if offer and isinstance(result, PoseEstimate) and result.accepted:
+                # ekf_node reads the stamp from the message, rounded to nanoseconds
+                message_stamp_s = stamp_to_seconds(seconds_to_stamp(outcome.stamp_s))
+                self.localiser.offer_pose(
+                    message_stamp_s,
+                    (result.x, result.y, result.heading),
+                    result.covariance,
+                    self.settings.ekf.default_pose_covariance,
+                    operator=False,
+                )
+        return [outcome for _, outcome in completed]
+
+    def _count_total(self, result: PoseEstimate | NoPose) -> None:
+        if isinstance(result, NoPose):
+            self.counts["total_bad_input" if result.bad_input else "total_no_pose"] += 1
+        else:
+            self.counts["total_accepted" if result.accepted else "total_rejected"] += 1
+
+
+# -- results --------------------------------------------------------------------------------------------
+@dataclass
+class ReplayResult(RunTracks):
+    """What a replay produced: the tracks, the counts and how fast it ran."""
+
+    counts: Counter = field(default_factory=Counter)
+    messages_in: int = 0
+    messages_out: int = 0
+    wall_s: float = 0.0
+    span_s: float = 0.0
+
+    @property
+    def messages_per_s(self) -> float:
+        return self.messages_in / self.wall_s if self.wall_s > 0 else math.inf
+
+    @property
+    def real_time_factor(self) -> float:
+        """Stamp span of the bag over the replay's wall time (x real time)."""
+        return self.span_s / self.wall_s if self.wall_s > 0 else math.inf

@@ -1,0 +1,52 @@
+"""What the replay takes from the nodes' parameters: validated by their own tables (a parameter file the
+node would refuse is refused here with the same reason), mapped by the functions the nodes use."""
+
+from __future__ import annotations
+
+import pathlib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_common.geometry_parameters import geometry_of
+from beams_common.parameters import ROS_NODE_PARAMETERS, ParameterTable, load_parameter_file
+from beams_ekf.localiser import FilterSettings, filter_settings
+from beams_ekf.parameters import EKF_PARAMETERS
+from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
+from beams_triangulation.pipeline import TriangulationSettings
+
+
+# -- settings -----------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ReplaySettings:
+    """What the two nodes take from their parameters (defaults: the nodes' defaults)."""
+
+    triangulation_map: BeaconMap = EUROBOT_BEACON_MAP
+    triangulation_offset_m: tuple[float, float] = (0.0, 0.0)
+    triangulation: TriangulationSettings = field(default_factory=TriangulationSettings)
+    ekf_map: BeaconMap = EUROBOT_BEACON_MAP
+    ekf_offset_m: tuple[float, float] = (0.0, 0.0)
+    ekf: FilterSettings = field(default_factory=FilterSettings)
+
+
+def load_node_parameters(path: pathlib.Path | None, table: ParameterTable) -> dict[str, Any]:
+    """The parameters a ROS parameter file gives the table's node, validated exactly as the node validates
+    them (ParameterError naming the parameter otherwise); the node's defaults for None."""
+    return table.validate({}) if path is None else load_parameter_file(path, table)
+
+
+def settings_from_parameters(triangulation: Mapping[str, Any], ekf: Mapping[str, Any]) -> ReplaySettings:
+    """Settings from the two nodes' parameter values by name (a missing one takes its default), validated
+    by the nodes' own tables and mapped by the functions the nodes use."""
+    triangulation = TRIANGULATION_PARAMETERS.validate(triangulation, ignore=ROS_NODE_PARAMETERS)
+    ekf = EKF_PARAMETERS.validate(ekf, ignore=ROS_NODE_PARAMETERS)
+    tri_geometry, ekf_geometry = geometry_of(triangulation), geometry_of(ekf)
+    return ReplaySettings(
+        triangulation_map=tri_geometry.beacon_map,
+        triangulation_offset_m=tri_geometry.turret_offset_m,
+        triangulation=triangulation_settings(triangulation),
+        ekf_map=ekf_geometry.beacon_map,
+        ekf_offset_m=ekf_geometry.turret_offset_m,
+        ekf=filter_settings(ekf),
+    )

@@ -1,0 +1,33 @@
+"""One BeAMS bearing, as the triangulation and the EKF take it from beams/bearings.
+
+The driver publishes each revolution's bearings (beams_msgs/BeaconBearingArray): per beacon the bearing
+in the sensor frame (eq. 2.5, the mean of the first rising and last falling edge), its variance (ch. 4),
+and the instant the turret pointed at the beacon. Both consumers read the same fields the same way.
+"""
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+
+@dataclass(frozen=True, slots=True)
+class Bearing:
+    """One bearing: stamp (s, the instant the turret pointed at the beacon), beacon id (its code), bearing
+    (rad, sensor frame, CCW from the turret's zero reference) and its variance (rad^2)."""
+
+    stamp_s: float
+    beacon_id: int
+    bearing_rad: float
+    variance_rad2: float
+
+
+def bearings_of_message(message: Any, seconds: Callable[[Any], float]) -> list[Bearing]:
+    """The bearings of a beams_msgs/BeaconBearingArray (an rclpy or a rosbags message), seconds(stamp)
+    converting its stamps; a bearing stamped zero takes the revolution's stamp."""
+    revolution_s = seconds(message.header.stamp)
+    return [
+        Bearing(
+            seconds(b.header.stamp) or revolution_s, int(b.beacon_id), float(b.bearing), float(b.variance)
+        )
+        for b in message.bearings
+    ]

@@ -1,0 +1,138 @@
+"""The per-revolution pipeline triangulation_node runs (and the offline replay): each revolution through a
+`RevolutionEstimator` (gating.estimate_revolution with the motion seen between revolutions), odometry
+into an odometry buffer, a revolution the odometry does not cover yet waiting for it
+(`TriangulationPipeline`). parameters.triangulation_settings maps the node's parameters to its settings."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from beams_common.beacon_map import BeaconMap
+from beams_common.bearing import Bearing
+from beams_common.pose_buffer import twist_between
+from beams_triangulation.gating import GateConfig, PoseEstimate, RevolutionPose, estimate_revolution
+from beams_triangulation.motion_compensation import (
+    odometry_buffer,
+)
+
+
+@dataclass(frozen=True)
+class TriangulationSettings:
+    """What triangulation_node takes from its parameters (besides the beacon geometry)."""
+
+    gates: GateConfig = field(default_factory=GateConfig)
+    # bring each revolution's bearings to one instant with `odom` (and refuse the uncovered ones)
+    use_odometry: bool = True
+    odometry_history_s: float = 2.0
+    max_odometry_extrapolation_s: float = 0.05
+
+
+class RevolutionEstimator:
+    """`estimate_revolution` for a stream of revolutions, remembering the last pose so that, without
+    odometry, the motion seen between revolutions inflates the variances (what the node runs)."""
+
+    def __init__(
+        self,
+        beacon_map: BeaconMap,
+        config: GateConfig | None = None,
+        turret_offset_m: Sequence[float] = (0.0, 0.0),
+    ) -> None:
+        self.beacon_map = beacon_map
+        self.config = config or GateConfig()
+        self.turret_offset_m = (float(turret_offset_m[0]), float(turret_offset_m[1]))
+        self._last: tuple[tuple[float, float, float], float] | None = None
+
+    def update(
+        self,
+        bearings: Sequence[Bearing],
+        odometry_at: Callable[[float], Sequence[float] | None] | None = None,
+    ) -> RevolutionPose:
+        """The gated pose of one revolution (see `estimate_revolution`)."""
+        settings = (self.beacon_map, self.config, self.turret_offset_m)
+        outcome = estimate_revolution(bearings, *settings, odometry_at)
+        estimate = outcome.result
+        if isinstance(estimate, PoseEstimate) and not outcome.compensated and self._last is not None:
+            motion = twist_between(*self._last, (estimate.x, estimate.y, estimate.heading), outcome.stamp_s)
+            if motion is not None:  # same bearings again, now with the motion in their variances
+                outcome = estimate_revolution(bearings, *settings, odometry_at, motion)
+                estimate = outcome.result
+        if isinstance(estimate, PoseEstimate):
+            self._last = ((estimate.x, estimate.y, estimate.heading), outcome.stamp_s)
+        return outcome
+
+
+Tag = Any  # what the caller attaches to a revolution (its number live, its due instant offline)
+
+
+class TriangulationPipeline:
+    """triangulation_node's logic on its two inputs, without ROS (the offline replay runs it as well):
+    odometry into an `odometry_buffer`, each revolution through a `RevolutionEstimator` with it.
+
+    With odometry in use, a revolution whose last bearing is newer than the newest odometry waits for the
+    odometry that covers it, at most until the next revolution: its bearings are then interpolated
+    between odometry samples rather than extrapolated, whatever order the two streams arrive in (over
+    DDS live, by stamp offline), so the node and the replay give the same poses. Each call returns the
+    (tag, outcome) pairs of the revolutions it completed, oldest first.
+    """
+
+    def __init__(
+        self,
+        beacon_map: BeaconMap,
+        settings: TriangulationSettings = TriangulationSettings(),
+        turret_offset_m: Sequence[float] = (0.0, 0.0),
+    ) -> None:
+        self.settings = settings
+        self.estimator = RevolutionEstimator(beacon_map, settings.gates, turret_offset_m)
+        self.odometry = odometry_buffer(settings.odometry_history_s, settings.max_odometry_extrapolation_s)
+        self.rejected_odometry = 0  # non-finite samples dropped
+        self._pending: tuple[Tag, list[Bearing]] | None = None
+
+    def configure(self, beacon_map: BeaconMap, gates: GateConfig, turret_offset_m: Sequence[float]) -> None:
+        """New beacon geometry or gates (a runtime parameter change, a calibration reload); the odometry
+        and the waiting revolution stay."""
+        self.settings = replace(self.settings, gates=gates)
+        self.estimator = RevolutionEstimator(beacon_map, gates, turret_offset_m)
+
+    def on_odometry(
+        self, stamp_s: float, pose: Sequence[float], twist: tuple[float, float]
+    ) -> list[tuple[Tag, RevolutionPose]]:
+        """An odometry sample (odom frame; speed m/s, yaw rate rad/s); ignored without use_odometry."""
+        if not self.settings.use_odometry:
+            return []
+        if not self.odometry.add(stamp_s, tuple(pose), twist):
+            self.rejected_odometry += 1
+            return []
+        if self._pending is not None and self._covered(self._pending[1]):
+            return self.flush()
+        return []
+
+    def on_revolution(self, tag: Tag, bearings: Sequence[Bearing]) -> list[tuple[Tag, RevolutionPose]]:
+        """A revolution's bearings: the waiting revolution goes first, with the odometry there is."""
+        completed = self.flush()
+        if self.settings.use_odometry and not self._covered(bearings):
+            self._pending = (tag, list(bearings))
+            return completed
+        return [*completed, (tag, self._estimate(bearings))]
+
+    def flush(self) -> list[tuple[Tag, RevolutionPose]]:
+        """The waiting revolution (if any), estimated now (when the streams stop or time jumps)."""
+        if self._pending is None:
+            return []
+        tag, bearings = self._pending
+        self._pending = None
+        return [(tag, self._estimate(bearings))]
+
+    def _covered(self, bearings: Sequence[Bearing]) -> bool:
+        """True when no odometry can still help: the newest odometry is at or after every bearing, or
+        the stamps are not usable (bad input is reported at once)."""
+        stamps = [b.stamp_s for b in bearings]
+        if not (stamps and all(map(math.isfinite, stamps))):
+            return True
+        newest_s = self.odometry.newest_stamp_s
+        return newest_s is not None and newest_s >= max(stamps)
+
+    def _estimate(self, bearings: Sequence[Bearing]) -> RevolutionPose:
+        return self.estimator.update(bearings, self.odometry.pose_at if self.settings.use_odometry else None)
