@@ -182,6 +182,12 @@ def executable_path(package: str, executable: str) -> pathlib.Path:
 
 
 @pytest.fixture
+def installed_executable() -> Callable[[str, str], pathlib.Path]:
+    """executable_path, for a command a test runs itself (its own stdin and output)."""
+    return executable_path
+
+
+@pytest.fixture
 def start_node(ros_env: dict[str, str], tmp_path: pathlib.Path) -> Iterator[Callable[..., NodeProcess]]:
     """Start installed executables; at teardown each gets SIGINT and must exit 0 with no traceback."""
     started: list[NodeProcess] = []

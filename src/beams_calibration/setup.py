@@ -25,6 +25,7 @@ setup(
         "console_scripts": [
             "calibration_node = beams_calibration.calibration_node:main",
             "calibrate = beams_calibration.calibrate_command:entry_point",
+            "calibration_session = beams_calibration.session_command:entry_point",
         ],
     },
 )

@@ -263,7 +263,7 @@ class CalibrationNode(Node):
             output = None if request.dry_run else self.output_file
             plots = Path(self.plots_directory) if self.plots_directory else None
             # every file written beside its target first: a failure leaves them all as they were
-            await self._in_worker(lambda: write_outputs(result, output, plots))
+            files = await self._in_worker(lambda: write_outputs(result, output, plots))
             written = "" if output is None else str(output)
         except (OSError, DatasetError, CalibrationRefusedError) as error:
             response.success = False
@@ -278,6 +278,13 @@ class CalibrationNode(Node):
         response.orientation_rms_before = result.before.orientation_rms_rad
         response.orientation_rms_after = result.after.orientation_rms_rad
         response.calibration_file = written
+        generalisation = result.leave_one_out
+        response.leave_one_out_position_rms = generalisation.position_rms_m if generalisation else math.nan
+        response.leave_one_out_orientation_rms = (
+            generalisation.orientation_rms_rad if generalisation else math.nan
+        )
+        response.warnings = [bounded(w) for w in result.warnings]
+        response.files_written = [str(path) for path in files]
         response.message = _summary(result, written)
         self.diagnostics.set_level("warn" if result.warnings else "ok", response.message)
         self.get_logger().info(response.message)

@@ -25,6 +25,7 @@ of revolutions in which that beacon was decoded. Every change rewrites the file 
 
 import math
 import os
+import re
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -88,6 +89,19 @@ class Configuration:
             f"x={self.x_m:.4f} m y={self.y_m:.4f} m theta={math.degrees(self.theta_rad):.1f} deg"
             f"{label}, {self.revolutions} revolutions: {seen}"
         )
+
+
+# The pose at the start of a summary line (ListConfigurations: "3: x=0.1200 m y=0.8400 m theta=90.0 deg ...").
+_SUMMARY_POSE = re.compile(r"x=(-?[0-9.]+) m y=(-?[0-9.]+) m theta=(-?[0-9.]+) deg")
+
+
+def pose_of_summary(line: str) -> tuple[float, float, float] | None:
+    """The pose (m, m, rad) a `Configuration.summary` line states (to 0.1 mm and 0.1 deg), or None."""
+    match = _SUMMARY_POSE.search(line)
+    if match is None:
+        return None
+    x_m, y_m, theta_deg = map(float, match.groups())
+    return x_m, y_m, math.radians(theta_deg)
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from beams_common.pose2d import Pose2D
 from beams_driver.codes import BeaconCode
 from beams_driver.edge_source import EdgeSourceKind, SourceHealth, SourceHost, SourcePoll
 from beams_driver.edges import TURRET_PERIOD_S
-from beams_driver.occlusion import OtherRobots, truth_buffer, truth_covers
+from beams_driver.occlusion import TRUTH_MAX_EXTRAPOLATION_S, OtherRobots, truth_buffer, truth_covers
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
 
 GROUND_TRUTH_TOPIC = topics.GROUND_TRUTH
@@ -209,7 +209,16 @@ class SimulatedSource:
             self.counts["other_robot_truth_rejected_non_finite"] += 1
 
     def _pose_at(self, t: float) -> Pose2D:
-        return self.static_pose if self.static_pose is not None else self.ground_truth.pose_at(t)
+        if self.static_pose is not None:
+            return self.static_pose
+        truth = self.ground_truth
+        pose = truth.pose_at(t)
+        if pose is None and truth.oldest_time_s is not None:
+            # a pass straddling the end of a revolution the truth only just covers (the truth stream
+            # stopped): the truth's reach holds rather than no pose
+            reach_s = truth.newest_stamp_s + TRUTH_MAX_EXTRAPOLATION_S
+            pose = truth.pose_at(min(max(t, truth.oldest_time_s), reach_s))
+        return pose
 
     def _hidden(self, beacon_id: int, time_s: float) -> bool:
         """The simulated sensor's occlusion: the schedule's beacons, and those behind another robot."""
