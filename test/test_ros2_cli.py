@@ -1,7 +1,8 @@
 """The suite through the real ROS 2 command line, as its users drive it (issue 14).
 
 `ros2 launch` (start in a namespace, every node up, Ctrl-C to the process group: every node finishes
-cleanly), `ros2 run`, `ros2 topic echo --once`, `ros2 param get/set/list` and `ros2 service call`.
+cleanly), `ros2 run`, `ros2 topic echo --once`, `ros2 param get/set/list`, `ros2 service call`, and
+`ros2 lifecycle get/set` on the driver launched with `driver_autostart:=false`.
 Runs wherever the `ros2` command, launch and launch_ros are installed (a robot with ROS 2 Jazzy from
 apt); elsewhere, such as a venv with only the PyPI wheels, every test skips and says why.
 Select it alone with `-m ros2_cli`.
@@ -183,3 +184,65 @@ def test_ros2_run_topic_echo_param_and_service(ros_env, group):
     output = run.log()
     assert status == 0 and "Traceback" not in output, output
     assert time.monotonic() - started_s < 5.0, "ros2 run took more than 5 s to stop on Ctrl-C"
+
+
+def test_ros2_lifecycle_drives_the_driver_launched_for_a_lifecycle_manager(rclpy_node, ros_env, group):
+    """`ros2 launch ... driver_autostart:=false`: every node up, the driver unconfigured and silent;
+    `ros2 lifecycle get/set` configure (still silent), activate (bearings), deactivate and cleanup; a
+    transition the state does not offer is refused; Ctrl-C stops every node cleanly."""
+    from beams_msgs.msg import BeaconBearingArray
+
+    probe = subprocess.run(
+        ["python", "-c", "import ros2lifecycle"], capture_output=True, text=True, timeout=60
+    )
+    if probe.returncode != 0:
+        pytest.skip(
+            f"`ros2 lifecycle` missing ({probe.stderr.strip().splitlines()[-1]}): ros2cli's ros2lifecycle"
+        )
+    bearings = rclpy_node.subscribe(BeaconBearingArray, "/robot1/beams/bearings")
+    launch = group(
+        "ros2", "launch", "beams_bringup", "beams.launch.py", "namespace:=robot1", "driver_autostart:=false"
+    )
+    driver = "/robot1/driver_node"
+
+    def lifecycle(verb: str, *arguments: str) -> subprocess.CompletedProcess:
+        return ros2(ros_env, "lifecycle", verb, "--no-daemon", driver, *arguments)
+
+    deadline = time.monotonic() + UP_TIMEOUT_S
+    state = lifecycle("get")
+    while "unconfigured [1]" not in state.stdout and time.monotonic() < deadline:
+        time.sleep(0.5)  # "Node not found" until discovery
+        state = lifecycle("get")
+    assert state.stdout.strip() == "unconfigured [1]", state.stdout + state.stderr + launch.log()
+
+    def silent() -> bool:
+        count = len(bearings)
+        rclpy_node.spin_for(1.5)
+        return len(bearings) == count
+
+    assert silent(), "bearings published while unconfigured"
+    for transition, expected in (("configure", "inactive [2]"), ("activate", "active [3]")):
+        changed = lifecycle("set", transition)
+        assert "Transitioning successful" in changed.stdout, changed.stdout + changed.stderr
+        assert lifecycle("get").stdout.strip() == expected
+        if transition == "configure":
+            assert silent(), "bearings published while inactive"
+    assert rclpy_node.spin_until(lambda: len(bearings) >= 5, UP_TIMEOUT_S), launch.log()
+    assert all(len(msg.bearings) == 3 for msg in bearings[-3:]), "the simulated robot sees all 3 beacons"
+
+    # a transition the state does not offer: the CLI lists the available ones, the node lives on
+    refused = lifecycle("set", "cleanup")
+    assert "Unknown transition requested" in refused.stdout + refused.stderr, refused.stdout + refused.stderr
+    for transition, expected in (("deactivate", "inactive [2]"), ("cleanup", "unconfigured [1]")):
+        changed = lifecycle("set", transition)
+        assert "Transitioning successful" in changed.stdout, changed.stdout + changed.stderr
+        assert lifecycle("get").stdout.strip() == expected
+    rclpy_node.spin_for(0.3)  # bearings in flight at the deactivation
+    assert silent(), "bearings published after the deactivation"
+
+    status = launch.ctrl_c()
+    output = launch.log()
+    assert status == 0, output
+    for bad in ("Traceback", "process has died", "deprecated", "UserWarning"):
+        assert bad not in output, f"{bad!r} in the launch output:\n{output}"
+    assert output.count("process has finished cleanly") == len(LAUNCHED_NODES), output

@@ -5,6 +5,9 @@ Simulated robot and sensor (the embedded default):
 A real robot (the serial sensor; the robot publishes its wheel odometry on `odom`):
     ros2 launch beams_bringup beams.launch.py source:=serial device:=/dev/ttyUSB0 \
         calibration_file:=/home/robot/beams_calibration.yaml
+Leave the driver (a lifecycle node) to a lifecycle manager: it then waits unconfigured for
+`ros2 lifecycle set /<namespace>/driver_node configure` (then `activate`) or a manager's calls:
+    ros2 launch beams_bringup beams.launch.py driver_autostart:=false
 Each node reads its section of beams_bringup's config/beams_params.yaml; the calibration file, when given,
 overrides the beacon coordinates and carries the turret offset and the bearing corrections. The nodes run
 with the package's Fast DDS profile (config/fastdds_fast_discovery.xml: a node restarted after a kill -9
@@ -31,6 +34,12 @@ ARGUMENTS = (
     ("device", "/dev/ttyUSB0", "serial device of the sensor (source:=serial)"),
     ("calibration_file", "", "calibration file written by beams_calibration"),
     ("use_sim_time", "false", "follow /clock (rosbag replay)"),
+    (
+        "driver_autostart",
+        "true",
+        "true: driver_node configures and activates itself; false: it waits unconfigured for a lifecycle "
+        "manager (ros2 lifecycle set)",
+    ),
 )
 
 
@@ -42,7 +51,13 @@ def node_action(node: RobotNode) -> Node:
     if node.takes_calibration:
         parameters.append({"calibration_file": LaunchConfiguration("calibration_file")})
     if node.executable == "driver_node":
-        parameters.append({"source": LaunchConfiguration("source"), "device": LaunchConfiguration("device")})
+        parameters.append(
+            {
+                "source": LaunchConfiguration("source"),
+                "device": LaunchConfiguration("device"),
+                "autostart": LaunchConfiguration("driver_autostart"),
+            }
+        )
     return Node(
         package=node.package,
         executable=node.executable,

@@ -6,12 +6,26 @@ robot's true pose on `beams/sim/ground_truth` (or a static pose) edge by edge; t
 sensor microcontroller's edge captures. Every source goes through the same decoder and variance model;
 the calibration file's bearing corrections (power bias, rotation bias; thesis ch. 7) are applied to the
 published bearings.
+
+A lifecycle (managed) node: configure validates the parameters and builds the decoder, opening nothing;
+activate creates the source (opens the serial port, starts the simulation) and publishes; deactivate stops
+polling and publishing (the port stays open); cleanup releases the source; shutdown, from any state,
+releases everything. With `autostart` (the default) the node configures and activates itself at start-up
+and a parameter it cannot run with stops it (one line, exit 2); without, it waits for a lifecycle manager
+and a failed transition leaves it alive in its previous state with the reason logged.
 """
 
 import sys
+import traceback
+from collections.abc import Callable
 
+from lifecycle_msgs.srv import ChangeState
 from nav_msgs.msg import Odometry
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
+from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
+from rclpy.subscription import Subscription
+from rclpy.timer import Timer
 
 from beams_common import topics
 from beams_common.angles import wrap_to_pi
@@ -23,25 +37,45 @@ from beams_common.ros.node_support import BEARINGS_QOS, Diagnostics, run_node, s
 from beams_common.ros.parameters import ParameterValidationError, apply_runtime_changes, declare_table
 from beams_driver.decoder import BearingDecoder, DecodedRevolution
 from beams_driver.edge_source import EdgeSource, PoseCallback, source_kind
-from beams_driver.parameters import DRIVER_PARAMETERS, codes_of, variance_model_of
+from beams_driver.edges import RevolutionEdges
+from beams_driver.parameters import (
+    DRIVER_PARAMETERS,
+    LIFECYCLE_PARAMETERS,
+    SENSOR_PARAMETERS,
+    codes_of,
+    variance_model_of,
+)
 from beams_msgs.msg import BeaconBearing, BeaconBearingArray
 
 # Sources that deliver revolutions as they arrive: the host buffers this many pose messages per topic.
 POSE_QUEUE_DEPTH = 50
+SUCCESS = TransitionCallbackReturn.SUCCESS
+FAILURE = TransitionCallbackReturn.FAILURE
+ERROR = TransitionCallbackReturn.ERROR
+RCLError = _rclpy.RCLError
 
 
 class RosSourceHost:
-    """What an edge source may ask of driver_node (edge_source.SourceHost), done with ROS."""
+    """What an edge source may ask of driver_node (edge_source.SourceHost), done with ROS; `release`
+    removes the subscriptions the source asked for (its cleanup)."""
 
     def __init__(self, node: Node) -> None:
         self._node = node
+        self._subscriptions: list[Subscription] = []
 
     def subscribe_poses(self, topic: str, callback: PoseCallback) -> None:
         def on_message(msg: Odometry) -> None:
             twist = (msg.twist.twist.linear.x, msg.twist.twist.angular.z)
             callback(stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose), twist)
 
-        self._node.create_subscription(Odometry, topic, on_message, POSE_QUEUE_DEPTH)
+        self._subscriptions.append(
+            self._node.create_subscription(Odometry, topic, on_message, POSE_QUEUE_DEPTH)
+        )
+
+    def release(self) -> None:
+        for subscription in self._subscriptions:
+            self._node.destroy_subscription(subscription)
+        self._subscriptions.clear()
 
     def resolve_topic(self, topic: str) -> str:
         return self._node.resolve_topic_name(topic)
@@ -56,20 +90,124 @@ class RosSourceHost:
         return self._node.get_clock().now().nanoseconds * 1e-9
 
 
-class DriverNode(Node):
+class TransitionRefusedError(Exception):
+    """A transition the node refuses, with the reason (a parameter, a source that cannot start)."""
+
+
+def _transition(
+    step: Callable[["DriverNode"], None], base: Callable[[LifecycleNode, LifecycleState], object]
+) -> Callable[["DriverNode", LifecycleState], object]:
+    """A lifecycle callback from a step, then `base` (rclpy's: it switches the lifecycle publisher).
+
+    The step's TransitionRefusedError is a FAILURE with its reason logged (and kept: autostart exits with
+    it); any other exception an ERROR with its traceback logged (rclpy turns it into ERROR silently).
+    """
+    name = step.__name__.strip("_")
+
+    def callback(self: "DriverNode", state: LifecycleState) -> object:
+        try:
+            step(self)
+        except TransitionRefusedError as failure:
+            self.failure = str(failure)
+            if not self.autostart:  # autostart: run_node prints the reason once, as a start-up error
+                self.get_logger().error(f"{name} failed: {failure}")
+            self.diagnostics.set_level("error", f"{name} failed: {failure}")
+            return FAILURE
+        except Exception as error:
+            self.unexpected = error
+            self.get_logger().error(f"{name}: {traceback.format_exc()}")
+            return ERROR
+        return base(self, state)
+
+    return callback
+
+
+def _refuse_unavailable_transitions(node: LifecycleNode) -> None:
+    """A change_state request for a transition the current state does not offer is answered
+    `success: false` (the rclcpp behaviour): Jazzy's rclpy raises out of the service callback and the
+    node dies (ros2/rclpy#1209, fixed upstream by ros2/rclpy#1319)."""
+    service = node._service_change_state  # rclpy keeps the lifecycle's ChangeState server there
+    change_state = service.callback
+
+    def guarded(request: ChangeState.Request, response: ChangeState.Response) -> ChangeState.Response:
+        try:
+            return change_state(request, response)
+        except RCLError as error:
+            node.get_logger().warning(
+                f"transition {request.transition.label or request.transition.id} refused: {error}"
+            )
+            response.success = False
+            return response
+
+    service.callback = guarded
+
+
+class DriverNode(LifecycleNode):
     def __init__(self) -> None:
         super().__init__("driver_node")
+        _refuse_unavailable_transitions(self)
         self.diagnostics = Diagnostics(self, "driver")
-        self.parameters = declare_table(self, DRIVER_PARAMETERS)
+        self.host = RosSourceHost(self)
+        self.failure = ""  # the last failed transition's reason
+        self.unexpected: Exception | None = None
+        self.decoder: BearingDecoder | None = None
+        self.publisher: LifecyclePublisher | None = None
+        self.source: EdgeSource | None = None
+        self._poll_timer: Timer | None = None
+        self._stale_before_s: float | None = None
+        self.correction = BearingCorrection()
+        # a mistyped autostart stops the node at once (exit 2): whether to wait is unknown
+        self.autostart: bool = declare_table(self, LIFECYCLE_PARAMETERS)["autostart"]
+        self._parameter_problem = ""
         try:
-            kind = source_kind(self.parameters["source"])
+            self._declare_parameters()
+        except ParameterValidationError as error:
+            if self.autostart:
+                raise
+            self._parameter_problem = str(error)  # configure refuses with it; the node stays unconfigured
+        if self.autostart:
+            self._start()
+        else:
+            self._show_state("unconfigured: waiting for a lifecycle manager (configure, then activate)")
+
+    def _declare_parameters(self) -> None:
+        """Declare the driver's and its source's parameters, validated (ParameterValidationError)."""
+        self.parameters = {"autostart": self.autostart, **declare_table(self, SENSOR_PARAMETERS)}
+        try:
+            self.kind = source_kind(self.parameters["source"])
         except ValueError as error:
             raise ParameterValidationError(str(error)) from None
-        source_parameters = declare_table(self, ParameterTable("driver_node", kind.parameters, kind.together))
-        self.codes = codes_of(self.parameters)
-        # the receiver the edges come through (the simulated one, or the thesis hardware's): the decoder's
-        # window correction and the variance model know its minimum burst
-        self.receiver = kind.receiver(source_parameters, self.codes)
+        self.source_parameters = declare_table(
+            self, ParameterTable("driver_node", self.kind.parameters, self.kind.together)
+        )
+        self.frame_id = self.parameters["frame_id"]
+        serve_calibration_reload(self, self._apply_calibration)
+        apply_runtime_changes(self, DRIVER_PARAMETERS, self.parameters, self._apply_parameters)
+
+    def _start(self) -> None:
+        """autostart: configure and activate now; a refusal stops the node (run_node: one line, exit 2)."""
+        for trigger in (self.trigger_configure, self.trigger_activate):
+            if trigger() == SUCCESS:
+                continue
+            self._release()
+            if self.unexpected is not None:
+                raise self.unexpected
+            raise ParameterValidationError(self.failure)
+
+    # ---- the lifecycle transitions ----
+
+    def _configure(self) -> None:
+        """Validate the parameters and build the decoder and the publisher; nothing is opened."""
+        if self._parameter_problem:
+            raise TransitionRefusedError(self._parameter_problem)
+        try:
+            self.codes = codes_of(self.parameters)
+            # the receiver the edges come through (the simulated one, or the thesis hardware's): the
+            # decoder's window correction and the variance model know its minimum burst
+            self.receiver = self.kind.receiver(self.source_parameters, self.codes)
+            self.correction = self._correction_of(self.parameters["calibration_file"])
+        except (ValueError, ParameterValidationError) as error:
+            raise TransitionRefusedError(str(error)) from None
         self.decoder = BearingDecoder(
             self.codes,
             variance_model_of(self.parameters, self.codes, self.receiver),
@@ -77,27 +215,81 @@ class DriverNode(Node):
             receiver=self.receiver.receiver,
         )
         self.frame_id = self.parameters["frame_id"]
-        self.correction = self._correction_of(self.parameters["calibration_file"])
-        serve_calibration_reload(self, self._apply_calibration)
-        apply_runtime_changes(self, DRIVER_PARAMETERS, self.parameters, self._apply_parameters)
-        self.publisher = self.create_publisher(BeaconBearingArray, topics.BEARINGS, BEARINGS_QOS)
-        self.host = RosSourceHost(self)
-        try:
-            self.source: EdgeSource = kind.create(source_parameters, self.codes, self.host)
-        except (ValueError, OSError) as error:
-            raise ParameterValidationError(f"source {kind.name}: {error}") from None
-        self.create_timer(kind.poll_period_s, self._poll)
+        self.publisher = self.create_lifecycle_publisher(BeaconBearingArray, topics.BEARINGS, BEARINGS_QOS)
+        self._show_state("inactive: configured, not publishing")
+
+    def _activate(self) -> None:
+        """Create the source (open the port, start the simulation) unless a deactivation kept it; poll."""
+        if self.source is None:
+            try:
+                self.source = self.kind.create(self.source_parameters, self.codes, self.host)
+            except (ValueError, OSError) as error:
+                self.host.release()
+                raise TransitionRefusedError(f"source {self.kind.name}: {error}") from None
+            self._stale_before_s = None
+        else:
+            # what the kept source gathered while inactive is old: no window joins it, none is published
+            self.decoder.reset()
+            self._stale_before_s = self.host.now_s()
+        self._poll_timer = self.create_timer(self.kind.poll_period_s, self._poll)
+        self._show_state("active")
         self.get_logger().info(
-            f"{kind.name} source, codes {[str(c) for c in self.codes]}, variance mode "
-            f"{self.decoder.variance_model.mode}, publishing {self.resolve_topic_name('beams/bearings')}"
+            f"{self.kind.name} source, codes {[str(c) for c in self.codes]}, variance mode "
+            f"{self.decoder.variance_model.mode}, publishing {self.resolve_topic_name(topics.BEARINGS)}"
         )
+
+    def _deactivate(self) -> None:
+        """Stop polling and publishing; the source stays open for the next activation."""
+        self._stop_polling()
+        self._show_state("inactive: deactivated, not publishing")
+
+    def _cleanup(self) -> None:
+        """Release the source (close the serial port) and the publisher: back to unconfigured."""
+        self._release()
+        self._show_state("unconfigured: cleaned up")
+
+    def _shutdown(self) -> None:
+        """From any state: release everything."""
+        self._release()
+        self._show_state("finalized: shut down, nothing held")
+
+    def _error(self) -> None:
+        """A transition raised: release everything; the node goes back to unconfigured."""
+        self._release()
+        self._show_state("unconfigured: a transition failed")
+
+    on_configure = _transition(_configure, LifecycleNode.on_configure)
+    on_activate = _transition(_activate, LifecycleNode.on_activate)
+    on_deactivate = _transition(_deactivate, LifecycleNode.on_deactivate)
+    on_cleanup = _transition(_cleanup, LifecycleNode.on_cleanup)
+    on_shutdown = _transition(_shutdown, LifecycleNode.on_shutdown)
+    on_error = _transition(_error, LifecycleNode.on_error)
+
+    def _stop_polling(self) -> None:
+        if self._poll_timer is not None:
+            self.destroy_timer(self._poll_timer)
+            self._poll_timer = None
+
+    def _release(self) -> None:
+        """Stop polling, close the source, drop the pose subscriptions and the publisher (idempotent)."""
+        self._stop_polling()
+        source, self.source = self.source, None
+        if source is not None:
+            source.close()
+        self.host.release()
+        if self.publisher is not None:
+            self.destroy_lifecycle_publisher(self.publisher)
+            self.publisher = None
+        self.decoder = None
+
+    def _show_state(self, message: str) -> None:
+        self.diagnostics.set("lifecycle_state", message.split(":")[0])
+        self.diagnostics.set_level("ok", message)
 
     def destroy_node(self) -> None:
         # the source is released on every stop, so a restarted driver (or a terminal program) can open
         # the serial port
-        source = getattr(self, "source", None)
-        if source is not None:
-            source.close()
+        self._release()
         super().destroy_node()
 
     # ---- parameters ----
@@ -105,7 +297,7 @@ class DriverNode(Node):
     @staticmethod
     def _correction_of(path: str) -> BearingCorrection:
         """The calibration file's bearing corrections (none without a file); a file that cannot be read
-        stops the node at start-up."""
+        refuses the configuration (autostart: stops the node)."""
         if not path:
             return BearingCorrection()
         try:
@@ -114,13 +306,15 @@ class DriverNode(Node):
             raise ParameterValidationError(f"calibration_file: {error}") from None
 
     def _apply_parameters(self, values: dict, changed: set[str]) -> None:
-        """A runtime change (validated by the table): the variance model, the frame, the calibration."""
+        """A runtime change (validated by the table): the variance model, the frame, the calibration.
+        Unconfigured, the values are kept for the next configure."""
         if "calibration_file" in changed:
             path = values["calibration_file"]
             self.correction = load_calibration(path).bearing_correction if path else BearingCorrection()
-        self.decoder.variance_model = variance_model_of(values, self.codes, self.receiver)
-        self.decoder.min_codes_seen = values["min_complete_codes"]
         self.frame_id = values["frame_id"]
+        if self.decoder is not None:
+            self.decoder.variance_model = variance_model_of(values, self.codes, self.receiver)
+            self.decoder.min_codes_seen = values["min_complete_codes"]
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
         self.correction = calibration.bearing_correction
@@ -129,16 +323,29 @@ class DriverNode(Node):
     # ---- the source ----
 
     def _poll(self) -> None:
-        poll = self.source.poll(self.host.now_s())
+        if self.source is None or self.decoder is None:
+            return  # a timer event queued before the deactivation
+        now_s = self.host.now_s()
+        poll = self.source.poll(now_s)
         if poll.continuity_broken:
             self.decoder.reset()  # no window is joined across a gap in the stream
-        for edges in poll.revolutions:
+        for edges in self._fresh(poll.revolutions, now_s):
             self._publish(self.decoder.decode(edges))
         health = self.source.health()
         for key, value in health.values.items():
             self.diagnostics.set(key, value)
         if health.level != "ok" or health.message:
             self.diagnostics.set_level(health.level, health.message or health.level)
+
+    def _fresh(self, revolutions: list[RevolutionEdges], now_s: float) -> list[RevolutionEdges]:
+        """After a re-activation, the revolutions begun while the node was inactive are dropped: the
+        first one begun since (or a clock gone back, a replayed bag) ends the filter."""
+        if self._stale_before_s is None:
+            return revolutions
+        fresh = [edges for edges in revolutions if edges.start_time_s >= self._stale_before_s]
+        if fresh or now_s < self._stale_before_s:
+            self._stale_before_s = None
+        return fresh
 
     # ---- publishing ----
 

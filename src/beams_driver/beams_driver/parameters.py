@@ -2,7 +2,9 @@
 
 Runtime-changeable: the variance model (mode, natural variance and its window slope, constant variance:
 the next revolution's bearings get them), the frame and the calibration file (its corrections are applied
-at once). The codes and the source define what the sensor is and stay read-only.
+at once). The codes and the source define what the sensor is and stay read-only. `autostart` (read-only)
+is the lifecycle's: the node declares it first and alone (LIFECYCLE_PARAMETERS), so it knows whether to
+exit or to wait for a lifecycle manager when another parameter is bad; DRIVER_PARAMETERS holds them all.
 """
 
 from collections.abc import Mapping
@@ -55,7 +57,15 @@ def variance_model_of(
     )
 
 
-DRIVER_PARAMETERS = ParameterTable(
+AUTOSTART = ParameterSpec(
+    "autostart",
+    True,
+    "Configure and activate the (lifecycle) node at start-up, exiting with the reason when it cannot; "
+    "false: wait unconfigured for a lifecycle manager (ros2 lifecycle set).",
+)
+LIFECYCLE_PARAMETERS = ParameterTable("driver_node", (AUTOSTART,))
+
+SENSOR_PARAMETERS = ParameterTable(
     "driver_node",
     (
         ParameterSpec(
@@ -125,3 +135,4 @@ DRIVER_PARAMETERS = ParameterTable(
     ),
     (_codes_check,),
 )
+DRIVER_PARAMETERS = LIFECYCLE_PARAMETERS + SENSOR_PARAMETERS
