@@ -6,8 +6,8 @@ namespace (the base station is the robots' access point), addresses in the priva
 discovers across them with ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET and the project's Fast DDS profile, as on
 a robot's real network. Each robot runs its four nodes (sim_world_node, driver_node, triangulation_node,
 ekf_node) in its own host (`ip netns exec`) and its own ROS namespace (robot1, robot2), on the seeds and
-start poses of test_system_multi_robot.py. The base station (this test's rclpy probe, the test process's
-thread moved into the base station's namespace) joins once both robots run, and must:
+start poses of test_system_multi_robot.py. The base station (the rclpy probe of the shared system tests,
+a process of its own on its host: this file run as a script) joins once both robots run, and must:
 - discover both robots' EKF outputs within DISCOVERY_BOUND_S;
 - see each robot localised within the EKF and ToTal bounds of the multi-robot test, and no cross-talk:
   no node of one robot has an endpoint on the other robot's topics, one driver's revolutions per topic;
@@ -17,10 +17,10 @@ thread moved into the base station's namespace) joins once both robots run, and 
 Network namespaces need root (CAP_NET_ADMIN and CAP_SYS_ADMIN) and iproute2's `ip` (scripts/bootstrap.sh
 installs it as root where apt-get exists); without them the test skips and says why. Every namespace it
 made is deleted at the end, failed or not (and those a killed earlier run left behind at the start).
+The test process itself creates no DDS participant: Fast DDS keeps per-process network state, and a
+participant created after one in another namespace of the same process stayed deaf (measured).
 """
 
-import contextlib
-import ctypes
 import functools
 import importlib.util
 import math
@@ -29,6 +29,7 @@ import pathlib
 import re
 import shutil
 import subprocess
+import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -38,12 +39,17 @@ import pytest
 
 pytestmark = pytest.mark.dds
 
+
+def load_module(name: str, file_name: str) -> Any:
+    """A module of this directory, by path (the tests are not a package)."""
+    spec = importlib.util.spec_from_file_location(name, pathlib.Path(__file__).with_name(file_name))
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 # The multi-robot test's robots, its checks, and through it the shared system-test helpers.
-_spec = importlib.util.spec_from_file_location(
-    "system_multi_robot", pathlib.Path(__file__).with_name("test_system_multi_robot.py")
-)
-multi = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(multi)
+multi = load_module("system_multi_robot", "test_system_multi_robot.py")
 system = multi.system
 
 # The private test subnet: addresses exist only inside the namespaces the test makes, nothing routes out.
@@ -71,8 +77,6 @@ RECOVERY_BOUND_S = 2.0
 # Topics each robot's nodes must be seen on from the base station (so the cross-talk check has endpoints).
 ROBOT_TOPICS = ("odom", "beams/sim/ground_truth", "beams/bearings", "beams/pose", "beams/ekf/odometry")
 
-CLONE_NEWNET = 0x40000000
-
 
 def ip(*args: str) -> None:
     """Run `ip args`; a failure fails the test with ip's message."""
@@ -94,33 +98,6 @@ def remove_stale_namespaces() -> None:
             subprocess.run(["ip", "netns", "delete", name], capture_output=True, timeout=IP_TIMEOUT_S)
 
 
-def set_thread_namespace(path: str) -> None:
-    """Move the calling thread into the network namespace at `path` (setns(2)); the DDS participants
-    (and their threads) it creates afterwards live there."""
-    libc = ctypes.CDLL(None, use_errno=True)
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        if libc.setns(fd, CLONE_NEWNET) != 0:
-            error = ctypes.get_errno()
-            pytest.fail(f"setns({path}) failed: {os.strerror(error)}")
-    finally:
-        os.close(fd)
-
-
-@contextlib.contextmanager
-def inside_namespace(name: str) -> Iterator[None]:
-    """This thread in the named network namespace for the block, back in its own after it."""
-    own = os.open("/proc/thread-self/ns/net", os.O_RDONLY)
-    try:
-        set_thread_namespace(f"/run/netns/{name}")
-        try:
-            yield
-        finally:
-            set_thread_namespace(f"/proc/self/fd/{own}")
-    finally:
-        os.close(own)
-
-
 @dataclass
 class Hosts:
     """The three hosts: host name ("base", "robot1", "robot2") -> network namespace."""
@@ -130,6 +107,14 @@ class Hosts:
     def exec_prefix(self, host: str) -> list[str]:
         """Command prefix running a program on a host (`ip netns exec` execs it: same pid, signals)."""
         return ["ip", "netns", "exec", self.namespaces[host]]
+
+    def argument(self) -> str:
+        """The namespaces as one command-line argument (for the base station's process)."""
+        return ",".join(f"{host}={name}" for host, name in self.namespaces.items())
+
+    @classmethod
+    def from_argument(cls, argument: str) -> "Hosts":
+        return cls(dict(item.split("=", 1) for item in argument.split(",")))
 
     def set_link(self, robot: str, up: bool) -> None:
         """A robot's link to the bridge up or down (its port on the base station's bridge)."""
@@ -158,9 +143,9 @@ def build_network(hosts: Hosts) -> None:
 
 
 @pytest.fixture
-def hosts(ros_env: dict[str, str], monkeypatch: pytest.MonkeyPatch) -> Iterator[Hosts]:
-    """The three hosts, DDS discovery on their subnet, and this thread on the base station; every
-    namespace made is deleted afterwards, whatever happened."""
+def hosts(ros_env: dict[str, str]) -> Iterator[Hosts]:
+    """The three hosts and DDS discovery on their subnet; every namespace made is deleted afterwards,
+    whatever happened."""
     if shutil.which("ip") is None:
         reason = "iproute2's `ip` command is missing (scripts/bootstrap.sh installs it as root with apt-get)"
         print(reason)
@@ -182,12 +167,10 @@ def hosts(ros_env: dict[str, str], monkeypatch: pytest.MonkeyPatch) -> Iterator[
                 pytest.skip(reason)
             made.append(name)
         build_network(network)
-        # the nodes (ros_env is their environment) and the base station's probe, created later, discover
-        # on the subnet; the profile (FASTRTPS_DEFAULT_PROFILES_FILE, scripts/ros_env.sh) stays exported
+        # the nodes and the base station (ros_env is their environment) discover on the subnet; the
+        # profile (FASTRTPS_DEFAULT_PROFILES_FILE, scripts/ros_env.sh) stays exported
         ros_env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "SUBNET"
-        monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "SUBNET")
-        with inside_namespace(network.namespaces["base"]):
-            yield network
+        yield network
     finally:
         for name in made:
             subprocess.run(["ip", "netns", "delete", name], capture_output=True, timeout=IP_TIMEOUT_S)
@@ -265,7 +248,31 @@ def check_link_outage(graph, hosts: Hosts, probes: dict[str, Any], robot: str) -
     return back_s
 
 
-def test_robots_on_separate_hosts(hosts: Hosts, start_node: Callable[..., Any], request) -> None:
+def base_station(hosts: Hosts) -> None:
+    """The base station's process: join the running robots, check them; an assertion fails it."""
+    conftest = load_module("beams_test_conftest", "conftest.py")
+    with conftest.open_ros_graph(int(os.environ["ROS_DOMAIN_ID"])) as graph:
+        probes = {robot: system.RobotProbe(robot) for robot in ROBOT_HOSTS}
+        for probe in probes.values():
+            probe.attach(graph)
+        discovered = discovery_times(graph, {r: f"/{r}/beams/ekf/odometry" for r in ROBOT_HOSTS}, 10.0)
+        print(
+            "base station discovered " + ", ".join(f"{r}'s EKF in {s:.3f} s" for r, s in discovered.items())
+        )
+        for robot, seconds in discovered.items():
+            assert seconds < DISCOVERY_BOUND_S, f"{robot}'s EKF not discovered within {DISCOVERY_BOUND_S} s"
+        multi.check_robots_localised(graph, probes)
+        check_no_cross_talk(graph)
+        check_link_outage(graph, hosts, probes, "robot1")
+
+
+# The base station's whole run, bounded: discovery, the robots' start-up and run, the outage.
+BASE_STATION_TIMEOUT_S = 10.0 + system.START_TIMEOUT_S + 3 * multi.RUN_S + OUTAGE_S + 10.0
+
+
+def test_robots_on_separate_hosts(
+    hosts: Hosts, start_node: Callable[..., Any], ros_env: dict[str, str]
+) -> None:
     robots = dict(zip(ROBOT_HOSTS, multi.ROBOTS.values(), strict=True))
     ekf_nodes = []
     for robot, (seed, start_pose) in robots.items():
@@ -275,15 +282,16 @@ def test_robots_on_separate_hosts(hosts: Hosts, start_node: Callable[..., Any], 
     wait_for_logs(ekf_nodes, "ekf_node ready", system.START_TIMEOUT_S)
 
     # The base station joins the running robots: its participant is created now, on its host.
-    graph = request.getfixturevalue("rclpy_node")
-    probes = {robot: system.RobotProbe(robot) for robot in ROBOT_HOSTS}
-    for probe in probes.values():
-        probe.attach(graph)
-    discovered = discovery_times(graph, {r: f"/{r}/beams/ekf/odometry" for r in ROBOT_HOSTS}, 10.0)
-    print("base station discovered " + ", ".join(f"{r}'s EKF in {s:.3f} s" for r, s in discovered.items()))
-    for robot, seconds in discovered.items():
-        assert seconds < DISCOVERY_BOUND_S, f"{robot}'s EKF not discovered within {DISCOVERY_BOUND_S} s"
+    command = [*hosts.exec_prefix("base"), sys.executable, __file__, "--base-station", hosts.argument()]
+    try:
+        result = subprocess.run(
+            command, env=ros_env, capture_output=True, text=True, timeout=BASE_STATION_TIMEOUT_S
+        )
+    except subprocess.TimeoutExpired as timeout:
+        pytest.fail(f"the base station still running after {BASE_STATION_TIMEOUT_S} s:\n{timeout.stdout}")
+    print(result.stdout)
+    assert result.returncode == 0, f"base station failed:\n{result.stdout}\n{result.stderr}"
 
-    multi.check_robots_localised(graph, probes)
-    check_no_cross_talk(graph)
-    check_link_outage(graph, hosts, probes, "robot1")
+
+if __name__ == "__main__" and sys.argv[1:2] == ["--base-station"]:
+    base_station(Hosts.from_argument(sys.argv[2]))
