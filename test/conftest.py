@@ -4,6 +4,7 @@ Every test gets a ROS_DOMAIN_ID of its own (claimed with a lock file, so paralle
 sessions on the machine never share one), discovery stays on localhost, and every wait is bounded.
 """
 
+import contextlib
 import fcntl
 import os
 import pathlib
@@ -117,13 +118,15 @@ class RosGraph:
         return future.result()
 
 
-@pytest.fixture
-def rclpy_node(ros_env: dict[str, str], ros_domain_id: int) -> Iterator[RosGraph]:
-    rclpy = pytest.importorskip("rclpy", reason="rclpy missing: run the tests through `make test`")
+@contextlib.contextmanager
+def open_ros_graph(domain_id: int) -> Iterator[RosGraph]:
+    """The probe node in its own rclpy context (the fixture below; test_system_hosts.py's base station
+    process)."""
+    import rclpy
     from rclpy.executors import SingleThreadedExecutor
 
     context = rclpy.Context()
-    rclpy.init(context=context, domain_id=ros_domain_id)
+    rclpy.init(context=context, domain_id=domain_id)
     node = rclpy.create_node("beams_test_probe", context=context)
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
@@ -133,6 +136,13 @@ def rclpy_node(ros_env: dict[str, str], ros_domain_id: int) -> Iterator[RosGraph
         executor.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=context)
+
+
+@pytest.fixture
+def rclpy_node(ros_env: dict[str, str], ros_domain_id: int) -> Iterator[RosGraph]:
+    pytest.importorskip("rclpy", reason="rclpy missing: run the tests through `make test`")
+    with open_ros_graph(ros_domain_id) as graph:
+        yield graph
 
 
 @dataclass
@@ -199,8 +209,10 @@ def start_node(ros_env: dict[str, str], tmp_path: pathlib.Path) -> Iterator[Call
         namespace: str = "",
         extra_args: list[str] | None = None,
         own_process_group: bool = False,
+        command_prefix: list[str] | None = None,
     ) -> NodeProcess:
-        command = [str(executable_path(package, executable)), "--ros-args"]
+        # command_prefix runs the node through a wrapper that execs it (`ip netns exec <ns>`: another host)
+        command = [*(command_prefix or []), str(executable_path(package, executable)), "--ros-args"]
         if params:
             params_file = tmp_path / f"{executable}_{len(started)}.yaml"
             params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": params}}))
