@@ -1,6 +1,6 @@
 """The layout's rules, checked on the source (DEVELOPING.md): a package imports only from the packages
-drawn above it (no cycle), and rclpy only in the ROS wiring (the `*_node.py` modules, beams_common.ros,
-the demo)."""
+drawn above it (no cycle), and rclpy only in the ROS wiring (the `*_node.py` modules, the ROS clients
+`*_command.py`, beams_common.ros, the demo)."""
 
 import ast
 import pathlib
@@ -58,7 +58,8 @@ def test_a_package_imports_only_from_the_packages_above_it(package):
 @pytest.mark.parametrize("package", sorted(ALLOWED))
 def test_rclpy_only_in_the_ros_wiring(package):
     def ros_side(path: pathlib.Path) -> bool:
-        return path.name.endswith("_node.py") or "ros" in path.parts[-2:-1] or path.name == "demo.py"
+        ros_files = ("_node.py", "_command.py")
+        return path.name.endswith(ros_files) or "ros" in path.parts[-2:-1] or path.name == "demo.py"
 
     wrong = [
         str(path.relative_to(SRC))
