@@ -102,16 +102,30 @@ class BeaconGeometry:
     calibration: SensorCalibration | None = None
 
 
+def geometry_of_calibration(calibration: SensorCalibration) -> BeaconGeometry:
+    """The geometry a calibration file carries: the calibrated beacon map and turret offset."""
+    offset = calibration.turret_offset_m
+    return BeaconGeometry(calibration.beacon_map, (float(offset[0]), float(offset[1])), calibration)
+
+
 def geometry_of(values: Mapping[str, Any]) -> BeaconGeometry:
     """The geometry the parameters give: the calibration file's when one is named, else the map and
     offset parameters. Raises OSError or ValueError (with the file's reason) for a bad calibration file."""
     path = values.get("calibration_file", "")
     if path:
-        calibration = load_calibration(path)
-        offset = calibration.turret_offset_m
-        return BeaconGeometry(calibration.beacon_map, (float(offset[0]), float(offset[1])), calibration)
+        return geometry_of_calibration(load_calibration(path))
     offset = values.get("turret_offset_m", TURRET_OFFSET.default)
     return BeaconGeometry(beacon_map_of(values), (float(offset[0]), float(offset[1])))
+
+
+def runtime_geometry(values: Mapping[str, Any], changed: set[str], current: BeaconGeometry) -> BeaconGeometry:
+    """The geometry after a runtime parameter change: `current` when no geometry parameter changed (the
+    calibration file is not read again for a gate or a frame: a file rewritten on disk is applied by the
+    reload service, not by an unrelated change), else read anew. Raises ValueError when the change sets
+    the map or offset under a calibration file (`refuse_overridden_geometry`), OSError or ValueError for
+    a calibration file that cannot be read."""
+    refuse_overridden_geometry(values, changed)
+    return geometry_of(values) if changed & GEOMETRY_NAMES else current
 
 
 def refuse_overridden_geometry(values: Mapping[str, Any], changed: set[str]) -> None:

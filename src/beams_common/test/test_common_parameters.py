@@ -128,3 +128,24 @@ def test_parameter_file_sections_merge_as_rcl_applies_them(tmp_path):
 )
 def test_topic_names(name, valid):
     assert is_topic_name(name) is valid
+
+
+def test_a_runtime_change_reads_the_calibration_file_only_when_the_geometry_changes(tmp_path):
+    """A gate or frame change keeps the geometry in use (the file is not read again); a geometry change
+    reads it; the map cannot change under a calibration file."""
+    from beams_common.beacon_map import EUROBOT_BEACON_MAP
+    from beams_common.calibration_file import SensorCalibration, save_calibration
+    from beams_common.geometry_parameters import runtime_geometry
+
+    path = tmp_path / "calibration.yaml"
+    save_calibration(SensorCalibration(beacon_map=EUROBOT_BEACON_MAP), path)
+    values = GEOMETRY.validate({"calibration_file": str(path)})
+    current = geometry_of(values)
+    path.unlink()  # an unrelated change must not touch the file
+    assert runtime_geometry(values, {"max_position_std_m"}, current) is current
+    with pytest.raises(OSError):
+        runtime_geometry(values, {"calibration_file"}, current)
+    with pytest.raises(ValueError, match="cannot change while calibration_file"):
+        runtime_geometry(values, {"beacon_x"}, current)
+    plain = GEOMETRY.validate({"turret_offset_m": [0.01, 0.0]})
+    assert runtime_geometry(plain, {"turret_offset_m"}, current).turret_offset_m == (0.01, 0.0)

@@ -28,7 +28,7 @@ from tf2_msgs.msg import TFMessage
 from beams_common import topics
 from beams_common.bearing import bearings_of_message
 from beams_common.calibration_file import SensorCalibration
-from beams_common.geometry_parameters import geometry_of, refuse_overridden_geometry
+from beams_common.geometry_parameters import geometry_of_calibration, runtime_geometry
 from beams_common.ros.messages import (
     planar_covariance,
     planar_tf_message,
@@ -71,7 +71,7 @@ class EkfNode(Node):
         super().__init__("ekf_node")
         self.parameters = declare_table(self, EKF_PARAMETERS)
         self.settings = filter_settings(self.parameters)
-        geometry = startup_geometry(self.parameters)
+        self.geometry = geometry = startup_geometry(self.parameters)
         beacons = geometry.beacon_map.as_dict()
         self.localiser = build_localiser(beacons, geometry.turret_offset_m, self.settings)
         self.map_frame = self.parameters["map_frame"]
@@ -107,8 +107,7 @@ class EkfNode(Node):
     # -- parameters -----------------------------------------------------------------------------------
     def _apply_parameters(self, values: dict, changed: set[str]) -> None:
         """A runtime change (validated by the table): the beacon geometry, the process noise, the gate."""
-        refuse_overridden_geometry(values, changed)
-        geometry = geometry_of(values)
+        self.geometry = geometry = runtime_geometry(values, changed, self.geometry)
         self.settings = filter_settings(values)
         self.localiser.configure(geometry.beacon_map.as_dict(), geometry.turret_offset_m, self.settings)
 
@@ -182,8 +181,9 @@ class EkfNode(Node):
         return True, f"operator pose: {what}"
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
-        beacon_map, offset = calibration.beacon_map, calibration.turret_offset_m
-        self.localiser.configure(beacon_map.as_dict(), (float(offset[0]), float(offset[1])), self.settings)
+        self.geometry = geometry = geometry_of_calibration(calibration)
+        beacon_map, offset = geometry.beacon_map, geometry.turret_offset_m
+        self.localiser.configure(beacon_map.as_dict(), offset, self.settings)
         return f"beacons {list(beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
 
     def _offer_pose(self, stamp, pose_with_covariance, *, operator: bool) -> str:

@@ -29,7 +29,7 @@ from visualization_msgs.msg import Marker, MarkerArray
 from beams_common import topics
 from beams_common.bearing import bearings_of_message
 from beams_common.calibration_file import SensorCalibration
-from beams_common.geometry_parameters import geometry_of, refuse_overridden_geometry
+from beams_common.geometry_parameters import geometry_of_calibration, runtime_geometry
 from beams_common.ros.messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
 from beams_common.ros.node_support import (
     BEARINGS_QOS,
@@ -62,7 +62,7 @@ class TriangulationNode(Node):
         super().__init__("triangulation_node")
         self.parameters = declare_table(self, TRIANGULATION_PARAMETERS)
         settings = triangulation_settings(self.parameters)
-        geometry = startup_geometry(self.parameters)
+        self.geometry = geometry = startup_geometry(self.parameters)
         self.map_frame = self.parameters["map_frame"]
         self.use_odometry = settings.use_odometry
         self.publish_markers = self.parameters["publish_markers"]
@@ -88,8 +88,7 @@ class TriangulationNode(Node):
     # -- parameters -----------------------------------------------------------------------------------
     def _apply_parameters(self, values: dict, changed: set[str]) -> None:
         """A runtime change (validated by the table): the gates, the beacon geometry, the frame, markers."""
-        refuse_overridden_geometry(values, changed)
-        geometry = geometry_of(values)
+        self.geometry = geometry = runtime_geometry(values, changed, self.geometry)
         self.pipeline.configure(
             geometry.beacon_map, triangulation_settings(values).gates, geometry.turret_offset_m
         )
@@ -97,8 +96,9 @@ class TriangulationNode(Node):
         self.publish_markers = values["publish_markers"]
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
-        offset = calibration.turret_offset_m
-        self.pipeline.configure(calibration.beacon_map, self.pipeline.settings.gates, offset)
+        self.geometry = geometry = geometry_of_calibration(calibration)
+        offset = geometry.turret_offset_m
+        self.pipeline.configure(geometry.beacon_map, self.pipeline.settings.gates, offset)
         return f"beacons {list(calibration.beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
 
     # -- inputs ---------------------------------------------------------------------------------------
