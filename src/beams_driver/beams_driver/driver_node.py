@@ -42,6 +42,7 @@ from beams_driver.parameters import (
     DRIVER_PARAMETERS,
     LIFECYCLE_PARAMETERS,
     SENSOR_PARAMETERS,
+    VARIANCE_PARAMETERS,
     codes_of,
     variance_model_of,
 )
@@ -313,7 +314,9 @@ class DriverNode(LifecycleNode):
             self.correction = load_calibration(path).bearing_correction if path else BearingCorrection()
         self.frame_id = values["frame_id"]
         if self.decoder is not None:
-            self.decoder.variance_model = variance_model_of(values, self.codes, self.receiver)
+            # the exact model enumerates every code (~20 ms): only a change of its parameters rebuilds it
+            if changed & VARIANCE_PARAMETERS:
+                self.decoder.variance_model = variance_model_of(values, self.codes, self.receiver)
             self.decoder.min_codes_seen = values["min_complete_codes"]
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:

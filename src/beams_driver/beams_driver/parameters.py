@@ -40,6 +40,18 @@ def _codes_check(values: Mapping[str, Any]) -> str | None:
     return None
 
 
+# the parameters variance_model_of reads
+VARIANCE_PARAMETERS = frozenset(
+    {
+        "variance_mode",
+        "natural_variance_rad2",
+        "natural_variance_slope_rad2_per_rad",
+        "natural_variance_reference_window_rad",
+        "constant_variance_rad2",
+    }
+)
+
+
 def variance_model_of(
     values: Mapping[str, Any], codes: tuple[BeaconCode, ...], receiver: SensorSimConfig
 ) -> VarianceModel:
