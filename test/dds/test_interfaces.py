@@ -7,8 +7,6 @@ import sys
 
 import pytest
 
-pytestmark = pytest.mark.dds
-
 ROUND_TRIP_TIMEOUT_S = 20.0
 
 

@@ -15,8 +15,6 @@ from typing import Any
 
 import pytest
 
-pytestmark = pytest.mark.dds
-
 UP_TIMEOUT_S = 30.0
 STOP_TIMEOUT_S = 15.0
 # Node k of a batch waits SECOND_SIGNAL_DELAYS_S[(k + pattern) % n] between the two signals.

@@ -18,7 +18,7 @@ from collections.abc import Iterator
 
 import pytest
 
-pytestmark = [pytest.mark.dds, pytest.mark.ros2_cli]
+pytestmark = pytest.mark.ros2_cli
 
 # What the tier needs, importable by the venv's python (composition_interfaces: launch_ros imports it).
 REQUIRED_MODULES = (

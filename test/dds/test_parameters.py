@@ -13,8 +13,6 @@ from beams_bringup.replay_settings import load_node_parameters
 from beams_common.parameters import ParameterError
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 
-pytestmark = pytest.mark.dds
-
 WAIT_S = 20.0
 BEACONS = {1: (-0.062, -0.062), 2: (-0.062, 2.062), 3: (3.062, 1.0)}
 VARIANCE_RAD2 = float(np.deg2rad(0.1) ** 2)

@@ -7,9 +7,6 @@ import os
 import pathlib
 
 import numpy as np
-import pytest
-
-pytestmark = pytest.mark.dds
 
 PLUGINS = pathlib.Path(__file__).resolve().parent / "plugins"
 STATIC_POSE = (1.2, 0.8, 0.3)

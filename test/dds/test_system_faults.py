@@ -25,8 +25,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.dds
-
 # The EKF's accuracy on the match (issue 5): RMS position (m) and heading (rad); after a fault too.
 EKF_RMS_BOUND_M = 0.01
 EKF_HEADING_RMS_BOUND_RAD = math.radians(0.3)

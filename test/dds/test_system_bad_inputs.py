@@ -16,12 +16,9 @@ without /clock.
 import math
 from pathlib import Path
 
-import pytest
 import yaml
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
-
-pytestmark = pytest.mark.dds
 
 TRUE_POSE = (1.2, 0.8, 0.4)
 VARIANCE_RAD2 = 3e-7

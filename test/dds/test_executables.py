@@ -5,8 +5,6 @@ import signal
 
 import pytest
 
-pytestmark = pytest.mark.dds
-
 EXECUTABLES = [
     ("beams_sim", "sim_world_node"),
     ("beams_driver", "driver_node"),

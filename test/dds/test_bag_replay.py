@@ -8,11 +8,8 @@ import subprocess
 import sys
 
 import numpy as np
-import pytest
 
-pytestmark = pytest.mark.dds
-
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
 DEMO_DURATION_S = 12.0
 

@@ -8,8 +8,6 @@ import pytest
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 
-pytestmark = pytest.mark.dds
-
 WAIT_S = 20.0
 STATIC_POSE = (1.0, 1.2, 0.4)
 

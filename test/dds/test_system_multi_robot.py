@@ -18,8 +18,6 @@ from typing import Any
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.dds
-
 # The shared system-test helpers (robot parameters, the probe, errors against the truth).
 _spec = importlib.util.spec_from_file_location(
     "system_faults_helpers", pathlib.Path(__file__).with_name("test_system_faults.py")

@@ -37,8 +37,6 @@ from typing import Any
 
 import pytest
 
-pytestmark = pytest.mark.dds
-
 
 def load_module(name: str, file_name: str) -> Any:
     """A module of this directory, by path (the tests are not a package)."""

@@ -17,7 +17,7 @@ from beams_driver.sim_source import PARAMETERS as SIM_PARAMETERS
 from beams_sim.simulated_match import simulate_match
 from beams_sim.world import EurobotTrajectory
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
 COMMAND = INSTALL_BASE / "beams_driver" / "lib" / "beams_driver" / "estimate_noise"
 HARDWARE = SensorSimConfig.thesis_hardware()

@@ -21,8 +21,6 @@ import pytest
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 
-pytestmark = pytest.mark.dds
-
 WAIT_S = 20.0
 QUIET_S = 1.5  # no bearing may arrive for this long after a deactivation
 SETTLE_S = 0.3  # bearings already in flight when the transition answered

@@ -13,8 +13,6 @@ import subprocess
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.dds
-
 REVOLUTIONS = 50
 SESSION_TIMEOUT_S = 150.0
 SESSION_ARGS = ["--positions", "4", "--orientations", "4", "--revolutions", str(REVOLUTIONS), "--simulate"]

@@ -5,9 +5,6 @@ calibration file (refusing one too small)."""
 import math
 
 import numpy as np
-import pytest
-
-pytestmark = pytest.mark.dds
 
 POSE = (0.6, 0.36, math.pi / 2)  # P9 of table 7.2, facing +y
 REVOLUTIONS = 20

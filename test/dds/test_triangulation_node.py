@@ -8,8 +8,6 @@ import signal
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.dds
-
 BEACONS = {1: (-0.062, -0.062), 2: (-0.062, 2.062), 3: (3.062, 1.0)}
 OFFSET = (0.03, -0.02)
 T0_S = 1000.0  # stamps that look like a real clock's

@@ -5,8 +5,6 @@ import math
 
 import pytest
 
-pytestmark = pytest.mark.dds
-
 # Simulated time starts here: far from the wall clock, as in a bag replayed with --clock.
 T0_S = 100.0
 MATCH_S = 6.0

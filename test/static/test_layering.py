@@ -7,7 +7,7 @@ import pathlib
 
 import pytest
 
-SRC = pathlib.Path(__file__).resolve().parents[1] / "src"
+SRC = pathlib.Path(__file__).resolve().parents[2] / "src"
 # what each package may import from the project's packages (beams_msgs: the interfaces, for the ROS side)
 ALLOWED = {
     "beams_common": {"beams_msgs"},

@@ -6,8 +6,6 @@ import math
 
 import pytest
 
-pytestmark = pytest.mark.dds
-
 OFFSET = (0.02, -0.01)
 # synthetic instants are shifted so that stamps look like a real clock's
 T0_S = 1000.0

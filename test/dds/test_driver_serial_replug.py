@@ -13,13 +13,10 @@ import threading
 import time
 
 import numpy as np
-import pytest
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_driver.serial_protocol import FrameEncoder
-
-pytestmark = pytest.mark.dds
 
 WAIT_S = 20.0
 GONE_S = 3.5  # past the 4th failed attempt at ~3.1 s: the back-off alone would wait until ~6.3 s

@@ -5,8 +5,6 @@ import math
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.dds
-
 WAIT_S = 20.0
 ZERO_DRIFT = {
     "odometry_left_scale_error": 0.0,
