@@ -21,12 +21,12 @@ fi
 if [ "$requirements" = requirements.txt ]; then
     "$VENV/bin/python" scripts/fix_wheel_paths.py
 fi
-# test/test_system_hosts.py builds its hosts (network namespaces) with iproute2's `ip`: a fresh CI
+# test/dds/test_system_hosts.py builds its hosts (network namespaces) with iproute2's `ip`: a fresh CI
 # machine (root, apt-get) gets it here; elsewhere the test skips and says why.
 if ! command -v ip >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
-    echo "bootstrap: installing iproute2 (for test/test_system_hosts.py)"
+    echo "bootstrap: installing iproute2 (for test/dds/test_system_hosts.py)"
     apt-get update -qq && apt-get install -y -qq iproute2 >/dev/null \
-        || echo "bootstrap: iproute2 could not be installed: test/test_system_hosts.py will skip"
+        || echo "bootstrap: iproute2 could not be installed: test/dds/test_system_hosts.py will skip"
 fi
 touch "$VENV/.installed"
 echo "bootstrap: done"

@@ -148,7 +148,9 @@ def test_non_finite_bearings_in_a_capture_are_left_out_and_counted(rclpy_node, s
     """A bearing with a NaN in a captured revolution is left out of the average, counted and shown."""
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from beams_msgs.msg import BeaconBearing, BeaconBearingArray
+    from beams_common.bearing_messages import BearingFields
+    from beams_common.ros.messages import bearing_array
+    from beams_msgs.msg import BeaconBearingArray
     from beams_msgs.srv import CaptureReference
 
     start_node("beams_calibration", "calibration_node", _calibration_params(tmp_path))
@@ -156,11 +158,18 @@ def test_non_finite_bearings_in_a_capture_are_left_out_and_counted(rclpy_node, s
     publisher = rclpy_node.node.create_publisher(BeaconBearingArray, "beams/bearings", 10)
     assert rclpy_node.spin_until(lambda: publisher.get_subscription_count() > 0, TIMEOUT_S)
     prior = _setup().PRIOR_BEACONS
-    revolution = BeaconBearingArray(period=0.1)
-    for beacon_id, (bx, by) in zip(prior.ids, prior.xy, strict=True):
-        bearing = math.remainder(math.atan2(by - POSE[1], bx - POSE[0]) - POSE[2], 2 * math.pi)
-        revolution.bearings.append(BeaconBearing(beacon_id=beacon_id, bearing=bearing, angular_window=0.1))
-    revolution.bearings.append(BeaconBearing(beacon_id=9, bearing=math.nan, angular_window=0.1))
+    fields = [
+        BearingFields(
+            0,
+            beacon_id,
+            math.remainder(math.atan2(by - POSE[1], bx - POSE[0]) - POSE[2], 2 * math.pi),
+            0.0,
+            angular_window_rad=0.1,
+        )
+        for beacon_id, (bx, by) in zip(prior.ids, prior.xy, strict=True)
+    ]
+    fields.append(BearingFields(0, 9, math.nan, 0.0, angular_window_rad=0.1))
+    revolution = bearing_array(0, fields, period_s=0.1)
     client = rclpy_node.node.create_client(CaptureReference, "/calibration_node/capture_reference")
     assert client.wait_for_service(timeout_sec=TIMEOUT_S)
     future = client.call_async(CaptureReference.Request(x=POSE[0], y=POSE[1], theta=POSE[2], revolutions=5))

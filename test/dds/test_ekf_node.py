@@ -38,17 +38,14 @@ def _odometry(t: float, pose):
 
 
 def _revolution(bearings):
-    from beams_msgs.msg import BeaconBearing, BeaconBearingArray
+    from beams_common.bearing_messages import BearingFields, nanoseconds
+    from beams_common.ros.messages import bearing_array
 
-    msg = BeaconBearingArray()
-    msg.header.stamp = _time(T0_S + bearings[0].arrival_s - 0.1)
-    msg.header.frame_id = "beams_sensor"
-    msg.period = 0.1
-    for b in bearings:
-        item = BeaconBearing(beacon_id=b.beacon_id, bearing=b.bearing_rad, variance=b.variance_rad2)
-        item.header.stamp = _time(T0_S + b.stamp_s)
-        msg.bearings.append(item)
-    return msg
+    fields = [
+        BearingFields(nanoseconds(T0_S + b.stamp_s), b.beacon_id, b.bearing_rad, b.variance_rad2)
+        for b in bearings
+    ]
+    return bearing_array(nanoseconds(T0_S + bearings[0].arrival_s - 0.1), fields, period_s=0.1)
 
 
 def _total_pose(t: float, pose):

@@ -10,30 +10,18 @@ import pytest
 ROUND_TRIP_TIMEOUT_S = 20.0
 
 
-def _bearing(beams_msgs_msg, beacon_id: int):
-    bearing = beams_msgs_msg.BeaconBearing()
-    bearing.header.frame_id = "beams_sensor"
-    bearing.header.stamp.sec = 12
-    bearing.header.stamp.nanosec = 345
-    bearing.beacon_id = beacon_id
-    bearing.bearing = -math.pi / 3 + beacon_id
-    bearing.variance = 1.5e-7 * beacon_id
-    bearing.angular_window = 0.07
-    bearing.rising_angle = 0.1
-    bearing.falling_angle = 0.2
-    bearing.codes_seen = 4
-    return bearing
-
-
 def _sample_messages():
     import beams_msgs.msg as beams_msgs_msg
+    from beams_common.bearing_messages import NS_PER_S, BearingFields
+    from beams_common.ros.messages import bearing_array
 
-    array = beams_msgs_msg.BeaconBearingArray()
-    array.header.frame_id = "beams_sensor"
-    array.revolution = 77
-    array.period = 0.0998
-    array.bearings = [_bearing(beams_msgs_msg, i) for i in (1, 2, 3)]
-    array.rejected_windows = 2
+    stamp_ns = 12 * NS_PER_S + 345
+    fields = [
+        BearingFields(stamp_ns, i, -math.pi / 3 + i, 1.5e-7 * i, 0.07, 0.1, 0.2, codes_seen=4)
+        for i in (1, 2, 3, 5)
+    ]
+    array = bearing_array(stamp_ns, fields[:3], period_s=0.0998, revolution=77, rejected_windows=2)
+    lone_bearing = bearing_array(stamp_ns, fields[3:], period_s=0.1).bearings[0]
     pose = beams_msgs_msg.TriangulatedPose()
     pose.header.frame_id = "map"
     pose.pose.pose.position.x = 1.25
@@ -44,7 +32,7 @@ def _sample_messages():
     pose.beacon_ids = [3, 1, 2]
     pose.accepted = False
     pose.reason = "1/|D| above the gate"
-    return [_bearing(beams_msgs_msg, 5), array, pose]
+    return [lone_bearing, array, pose]
 
 
 @pytest.fixture

@@ -94,17 +94,21 @@ def _get(rclpy_node, node_name: str, name: str):
 
 
 def _revolution(pose, beacons=BEACONS, revolution=0):
-    from beams_msgs.msg import BeaconBearing, BeaconBearingArray
+    from beams_common.bearing_messages import BearingFields, nanoseconds
+    from beams_common.ros.messages import bearing_array
 
     x, y, theta = pose
-    msg = BeaconBearingArray(revolution=revolution, period=0.1)
-    msg.header.stamp.sec = 1000
-    for beacon_id, (bx, by) in beacons.items():
-        bearing = math.remainder(math.atan2(by - y, bx - x) - theta, 2 * math.pi)
-        item = BeaconBearing(beacon_id=beacon_id, bearing=bearing, variance=VARIANCE_RAD2)
-        item.header.stamp.sec = 1000
-        msg.bearings.append(item)
-    return msg
+    stamp_ns = nanoseconds(1000.0)
+    fields = [
+        BearingFields(
+            stamp_ns,
+            beacon_id,
+            math.remainder(math.atan2(by - y, bx - x) - theta, 2 * math.pi),
+            VARIANCE_RAD2,
+        )
+        for beacon_id, (bx, by) in beacons.items()
+    ]
+    return bearing_array(stamp_ns, fields, period_s=0.1, revolution=revolution)
 
 
 def test_runtime_changes_are_applied_validated_or_refused(start_node, rclpy_node, tmp_path):

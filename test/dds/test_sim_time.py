@@ -39,17 +39,22 @@ def _odometry(match, index: int):
 
 
 def _revolution(decoded):
-    from beams_msgs.msg import BeaconBearing, BeaconBearingArray
+    from beams_common.bearing_messages import BearingFields, nanoseconds
+    from beams_common.ros.messages import bearing_array
 
-    msg = BeaconBearingArray(revolution=decoded.revolution, period=decoded.period_s)
-    msg.header.stamp = _stamp(decoded.start_time_s)
-    msg.header.frame_id = "beams_sensor"
-    for b in decoded.bearings:
-        item = BeaconBearing(beacon_id=b.beacon_id, bearing=b.bearing, variance=b.variance)
-        item.angular_window, item.codes_seen = b.angular_window, b.codes_seen
-        item.header.stamp = _stamp(b.stamp_s)
-        msg.bearings.append(item)
-    return msg
+    fields = [
+        BearingFields(
+            nanoseconds(T0_S + b.stamp_s),
+            b.beacon_id,
+            b.bearing,
+            b.variance,
+            angular_window_rad=b.angular_window,
+            codes_seen=b.codes_seen,
+        )
+        for b in decoded.bearings
+    ]
+    start_ns = nanoseconds(T0_S + decoded.start_time_s)
+    return bearing_array(start_ns, fields, period_s=decoded.period_s, revolution=decoded.revolution)
 
 
 def _play(graph, publishers, match, speed: float = 2.0) -> None:

@@ -80,17 +80,14 @@ def _true_bearings() -> list[tuple[int, float, float, float]]:
 
 
 def _revolution_message(number: int, now_s: float, bearings):
-    from beams_common.ros.messages import seconds_to_stamp
-    from beams_msgs.msg import BeaconBearing, BeaconBearingArray
+    from beams_common.bearing_messages import BearingFields, nanoseconds
+    from beams_common.ros.messages import bearing_array
 
-    msg = BeaconBearingArray(revolution=number, period=0.1)
-    msg.header.stamp = seconds_to_stamp(now_s - 0.1)
-    msg.header.frame_id = "beams_sensor"
-    for beacon_id, bearing, variance, offset_s in bearings:
-        item = BeaconBearing(beacon_id=int(beacon_id), bearing=float(bearing), variance=float(variance))
-        item.header.stamp = seconds_to_stamp(now_s + offset_s)
-        msg.bearings.append(item)
-    return msg
+    fields = [
+        BearingFields(nanoseconds(now_s + offset_s), beacon_id, bearing, variance)
+        for beacon_id, bearing, variance, offset_s in bearings
+    ]
+    return bearing_array(nanoseconds(now_s - 0.1), fields, period_s=0.1, revolution=number)
 
 
 def _odometry_message(now_s: float, pose=(0.0, 0.0, 0.0)):

@@ -249,18 +249,18 @@ def malformed_inputs(now_s: float) -> list[tuple[str, Any]]:
     from builtin_interfaces.msg import Time
     from nav_msgs.msg import Odometry
 
-    from beams_msgs.msg import BeaconBearing, BeaconBearingArray
+    from beams_common.bearing_messages import NS_PER_S, BearingFields
+    from beams_common.ros.messages import bearing_array
+    from beams_msgs.msg import BeaconBearingArray
 
     stamp = Time(sec=int(now_s), nanosec=int((now_s % 1.0) * 1e9))
+    stamp_ns = stamp.sec * NS_PER_S + stamp.nanosec
 
     def revolution(bearings: list[tuple[int, float, float]]) -> BeaconBearingArray:
-        msg = BeaconBearingArray(period=0.1)
-        msg.header.stamp, msg.header.frame_id = stamp, "beams_sensor"
-        for beacon_id, bearing, variance in bearings:
-            item = BeaconBearing(beacon_id=beacon_id, bearing=bearing, variance=variance)
-            item.header.stamp = stamp
-            msg.bearings.append(item)
-        return msg
+        fields = [
+            BearingFields(stamp_ns, beacon_id, bearing, variance) for beacon_id, bearing, variance in bearings
+        ]
+        return bearing_array(stamp_ns, fields, period_s=0.1)
 
     def nan_odometry(frame: str) -> Odometry:
         msg = Odometry()

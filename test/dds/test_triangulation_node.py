@@ -33,16 +33,15 @@ def _bearing(beacon_id: int, pose, offset=OFFSET) -> float:
 
 def _revolution(items, revolution=0):
     """items: (beacon_id, bearing, stamp_s) triples."""
-    from beams_msgs.msg import BeaconBearing, BeaconBearingArray
+    from beams_common.bearing_messages import BearingFields, nanoseconds
+    from beams_common.ros.messages import bearing_array
 
-    msg = BeaconBearingArray(revolution=revolution, period=0.1)
-    msg.header.stamp = _time(T0_S + min(s for _, _, s in items) - 0.01)
-    msg.header.frame_id = "beams_sensor"
-    for beacon_id, bearing, stamp_s in items:
-        item = BeaconBearing(beacon_id=beacon_id, bearing=float(bearing), variance=VARIANCE_RAD2)
-        item.header.stamp = _time(T0_S + stamp_s)
-        msg.bearings.append(item)
-    return msg
+    fields = [
+        BearingFields(nanoseconds(T0_S + s), beacon_id, bearing, VARIANCE_RAD2)
+        for beacon_id, bearing, s in items
+    ]
+    start_ns = nanoseconds(T0_S + min(s for _, _, s in items) - 0.01)
+    return bearing_array(start_ns, fields, period_s=0.1, revolution=revolution)
 
 
 def _static_revolution(pose, stamp_s=0.0, ids=(1, 2, 3), revolution=0):
