@@ -38,16 +38,16 @@ from typing import Any
 import pytest
 
 
-def load_module(name: str, file_name: str) -> Any:
-    """A module of this directory, by path (the tests are not a package)."""
-    spec = importlib.util.spec_from_file_location(name, pathlib.Path(__file__).with_name(file_name))
+def load_module(name: str, path: pathlib.Path) -> Any:
+    """A module by path (the tests are not a package)."""
+    spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
 # The multi-robot test's robots, its checks, and through it the shared system-test helpers.
-multi = load_module("system_multi_robot", "test_system_multi_robot.py")
+multi = load_module("system_multi_robot", pathlib.Path(__file__).with_name("test_system_multi_robot.py"))
 system = multi.system
 
 # The private test subnet: addresses exist only inside the namespaces the test makes, nothing routes out.
@@ -248,7 +248,7 @@ def check_link_outage(graph, hosts: Hosts, probes: dict[str, Any], robot: str) -
 
 def base_station(hosts: Hosts) -> None:
     """The base station's process: join the running robots, check them; an assertion fails it."""
-    conftest = load_module("beams_test_conftest", "conftest.py")
+    conftest = load_module("beams_test_conftest", pathlib.Path(__file__).parents[1] / "conftest.py")
     with conftest.open_ros_graph(int(os.environ["ROS_DOMAIN_ID"])) as graph:
         probes = {robot: system.RobotProbe(robot) for robot in ROBOT_HOSTS}
         for probe in probes.values():
