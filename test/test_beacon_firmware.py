@@ -39,9 +39,9 @@ SELECT_PINS = ("C0", "C1", "C2", "C3")
 ENVELOPE_PIN = "B1"
 ENVELOPE_COMPARE = "1A"
 LED_PIN = "B5"
-# The turret's window over the beacon: 5 deg at 10 turns/s (1.39 ms, 3.75 periods of a family code),
-# swept over one code period in steps of 0.3 bit.
-WINDOW_RAD = math.radians(5.0)
+# The turret's window over the beacon: 3.75 code periods (5 deg at 10 turns/s for a 12-bit code, so
+# that two complete codes always lie inside, section 2.5.2), swept over one code period in 41 steps.
+WINDOW_CODE_PERIODS = 3.75
 WINDOW_PHASES = 41
 FAMILY = code_family()
 # Thesis section 5.3's C5b, a test code with 2-bit gaps: the custom-code build.
@@ -176,8 +176,8 @@ def _window_edges(trace: BeaconTrace, start_s: float, end_s: float) -> tuple[np.
 def decode_windows(trace: BeaconTrace, codes: Sequence[BeaconCode]) -> list[DecodedRevolution]:
     """One turret revolution per window phase, the window centred at 90 deg, decoded in order."""
     decoder = BearingDecoder(codes, _NoVariance())
-    window_s = WINDOW_RAD / TURRET_SPEED_RAD_S
     period_s = max(c.duration_s for c in codes)
+    window_s = WINDOW_CODE_PERIODS * period_s
     first_start_s = trace.edge_times_s[0] + period_s
     assert first_start_s + period_s + window_s < trace.edge_times_s[-1], "trace too short"
     decoded = []
@@ -266,6 +266,15 @@ def _build_variant(directory: pathlib.Path, *settings: str) -> pathlib.Path:
     """An image built with extra Makefile settings (BEACON_CODE=3, say) into its own directory."""
     _make("all", f"BUILD_DIR={directory}", *settings)
     return directory / "beacon.elf"
+
+
+def test_larger_family_by_jumpers(shipped_build: pathlib.Path, tmp_path: pathlib.Path) -> None:
+    """BEACON_CODE_COUNT=7: C_6 of the 7-code family (16 bits), chosen by jumpers on PC1 and PC2."""
+    elf = _build_variant(tmp_path, "BEACON_CODE_COUNT=7")
+    family = code_family(7)
+    trace = run_beacon(shipped_build, elf, _jumpers(6))
+    assert_timing(trace, family[5])
+    assert_decodes_only_as(trace, family[5], family)
 
 
 def test_compile_time_code_ignores_the_jumpers(shipped_build: pathlib.Path, tmp_path: pathlib.Path) -> None:
