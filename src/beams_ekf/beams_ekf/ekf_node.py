@@ -52,12 +52,8 @@ from beams_common.validation import (
     operator_pose_problem,
     planar_estimate_problem,
 )
-from beams_ekf.localiser import (
-    Estimate,
-    build_localiser,
-    filter_settings,
-)
-from beams_ekf.parameters import EKF_PARAMETERS
+from beams_ekf.localiser import Estimate, build_localiser
+from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_msgs.srv import SetPose
 

@@ -24,9 +24,8 @@ and `Localiser.offer_pose` with its rules (`usable_covariance`, `operator_pose_s
 
 from collections import Counter, deque
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from math import hypot, isfinite
-from typing import Any
 
 import numpy as np
 from scipy.stats import chi2
@@ -37,171 +36,12 @@ from beams_common.pose2d import Pose2D, between, compose, inverse, is_finite_pos
 from beams_common.pose_buffer import PoseBuffer
 from beams_common.time_jumps import StampOrder, TimeJumpDetector
 from beams_common.validation import bearing_problem, one_sighting_per_beacon, revolution_size_problem
-from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise, turret_pose
-from beams_ekf.odometry_errors import OdometryErrorStates
+from beams_ekf.bearing_ekf import BearingEkf, turret_pose
 from beams_ekf.pose_filter import BearingOutcome, PoseFilter
+from beams_ekf.settings import FilterSettings, LocaliserConfig
 
 # bearings waiting for odometry beyond this many are dropped, oldest first (a dead odometry source)
 MAX_PENDING_BEARINGS = 64
-
-
-@dataclass(frozen=True)
-class LocaliserConfig:
-    """Timing and re-initialisation parameters (defaults suit 50 Hz odometry and a 10 Hz turret)."""
-
-    odometry_history_s: float = 1.0
-    max_odometry_extrapolation_s: float = 0.05
-    # an odometry step longer than this is a gap: the covariance grows with its duration
-    odometry_gap_s: float = 0.25
-    gap_position_variance_m2_per_s: float = 1.0e-3
-    gap_heading_variance_rad2_per_s: float = 1.0e-3
-    # a gap never inflates more than this long (the table bounds how lost the robot can be)
-    max_gap_inflation_s: float = 10.0
-    # the filter is "lost" when at least kidnap_gated_bearings of the last kidnap_window_bearings new
-    # bearings were gated out (a consistent filter gates 1 - gate_probability of them); a lost filter
-    # takes ToTal's fix when the fix is elsewhere: inconsistent with the estimate (chi-square, 3 dof,
-    # at kidnap_probability, the two covariances summed) or farther than the distance/heading below
-    kidnap_gated_bearings: int = 6
-    kidnap_window_bearings: int = 12
-    kidnap_probability: float = 0.999
-    kidnap_distance_m: float = 0.25
-    kidnap_heading_rad: float = 0.35
-    # odometry stamps going back by more than this, in time_jump_confirmations consecutive messages,
-    # reset the filter (a bag loop); smaller steps, and a single stray old message, are dropped
-    time_jump_tolerance_s: float = 0.0
-    time_jump_confirmations: int = 2
-    # lost detection (NisMonitor): the NIS of the last lost_nis_window_bearings new bearings, summed,
-    # beyond the chi-square quantile at lost_nis_probability (0: the monitor is off)
-    lost_nis_window_bearings: int = 30
-    lost_nis_probability: float = 1.0 - 1.0e-6
-
-    def __post_init__(self) -> None:
-        if self.lost_nis_window_bearings < 0 or not 0.0 < self.lost_nis_probability < 1.0:
-            raise ValueError(
-                f"need lost_nis_window_bearings >= 0 and lost_nis_probability in (0, 1), got "
-                f"{self.lost_nis_window_bearings} and {self.lost_nis_probability}"
-            )
-        if not (
-            self.odometry_history_s > 0.0
-            and self.max_odometry_extrapolation_s >= 0.0
-            and self.odometry_gap_s > 0.0
-        ):
-            raise ValueError(
-                "odometry_history_s and odometry_gap_s must be > 0, max_odometry_extrapolation_s >= 0"
-            )
-        if not 1 <= self.kidnap_gated_bearings <= self.kidnap_window_bearings:
-            raise ValueError(
-                f"need 1 <= kidnap_gated_bearings <= kidnap_window_bearings, got "
-                f"{self.kidnap_gated_bearings} and {self.kidnap_window_bearings}"
-            )
-        if self.time_jump_confirmations < 1:
-            raise ValueError(f"time_jump_confirmations must be >= 1, got {self.time_jump_confirmations}")
-        if not 0.0 < self.kidnap_probability < 1.0:
-            raise ValueError(f"kidnap_probability must be in (0, 1), got {self.kidnap_probability}")
-
-
-# ekf_node's parameter name of each ProcessNoise field (those of LocaliserConfig are its field names)
-PROCESS_NOISE_PARAMETERS = {
-    "translation_m2_per_m": "translation_variance_m2_per_m",
-    "rotation_rad2_per_rad": "rotation_variance_rad2_per_rad",
-    "rotation_rad2_per_m": "rotation_variance_rad2_per_m",
-    "cross_track_m2_per_m": "cross_track_variance_m2_per_m",
-}
-# ekf_node's parameter name of each OdometryErrorStates prior (odometry_error_states switches them on)
-ODOMETRY_ERROR_PARAMETERS = {
-    "scale_sigma": "odometry_scale_sigma",
-    "rotation_scale_sigma": "odometry_rotation_scale_sigma",
-    "heading_drift_sigma_rad_per_m": "odometry_heading_drift_sigma_rad_per_m",
-}
-
-# The wheels' random error, variance per metre rolled, of the simulated robot (sim_world's OdometryDrift:
-# noise 1 mm/sqrt(m) is 1.0e-6; the random part of the half-normal slip, 0.005^2 (1 - 2/pi) of a step's
-# squared length, adds at most 0.09e-6 at the 1 cm steps of 0.5 m/s and 50 Hz), and its wheel base (m).
-WHEEL_VARIANCE_M2_PER_M = 1.1e-6
-WHEEL_BASE_M = 0.3
-
-
-@dataclass(frozen=True)
-class FilterSettings:
-    """What ekf_node takes from its parameters (besides the beacon geometry).
-
-    By default the filter estimates the odometry's systematic errors (`odometry_errors`), so its process
-    noise is the wheels' random noise alone (`ProcessNoise.wheel_noise`); without those states the
-    process noise must also cover the systematic errors as white noise (ProcessNoise's own defaults).
-    """
-
-    process_noise: ProcessNoise = field(
-        default_factory=lambda: ProcessNoise.wheel_noise(WHEEL_VARIANCE_M2_PER_M, WHEEL_BASE_M)
-    )
-    odometry_errors: OdometryErrorStates | None = field(default_factory=OdometryErrorStates)
-    # chi-square (1 dof) probability of the per-bearing gate
-    gate_probability: float = 0.999
-    localiser: LocaliserConfig = field(default_factory=LocaliserConfig)
-    # initialise (and re-initialise after a kidnapping) from ToTal's accepted poses
-    use_total_pose: bool = True
-    # standard deviations (m, m, rad) of a pose without a usable covariance
-    default_pose_sigma: tuple[float, float, float] = (0.05, 0.05, 0.1)
-
-    @property
-    def default_pose_covariance(self) -> np.ndarray:
-        """The 3x3 covariance of default_pose_sigma."""
-        return np.diag(np.square(self.default_pose_sigma))
-
-
-def filter_parameter_defaults() -> dict[str, Any]:
-    """ekf_node's filter parameters by name with their defaults (FilterSettings'), for declaring them."""
-    defaults = FilterSettings()
-    values: dict[str, Any] = {
-        parameter: getattr(defaults.process_noise, name)
-        for name, parameter in PROCESS_NOISE_PARAMETERS.items()
-    }
-    errors = defaults.odometry_errors or OdometryErrorStates()
-    values.update({parameter: getattr(errors, name) for name, parameter in ODOMETRY_ERROR_PARAMETERS.items()})
-    values["odometry_error_states"] = defaults.odometry_errors is not None
-    values.update({f.name: getattr(defaults.localiser, f.name) for f in fields(LocaliserConfig)})
-    values.update(
-        gate_probability=defaults.gate_probability,
-        use_total_pose=defaults.use_total_pose,
-        default_pose_sigma=list(defaults.default_pose_sigma),
-    )
-    return values
-
-
-def filter_settings(parameters: Mapping[str, Any]) -> FilterSettings:
-    """Settings from ekf_node's parameter values by name (a missing one takes its default).
-
-    Raises ValueError for values the settings refuse, alone or together (kidnap counts, sigma length).
-    """
-    defaults = FilterSettings()
-    noise = ProcessNoise(
-        **{
-            name: float(parameters.get(parameter, getattr(defaults.process_noise, name)))
-            for name, parameter in PROCESS_NOISE_PARAMETERS.items()
-        }
-    )
-    config = LocaliserConfig(
-        **{f.name: parameters[f.name] for f in fields(LocaliserConfig) if f.name in parameters}
-    )
-    sigma = tuple(float(v) for v in parameters.get("default_pose_sigma", defaults.default_pose_sigma))
-    if len(sigma) != 3:
-        raise ValueError(f"default_pose_sigma needs 3 values (x, y, yaw), got {list(sigma)}")
-    errors = None
-    if parameters.get("odometry_error_states", defaults.odometry_errors is not None):
-        prior = defaults.odometry_errors or OdometryErrorStates()
-        errors = OdometryErrorStates(
-            **{
-                name: float(parameters.get(parameter, getattr(prior, name)))
-                for name, parameter in ODOMETRY_ERROR_PARAMETERS.items()
-            }
-        )
-    return FilterSettings(
-        noise,
-        errors,
-        float(parameters.get("gate_probability", defaults.gate_probability)),
-        config,
-        bool(parameters.get("use_total_pose", defaults.use_total_pose)),
-        sigma,
-    )
 
 
 def usable_covariance(covariance: np.ndarray, default: np.ndarray) -> np.ndarray:
@@ -328,7 +168,7 @@ class Localiser:
         self,
         beacons_xy: Mapping[int, Sequence[float]],
         sensor_offset_m: tuple[float, float],
-        settings: "FilterSettings",
+        settings: FilterSettings,
     ) -> None:
         """New beacon geometry, process noise and bearing gate (a runtime parameter change, a calibration
         reload); the estimate and the odometry history stay."""

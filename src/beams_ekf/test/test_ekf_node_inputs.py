@@ -19,11 +19,10 @@ from beams_ekf.localiser import (
     Localiser,
     LocaliserConfig,
     build_localiser,
-    filter_parameter_defaults,
-    filter_settings,
     operator_pose_stamp_s,
     usable_covariance,
 )
+from beams_ekf.parameters import EKF_PARAMETERS, FILTER_SPECS, filter_settings
 from beams_ekf.synthetic import SyntheticMatch, synthetic_match
 
 EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
@@ -158,10 +157,11 @@ def test_settings_from_the_node_parameter_file():
 
 
 def test_declared_defaults_are_the_settings_and_the_documented_ones():
-    """ekf_node declares its parameters with filter_parameter_defaults: they map back to the default
-    settings, and the documented YAML file gives the same values."""
-    defaults = filter_parameter_defaults()
+    """ekf_node declares its parameters with the specs' defaults: they map back to the default settings,
+    and the documented YAML file gives the same values."""
+    defaults = {spec.name: spec.default for spec in FILTER_SPECS}
     assert filter_settings(defaults) == FilterSettings()
+    assert {name: EKF_PARAMETERS[name].default for name in defaults} == defaults
     documented = node_section(yaml.safe_load(CONFIG.read_text()), "ekf_node")
     shared = set(defaults) & set(documented)
     assert len(shared) == 24
