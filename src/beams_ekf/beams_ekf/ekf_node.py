@@ -46,7 +46,7 @@ from beams_common.ros.node_support import (
     serve_calibration_reload,
     startup_geometry,
 )
-from beams_common.ros.parameters import apply_runtime_changes, declare_table
+from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
 from beams_common.validation import (
     bounded,
     operator_pose_problem,
@@ -93,7 +93,7 @@ class EkfNode(Node):
         self.create_service(SetPose, topics.SET_POSE, self._on_set_pose)
         self.create_service(Trigger, topics.RESET, self._on_reset)
         serve_calibration_reload(self, self._apply_calibration)
-        apply_runtime_changes(self, EKF_PARAMETERS, self.parameters, self._apply_parameters)
+        apply_runtime_changes(self, EKF_PARAMETERS, self.parameters, self._prepare_parameters)
         self.create_timer(1.0 / rate_hz, self._publish)
         self.get_logger().info(
             f"ekf_node ready: {len(self.localiser.ekf.beacons_xy)} beacons, turret offset "
@@ -101,11 +101,18 @@ class EkfNode(Node):
         )
 
     # -- parameters -----------------------------------------------------------------------------------
-    def _apply_parameters(self, values: dict, changed: set[str]) -> None:
-        """A runtime change (validated by the table): the beacon geometry, the process noise, the gate."""
-        self.geometry = geometry = runtime_geometry(values, changed, self.geometry)
-        self.settings = filter_settings(values)
-        self.localiser.configure(geometry.beacon_map.as_dict(), geometry.turret_offset_m, self.settings)
+    def _prepare_parameters(self, values: dict, changed: set[str]) -> ApplyChange:
+        """A runtime change (validated by the table): the new beacon geometry (a calibration file read)
+        and settings, built now (ValueError, OSError: refused); the process noise and the gate applied
+        by the returned step."""
+        geometry = runtime_geometry(values, changed, self.geometry)
+        settings = filter_settings(values)
+
+        def apply() -> None:
+            self.geometry, self.settings = geometry, settings
+            self.localiser.configure(geometry.beacon_map.as_dict(), geometry.turret_offset_m, settings)
+
+        return apply
 
     # -- inputs ---------------------------------------------------------------------------------------
     def _on_odometry(self, msg: Odometry) -> None:

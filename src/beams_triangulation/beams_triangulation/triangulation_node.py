@@ -38,7 +38,7 @@ from beams_common.ros.node_support import (
     serve_calibration_reload,
     startup_geometry,
 )
-from beams_common.ros.parameters import apply_runtime_changes, declare_table
+from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
 from beams_common.validation import (
     bounded,
     one_sighting_per_beacon,
@@ -67,7 +67,7 @@ class TriangulationNode(Node):
         self.use_odometry = settings.use_odometry
         self.publish_markers = self.parameters["publish_markers"]
         self.pipeline = TriangulationPipeline(geometry.beacon_map, settings, geometry.turret_offset_m)
-        apply_runtime_changes(self, TRIANGULATION_PARAMETERS, self.parameters, self._apply_parameters)
+        apply_runtime_changes(self, TRIANGULATION_PARAMETERS, self.parameters, self._prepare_parameters)
         serve_calibration_reload(self, self._apply_calibration)
         self.diagnostics = Diagnostics(self, "triangulation")
         self.diagnostics.set_level("warn", "waiting for bearings")
@@ -86,14 +86,20 @@ class TriangulationNode(Node):
         )
 
     # -- parameters -----------------------------------------------------------------------------------
-    def _apply_parameters(self, values: dict, changed: set[str]) -> None:
-        """A runtime change (validated by the table): the gates, the beacon geometry, the frame, markers."""
-        self.geometry = geometry = runtime_geometry(values, changed, self.geometry)
-        self.pipeline.configure(
-            geometry.beacon_map, triangulation_settings(values).gates, geometry.turret_offset_m
-        )
-        self.map_frame = values["map_frame"]
-        self.publish_markers = values["publish_markers"]
+    def _prepare_parameters(self, values: dict, changed: set[str]) -> ApplyChange:
+        """A runtime change (validated by the table): the beacon geometry (a calibration file read) and
+        the gates built now (ValueError, OSError: refused), applied with the frame and the markers by the
+        returned step."""
+        geometry = runtime_geometry(values, changed, self.geometry)
+        gates = triangulation_settings(values).gates
+
+        def apply() -> None:
+            self.geometry = geometry
+            self.pipeline.configure(geometry.beacon_map, gates, geometry.turret_offset_m)
+            self.map_frame = values["map_frame"]
+            self.publish_markers = values["publish_markers"]
+
+        return apply
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
         self.geometry = geometry = geometry_of_calibration(calibration)
