@@ -82,8 +82,8 @@ def test_bad_bearings_change_nothing_bit_for_bit(match):
     assert spoilt_trace == clean_trace
     revolutions = len(clean_trace)
     counts = spoilt.stats.counts
-    assert counts["bearings_unknown beacon"] == len(range(1, revolutions, 3))
-    assert counts["bearings_invalid measurement"] == 3 * len(range(1, revolutions, 3))
+    assert counts["bearings_unknown_beacon"] == len(range(1, revolutions, 3))
+    assert counts["bearings_invalid_measurement"] == 3 * len(range(1, revolutions, 3))
     assert counts["bearings_accepted"] == clean.stats.counts["bearings_accepted"] > 0
 
 

@@ -27,7 +27,7 @@ from rclpy.qos import qos_profile_sensor_data
 from visualization_msgs.msg import Marker, MarkerArray
 
 from beams_common import topics
-from beams_common.bearing import bearings_of_message
+from beams_common.bearing_intake import bearings_message_intake
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import geometry_of_calibration, runtime_geometry
 from beams_common.ros.messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
@@ -39,15 +39,12 @@ from beams_common.ros.node_support import (
     startup_geometry,
 )
 from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
-from beams_common.validation import (
-    bounded,
-    one_sighting_per_beacon,
-    planar_estimate_problem,
-)
+from beams_common.validation import bounded, planar_estimate_problem
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
-from beams_triangulation.gating import NoPose, PoseEstimate, RevolutionPose
+from beams_triangulation.gating import NoPose, PoseEstimate
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
 from beams_triangulation.pipeline import TriangulationPipeline
+from beams_triangulation.revolution import RevolutionPose
 
 
 def estimate_pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
@@ -119,13 +116,15 @@ class TriangulationNode(Node):
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
         self.diagnostics.increment("revolutions")
-        if self.diagnostics.oversized_revolution(msg):  # refused before any per-bearing work
+        intake = bearings_message_intake(msg, stamp_to_seconds, self.pipeline.estimator.known_ids)
+        if intake.too_many:  # refused before any per-bearing work
+            self.diagnostics.refuse(
+                "revolutions_too_many_bearings", f"revolution {msg.revolution}: {intake.too_many}"
+            )
             return
-        bearings = bearings_of_message(msg, stamp_to_seconds)
-        dropped = one_sighting_per_beacon(bearings).dropped
-        if dropped:  # the pipeline keeps one sighting per beacon (gating.drop_repeated_beacons)
-            self.diagnostics.increment("repeated_beacon_sightings", len(dropped))
-        self._handle(self.pipeline.on_revolution(msg.revolution, bearings))
+        for key, count in intake.counts().items():  # a refusal other than a repeat: bad input (no pose)
+            self.diagnostics.increment(key, count)
+        self._handle(self.pipeline.on_intake(msg.revolution, intake))
 
     def _handle(self, completed: list[tuple[int, RevolutionPose]]) -> None:
         """Publish the revolutions the pipeline completed (or say why they gave no pose)."""
