@@ -37,6 +37,7 @@ from beams_common.bearing_intake import RevolutionIntake, bearing_refusal, revol
 from beams_common.pose2d import Pose2D, between, compose, is_finite_pose
 from beams_common.pose_buffer import PoseBuffer
 from beams_common.time_jumps import StampOrder, TimeJumpDetector
+from beams_common.validation import odometry_problem
 from beams_ekf.bearing_ekf import BearingEkf, turret_pose
 from beams_ekf.consistency import KidnapEvidence, NisMonitor
 from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
@@ -139,7 +140,7 @@ class Localiser:
     # -- odometry -------------------------------------------------------------------------------------
     def on_odometry(self, stamp_s: float, odom_pose: Pose2D) -> OdometryOutcome:
         """Predict with the motion since the previous odometry pose. Returns what happened."""
-        if not (isfinite(stamp_s) and is_finite_pose(odom_pose)):
+        if odometry_problem(stamp_s, odom_pose):  # ekf_node reports the outcome
             self.stats.counts["odometry_invalid"] += 1
             return OdometryOutcome.INVALID
         latest = self.history.latest

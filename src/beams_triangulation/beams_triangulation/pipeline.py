@@ -14,6 +14,7 @@ from typing import Any
 from beams_common.beacon_map import BeaconMap
 from beams_common.bearing import Bearing
 from beams_common.bearing_intake import RevolutionIntake, revolution_intake
+from beams_common.validation import odometry_problem
 from beams_triangulation.gating import GateConfig
 from beams_triangulation.motion_compensation import odometry_buffer
 from beams_triangulation.revolution import RevolutionEstimator, RevolutionPose
@@ -67,15 +68,25 @@ class TriangulationPipeline:
     def on_odometry(
         self, stamp_s: float, pose: Sequence[float], twist: tuple[float, float]
     ) -> list[tuple[Tag, RevolutionPose]]:
-        """An odometry sample (odom frame; speed m/s, yaw rate rad/s); ignored without use_odometry."""
+        """`take_odometry` for a caller that only wants the revolutions it completed."""
+        return self.take_odometry(stamp_s, pose, twist)[1]
+
+    def take_odometry(
+        self, stamp_s: float, pose: Sequence[float], twist: tuple[float, float]
+    ) -> tuple[str, list[tuple[Tag, RevolutionPose]]]:
+        """An odometry sample (odom frame; speed m/s, yaw rate rad/s): (why it was refused, '' when taken
+        (`validation.odometry_problem`, counted in rejected_odometry); the revolutions it completed).
+        Ignored without use_odometry."""
         if not self.settings.use_odometry:
-            return []
-        if not self.odometry.add(stamp_s, tuple(pose), twist):
+            return "", []
+        problem = odometry_problem(stamp_s, pose, twist)
+        if problem:
             self.rejected_odometry += 1
-            return []
+            return problem, []
+        self.odometry.add(stamp_s, tuple(pose), twist)
         if self._pending is not None and self._covered(self._pending[1]):
-            return self.flush()
-        return []
+            return "", self.flush()
+        return "", []
 
     def on_revolution(self, tag: Tag, bearings: Sequence[Bearing]) -> list[tuple[Tag, RevolutionPose]]:
         """A revolution's bearings through the bearing intake, then `on_intake`."""

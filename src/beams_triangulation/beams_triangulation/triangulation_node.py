@@ -107,12 +107,11 @@ class TriangulationNode(Node):
     # -- inputs ---------------------------------------------------------------------------------------
     def _on_odometry(self, msg: Odometry) -> None:
         twist = (msg.twist.twist.linear.x, msg.twist.twist.angular.z)
-        rejected = self.pipeline.rejected_odometry
-        self._handle(
-            self.pipeline.on_odometry(stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose), twist)
-        )
-        if self.pipeline.rejected_odometry > rejected:
-            self.diagnostics.refuse("odometry_rejected_non_finite", "odometry with a non-finite value")
+        stamp_s, pose = stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose)
+        refused, completed = self.pipeline.take_odometry(stamp_s, pose, twist)
+        if refused:
+            self.diagnostics.refuse("odometry_rejected_non_finite", refused)
+        self._handle(completed)
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
         self.diagnostics.increment("revolutions")
