@@ -18,10 +18,21 @@ clock in seconds, passed in.
 
 import math
 from collections import deque
+from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import Any
 
+from beams_common.parameters import ParameterSpec
 from beams_common.validation import bounded
+
+# The window (s) over which the input rates are measured (diagnostic_updater's default window is five
+# publications of a 1 Hz status: ~5 s; two seconds is twenty revolutions) and how long (s) a refusal
+# keeps the status degraded after it happened.
+RATE_WINDOW_S = 2.0
+FAULT_HOLD_S = 2.0
+# A BeAMS turret turns at ~10 Hz (thesis ch. 2), one bearings message per revolution.
+NOMINAL_BEARING_RATE_HZ = 10.0
 
 
 class Status(StrEnum):
@@ -150,3 +161,54 @@ class RecentFaults:
     def active(self, now_s: float) -> list[str]:
         """The reasons of the faults noted within the last hold_s (a clock gone back keeps them)."""
         return [reason for at_s, reason in self._faults.values() if now_s - at_s < self.hold_s]
+
+
+# The expected input rates of the localisation nodes (changeable at runtime).
+BEARING_RATE_SPECS = (
+    ParameterSpec(
+        "min_bearing_rate_hz",
+        NOMINAL_BEARING_RATE_HZ / 2.0,
+        "Fewest beams/bearings messages (revolutions) per second, over 2 s, for the status to be tracking "
+        "(the turret turns at ~10 Hz); 0 switches the check off.",
+        minimum=0.0,
+        maximum=1000.0,
+        runtime=True,
+    ),
+    ParameterSpec(
+        "max_bearing_rate_hz",
+        NOMINAL_BEARING_RATE_HZ * 1.5,
+        "Most beams/bearings messages per second, over 2 s, for the status to be tracking (two drivers in "
+        "one namespace double the rate); 0 switches the check off.",
+        minimum=0.0,
+        maximum=1000.0,
+        runtime=True,
+    ),
+)
+ODOMETRY_RATE_SPEC = ParameterSpec(
+    "min_odometry_rate_hz",
+    10.0,
+    "Fewest odometry messages per second, over 2 s, for the status to be tracking, once odometry came "
+    "(wheel odometry runs at 20-100 Hz); 0 switches the check off.",
+    minimum=0.0,
+    maximum=10000.0,
+    runtime=True,
+)
+
+
+def bearing_rate_monitor(values: Mapping[str, Any]) -> RateMonitor:
+    """The RateMonitor of beams/bearings from validated parameter values (BEARING_RATE_SPECS)."""
+    minimum, maximum = float(values["min_bearing_rate_hz"]), float(values["max_bearing_rate_hz"])
+    return RateMonitor("bearings", RATE_WINDOW_S, minimum, max(maximum, minimum) if maximum else 0.0)
+
+
+def odometry_rate_monitor(values: Mapping[str, Any]) -> RateMonitor:
+    """The RateMonitor of the odometry from validated parameter values (ODOMETRY_RATE_SPEC)."""
+    return RateMonitor("odometry", RATE_WINDOW_S, float(values["min_odometry_rate_hz"]))
+
+
+def rates_check(values: Mapping[str, Any]) -> str | None:
+    """A ParameterTable `together` check: max_bearing_rate_hz (when not 0) at least min_bearing_rate_hz."""
+    minimum, maximum = values.get("min_bearing_rate_hz", 0.0), values.get("max_bearing_rate_hz", 0.0)
+    if maximum and maximum < minimum:
+        return f"max_bearing_rate_hz {maximum} is below min_bearing_rate_hz {minimum}"
+    return None

@@ -19,11 +19,13 @@ plausible), in the style of `validation`:
 """
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
+from beams_common.parameters import ParameterSpec
 from beams_common.pose2d import Pose2D
 
 # One BeAMS revolution (thesis ch. 2: the turret turns at ~10 Hz): the newest bearing of a revolution is
@@ -142,3 +144,57 @@ def pose_covariance_problem(covariance_3x3: Sequence[Sequence[float]] | np.ndarr
             f"{MAX_POSE_SIGMA_M:g} m (the table) or {MAX_POSE_SIGMA_RAD:.3g} rad (a turn): no information"
         )
     return ""
+
+
+# The parameters of the checks, shared by triangulation_node and ekf_node (changeable at runtime: each
+# message is judged with the values in force).
+STAMP_SPECS = (
+    ParameterSpec(
+        "max_stamp_age_s",
+        DEFAULT_MAX_STAMP_AGE_S,
+        "Largest age (s) of an input's stamp at reception (a revolution's newest bearing, an odometry "
+        "message) on the node's clock; older inputs are refused as late. 0 switches the check off (a replay "
+        "whose stamps are not on the node's clock).",
+        minimum=0.0,
+        maximum=60.0,
+        runtime=True,
+    ),
+    ParameterSpec(
+        "max_stamp_lead_s",
+        DEFAULT_MAX_STAMP_LEAD_S,
+        "Largest lead (s) of an input's stamp ahead of the node's clock; inputs from further in the future "
+        "are refused. 0 switches the check off.",
+        minimum=0.0,
+        maximum=60.0,
+        runtime=True,
+    ),
+)
+MOTION_SPECS = (
+    ParameterSpec(
+        "max_speed_m_per_s",
+        DEFAULT_MAX_SPEED_M_PER_S,
+        "The robot's maximum speed (m/s): an odometry increment beyond it (plus 2 cm) is a jump, refused.",
+        minimum=0.01,
+        maximum=20.0,
+        runtime=True,
+    ),
+    ParameterSpec(
+        "max_yaw_rate_rad_per_s",
+        DEFAULT_MAX_YAW_RATE_RAD_PER_S,
+        "The robot's maximum yaw rate (rad/s): an odometry increment turning faster (plus 0.05 rad) is a "
+        "jump, refused.",
+        minimum=0.01,
+        maximum=100.0,
+        runtime=True,
+    ),
+)
+
+
+def stamp_tolerance_of(values: Mapping[str, Any]) -> StampTolerance:
+    """The StampTolerance of validated parameter values (STAMP_SPECS)."""
+    return StampTolerance(float(values["max_stamp_age_s"]), float(values["max_stamp_lead_s"]))
+
+
+def motion_limits_of(values: Mapping[str, Any]) -> MotionLimits:
+    """The MotionLimits of validated parameter values (MOTION_SPECS)."""
+    return MotionLimits(float(values["max_speed_m_per_s"]), float(values["max_yaw_rate_rad_per_s"]))
