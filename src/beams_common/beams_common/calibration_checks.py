@@ -20,6 +20,7 @@ reported a 2 mm standard deviation):
 """
 
 import math
+from collections import deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
@@ -176,3 +177,31 @@ def calibration_worse_problem(rms_before_rad: float, rms_after_rad: float) -> st
             f"{math.degrees(rms_before_rad):.3f} -> {math.degrees(rms_after_rad):.3f} deg"
         )
     return ""
+
+
+class RecentBearings:
+    """The last `size` accepted bearings with the robot's estimated pose at their instants: what a new
+    calibration is compared on (`worse_problem`)."""
+
+    def __init__(self, size: int = 60) -> None:
+        self._samples: deque[BearingSample] = deque(maxlen=size)
+
+    def add(self, sample: BearingSample) -> None:
+        self._samples.append(sample)
+
+    def clear(self) -> None:
+        self._samples.clear()
+
+    def __len__(self) -> int:
+        return len(self._samples)
+
+    def worse_problem(
+        self,
+        before: tuple[Mapping[int, Sequence[float]], Sequence[float]],
+        after: tuple[Mapping[int, Sequence[float]], Sequence[float]],
+    ) -> str:
+        """`calibration_worse_problem` of the recent bearings' residual RMS under the geometry in use
+        (`before`: beacons {id: (x, y)}, turret offset) and the new one (`after`), or ''."""
+        return calibration_worse_problem(
+            bearing_residual_rms(self._samples, *before), bearing_residual_rms(self._samples, *after)
+        )

@@ -138,18 +138,20 @@ class RateMonitor:
 
 
 class RecentFaults:
-    """Refusals remembered for `hold_s` of the receiving clock, by kind: a fault repeated every revolution
-    keeps its reason active between occurrences, and a fault that stopped clears after hold_s."""
+    """Refusals remembered for `hold_s` of the receiving clock (or their own hold), by kind: a fault
+    repeated every revolution keeps its reason active between occurrences, and a fault that stopped
+    clears after its hold."""
 
     def __init__(self, hold_s: float) -> None:
         if not hold_s > 0.0:
             raise ValueError(f"hold_s must be > 0, got {hold_s}")
         self.hold_s = hold_s
-        self._faults: dict[str, tuple[float, str]] = {}
+        self._faults: dict[str, tuple[float, float, str]] = {}  # kind: (noted at, hold, reason)
 
-    def note(self, kind: str, now_s: float, reason: str) -> None:
-        """A fault of `kind` happened at now_s (its newest reason is kept)."""
-        self._faults[kind] = (now_s, reason)
+    def note(self, kind: str, now_s: float, reason: str, hold_s: float | None = None) -> None:
+        """A fault of `kind` happened at now_s (its newest reason is kept), active for hold_s (default:
+        the monitor's)."""
+        self._faults[kind] = (now_s, self.hold_s if hold_s is None else hold_s, reason)
 
     def clear(self, kind: str | None = None) -> None:
         """Forget one kind of fault, or all of them."""
@@ -159,8 +161,8 @@ class RecentFaults:
             self._faults.pop(kind, None)
 
     def active(self, now_s: float) -> list[str]:
-        """The reasons of the faults noted within the last hold_s (a clock gone back keeps them)."""
-        return [reason for at_s, reason in self._faults.values() if now_s - at_s < self.hold_s]
+        """The reasons of the faults still within their hold (a clock gone back keeps them)."""
+        return [reason for at_s, hold_s, reason in self._faults.values() if now_s - at_s < hold_s]
 
 
 # The expected input rates of the localisation nodes (changeable at runtime).

@@ -15,6 +15,7 @@ from beams_common.calibration_checks import (
     MAX_BEACON_CORRECTION_M,
     MAX_ROTATION_BIAS_RAD,
     BearingSample,
+    RecentBearings,
     bearing_residual_rms,
     calibration_nominal_problem,
     calibration_value_problem,
@@ -168,3 +169,17 @@ def test_noise_alone_is_not_a_worse_calibration():
     corrected = {**truth, 1: (-0.058, -0.062)}
     assert calibration_worse_problem(before, bearing_residual_rms(noisy, corrected, offset)) == ""
     assert calibration_worse_problem(math.nan, 1.0) == ""
+
+
+def test_recent_bearings_flag_a_calibration_that_moves_a_beacon_by_4_cm_not_4_mm():
+    recent = RecentBearings(size=30)
+    offset = (0.0, 0.0)
+    for sample in _samples(EUROBOT_BEACON_MAP, offset, POSES, noise_rad=math.radians(0.05), seed=1):
+        recent.add(sample)
+    assert len(recent) == 30  # the newest only
+    truth = EUROBOT_BEACON_MAP.as_dict()
+    assert recent.worse_problem((truth, offset), ({**truth, 3: (3.062, 1.004)}, offset)) == ""
+    problem = recent.worse_problem((truth, offset), ({**truth, 3: (3.062, 1.04)}, offset))
+    assert "makes the recent bearings worse" in problem
+    recent.clear()
+    assert recent.worse_problem((truth, offset), ({**truth, 3: (3.062, 1.04)}, offset)) == ""

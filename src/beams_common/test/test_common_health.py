@@ -63,6 +63,8 @@ def test_a_fault_is_held_then_forgotten_and_repeats_keep_it():
     faults.note("jump", 20.0, "odometry jumped")
     faults.clear("jump")
     assert faults.active(20.0) == []
+    faults.note("calibration", 30.0, "calibration made the bearings worse", hold_s=10.0)
+    assert faults.active(39.0) == ["calibration made the bearings worse"] and faults.active(40.0) == []
     with pytest.raises(ValueError):
         RecentFaults(0.0)
     with pytest.raises(ValueError):

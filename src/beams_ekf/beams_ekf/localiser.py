@@ -37,7 +37,7 @@ import numpy as np
 from beams_common.bearing import Bearing
 from beams_common.bearing_intake import RevolutionIntake, bearing_refusal, revolution_intake
 from beams_common.plausibility import MotionLimits, odometry_step_problem
-from beams_common.pose2d import Pose2D, between, compose, is_finite_pose
+from beams_common.pose2d import Pose2D, between, compose, inverse, is_finite_pose
 from beams_common.pose_buffer import PoseBuffer
 from beams_common.time_jumps import StampOrder, TimeJumpDetector
 from beams_common.validation import odometry_problem
@@ -230,6 +230,16 @@ class Localiser:
             return None
         then = self.history.pose_at(stamp_s)
         return None if then is None else between(then, latest[1])
+
+    def pose_at(self, stamp_s: float) -> Pose2D | None:
+        """The estimate carried back to stamp_s by the odometry since (map frame); None before the filter
+        is initialised or when the history does not cover stamp_s (without odometry: the estimate)."""
+        if not self.ekf.initialised:
+            return None
+        if self.history.latest is None:
+            return self.ekf.pose
+        motion = self._motion_since(stamp_s)
+        return None if motion is None else compose(self.ekf.pose, inverse(motion))
 
     # -- bearings -------------------------------------------------------------------------------------
     def on_revolution(self, bearings: Sequence[Bearing]) -> RevolutionIntake:
