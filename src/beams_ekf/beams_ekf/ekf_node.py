@@ -218,6 +218,7 @@ class EkfNode(Node):
             self.diagnostics.refuse("operator_poses_refused", f"the filter did not take it: {what}")
             return False, f"operator pose refused by the filter: {what}"
         self.get_logger().info(f"operator pose: {what}")
+        self._changed = True  # published even at the instant of the last publication
         self._publish()
         return True, f"operator pose: {what}"
 
