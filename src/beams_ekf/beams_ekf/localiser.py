@@ -47,8 +47,6 @@ from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, PoseFilter, rejected
 from beams_ekf.settings import FilterSettings, LocaliserConfig
 
-__all__ = ["Estimate", "FilterSettings", "Localiser", "LocaliserConfig", "NisMonitor", "build_localiser"]
-
 # bearings waiting for odometry beyond this many are dropped, oldest first (a dead odometry source)
 MAX_PENDING_BEARINGS = 64
 

@@ -21,8 +21,6 @@ from beams_triangulation.gating import GateConfig
 from beams_triangulation.motion_compensation import odometry_buffer
 from beams_triangulation.revolution import RevolutionEstimator, RevolutionPose
 
-__all__ = ["RevolutionEstimator", "TriangulationPipeline", "TriangulationSettings"]
-
 
 @dataclass(frozen=True)
 class TriangulationSettings:
