@@ -63,8 +63,10 @@ def test_an_implausible_calibration_is_refused_wherever_it_is_loaded(
 
     bad = _calibration(tmp_path, "implausible.yaml", bearing_correction=BearingCorrection(**correction))
     good = _calibration(tmp_path, "good.yaml")
-    running = [start_node(package, executable, params) for package, executable, params in NODES]
-    for (_, executable, _), node in zip(NODES, running, strict=True):
+    # one node at a time: no bearings reach the triangulation or the EKF meanwhile (until the fix of
+    # issue 18's logger defect lands, a WARN refusal before the reload's ERROR one would kill the node)
+    for package, executable, params in NODES:
+        node = start_node(package, executable, params)
         # `ros2 param set calibration_file`: refused with the reason, the parameter unchanged
         result = _set_calibration_file(rclpy_node, executable, bad)
         assert not result.successful and reason in result.reason, (executable, result.reason)
@@ -76,6 +78,7 @@ def test_an_implausible_calibration_is_refused_wherever_it_is_loaded(
         assert "the one in use stays" in reply.message
         good.write_text(_calibration(tmp_path, "again.yaml").read_text())
         assert node.process.poll() is None, node.log()
+        node.assert_clean_exit()
     for package, executable, params in NODES:  # and at start-up: one line, exit 2
         node = start_node(package, executable, {**params, "calibration_file": str(bad)})
         assert node.wait_exit(WAIT_S) == 2, node.log()

@@ -83,6 +83,27 @@ def stamp_problem(what: str, stamp_s: float, received_s: float, tolerance: Stamp
     return ""
 
 
+# A single revolution or odometry message late by a scheduling hiccup of a loaded computer is refused
+# but does not degrade a node's status; this many in a row of one input do (1 s late stamps: 0.1 s).
+STAMP_FAULT_CONFIRMATIONS = 2
+
+
+class StampCheck:
+    """`stamp_problem` for a node's inputs, by kind (bearings, odometry), with the run of consecutive
+    refusals of each: `check` says whether the input is refused and whether its fault is confirmed
+    (STAMP_FAULT_CONFIRMATIONS in a row), which is what a status should show."""
+
+    def __init__(self, tolerance: StampTolerance) -> None:
+        self.tolerance = tolerance
+        self._runs: dict[str, int] = {}
+
+    def check(self, kind: str, what: str, stamp_s: float, received_s: float) -> tuple[str, bool]:
+        """(why the input is refused or '', whether the refusals of this kind are confirmed)."""
+        problem = stamp_problem(what, stamp_s, received_s, self.tolerance)
+        self._runs[kind] = self._runs.get(kind, 0) + 1 if problem else 0
+        return problem, self._runs[kind] >= STAMP_FAULT_CONFIRMATIONS
+
+
 @dataclass(frozen=True)
 class MotionLimits:
     """What the robot can do: its maximum speed (m/s) and yaw rate (rad/s)."""

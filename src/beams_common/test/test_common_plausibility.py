@@ -12,6 +12,7 @@ from beams_common.plausibility import (
     DEFAULT_MAX_YAW_RATE_RAD_PER_S,
     MAX_POSE_SIGMA_M,
     MotionLimits,
+    StampCheck,
     StampTolerance,
     odometry_step_problem,
     pose_covariance_problem,
@@ -97,3 +98,20 @@ def test_an_operator_covariance_is_refused_beyond_the_table():
         assert "beyond 4 m" in problem, problem
     assert "beyond" in pose_covariance_problem(np.diag([0.01, 0.01, 100.0]))
     assert "finite" in pose_covariance_problem(np.diag([math.inf, 0.01, 0.01]))
+
+
+def test_one_late_input_is_refused_and_a_run_of_them_confirmed_per_kind():
+    check = StampCheck(TOLERANCE)
+    sequence = [  # (kind, age s, refused, confirmed)
+        ("bearings", 0.05, False, False),
+        ("bearings", 0.28, True, False),  # one scheduling hiccup: refused, not confirmed
+        ("bearings", 0.05, False, False),
+        ("bearings", 1.0, True, False),
+        ("odometry", 0.01, False, False),  # another kind does not break the run
+        ("bearings", 1.0, True, True),  # a relay restamping 1 s late: confirmed at the second
+        ("bearings", 1.0, True, True),
+        ("bearings", 0.02, False, False),
+    ]
+    for kind, age_s, refused, confirmed in sequence:
+        problem, is_confirmed = check.check(kind, "x", RECEIVED_S - age_s, RECEIVED_S)
+        assert (bool(problem), is_confirmed) == (refused, confirmed), (kind, age_s)

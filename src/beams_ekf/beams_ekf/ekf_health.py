@@ -62,9 +62,10 @@ class EkfHealth:
         self._last_odometry_s = now_s
         self.odometry_rate.tick(now_s)
 
-    def fault(self, kind: str, now_s: float, reason: str) -> None:
-        """An input refused as implausible: the status is degraded for FAULT_HOLD_S."""
-        self.faults.note(kind, now_s, reason)
+    def fault(self, kind: str, now_s: float, reason: str, hold_s: float = FAULT_HOLD_S) -> None:
+        """An input refused as implausible (or a calibration flagged): the status is degraded for
+        hold_s."""
+        self.faults.note(kind, now_s, reason, hold_s)
 
     def reset(self) -> None:
         """The filter was reset: the odometry checks wait for odometry again."""

@@ -39,7 +39,7 @@ from beams_common.bearing_intake import RevolutionIntake, bearings_message_intak
 from beams_common.calibration_checks import BearingSample, RecentBearings
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import BeaconGeometry, geometry_of_calibration, runtime_geometry
-from beams_common.plausibility import pose_covariance_problem, stamp_problem, stamp_tolerance_of
+from beams_common.plausibility import StampCheck, pose_covariance_problem, stamp_tolerance_of
 from beams_common.ros.messages import (
     planar_covariance,
     planar_tf_message,
@@ -92,7 +92,7 @@ class EkfNode(Node):
         rate_hz = self.parameters["publish_rate_hz"]
         self.diagnostics = Diagnostics(self, "ekf")
         self.diagnostics.set_level("warn", WAITING_FOR_POSE)
-        self.stamp_tolerance = stamp_tolerance_of(self.parameters)
+        self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
         self.health = EkfHealth(self.parameters, self._now_s())
         self.recent_bearings = RecentBearings()
         self._last_twist = None
@@ -130,7 +130,7 @@ class EkfNode(Node):
         def apply() -> None:
             if geometry is not self.geometry:
                 self._flag_worse_calibration(geometry)
-            self.geometry, self.settings, self.stamp_tolerance = geometry, settings, tolerance
+            self.geometry, self.settings, self.stamp_check.tolerance = geometry, settings, tolerance
             self.localiser.configure(geometry.beacon_map.as_dict(), geometry.turret_offset_m, settings)
             self.health.configure(values, self._now_s())
 
@@ -142,11 +142,13 @@ class EkfNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _implausible_stamp(self, kind: str, what: str, stamp_s: float, now_s: float) -> bool:
-        """True, the input refused and the status degraded with the reason, when its stamp is beyond the
-        tolerance against the receiving clock (`plausibility.stamp_problem`)."""
-        problem = stamp_problem(what, stamp_s, now_s, self.stamp_tolerance)
+        """True, the input refused with the reason, when its stamp is beyond the tolerance against the
+        receiving clock (`plausibility.StampCheck`); the status degraded once the refusals are confirmed
+        (two in a row)."""
+        problem, confirmed = self.stamp_check.check(kind, what, stamp_s, now_s)
         if problem:
             self.diagnostics.refuse(f"{kind}_stamp_refused", problem)
+        if confirmed:  # not one hiccup: the status shows it
             self.health.fault(f"{kind}_stamp", now_s, problem)
         return bool(problem)
 

@@ -62,3 +62,13 @@ def test_without_odometry_the_odometry_checks_stay_off_until_it_comes():
     assert "no odometry" in health.verdict(3.6, **HEALTHY).message
     health.reset()
     assert "odometry" not in health.verdict(3.6, **HEALTHY).message
+
+
+def test_a_flagged_calibration_degrades_for_its_own_hold():
+    health = EkfHealth(VALUES, 0.0)
+    _run(health, 0.0, 3.0)
+    health.fault("calibration_worse", 3.0, "the new calibration makes the recent bearings worse", 10.0)
+    _run(health, 3.0, 12.0)
+    assert "worse" in health.verdict(12.0, **HEALTHY).message
+    _run(health, 12.0, 14.0)
+    assert health.verdict(14.0, **HEALTHY).status is Status.TRACKING

@@ -38,7 +38,7 @@ from beams_common import topics
 from beams_common.bearing_intake import bearings_message_intake
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import geometry_of_calibration, runtime_geometry
-from beams_common.plausibility import stamp_problem, stamp_tolerance_of
+from beams_common.plausibility import StampCheck, stamp_tolerance_of
 from beams_common.ros.messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
 from beams_common.ros.node_support import (
     BEARINGS_QOS,
@@ -78,7 +78,7 @@ class TriangulationNode(Node):
         serve_calibration_reload(self, self._apply_calibration)
         self.diagnostics = Diagnostics(self, "triangulation")
         self.diagnostics.set_level("warn", WAITING_FOR_BEARINGS)
-        self.stamp_tolerance = stamp_tolerance_of(self.parameters)
+        self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
         self.health = TriangulationHealth(self.parameters, self._now_s(), use_odometry=self.use_odometry)
         # the status follows the clock even when no pose comes (lost after a second without one)
         self.create_timer(1.0, self._update_status)
@@ -106,7 +106,7 @@ class TriangulationNode(Node):
         tolerance = stamp_tolerance_of(values)
 
         def apply() -> None:
-            self.geometry, self.stamp_tolerance = geometry, tolerance
+            self.geometry, self.stamp_check.tolerance = geometry, tolerance
             offset, limits = geometry.turret_offset_m, settings.motion_limits
             self.pipeline.configure(geometry.beacon_map, settings.gates, offset, limits)
             self.health.configure(values, self._now_s())
@@ -127,11 +127,13 @@ class TriangulationNode(Node):
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _implausible_stamp(self, kind: str, what: str, stamp_s: float, now_s: float) -> bool:
-        """True, the input refused and the status degraded with the reason, when its stamp is beyond the
-        tolerance against the receiving clock (`plausibility.stamp_problem`)."""
-        problem = stamp_problem(what, stamp_s, now_s, self.stamp_tolerance)
+        """True, the input refused with the reason, when its stamp is beyond the tolerance against the
+        receiving clock (`plausibility.StampCheck`); the status degraded once the refusals are confirmed
+        (two in a row)."""
+        problem, confirmed = self.stamp_check.check(kind, what, stamp_s, now_s)
         if problem:
             self.diagnostics.refuse(f"{kind}_stamp_refused", problem)
+        if confirmed:  # not one hiccup: the status shows it
             self.health.fault(f"{kind}_stamp", now_s, problem)
         return bool(problem)
 
