@@ -300,15 +300,17 @@ class FrameParser:
     - "before_hello": events before the device's first hello (its clock is not known yet);
     - "incompatible_device": events from a device whose hello this host refuses (`problem` says why);
     - "protocol_v1_frames": well-formed frames of protocol version 1 (the old firmware).
-    Byte accounting: bytes fed = FRAME_SIZE * (event frames, dropped ones and unknown kinds included)
-    + HELLO_SIZE * hellos + V1_FRAME_SIZE * protocol_v1_frames + 2 * (bad_crc + truncated)
-    + garbage_bytes + pending bytes. `hellos` counts the hello frames, `device` is the last accepted
-    hello, `problem` why the stream cannot be used ("" while it can).
+    Byte accounting: bytes fed = FRAME_SIZE * event_frames + HELLO_SIZE * hellos + V1_FRAME_SIZE *
+    protocol_v1_frames + 2 * (bad_crc + truncated) + garbage_bytes + pending bytes, where `event_frames`
+    counts the well-formed event frames (used, dropped or of an unknown kind) and `hellos` the hello
+    frames (accepted or refused). `device` is the last accepted hello, `problem` why the stream cannot
+    be used ("" while it can).
     """
 
     def __init__(self) -> None:
         self.drops: Counter[str] = Counter()
         self.frames_ok = 0
+        self.event_frames = 0
         self.hellos = 0
         self.bytes_fed = 0
         self.device: DeviceHello | None = None
@@ -414,6 +416,8 @@ class FrameParser:
         if self.problem == V1_STREAM_PROBLEM:
             self.problem = ""
         kind, sequence, timer = _HEADER.unpack_from(body)
+        if kind != EventKind.HELLO:
+            self.event_frames += 1
         if kind == EventKind.HELLO:
             event = self._hello(sequence, timer, DeviceHello(*_hello_fields(body)))
         elif kind in _EVENT_KINDS:
@@ -454,7 +458,9 @@ class FrameParser:
         # 32-bit counts, taken as a signed difference: frames are less than 2^31 ticks apart (heartbeats)
         # but may leave the device a few ticks out of time order (interrupt priorities).
         if self._last_timer is not None:
-            self._ticks += (timer - self._last_timer + TIMER_MODULUS // 2) % TIMER_MODULUS - TIMER_MODULUS // 2
+            self._ticks += (
+                timer - self._last_timer + TIMER_MODULUS // 2
+            ) % TIMER_MODULUS - TIMER_MODULUS // 2
         self._last_timer = timer
         if self.device is None:
             self.drops["incompatible_device" if self.problem else "before_hello"] += 1
