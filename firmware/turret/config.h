@@ -47,9 +47,10 @@
 #define TX_QUEUE_LENGTH 64U
 
 /* Heartbeat: Timer1 compare B at a fixed OCR1B, once per 65536 ticks (32.8 ms at 2 MHz);
- * every HELLO_EVERY_HEARTBEATS-th one is a hello (about once a second). */
+ * every HELLO_EVERY_HEARTBEATS-th one is a hello (every 262 ms: a host that opens the port mid-stream
+ * waits no longer for the clock). */
 #define HEARTBEAT_COMPARE 0x8000U
-#define HELLO_EVERY_HEARTBEATS 32U
+#define HELLO_EVERY_HEARTBEATS 8U
 
 /* Cycles from the switch's edge to INT0's read of TCNT1 (the interrupt response, the jump and the ISR's
  * prologue: 40 cycles, 5 ticks), taken off the zero reference's count; another interrupt running when the

@@ -9,9 +9,9 @@ firmware/turret/ (docs/firmware.md).
 
 Version 2: the host assumes neither a timer rate nor a baud rate. The thesis's PIC ran a 625 kHz timer
 (62400 ticks per revolution at 10.016 turn/s); the reference board, an ATmega328P at 16 MHz, cannot make
-625 kHz, and its timer runs at 2 MHz (200000 ticks per revolution at 10 turn/s). The device says which in
-a hello frame, sent at start-up and every second; the host converts ticks to seconds with it and refuses
-a device of another protocol version with the reason. Every capture carries its 32-bit timer count
+625 kHz, and its timer runs at 2 MHz (200000 ticks per revolution at 10 turn/s). The device says which
+in a hello frame, sent at start-up and four times a second; the host converts ticks to seconds with it
+and refuses a device of another protocol version with the reason. Every capture carries its 32-bit timer count
 (overflow-extended on the device; it wraps after 2^32 ticks, 35 min at 2 MHz), so the host never has to
 guess how many 16-bit wraps passed, even across lost frames. Frames leave the device in the order its
 interrupts queued them, which may differ from time order by a few ticks (a zero reference and an edge
@@ -37,7 +37,8 @@ An event frame is 10 bytes, a hello 24. The CRC is the one `binascii.crc_hqx(dat
 Kinds:
 - rising / falling edge: the receiver output went 0 -> 1 / 1 -> 0 (section 2.4.3, phi_R and phi_F);
 - zero reference: the turret passed the optical switch (section 2.4.2); it opens a revolution;
-- heartbeat: sent periodically (every 25 ms by the firmware) so that the host knows the device lives;
+- heartbeat: sent periodically (every 32.8 ms by the firmware: once per wrap of its 16-bit timer) so that
+  the host knows the device lives;
 - hello: the device's protocol version and clock (see above); its layout is the same in every version,
   so that a host can always tell which version a device speaks.
 
@@ -90,7 +91,7 @@ DEFAULT_BAUDRATE = 500_000
 TIMER_HZ = 625_000
 TICKS_PER_REVOLUTION = 62_400
 # The firmware's hello and heartbeat periods (seconds of device time).
-HELLO_PERIOD_S = 1.0
+HELLO_PERIOD_S = 0.25
 HEARTBEAT_PERIOD_S = 0.025
 V1_SYNC = b"\xa5\x5a"
 V1_FRAME_SIZE = 8
