@@ -135,3 +135,114 @@ def test_bearings_from_the_firmware_equal_the_simulated_sources(nominal: Run) ->
             assert abs(error) <= (ZERO_REFERENCE_MAX_DELAY_TICKS + 2) * ONE_TICK_RAD
             compared += 1
     assert compared >= 2 * len(nominal.revolutions)
+
+
+# ---- the whole chain over DDS: the emulated turret on a pseudo-terminal, driver_node, ToTal, the EKF ----
+
+LIVE_TURRET_TIME_S = 14.0
+SETTLE_S = 6.0  # the EKF's start (first ToTal pose, convergence) is not scored
+
+
+@pytest.mark.dds
+def test_driver_node_reads_the_emulated_turret_and_the_ekf_localises(
+    rclpy_node, start_node, tmp_path: pathlib.Path
+) -> None:
+    """The firmware runs in real time on a pty; driver_node (source serial) publishes bearings equal to
+    the simulated source's for the same edges, triangulation_node and ekf_node localise the moving robot
+    (odometry: the trajectory itself, stamped on the host clock the driver maps the turret's onto)."""
+    import os
+    import subprocess
+    import time
+
+    from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseWithCovarianceStamped
+    from nav_msgs.msg import Odometry
+
+    from beams_common.ros.messages import pose2d_of, seconds_to_stamp, set_pose2d, stamp_to_seconds
+    from beams_msgs.msg import BeaconBearingArray
+
+    trajectory = EurobotTrajectory.random(seed=7)
+    revolutions = turret_hil.simulate(
+        LIVE_TURRET_TIME_S, trajectory.pose_at, 7, turret_hil.turret_config(), EUROBOT_BEACON_MAP
+    )
+    schedule = turret_hil.schedule_of(revolutions)
+    master, slave = os.openpty()
+    bearings = rclpy_node.subscribe(BeaconBearingArray, "beams/bearings", 50)
+    estimates = rclpy_node.subscribe(PoseWithCovarianceStamped, "beams/ekf/pose", 50)
+    odometry = rclpy_node.node.create_publisher(Odometry, "odom", 50)
+    start_node("beams_driver", "driver_node", params={"source": "serial", "device": os.ttyname(slave)})
+    start_node("beams_triangulation", "triangulation_node")
+    start_node("beams_ekf", "ekf_node")
+    rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
+    active = rclpy_node.spin_until(
+        lambda: rclpy_node.diagnostic_values("driver").get("lifecycle_state") == "active", 30.0
+    )
+    assert active, "driver_node did not open the pty"
+    rclpy_node.spin_for(1.0)  # the other nodes' discovery
+    command = turret_hil.harness_command(
+        schedule.write(tmp_path / "schedule.bin"), schedule.end_cycle, out_fd=master, realtime=True
+    )
+    started_s = time.time()
+    harness = subprocess.Popen(command, pass_fds=(master,), stderr=subprocess.PIPE)
+    # turret time t (0: the first zero reference) is near started_s + START_CYCLE / CPU_HZ + t on the host
+    nominal_offset_s = started_s + turret_hil.START_CYCLE / turret_hil.CPU_HZ
+    offset_s = None
+    try:
+        deadline = time.monotonic() + LIVE_TURRET_TIME_S + 20.0
+        while harness.poll() is None and time.monotonic() < deadline:
+            if offset_s is None and bearings:
+                # the driver's stamps on the host clock: revolution k of the turret starts at k * 0.1 s
+                stamp = stamp_to_seconds(bearings[0].header.stamp)
+                k = round((stamp - nominal_offset_s) / turret_hil.PERIOD_S)
+                offset_s = stamp - k * turret_hil.PERIOD_S
+            if offset_s is not None:
+                now_s = time.time()
+                message = Odometry()
+                message.header.stamp = seconds_to_stamp(now_s)
+                message.header.frame_id, message.child_frame_id = "odom", "base_link"
+                set_pose2d(message.pose.pose, trajectory.pose_at(now_s - offset_s))
+                speed, yaw_rate = trajectory.twist_at(now_s - offset_s)
+                message.twist.twist.linear.x, message.twist.twist.angular.z = speed, yaw_rate
+                odometry.publish(message)
+            rclpy_node.spin_for(0.02)
+        rclpy_node.spin_for(1.0)
+    finally:
+        if harness.poll() is None:
+            harness.kill()
+        harness.wait(timeout=10)
+        os.close(master)
+        os.close(slave)
+    assert harness.returncode == 0, harness.stderr.read().decode(errors="replace")
+    assert offset_s is not None and len(bearings) >= 0.9 * LIVE_TURRET_TIME_S / turret_hil.PERIOD_S
+
+    # the bearings: those the simulated source decodes from the same edges
+    simulated = decode(revolutions)
+    compared = 0
+    # the driver numbers revolutions from the first it assembled, and follows the turret
+    first = round((stamp_to_seconds(bearings[0].header.stamp) - offset_s) / turret_hil.PERIOD_S)
+    for message in bearings:
+        k = first + message.revolution - bearings[0].revolution
+        drift_s = stamp_to_seconds(message.header.stamp) - offset_s - k * turret_hil.PERIOD_S
+        assert abs(drift_s) < 0.005, (k, drift_s)  # the driver's clock mapping holds to the turret's
+        want = sorted((b.beacon_id, b.bearing) for b in simulated[k].bearings)
+        got = sorted((b.beacon_id, b.bearing) for b in message.bearings)
+        assert [i for i, _ in got] == [i for i, _ in want], (k, got, want)
+        for (_, bearing), (_, expected) in zip(got, want, strict=True):
+            error = math.remainder(bearing - expected, 2.0 * math.pi)
+            assert abs(error) <= (ZERO_REFERENCE_MAX_DELAY_TICKS + 2) * ONE_TICK_RAD
+            compared += 1
+    assert compared >= 2 * len(bearings)
+
+    # the EKF: within 5 mm RMS of the true pose once settled
+    errors = []
+    for estimate in estimates:
+        turret_s = stamp_to_seconds(estimate.header.stamp) - offset_s
+        if turret_s < SETTLE_S:
+            continue
+        x, y, _ = pose2d_of(estimate.pose.pose)
+        true_x, true_y, _ = trajectory.pose_at(turret_s)
+        errors.append(math.hypot(x - true_x, y - true_y))
+    assert len(errors) >= 0.5 * (LIVE_TURRET_TIME_S - SETTLE_S) / turret_hil.PERIOD_S, len(errors)
+    rms_m = math.sqrt(np.mean(np.square(errors)))
+    print(f"EKF over the emulated turret: {len(errors)} poses, RMS error {rms_m * 1e3:.2f} mm")
+    assert rms_m < 0.005
