@@ -11,7 +11,7 @@
  * instructions take 1 to 4 cycles; a Timer1 tick is 8). --byte-log writes one record per UART byte:
  * uint64 cycle at which the firmware wrote it to UDR0, uint8 byte. --realtime holds the emulation to the
  * wall clock (a 16 MHz AVR runs faster than real time in simavr otherwise). Without --out-fd the bytes
- * go to stdout (simavr's own messages then go to stderr). The run ends at END_CYCLE;
+ * go to stdout; simavr's own messages always go to stderr. The run ends at END_CYCLE;
  * a summary line goes to stderr: "turret_hil: cycles C wall_s W bytes B".
  */
 #include <errno.h>
@@ -154,10 +154,9 @@ int main(int argc, char *argv[])
         }
     }
     load_schedule(argv[2]);
-    if (out_fd == 1) { /* simavr prints its own messages on stdout: they go to stderr, the bytes stay */
+    if (out_fd == 1) /* the bytes keep the original stdout */
         out_fd = dup(1);
-        dup2(2, 1);
-    }
+    dup2(2, 1); /* simavr prints its own messages on stdout: they go to stderr */
 
     elf_firmware_t firmware;
     memset(&firmware, 0, sizeof firmware);
