@@ -99,6 +99,7 @@ V1_FRAME_SIZE = 8
 V1_FRAMES_BEFORE_PROBLEM = 4
 _CRC_INIT = 0xFFFF
 _HEADER = struct.Struct("<BBI")  # kind, sequence, timer
+_V1_BODY = struct.Struct("<BBH")  # protocol v1: kind, sequence, 16-bit timer
 _HELLO_FIELDS = struct.Struct("<BBIII")  # version, flags, timer Hz, ticks per revolution, dropped events
 _CRC = struct.Struct("<H")
 _HELLO_BOOT_FLAG = 0x01
@@ -177,6 +178,13 @@ def _framed(body: bytes) -> bytes:
 def encode_frame(kind: EventKind | int, sequence: int, timer: int) -> bytes:
     """One 10-byte event frame; the timer is taken modulo 2^32 as the device's extended count is."""
     return _framed(_HEADER.pack(int(kind), sequence & 0xFF, timer % TIMER_MODULUS))
+
+
+def encode_v1_frame(kind: int, sequence: int, timer: int) -> bytes:
+    """A protocol v1 frame, what the old firmware sends (sync A5 5A, kind, sequence, 16-bit timer, CRC):
+    the parser recognises them to name the old firmware."""
+    body = _V1_BODY.pack(kind, sequence & 0xFF, timer % (1 << 16))
+    return V1_SYNC + body + _CRC.pack(crc16(body))
 
 
 def encode_hello(sequence: int, timer: int, hello: DeviceHello) -> bytes:

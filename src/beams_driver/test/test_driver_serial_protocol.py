@@ -5,7 +5,6 @@ import binascii
 import itertools
 import math
 import re
-import struct
 
 import numpy as np
 import pytest
@@ -31,6 +30,7 @@ from beams_driver.serial_protocol import (
     crc16,
     encode_frame,
     encode_hello,
+    encode_v1_frame,
 )
 
 PERIOD_S = TICKS_PER_REVOLUTION / TIMER_HZ
@@ -92,12 +92,6 @@ def accounted_bytes(parser: FrameParser) -> int:
         + drops["garbage_bytes"]
         + parser.pending_bytes
     )
-
-
-def v1_frame(kind: int, sequence: int, timer: int) -> bytes:
-    """A frame of protocol v1 (the old firmware): sync A5 5A, kind, sequence, 16-bit timer, CRC."""
-    body = struct.pack("<BBH", kind, sequence & 0xFF, timer & 0xFFFF)
-    return b"\xa5\x5a" + body + struct.pack("<H", binascii.crc_hqx(body, 0xFFFF))
 
 
 def test_crc_is_ccitt_false() -> None:
@@ -377,7 +371,7 @@ def test_a_hello_of_another_version_is_refused_with_the_reason(version: int, adv
 def test_a_version_1_stream_is_named_and_refused() -> None:
     """The old firmware's 8-byte frames: no event, a clear reason (not garbage, not a baud-rate guess)."""
     ticks = np.sort(np.random.default_rng(16).integers(0, 10 * TICKS_PER_REVOLUTION, 400))
-    data = b"".join(v1_frame(1 + i % 3, i, int(t)) for i, t in enumerate(ticks))
+    data = b"".join(encode_v1_frame(1 + i % 3, i, int(t)) for i, t in enumerate(ticks))
     received, parser, _ = assemble(data, chunk=33)
     assert received == [] and parser.frames_ok == 0
     assert parser.problem == V1_STREAM_PROBLEM

@@ -1,13 +1,11 @@
 """SerialEdgeSource through a real pseudo-terminal pair, with the sensor simulator as the device."""
 
-import binascii
 import contextlib
 import grp
 import math
 import os
 import pathlib
 import shutil
-import struct
 import subprocess
 import sys
 import threading
@@ -32,6 +30,7 @@ from beams_driver.serial_protocol import (
     FrameEncoder,
     FrameParser,
     encode_frame,
+    encode_v1_frame,
 )
 from beams_driver.serial_source import (
     UNREADABLE_STREAM_BYTES,
@@ -122,12 +121,6 @@ def simulated_revolutions(count: int, seed: int, first: int = 0) -> list[Revolut
     simulator = SensorSimulator(config, EUROBOT_BEACON_MAP, np.random.default_rng(seed))
     pose = (1.2, 0.8, 0.3)
     return [simulator.revolution(lambda t: pose, k * config.period_s) for k in range(first, first + count)]
-
-
-def v1_frame(kind: int, sequence: int, timer: int) -> bytes:
-    """A frame of protocol v1 (the old firmware): sync A5 5A, kind, sequence, 16-bit timer, CRC."""
-    body = struct.pack("<BBH", kind, sequence & 0xFF, timer & 0xFFFF)
-    return b"\xa5\x5a" + body + struct.pack("<H", binascii.crc_hqx(body, 0xFFFF))
 
 
 def frame_offset(data: bytes, index: int) -> int:
@@ -376,7 +369,7 @@ def poll_until(source: SerialSource, predicate, timeout_s: float = WAIT_S) -> li
 def test_old_firmware_is_an_error_that_names_the_protocol(device: FakeDevice, link: pathlib.Path) -> None:
     """A v1 stream (the old firmware's frames) on a v2 host: no bearing, one ERROR naming the fix."""
     ticks = np.sort(np.random.default_rng(30).integers(0, 20 * TICKS_PER_REVOLUTION, 2000))
-    data = b"".join(v1_frame(1 + i % 3, i, int(t)) for i, t in enumerate(ticks))
+    data = b"".join(encode_v1_frame(1 + i % 3, i, int(t)) for i, t in enumerate(ticks))
     host = FakeHost()
     source = SerialSource({"device": str(link), "baud_rate": 500_000}, (), host)
     try:
