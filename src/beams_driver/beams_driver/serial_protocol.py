@@ -86,6 +86,7 @@ SYNC = b"\xa5\x5b"
 FRAME_SIZE = 10  # an event frame; a hello is HELLO_SIZE
 HELLO_SIZE = 24
 TIMER_MODULUS = 1 << 32
+_HALF_MODULUS = TIMER_MODULUS // 2
 DEFAULT_BAUDRATE = 500_000
 # The simulated device's clock (FrameEncoder's defaults): the thesis's PIC timer (section 2.4.2).
 TIMER_HZ = 625_000
@@ -116,7 +117,9 @@ class EventKind(IntEnum):
     HELLO = 0x10
 
 
-_EVENT_KINDS = frozenset(int(kind) for kind in EventKind if kind != EventKind.HELLO)
+# plain ints and a lookup table: the parser's per-frame path avoids the Enum machinery
+_HELLO_KIND = int(EventKind.HELLO)
+_EVENT_KIND_OF = {int(kind): kind for kind in EventKind if kind != EventKind.HELLO}
 _V1_KINDS = frozenset((0x01, 0x02, 0x03, 0x04))
 
 
@@ -412,7 +415,7 @@ class FrameParser:
 
     def _candidate(self, buffer: bytearray, start: int, end: int, events: list[FrameEvent]) -> int:
         """Bytes consumed by the version-2 candidate at start (2 for a rejected one), 0 if incomplete."""
-        size = HELLO_SIZE if buffer[start + 2] == EventKind.HELLO else FRAME_SIZE
+        size = HELLO_SIZE if buffer[start + 2] == _HELLO_KIND else FRAME_SIZE
         if end - start < size:
             return 0
         body = bytes(buffer[start + 2 : start + size - 2])
@@ -425,15 +428,15 @@ class FrameParser:
         if self.problem == V1_STREAM_PROBLEM:
             self.problem = ""
         kind, sequence, timer = _HEADER.unpack_from(body)
-        if kind != EventKind.HELLO:
-            self.event_frames += 1
-        if kind == EventKind.HELLO:
+        if kind == _HELLO_KIND:
             event = self._hello(sequence, timer, DeviceHello(*_hello_fields(body)))
-        elif kind in _EVENT_KINDS:
-            event = self._accept(EventKind(kind), sequence, timer)
         else:
-            self.drops["unknown_kind"] += 1
-            return size
+            self.event_frames += 1
+            event_kind = _EVENT_KIND_OF.get(kind)
+            if event_kind is None:
+                self.drops["unknown_kind"] += 1
+                return size
+            event = self._accept(event_kind, sequence, timer)
         if event is not None:
             events.append(event)
         return size
@@ -467,9 +470,7 @@ class FrameParser:
         # 32-bit counts, taken as a signed difference: frames are less than 2^31 ticks apart (heartbeats)
         # but may leave the device a few ticks out of time order (interrupt priorities).
         if self._last_timer is not None:
-            self._ticks += (
-                timer - self._last_timer + TIMER_MODULUS // 2
-            ) % TIMER_MODULUS - TIMER_MODULUS // 2
+            self._ticks += (timer - self._last_timer + _HALF_MODULUS) % TIMER_MODULUS - _HALF_MODULUS
         self._last_timer = timer
         if self.device is None:
             self.drops["incompatible_device" if self.problem else "before_hello"] += 1
