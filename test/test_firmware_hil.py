@@ -9,6 +9,7 @@ reason, where `make hil` could not build the firmware or the harness (no avr-gcc
 
 import math
 import pathlib
+import subprocess
 import sys
 from dataclasses import dataclass
 
@@ -163,6 +164,57 @@ def test_overload_is_lost_frames_never_wrong_bearings(tmp_path: pathlib.Path) ->
         assert [i for i, _ in got] == [i for i, _ in want]
         for (_, bearing), (_, expected) in zip(got, want, strict=True):
             assert abs(math.remainder(bearing - expected, 2.0 * math.pi)) <= BEARING_TOLERANCE_RAD
+
+
+@pytest.mark.parametrize(
+    ("turn_rate_millihz", "build_flags"), [(10_000, None), (5_000, "-DTURN_RATE_MILLIHZ=5000")]
+)
+def test_the_stepper_reaches_the_configured_speed_locked_to_the_timer(
+    tmp_path: pathlib.Path, turn_rate_millihz: int, build_flags: str | None
+) -> None:
+    """STEP (OC2A) ramps up from standstill in about 1.2 s, then toggles every 2 MHz / (2 x 800 x rate)
+    ticks exactly: 10 turn/s from the shipped image, 5 turn/s from a build configured for it, whose
+    hello says 400000 ticks a revolution."""
+    firmware = turret_hil.FIRMWARE_ELF
+    if build_flags is not None:
+        subprocess.run(
+            [
+                "make",
+                "-C",
+                str(turret_hil.ROOT / "firmware" / "turret"),
+                f"BUILD={tmp_path}",
+                f"TURRET_FLAGS={build_flags}",
+            ],
+            check=True,
+            capture_output=True,
+            timeout=120,
+        )
+        firmware = tmp_path / "turret.elf"
+    toggles = turret_hil.step_toggles(3.0, tmp_path, firmware)
+    cruise = toggles[toggles > 2.0 * turret_hil.CPU_HZ]  # the last second
+    steps_per_s = (cruise.size - 1) / 2 / ((cruise[-1] - cruise[0]) / turret_hil.CPU_HZ)
+    assert steps_per_s == pytest.approx(800 * turn_rate_millihz / 1000, rel=1e-3)
+    half_period = np.diff(cruise.astype(np.int64))
+    # simavr toggles at the instruction boundary after the compare: within 4 cycles, never a step missed
+    assert np.all(np.abs(half_period - np.median(half_period)) <= 4)
+    toggles = toggles.astype(np.int64)
+    start = toggles[: 1 + np.argmax(np.diff(toggles) <= np.median(half_period) + 4)]
+    assert 0.8 * turret_hil.CPU_HZ < start[-1] < 2.0 * turret_hil.CPU_HZ  # the ramp's length
+    # never slowing down (the switch from clk/32 to clk/8 makes one half-step 34 cycles, 2%, longer)
+    assert np.all(np.diff(start)[1:] <= 1.02 * np.diff(start)[:-1] + 8)
+    # the hello of that image tells the host the nominal revolution
+    run = turret_hil.run_harness(
+        turret_hil.schedule_of(
+            turret_hil.simulate(
+                0.3, lambda _t: (1.5, 1.0, 0.0), 1, turret_hil.turret_config(), EUROBOT_BEACON_MAP
+            )
+        ),
+        tmp_path,
+        firmware=firmware,
+    )
+    parser = FrameParser()
+    parser.feed(run[0])
+    assert parser.device.ticks_per_revolution == 2_000_000 * 1000 // turn_rate_millihz
 
 
 # ---- the whole chain over DDS: the emulated turret on a pseudo-terminal, driver_node, ToTal, the EKF ----

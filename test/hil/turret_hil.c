@@ -3,13 +3,14 @@
  * ATmega328P at 16 MHz), drives its pins from a schedule of levels at exact CPU cycles, and copies what
  * its UART sends to a file descriptor (a pseudo-terminal's master side, or a pipe).
  *
- *   turret_hil FIRMWARE.elf SCHEDULE END_CYCLE [--out-fd N] [--byte-log FILE] [--realtime]
+ *   turret_hil FIRMWARE.elf SCHEDULE END_CYCLE [--out-fd N] [--byte-log FILE] [--step-log FILE] [--realtime]
  *
  * SCHEDULE: binary records of 16 bytes, little-endian, in cycle order: uint64 cycle, uint8 pin
  * (0: PB0 = ICP1, the receiver; 1: PD2 = INT0, the zero reference), uint8 level, 6 bytes of padding.
  * Each level is raised on its pin at the first instruction boundary at or after its cycle (the AVR's
  * instructions take 1 to 4 cycles; a Timer1 tick is 8). --byte-log writes one record per UART byte:
- * uint64 cycle at which the firmware wrote it to UDR0, uint8 byte. --realtime holds the emulation to the
+ * uint64 cycle at which the firmware wrote it to UDR0, uint8 byte. --step-log writes the uint64 cycle of
+ * every level change of the stepper's STEP pin (PB3, OC2A). --realtime holds the emulation to the
  * wall clock (a 16 MHz AVR runs faster than real time in simavr otherwise). Without --out-fd the bytes
  * go to stdout; simavr's own messages always go to stderr. The run ends at END_CYCLE;
  * a summary line goes to stderr: "turret_hil: cycles C wall_s W bytes B".
@@ -42,6 +43,7 @@ static size_t schedule_length, schedule_next;
 static avr_irq_t *pins[2];
 static int out_fd = 1;
 static FILE *byte_log;
+static FILE *step_log;
 static uint8_t out_buffer[4096];
 static size_t out_length;
 static uint64_t bytes_out;
@@ -77,6 +79,15 @@ static void on_uart_byte(struct avr_irq_t *irq, uint32_t value, void *param)
         fwrite(&cycle, sizeof cycle, 1, byte_log);
         fwrite(&byte, 1, 1, byte_log);
     }
+}
+
+static void on_step_pin(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)param;
+    if (irq->value == value)
+        return; /* a write that does not change the level */
+    uint64_t cycle = avr->cycle;
+    fwrite(&cycle, sizeof cycle, 1, step_log);
 }
 
 static avr_cycle_count_t inject(struct avr_t *core, avr_cycle_count_t when, void *param)
@@ -136,7 +147,7 @@ int main(int argc, char *argv[])
 {
     if (argc < 4) {
         fprintf(stderr, "usage: %s FIRMWARE.elf SCHEDULE END_CYCLE [--out-fd N] [--byte-log FILE] "
-                        "[--realtime]\n", argv[0]);
+                        "[--step-log FILE] [--realtime]\n", argv[0]);
         return 2;
     }
     uint64_t end_cycle = strtoull(argv[3], NULL, 10);
@@ -146,6 +157,8 @@ int main(int argc, char *argv[])
             out_fd = atoi(argv[++i]);
         else if (!strcmp(argv[i], "--byte-log") && i + 1 < argc)
             byte_log = fopen(argv[++i], "wb");
+        else if (!strcmp(argv[i], "--step-log") && i + 1 < argc)
+            step_log = fopen(argv[++i], "wb");
         else if (!strcmp(argv[i], "--realtime"))
             realtime = 1;
         else {
@@ -183,6 +196,8 @@ int main(int argc, char *argv[])
     avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
     avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), on_uart_byte,
                             NULL);
+    if (step_log)
+        avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 3), on_step_pin, NULL);
     pins[0] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 0);
     pins[1] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 2);
     /* no level before the firmware's set-up: at reset INT0 is low-level triggered, and simavr would
@@ -214,6 +229,8 @@ int main(int argc, char *argv[])
     flush_out();
     if (byte_log)
         fclose(byte_log);
+    if (step_log)
+        fclose(step_log);
     fprintf(stderr, "turret_hil: cycles %llu wall_s %.3f bytes %llu\n", (unsigned long long)avr->cycle, wall_s() - started,
             (unsigned long long)bytes_out);
     return 0;

@@ -121,8 +121,12 @@ def harness_command(
     out_fd: int | None = None,
     byte_log: pathlib.Path | None = None,
     realtime: bool = False,
+    firmware: pathlib.Path = FIRMWARE_ELF,
+    step_log: pathlib.Path | None = None,
 ) -> list[str]:
-    command = [str(HARNESS), str(FIRMWARE_ELF), str(schedule_path), str(end_cycle)]
+    command = [str(HARNESS), str(firmware), str(schedule_path), str(end_cycle)]
+    if step_log is not None:
+        command += ["--step-log", str(step_log)]
     if out_fd is not None:
         command += ["--out-fd", str(out_fd)]
     if byte_log is not None:
@@ -133,14 +137,14 @@ def harness_command(
 
 
 def run_harness(
-    schedule: Schedule, workdir: pathlib.Path, byte_log: bool = False
+    schedule: Schedule, workdir: pathlib.Path, byte_log: bool = False, firmware: pathlib.Path = FIRMWARE_ELF
 ) -> tuple[bytes, str, np.ndarray]:
     """Run the firmware over the schedule as fast as simavr goes: (UART bytes, summary line, byte log
     records (cycle, byte) or an empty array)."""
     path = schedule.write(workdir / "schedule.bin")
     log_path = workdir / "bytes.bin" if byte_log else None
     result = subprocess.run(
-        harness_command(path, schedule.end_cycle, byte_log=log_path),
+        harness_command(path, schedule.end_cycle, byte_log=log_path, firmware=firmware),
         capture_output=True,
         timeout=600,
         check=False,
@@ -154,3 +158,18 @@ def run_harness(
     )
     log = np.fromfile(log_path, np.dtype([("cycle", "<u8"), ("byte", "u1")])) if log_path else np.empty(0)
     return result.stdout, summary, log
+
+
+def step_toggles(
+    duration_s: float, workdir: pathlib.Path, firmware: pathlib.Path = FIRMWARE_ELF
+) -> np.ndarray:
+    """The CPU cycles at which the STEP pin (PB3) changed level during duration_s from reset."""
+    schedule = workdir / "no_edges.bin"
+    schedule.write_bytes(b"")
+    log = workdir / "steps.bin"
+    command = harness_command(schedule, round(duration_s * CPU_HZ), firmware=firmware, step_log=log)
+    result = subprocess.run(command, capture_output=True, timeout=600, check=False)
+    if result.returncode != 0:
+        raise RuntimeError(f"turret_hil exited {result.returncode}: {result.stderr.decode(errors='replace')}")
+    # simavr notifies the pin twice per toggle (the timer's output, then the port): one change per cycle
+    return np.unique(np.fromfile(log, "<u8"))
