@@ -48,14 +48,15 @@ def emulation_speed(workdir: pathlib.Path) -> tuple[float, float]:
     return emulated_s / wall_s, float(np.mean([r.n_edges for r in revolutions]))
 
 
-def _frame_ends(stream: bytes) -> list[int]:
-    """Index of the last byte of every frame of a clean stream (the emulator's)."""
-    ends, offset = [], 0
+def _frames(stream: bytes) -> tuple[list[int], list[int]]:
+    """(kind, index of the last byte) of every frame of a clean stream (the emulator's)."""
+    kinds, ends, offset = [], [], 0
     while offset + 2 < len(stream):
-        size = HELLO_SIZE if stream[offset + 2] == EventKind.HELLO else FRAME_SIZE
-        ends.append(offset + size - 1)
-        offset += size
-    return ends
+        kind = stream[offset + 2]
+        offset += HELLO_SIZE if kind == EventKind.HELLO else FRAME_SIZE
+        kinds.append(kind)
+        ends.append(offset - 1)
+    return kinds, ends
 
 
 def latencies(workdir: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
@@ -79,13 +80,12 @@ def latencies(workdir: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
     harness.wait(timeout=60)
     log = np.fromfile(log_path, np.dtype([("cycle", "<u8"), ("byte", "u1")]))
     bytes_on_wire_s = EMULATED_BITS_PER_BYTE / BAUD
-    ends = _frame_ends(bytes(received))
+    kinds, ends = _frames(bytes(received))
     sent_s = log["cycle"][ends] / turret_hil.CPU_HZ + bytes_on_wire_s  # each frame's last stop bit
     arrival_counts = np.array([n for n, _ in arrivals])
     arrival_s = np.array([t for _, t in arrivals])[np.searchsorted(arrival_counts, np.array(ends) + 1)]
     host_s = arrival_s - sent_s
     host_s -= host_s.min()  # the least-delayed frame sets the clocks' offset
-    kinds = [received[e - FRAME_SIZE + 3] for e in ends]  # the kind byte of each frame
     events = [i for i, k in enumerate(kinds) if k in (EventKind.RISING, EventKind.FALLING)]
     edge_cycles = np.array(
         [c for c, k in zip(schedule.cycles, schedule.kinds, strict=True) if k != EventKind.ZERO_REFERENCE]
