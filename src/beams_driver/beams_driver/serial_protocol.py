@@ -11,11 +11,11 @@ Version 2: the host assumes neither a timer rate nor a baud rate. The thesis's P
 (62400 ticks per revolution at 10.016 turn/s); the reference board, an ATmega328P at 16 MHz, cannot make
 625 kHz, and its timer runs at 2 MHz (200000 ticks per revolution at 10 turn/s). The device says which
 in a hello frame, sent at start-up and four times a second; the host converts ticks to seconds with it
-and refuses a device of another protocol version with the reason. Every capture carries its 32-bit timer count
-(overflow-extended on the device; it wraps after 2^32 ticks, 35 min at 2 MHz), so the host never has to
-guess how many 16-bit wraps passed, even across lost frames. Frames leave the device in the order its
-interrupts queued them, which may differ from time order by a few ticks (a zero reference and an edge
-latched together); the host takes the difference between consecutive counts signed.
+and refuses a device of another protocol version with the reason. Every capture carries its 32-bit
+timer count (overflow-extended on the device; it wraps after 2^32 ticks, 35 min at 2 MHz), so the host
+never has to guess how many 16-bit wraps passed, even across lost frames. Frames leave the device in
+the order its interrupts queued them, which may differ from time order by a few ticks (a zero reference
+and an edge latched together); the host takes the difference between consecutive counts signed.
 
 Frame layout (multi-byte fields little-endian)::
 
@@ -37,8 +37,9 @@ An event frame is 10 bytes, a hello 24. The CRC is the one `binascii.crc_hqx(dat
 Kinds:
 - rising / falling edge: the receiver output went 0 -> 1 / 1 -> 0 (section 2.4.3, phi_R and phi_F);
 - zero reference: the turret passed the optical switch (section 2.4.2); it opens a revolution;
-- heartbeat: sent periodically (every 32.8 ms by the firmware: once per wrap of its 16-bit timer) so that
-  the host knows the device lives;
+- heartbeat: sent periodically (every 32.8 ms by the firmware: once per wrap of its 16-bit timer), so
+  that a live device is never silent (no beacon in sight, the turret stopped) and consecutive frames are
+  always far less than 2^31 ticks apart;
 - hello: the device's protocol version and clock (see above); its layout is the same in every version,
   so that a host can always tell which version a device speaks.
 
