@@ -109,6 +109,34 @@ def test_receiver_edges_carry_the_injected_instant_within_one_tick(nominal: Run)
     assert ticks[-1] - ticks[0] > 300 * 65536
 
 
+def test_captures_racing_a_timer_overflow_keep_their_32_bit_count(tmp_path: pathlib.Path) -> None:
+    """An edge in each of 300 successive Timer1 wraps, from 6 ticks before the overflow to 6 after: the
+    capture interrupt runs with the overflow pending or not, and every count is still the injected one
+    (a lost or doubled overflow would be 65536 ticks off)."""
+    cycles_per_wrap = 65536 * turret_hil.CYCLES_PER_TICK
+    probe = turret_hil.START_CYCLE + cycles_per_wrap // 3  # far from any wrap: gives the timer's phase
+    data, _, _ = turret_hil.run_harness(
+        turret_hil.receiver_schedule(np.array([probe]), np.array([True])), tmp_path
+    )
+    (first,) = [e for e in FrameParser().feed(data) if e.kind == EventKind.RISING]
+    phase_ticks = first.ticks - probe / turret_hil.CYCLES_PER_TICK  # count = cycle / 8 + phase
+    wraps = np.arange(2, 302)
+    offsets_ticks = np.tile(np.arange(-6, 7), wraps.size // 13 + 1)[: wraps.size]
+    cycles = np.rint((wraps * 65536 - phase_ticks + offsets_ticks + 0.5) * turret_hil.CYCLES_PER_TICK).astype(
+        np.int64
+    )
+    rising = np.arange(wraps.size) % 2 == 0
+    schedule = turret_hil.receiver_schedule(cycles, rising)
+    data, _, _ = turret_hil.run_harness(schedule, tmp_path)
+    reported = np.array(
+        [e.ticks for e in FrameParser().feed(data) if e.kind in (EventKind.RISING, EventKind.FALLING)]
+    )
+    assert reported.size == wraps.size
+    expected = cycles / turret_hil.CYCLES_PER_TICK + phase_ticks
+    assert np.max(np.abs(reported - expected)) <= 1.0, np.unique(reported - expected, return_counts=True)
+    assert set(((reported + 6) % 65536).tolist()) >= set(range(0, 13))  # both sides of every overflow
+
+
 def test_zero_references_carry_the_injected_instant_within_the_interrupt_latency(nominal: Run) -> None:
     edge_offset = np.median(offsets_ticks(nominal, (EventKind.RISING, EventKind.FALLING)))
     offsets = offsets_ticks(nominal, (EventKind.ZERO_REFERENCE,)) - edge_offset

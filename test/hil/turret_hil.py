@@ -114,6 +114,18 @@ def schedule_of(revolutions: Sequence[RevolutionEdges]) -> Schedule:
     )
 
 
+def receiver_schedule(cycles: np.ndarray, rising: np.ndarray) -> Schedule:
+    """Levels on the receiver's pin only (no zero reference), at these cycles; the pin starts low."""
+    order = np.argsort(cycles, kind="stable")
+    cycles, rising = np.asarray(cycles, dtype=np.int64)[order], np.asarray(rising, dtype=bool)[order]
+    records = np.zeros(cycles.size + 1, _RECORD)
+    records["cycle"] = np.concatenate([[START_CYCLE // 2], cycles])
+    records["pin"] = PIN_RECEIVER
+    records["level"] = np.concatenate([[0], rising])
+    kinds = [EventKind.RISING if r else EventKind.FALLING for r in rising.tolist()]
+    return Schedule(records, kinds, cycles, int(cycles.max()) + CPU_HZ // 20)
+
+
 def harness_command(
     schedule_path: pathlib.Path,
     end_cycle: int,
