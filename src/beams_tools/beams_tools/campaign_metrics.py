@@ -78,11 +78,14 @@ def status_of(stamps: np.ndarray, status: np.ndarray) -> np.ndarray:
 
 
 def sample_spans(stamps: np.ndarray) -> np.ndarray:
-    """The time (s) each estimate stands for: to the next one, at most MAX_SAMPLE_SPAN_S."""
+    """The time (s) each estimate stands for: to the next one (the last: as long as the one before), at
+    most MAX_SAMPLE_SPAN_S."""
     stamps = np.asarray(stamps, dtype=float)
     if len(stamps) == 0:
         return np.empty(0)
-    return np.clip(np.diff(stamps, append=stamps[-1] + MAX_SAMPLE_SPAN_S), 0.0, MAX_SAMPLE_SPAN_S)
+    gaps = np.diff(stamps)
+    spans = np.append(gaps, gaps[-1] if len(gaps) else MAX_SAMPLE_SPAN_S)
+    return np.clip(spans, 0.0, MAX_SAMPLE_SPAN_S)
 
 
 @dataclass(frozen=True)
