@@ -68,6 +68,9 @@ PARAMETER_FAULTS = {
     "driver": ("natural_variance_rad2", 2.0e-6, 1.0, "bit_time_s"),
 }
 TABLES = {"ekf": EKF_PARAMETERS, "triangulation": TRIANGULATION_PARAMETERS, "driver": DRIVER_PARAMETERS}
+# an operator's mistake: a pose this far (m) from the truth, claimed to this precision (m)
+WRONG_PLACE_M = 0.5
+WRONG_PLACE_SIGMA_M = 0.01
 # a pose the ekf's operator services receive: the truth, with a covariance (m^2, rad^2) on the diagonal
 OPERATOR_COVARIANCE = {"set_pose_huge_covariance": 1e12, "initialpose_huge_covariance": 1e300}
 
@@ -302,6 +305,7 @@ class Probe:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self.truth: list[tuple[float, float, float]] = []
+        self.truth_orientation = None  # the newest true orientation (a quaternion message)
         self.ekf: list[tuple[float, ...]] = []
         self.status: list[tuple[float, float]] = []
         self.status_messages: list[tuple[float, int, str]] = []  # (stamp, level, message) of the EKF
@@ -338,6 +342,7 @@ class Probe:
         row = (stamp_to_seconds(msg.header.stamp), msg.pose.pose.position.x, msg.pose.pose.position.y)
         if all(math.isfinite(v) for v in row):
             self.truth.append(row)
+            self.truth_orientation = msg.pose.pose.orientation
 
     def _on_ekf(self, msg) -> None:
         from beams_common.ros.messages import stamp_to_seconds
@@ -360,6 +365,14 @@ class Probe:
 
     def latest_truth(self) -> tuple[float, float]:
         return self.truth[-1][1:3] if self.truth else (1.5, 1.0)
+
+    def truth_pose(self, stamp_s: float, variance: float, offset_x_m: float = 0.0, frame: str = "map"):
+        """An operator's pose at the newest truth, moved offset_x_m along x, with the true heading."""
+        x, y = self.latest_truth()
+        msg = operator_pose(stamp_s, (x + offset_x_m, y), variance, frame)
+        if self.truth_orientation is not None:
+            msg.pose.pose.orientation = self.truth_orientation
+        return msg
 
     # service calls, answered or not within CALL_TIMEOUT_S while the probe keeps spinning
     def call(
@@ -482,7 +495,7 @@ def bad_message(variant: str, probe: Probe) -> tuple[str, Any]:
         msg.pose.pose.position.x = msg.pose.pose.orientation.w = math.nan
         return "odom", msg
     if variant == "initialpose_huge_covariance":
-        return "initialpose", operator_pose(now_s, probe.latest_truth(), OPERATOR_COVARIANCE[variant])
+        return "initialpose", probe.truth_pose(now_s, OPERATOR_COVARIANCE[variant])
     if variant == "initialpose_nan":
         return "initialpose", operator_pose(now_s, (math.nan, 1.0), 0.01)
     raise ValueError(f"unknown bad message {variant!r}")
@@ -621,27 +634,25 @@ class Campaign:
 
     def _plan_service_call(self, fault: Fault, label: str) -> None:
         start, probe = fault.start_s, self.probe
-        truth = probe.latest_truth
         variant = fault.variant
-        if variant == "set_pose_nan":
-            self.at(
-                start,
-                label,
-                lambda: self._set_pose(label, operator_pose(probe.now_s(), (math.nan, 1.0), 0.01), False),
-            )
-        elif variant == "set_pose_huge_covariance":
-            variance = OPERATOR_COVARIANCE[variant]
-            self.at(
-                start,
-                label,
-                lambda: self._set_pose(label, operator_pose(probe.now_s(), truth(), variance), False),
-            )
-        elif variant == "set_pose_wrong_frame":
-            self.at(
-                start,
-                label,
-                lambda: self._set_pose(label, operator_pose(probe.now_s(), truth(), 0.01, "odom"), False),
-            )
+        # (pose factory, expected success) of the set_pose calls
+        set_poses = {
+            "set_pose_nan": (lambda: operator_pose(probe.now_s(), (math.nan, 1.0), 0.01), False),
+            "set_pose_huge_covariance": (
+                lambda: probe.truth_pose(probe.now_s(), OPERATOR_COVARIANCE["set_pose_huge_covariance"]),
+                False,
+            ),
+            "set_pose_wrong_frame": (lambda: probe.truth_pose(probe.now_s(), 0.01, frame="odom"), False),
+            # well-formed but wrong: an operator's pose off by WRONG_PLACE_M, claiming a 1 cm precision;
+            # taken, then the filter must find it wrong (lost) and come back through ToTal
+            "set_pose_wrong_place": (
+                lambda: probe.truth_pose(probe.now_s(), WRONG_PLACE_SIGMA_M**2, WRONG_PLACE_M),
+                True,
+            ),
+        }
+        if variant in set_poses:
+            make_pose, expected = set_poses[variant]
+            self.at(start, label, lambda: self._set_pose(label, make_pose(), expected))
         elif variant == "reload_empty_then_set_pose_nan":
             # issue 18's reproduction: an ERROR refusal (the empty calibration_file), then WARN ones
             node = fault.value("node")
@@ -770,7 +781,15 @@ class Campaign:
         )
         np.savez(self.log_dir / "series.npz", ekf=ekf, truth=truth, status=status, t0_s=self.t0_s)
         growth = {name: rss_growth_mb(process.rss_samples) for name, process in self.processes.items()}
-        return CampaignResult(self.schedule, figures, probe.calls, self.deaths, growth, self.log_dir)
+        result = CampaignResult(self.schedule, figures, probe.calls, self.deaths, growth, self.log_dir)
+        (self.log_dir / "report.txt").write_text(
+            "schedule:\n"
+            + "\n".join("  " + f.describe() for f in self.schedule)
+            + "\n"
+            + result.report()
+            + "\n"
+        )
+        return result
 
 
 def run_campaign(config: CampaignConfig) -> CampaignResult:

@@ -49,6 +49,7 @@ BAD_SERVICE_CALLS = (
     "set_pose_nan",
     "set_pose_huge_covariance",
     "set_pose_wrong_frame",
+    "set_pose_wrong_place",
     "reload_empty_then_set_pose_nan",
     "reload_missing_file",
 )
