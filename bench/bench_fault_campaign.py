@@ -1,5 +1,6 @@
 """The fault campaign of issue 18 over its full length: a seeded schedule of faults from every class
-against the whole running suite (beams_tools.campaign_command; docs/fault_campaign.md), 20 minutes by
+against the whole running suite, the driver on a simulated serial sensor (beams_tools.campaign_command;
+docs/fault_campaign.md), 20 minutes by
 default (`make bench`), in ROS_DOMAIN_ID 66 unless the environment sets one.
 
 Usage: python bench/bench_fault_campaign.py [--duration S] [--seed N] [--output DIR]
@@ -42,7 +43,9 @@ def rows(
     duration_s: float = BENCH_DURATION_S, seed: int = BENCH_SEED, output: pathlib.Path | None = None
 ) -> list[tuple[str, float, str, str]]:
     domain_id = int(os.environ.get("ROS_DOMAIN_ID", "66"))
-    config = CampaignConfig(seed=seed, duration_s=duration_s, output_dir=output, domain_id=domain_id)
+    config = CampaignConfig(
+        seed=seed, duration_s=duration_s, output_dir=output, domain_id=domain_id, serial=True
+    )
     result = run_campaign(config)
     print(result.report(), file=sys.stderr)
     return result_rows(result)

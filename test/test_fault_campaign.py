@@ -1,5 +1,6 @@
 """The fault campaign of issue 18 over DDS: a seeded 2-minute schedule of faults from every class played
-against the whole running suite (sim_world, driver, triangulation, EKF, each its own process), measured
+against the whole running suite (sim_world, driver, triangulation, EKF, each its own process; the driver
+reads a simulated sensor on a pseudo-terminal, so the serial line's faults are drawn too), measured
 against the simulator's truth (beams_tools.campaign_command; docs/fault_campaign.md).
 
 The campaign must hold: no hazardously misleading time (an EKF error beyond max(5 cm, 5 sigma) while its
@@ -40,7 +41,8 @@ def _config(ros_domain_id, tmp_path, **fields):
 def test_two_minute_campaign_holds(ros_env, ros_domain_id, tmp_path):
     from beams_tools.campaign_command import run_campaign
 
-    result = run_campaign(_config(ros_domain_id, tmp_path, seed=CAMPAIGN_SEED, duration_s=CAMPAIGN_S))
+    config = _config(ros_domain_id, tmp_path, seed=CAMPAIGN_SEED, duration_s=CAMPAIGN_S, serial=True)
+    result = run_campaign(config)
     report = result.report()
     print(report)
     figures = result.figures

@@ -15,6 +15,7 @@ Usage: fault_campaign [--seed N] [--duration S] [--output DIR] [-p ekf:NAME:=VAL
 """
 
 import argparse
+import collections
 import math
 import os
 import pathlib
@@ -22,6 +23,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -36,7 +38,14 @@ from beams_common.calibration_file import SensorCalibration, save_calibration
 from beams_driver.parameters import DRIVER_PARAMETERS
 from beams_ekf.parameters import EKF_PARAMETERS
 from beams_tools.campaign_metrics import CampaignFigures, campaign_figures, rss_growth_mb
-from beams_tools.fault_schedule import Fault, ScheduleSettings, draw_schedule
+from beams_tools.fault_schedule import (
+    FAULT_CLASSES,
+    SERIAL_CLASS,
+    Fault,
+    ScheduleSettings,
+    draw_schedule,
+)
+from beams_tools.serial_feed import SerialFeed
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 
 CALL_TIMEOUT_S = 5.0
@@ -47,6 +56,8 @@ RSS_PERIOD_S = 5.0
 # a process's RSS counts from this long (s) after its start: its imports and first allocations are not growth
 RSS_SETTLE_S = 10.0
 BAD_MESSAGE_PERIOD_S = 0.1
+# the serial feed extrapolates the truth at most this far (s) past its newest sample
+MAX_EXTRAPOLATION_S = 0.2
 # the simulator's longest match (its duration_s maximum); the robot stands still after it
 SIM_MAX_MATCH_S = 600.0
 
@@ -80,7 +91,9 @@ OPERATOR_COVARIANCE = {"set_pose_huge_covariance": 1e12, "initialpose_huge_covar
 @dataclass
 class CampaignConfig:
     """What one campaign runs: its seed and length, where its logs go, its DDS domain, parameters added
-    to the nodes' (node -> {name: value}) and, instead of the seeded draw, a schedule of its own."""
+    to the nodes' (node -> {name: value}), instead of the seeded draw a schedule of its own, and whether
+    driver_node reads a simulated sensor on a serial port (beams_tools.serial_feed: the line's faults are
+    then drawn too) instead of its built-in simulated source."""
 
     seed: int = 18
     duration_s: float = 120.0
@@ -90,6 +103,7 @@ class CampaignConfig:
     schedule: tuple[Fault, ...] | None = None
     warmup_s: float = 10.0
     install_base: pathlib.Path | None = None
+    serial: bool = False
 
 
 @dataclass
@@ -234,7 +248,7 @@ def _executable(install_base: pathlib.Path, package: str, executable: str) -> st
     return str(path)
 
 
-def node_parameters(config: CampaignConfig) -> dict[str, dict[str, Any]]:
+def node_parameters(config: CampaignConfig, serial_link: pathlib.Path) -> dict[str, dict[str, Any]]:
     """Each node's parameters: a random match seeded from the campaign's seed, plus the overrides."""
     parameters: dict[str, dict[str, Any]] = {
         "sim_world": {
@@ -243,7 +257,11 @@ def node_parameters(config: CampaignConfig) -> dict[str, dict[str, Any]]:
             "odometry_seed": config.seed + 1,
             "duration_s": min(SIM_MAX_MATCH_S, config.duration_s + 60.0),
         },
-        "driver": {"sim_sensor_seed": config.seed + 2},
+        "driver": (
+            {"source": "serial", "device": str(serial_link)}
+            if config.serial
+            else {"sim_sensor_seed": config.seed + 2}
+        ),
         "triangulation": {"publish_markers": False},
         "ekf": {},
         "relay": {},
@@ -310,6 +328,11 @@ class Probe:
         self.executor.add_node(self.node)
         self.truth: list[tuple[float, float, float]] = []
         self.truth_orientation = None  # the newest true orientation (a quaternion message)
+        # the recent true poses (t, x, y, theta), for the serial feed's thread
+        self._recent_poses: collections.deque[tuple[float, float, float, float]] = collections.deque(
+            maxlen=200
+        )
+        self._recent_lock = threading.Lock()
         self.ekf: list[tuple[float, ...]] = []
         self.status: list[tuple[float, float]] = []
         self.status_messages: list[tuple[float, int, str]] = []  # (stamp, level, message) of the EKF
@@ -346,7 +369,10 @@ class Probe:
         row = (stamp_to_seconds(msg.header.stamp), msg.pose.pose.position.x, msg.pose.pose.position.y)
         if all(math.isfinite(v) for v in row):
             self.truth.append(row)
-            self.truth_orientation = msg.pose.pose.orientation
+            q = self.truth_orientation = msg.pose.pose.orientation
+            heading = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+            with self._recent_lock:
+                self._recent_poses.append((*row, heading))
 
     def _on_ekf(self, msg) -> None:
         from beams_common.ros.messages import stamp_to_seconds
@@ -366,6 +392,22 @@ class Probe:
                 stamp_s = stamp_to_seconds(msg.header.stamp)
                 self.status.append((stamp_s, 1.0 if tracking else 0.0))
                 self.status_messages.append((stamp_s, ord(status.level), status.message))
+
+    def pose_at(self, host_s: float) -> tuple[float, float, float] | None:
+        """The true pose at a host time: interpolated among the recent poses, extrapolated past the newest
+        one with its velocity (the serial feed writes a revolution as it ends, a few ms ahead of the truth
+        that reached the probe); None before any."""
+        with self._recent_lock:
+            recent = np.array(self._recent_poses, dtype=float).reshape(-1, 4)
+        if len(recent) < 2:
+            return None
+        recent[:, 3] = np.unwrap(recent[:, 3])
+        if host_s > recent[-1, 0]:
+            rate = (recent[-1, 1:] - recent[-2, 1:]) / max(recent[-1, 0] - recent[-2, 0], 1e-6)
+            x, y, theta = recent[-1, 1:] + rate * min(host_s - recent[-1, 0], MAX_EXTRAPOLATION_S)
+        else:
+            x, y, theta = (float(np.interp(host_s, recent[:, 0], recent[:, k])) for k in (1, 2, 3))
+        return float(x), float(y), float(theta)
 
     def latest_truth(self) -> tuple[float, float]:
         return self.truth[-1][1:3] if self.truth else (1.5, 1.0)
@@ -519,9 +561,13 @@ class Campaign:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         settings = ScheduleSettings(duration_s=config.duration_s, warmup_s=config.warmup_s)
         self.schedule = (
-            config.schedule if config.schedule is not None else draw_schedule(config.seed, settings)
+            config.schedule
+            if config.schedule is not None
+            else draw_schedule(config.seed, settings, campaign_classes(config.serial))
         )
-        self.parameters = node_parameters(config)
+        self.serial_link = self.log_dir / "beams_sensor"
+        self.feed: SerialFeed | None = None
+        self.parameters = node_parameters(config, self.serial_link)
         self.env = dict(os.environ)
         self.env.update(
             ROS_DOMAIN_ID=str(config.domain_id),
@@ -611,6 +657,9 @@ class Campaign:
         elif fault.kind == "duplicate_publisher":
             self.at(start, label, lambda: self._start_duplicate(fault))
             self.at(end, label, lambda: self.processes.pop(f"duplicate_{fault.variant}").stop())
+        elif fault.kind == SERIAL_CLASS:
+            self.at(start, label, lambda: self.feed.set_fault(fault.variant))
+            self.at(end, label, lambda: self.feed.set_fault(None))
         elif fault.kind == "node_kill":
             process = self.processes[fault.variant]
             self.at(start, label, lambda: process.signal(signal.SIGKILL))
@@ -709,8 +758,10 @@ class Campaign:
         name = f"duplicate_{fault.variant}"
         seed = int(fault.value("seed"))
         parameters = dict(self.parameters[fault.variant])
-        if fault.variant == "driver":
-            parameters["sim_sensor_seed"] = seed
+        if (
+            fault.variant == "driver"
+        ):  # the built-in simulated sensor: a second one on the pty is another fault
+            parameters = {"sim_sensor_seed": seed}
         else:
             parameters.update(trajectory_seed=seed, odometry_seed=seed + 1)
         command = command_of(self.config, name, parameters, (), self.log_dir)
@@ -738,6 +789,8 @@ class Campaign:
 
     def run(self) -> CampaignResult:
         self.probe = probe = Probe(self.config.domain_id)
+        if self.config.serial:
+            self.feed = SerialFeed(self.serial_link, probe.pose_at, self.config.seed + 2)
         try:
             for process in self.processes.values():
                 process.start(self.env)
@@ -770,6 +823,8 @@ class Campaign:
         finally:
             for process in self.processes.values():
                 process.stop()
+            if self.feed is not None:
+                self.feed.close()
             ekf, truth, status = (
                 np.array(rows, dtype=float) for rows in (probe.ekf, probe.truth, probe.status)
             )
@@ -794,6 +849,11 @@ class Campaign:
             + "\n"
         )
         return result
+
+
+def campaign_classes(serial: bool) -> tuple[str, ...]:
+    """The fault classes a campaign draws: the serial line's too when the driver reads a serial port."""
+    return (*FAULT_CLASSES, SERIAL_CLASS) if serial else FAULT_CLASSES
 
 
 def run_campaign(config: CampaignConfig) -> CampaignResult:
@@ -827,6 +887,9 @@ def main(args: list[str] | None = None) -> int:
         help="a node's parameter, e.g. ekf:lost_nis_window_bearings:=0",
     )
     parser.add_argument("--schedule-only", action="store_true", help="print the schedule and stop")
+    parser.add_argument(
+        "--serial", action="store_true", help="driver_node on a simulated serial sensor; its line faults too"
+    )
     options = parser.parse_args(args)
     overrides: dict[str, dict[str, Any]] = {}
     for node, name, value in options.overrides:
@@ -837,10 +900,12 @@ def main(args: list[str] | None = None) -> int:
         output_dir=options.output,
         domain_id=options.domain_id,
         overrides=overrides,
+        serial=options.serial,
     )
     if options.schedule_only:
         settings = ScheduleSettings(duration_s=config.duration_s, warmup_s=config.warmup_s)
-        print("\n".join(fault.describe() for fault in draw_schedule(config.seed, settings)))
+        schedule = draw_schedule(config.seed, settings, campaign_classes(config.serial))
+        print("\n".join(fault.describe() for fault in schedule))
         return 0
     result = run_campaign(config)
     print("schedule:\n" + "\n".join("  " + fault.describe() for fault in result.schedule))

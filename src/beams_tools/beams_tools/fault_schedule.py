@@ -14,8 +14,7 @@ from typing import Any
 
 import numpy as np
 
-# The classes of issue 18 the campaign plays (serial noise and a link between hosts are left out:
-# docs/fault_campaign.md says why).
+# The classes of issue 18 the campaign plays (a link between hosts is left out: docs/fault_campaign.md).
 FAULT_CLASSES = (
     "bad_message",
     "bad_service_call",
@@ -28,13 +27,22 @@ FAULT_CLASSES = (
     "duplicate_publisher",
     "node_kill",
 )
+# the serial line's faults, drawn when driver_node reads a (simulated) sensor on a serial port
+SERIAL_CLASS = "serial_line"
+SERIAL_LINE_FAULTS = ("noise", "silence", "unplug")
 # The robot's nodes, each its own process (a kill or a duplicate picks among them).
 ROBOT_NODE_NAMES = ("sim_world", "driver", "triangulation", "ekf")
 # After a fault ends, its effects still count as its own for this long (s): a killed node's restart and
 # the EKF's re-initialisation take a few seconds on a loaded 2-core machine; a second sim_world's
 # odometry leaves the filter off until a ToTal pose brings it back.
 DEFAULT_RECOVERY_S = 3.0
-RECOVERY_S = {"node_kill": 8.0, "duplicate_publisher": 6.0, "calibration_reload": 4.0, "lifecycle": 4.0}
+RECOVERY_S = {
+    "node_kill": 8.0,
+    "duplicate_publisher": 6.0,
+    "calibration_reload": 4.0,
+    "lifecycle": 4.0,
+    SERIAL_CLASS: 4.0,
+}
 
 BAD_MESSAGES = (
     "nan_bearings",
@@ -111,7 +119,10 @@ def _draw(kind: str, rng: np.random.Generator) -> tuple[str, float, dict[str, An
     if kind == "bad_message":
         return _pick(rng, BAD_MESSAGES), float(rng.uniform(1.0, 3.0)), {}
     if kind == "bad_service_call":
-        return _pick(rng, BAD_SERVICE_CALLS), 2.0, {"node": _pick(rng, ("ekf", "triangulation"))}
+        variant = _pick(rng, BAD_SERVICE_CALLS)
+        # set_pose is the EKF's; a reload goes to either filter
+        node = _pick(rng, ("ekf", "triangulation")) if variant.startswith("reload") else "ekf"
+        return variant, 2.0, {"node": node}
     if kind == "parameter_change":
         return _pick(rng, PARAMETER_CHANGES), 3.0, {"node": _pick(rng, ("driver", "triangulation", "ekf"))}
     if kind == "calibration_reload":
@@ -131,10 +142,12 @@ def _draw(kind: str, rng: np.random.Generator) -> tuple[str, float, dict[str, An
         return ("late" if late else "early"), float(rng.uniform(2.0, 4.0)), {"offset_s": offset_s}
     if kind == "duplicate_publisher":
         return _pick(rng, DUPLICATED_NODES), float(rng.uniform(2.0, 4.0)), {"seed": int(rng.integers(1000))}
+    if kind == SERIAL_CLASS:
+        return _pick(rng, SERIAL_LINE_FAULTS), float(rng.uniform(2.0, 5.0)), {}
     if kind == "node_kill":
         # kill -9, restarted after this delay as a launch respawn would
         return _pick(rng, ROBOT_NODE_NAMES), float(rng.uniform(0.5, 2.0)), {}
-    raise ValueError(f"unknown fault class {kind!r}; expected one of {FAULT_CLASSES}")
+    raise ValueError(f"unknown fault class {kind!r}; expected one of {(*FAULT_CLASSES, SERIAL_CLASS)}")
 
 
 def draw_schedule(

@@ -17,6 +17,7 @@ from beams_tools.campaign_metrics import (
 )
 from beams_tools.fault_schedule import (
     FAULT_CLASSES,
+    SERIAL_CLASS,
     ScheduleSettings,
     draw_schedule,
     fixed_schedule,
@@ -39,6 +40,12 @@ def test_a_two_minute_campaign_draws_every_class_without_overlap(seed):
     assert faults[-1].window[1] <= settings.duration_s - settings.tail_s
     for earlier, later in itertools.pairwise(faults):
         assert later.start_s > earlier.window[1], (earlier.describe(), later.describe())
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_with_the_serial_line_every_class_still_fits_two_minutes(seed):
+    classes = (*FAULT_CLASSES, SERIAL_CLASS)
+    assert {fault.kind for fault in draw_schedule(seed, ScheduleSettings(), classes)} == set(classes)
 
 
 def test_a_longer_campaign_repeats_the_classes_in_passes():
