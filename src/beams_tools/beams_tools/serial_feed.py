@@ -13,6 +13,7 @@ import os
 import pathlib
 import threading
 import time
+import tty
 from collections.abc import Callable
 
 import numpy as np
@@ -52,6 +53,7 @@ class SerialFeed:
         with self._lock:
             self._master, self._slave = os.openpty()
             os.set_blocking(self._master, False)  # a full pty buffer (no reader) must not stall the feed
+            tty.setraw(self._slave)  # bytes as they come, as a serial port gives them (no line discipline)
             self.link.unlink(missing_ok=True)
             self.link.symlink_to(os.ttyname(self._slave))
 
