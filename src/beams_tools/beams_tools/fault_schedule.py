@@ -126,8 +126,11 @@ def _draw(kind: str, rng: np.random.Generator) -> tuple[str, float, dict[str, An
     if kind == "parameter_change":
         return _pick(rng, PARAMETER_CHANGES), 3.0, {"node": _pick(rng, ("driver", "triangulation", "ekf"))}
     if kind == "calibration_reload":
-        node = _pick(rng, ("driver", "triangulation", "ekf"))
-        return _pick(rng, CALIBRATION_FILES), float(rng.uniform(3.0, 6.0)), {"node": node}
+        variant = _pick(rng, CALIBRATION_FILES)
+        # a bias correction is the driver's alone (the filters take the file's geometry)
+        biased = variant in ("rotation_bias_3rad", "power_bias_1e300")
+        node = "driver" if biased else _pick(rng, ("driver", "triangulation", "ekf"))
+        return variant, float(rng.uniform(3.0, 6.0)), {"node": node}
     if kind == "lifecycle":
         return _pick(rng, LIFECYCLE_SEQUENCES), float(rng.uniform(1.0, 3.0)), {}
     if kind == "odometry_jump":
