@@ -14,7 +14,7 @@ the fault within that second is not blamed for the report it had not yet made). 
 the time to the next one, at most MAX_SAMPLE_SPAN_S (an outage is not misleading time).
 
 Availability: the fraction of a span's time in which the newest estimate is at most FRESH_S old and the
-status (same rule) says tracking.
+status a user sees then (the EKF's last report at or before that time) says tracking.
 """
 
 from collections.abc import Iterable, Sequence
@@ -65,16 +65,21 @@ def sigma_along(error_xy: np.ndarray, covariance_rows: np.ndarray) -> np.ndarray
     return np.sqrt(np.maximum(variance, 0.0))
 
 
-def status_of(stamps: np.ndarray, status: np.ndarray) -> np.ndarray:
-    """Tracking (bool) at each stamp: the first report stamped at or after it; False after the last."""
+def status_of(stamps: np.ndarray, status: np.ndarray, report: str = "next") -> np.ndarray:
+    """Tracking (bool) at each stamp: by the first report stamped at or after it (report="next"; False
+    after the last report), or by the last report stamped at or before it (report="last"; False before
+    the first)."""
     status = np.asarray(status, dtype=float).reshape(-1, 2)
     stamps = np.asarray(stamps, dtype=float)
     if len(status) == 0:
         return np.zeros(len(stamps), dtype=bool)
     status = status[np.argsort(status[:, 0], kind="stable")]
-    index = np.searchsorted(status[:, 0], stamps, side="left")
-    tracking = np.append(status[:, 1] > 0.5, False)
-    return tracking[index]
+    tracking = status[:, 1] > 0.5
+    if report == "next":
+        return np.append(tracking, False)[np.searchsorted(status[:, 0], stamps, side="left")]
+    if report == "last":
+        return np.insert(tracking, 0, False)[np.searchsorted(status[:, 0], stamps, side="right")]
+    raise ValueError(f"report must be 'next' or 'last', got {report!r}")
 
 
 def sample_spans(stamps: np.ndarray) -> np.ndarray:
@@ -135,13 +140,14 @@ def misleading_time_s(judged: Judged, mask: np.ndarray | None = None) -> float:
 def availability_grid(
     judged: Judged, status: np.ndarray, start_s: float, end_s: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(grid times, available mask) over [start, end): a fresh estimate and a tracking status."""
+    """(grid times, available mask) over [start, end): a fresh estimate and a tracking status (the last
+    report)."""
     grid = np.arange(start_s, end_s, GRID_STEP_S)
     if len(judged.stamps) == 0:
         return grid, np.zeros(len(grid), dtype=bool)
     newest = np.searchsorted(judged.stamps, grid, side="right") - 1
     fresh = (newest >= 0) & (grid - judged.stamps[np.maximum(newest, 0)] <= FRESH_S)
-    return grid, fresh & status_of(grid, status)
+    return grid, fresh & status_of(grid, status, report="last")
 
 
 def fraction(mask: np.ndarray) -> float:

@@ -124,9 +124,11 @@ def test_sigma_is_taken_along_the_error():
     assert sigma == pytest.approx([0.01, 0.001])
 
 
-def test_an_estimate_takes_the_status_of_the_next_report():
+def test_an_estimate_takes_the_status_of_the_next_report_and_availability_the_last():
     status = _status([(1.0, True), (2.0, False), (3.0, True)])
-    assert list(status_of(np.array([0.5, 1.0, 1.5, 2.5, 3.5]), status)) == [True, True, False, True, False]
+    stamps = np.array([0.5, 1.0, 1.5, 2.5, 3.5])
+    assert list(status_of(stamps, status)) == [True, True, False, True, False]
+    assert list(status_of(stamps, status, report="last")) == [False, True, True, False, True]
 
 
 def test_the_truth_is_unknown_across_a_silence_and_such_estimates_are_not_judged():
