@@ -11,6 +11,7 @@ The ground truth passes unchanged (the simulated sensor reads it).
 """
 
 import collections
+import math
 import sys
 
 from nav_msgs.msg import Odometry
@@ -55,10 +56,13 @@ class FaultRelayNode(Node):
         self.get_logger().info("fault_relay_node ready")
 
     def _on_parameters(self, parameters) -> SetParametersResult:
-        for parameter in parameters:
-            if parameter.name in self.faults:
-                self.faults[parameter.name] = float(parameter.value)
-                self.get_logger().info(f"{parameter.name} = {parameter.value}")
+        faults = [p for p in parameters if p.name in self.faults]
+        wrong = [p.name for p in faults if not isinstance(p.value, float) or not math.isfinite(p.value)]
+        if wrong:
+            return SetParametersResult(successful=False, reason=f"{wrong}: a finite float, please")
+        for parameter in faults:
+            self.faults[parameter.name] = parameter.value
+            self.get_logger().info(f"{parameter.name} = {parameter.value}")
         return SetParametersResult(successful=True)
 
     def _now_s(self) -> float:
