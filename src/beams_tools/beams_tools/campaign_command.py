@@ -56,6 +56,12 @@ RSS_PERIOD_S = 5.0
 # a process's RSS counts from this long (s) after its start: its imports and first allocations are not growth
 RSS_SETTLE_S = 10.0
 BAD_MESSAGE_PERIOD_S = 0.1
+# the relay's fault parameter and the fault's value of each class the relay plays
+RELAY_FAULTS = {
+    "odometry_jump": ("odometry_offset_x_m", "offset_x_m"),
+    "odometry_delay": ("odometry_delay_s", "delay_s"),
+    "bearing_stamp_offset": ("bearing_stamp_offset_s", "offset_s"),
+}
 # the serial feed extrapolates the truth at most this far (s) past its newest sample
 MAX_EXTRAPOLATION_S = 0.2
 # the simulator's longest match (its duration_s maximum); the robot stands still after it
@@ -616,42 +622,14 @@ class Campaign:
         elif fault.kind == "bad_service_call":
             self._plan_service_call(fault, label)
         elif fault.kind == "parameter_change":
-            node = fault.value("node")
-            name, good, out_of_range, read_only = PARAMETER_FAULTS[node]
-            default = TABLES[node][name].default
-            value, expected = {
-                "good": (good, True),
-                "out_of_range": (out_of_range, False),
-                "wrong_type": ("not a number", False),
-                "read_only": (None, False),
-            }[fault.variant]
-            if fault.variant == "read_only":
-                read_only_default = TABLES[node][read_only].default
-                changed = (
-                    not read_only_default if isinstance(read_only_default, bool) else read_only_default * 2
-                )
-                self.at(start, label, lambda: probe.set_parameter(label, node, read_only, changed, False))
-            else:
-                self.at(start, label, lambda: probe.set_parameter(label, node, name, value, expected))
-            self.at(end, label, lambda: probe.set_parameter(label, node, name, default, True))
+            self._plan_parameter_change(fault, label)
         elif fault.kind == "calibration_reload":
-            node = fault.value("node")
-            path = str(self.calibration_files[fault.variant])
-            good = str(self.calibration_files["good"])
-            # the file through the parameter (what `ros2 param set` does), then the reload service
-            self.at(start, label, lambda: probe.set_parameter(label, node, "calibration_file", path, None))
-            self.at(start + 0.5, label, lambda: self._reload(label, node, None))
-            self.at(end, label, lambda: probe.set_parameter(label, node, "calibration_file", good, True))
-            self.at(end + 0.5, label, lambda: self._reload(label, node, True))
+            self._plan_calibration_reload(fault, label)
         elif fault.kind == "lifecycle":
             self._plan_lifecycle(fault, label)
-        elif fault.kind in ("odometry_jump", "odometry_delay", "bearing_stamp_offset"):
-            name, value = {
-                "odometry_jump": ("odometry_offset_x_m", "offset_x_m"),
-                "odometry_delay": ("odometry_delay_s", "delay_s"),
-                "bearing_stamp_offset": ("bearing_stamp_offset_s", "offset_s"),
-            }[fault.kind]
-            amount = float(fault.value(value))
+        elif fault.kind in RELAY_FAULTS:
+            name, value_name = RELAY_FAULTS[fault.kind]
+            amount = float(fault.value(value_name))
             self.at(start, label, lambda: probe.set_parameter(label, "relay", name, amount, True))
             self.at(end, label, lambda: probe.set_parameter(label, "relay", name, 0.0, True))
         elif fault.kind == "duplicate_publisher":
@@ -666,6 +644,37 @@ class Campaign:
             self.at(end, label, lambda: process.start(self.env))
         else:
             raise ValueError(f"no plan for fault class {fault.kind!r}")
+
+    def _plan_parameter_change(self, fault: Fault, label: str) -> None:
+        """A good, out-of-range, wrong-type or read-only change; the parameter's default back at the end."""
+        probe, node = self.probe, fault.value("node")
+        name, good, out_of_range, read_only = PARAMETER_FAULTS[node]
+        default = TABLES[node][name].default
+        if fault.variant == "read_only":
+            current = TABLES[node][read_only].default
+            changed = not current if isinstance(current, bool) else current * 2
+            self.at(fault.start_s, label, lambda: probe.set_parameter(label, node, read_only, changed, False))
+        else:
+            value, expected = {
+                "good": (good, True),
+                "out_of_range": (out_of_range, False),
+                "wrong_type": ("not a number", False),
+            }[fault.variant]
+            self.at(fault.start_s, label, lambda: probe.set_parameter(label, node, name, value, expected))
+        self.at(fault.end_s, label, lambda: probe.set_parameter(label, node, name, default, True))
+
+    def _plan_calibration_reload(self, fault: Fault, label: str) -> None:
+        """The file through the parameter (what `ros2 param set` does), then the reload service; the good
+        file back at the end."""
+        probe, node = self.probe, fault.value("node")
+        path = str(self.calibration_files[fault.variant])
+        good = str(self.calibration_files["good"])
+        self.at(
+            fault.start_s, label, lambda: probe.set_parameter(label, node, "calibration_file", path, None)
+        )
+        self.at(fault.start_s + 0.5, label, lambda: self._reload(label, node, None))
+        self.at(fault.end_s, label, lambda: probe.set_parameter(label, node, "calibration_file", good, True))
+        self.at(fault.end_s + 0.5, label, lambda: self._reload(label, node, True))
 
     def _publish_bad(self, variant: str) -> None:
         publisher, message = bad_message(variant, self.probe)
@@ -707,25 +716,22 @@ class Campaign:
             make_pose, expected = set_poses[variant]
             self.at(start, label, lambda: self._set_pose(label, make_pose(), expected))
         elif variant == "reload_empty_then_set_pose_nan":
-            # issue 18's reproduction: an ERROR refusal (the empty calibration_file), then WARN ones
+            # issue 18's reproduction: an ERROR refusal (a reload with an empty calibration_file), then
+            # WARN ones (a NaN operator pose, a NaN revolution)
             node = fault.value("node")
-            self.at(start, label, lambda: self._reload(label, node, False))
-            self.at(
-                start + 0.5,
-                label,
-                lambda: self._set_pose(label, operator_pose(probe.now_s(), (math.nan, 1.0), 0.01), False),
-            )
-            self.at(start + 0.7, label, lambda: self._publish_bad("nan_bearings"))
+            nan_pose = set_poses["set_pose_nan"][0]
+            self.at(start, label, lambda: probe.set_parameter(label, node, "calibration_file", "", True))
+            self.at(start + 0.3, label, lambda: self._reload(label, node, False))
+            self.at(start + 0.6, label, lambda: self._set_pose(label, nan_pose(), False))
+            self.at(start + 0.8, label, lambda: self._publish_bad("nan_bearings"))
         elif variant == "reload_missing_file":
+            # the change is refused (the file does not exist); the reload then reads the file in use
             node = fault.value("node")
             missing = str(self.log_dir / "no_such_calibration.yaml")
             self.at(
                 start, label, lambda: probe.set_parameter(label, node, "calibration_file", missing, False)
             )
-            self.at(start + 0.5, label, lambda: self._reload(label, node, False))
-            self.at(
-                fault.end_s, label, lambda: probe.set_parameter(label, node, "calibration_file", "", True)
-            )
+            self.at(start + 0.5, label, lambda: self._reload(label, node, None))
         else:
             raise ValueError(f"unknown service call fault {variant!r}")
 
