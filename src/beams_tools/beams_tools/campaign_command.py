@@ -82,7 +82,7 @@ PROCESSES = {
 NODE_NAMES = {name: executable for name, (_, executable, _) in PROCESSES.items()}
 # A parameter per node for the parameter faults: (name, good value, out-of-range value, read-only name)
 PARAMETER_FAULTS = {
-    "ekf": ("gate_probability", 0.999, 2.0, "odometry_history_s"),
+    "ekf": ("gate_probability", 0.9995, 2.0, "odometry_history_s"),
     "triangulation": ("max_position_std_m", 0.06, -1.0, "use_odometry"),
     "driver": ("natural_variance_rad2", 2.0e-6, 1.0, "bit_time_s"),
 }
