@@ -360,12 +360,21 @@ class Localiser:
             # the bearings already applied in this interval are applied again, without being counted
             merged = [(b, None) for b in slot.bearings] + new
             merged.sort(key=lambda item: item[0].stamp_s)
+            kept: list[Bearing] = []
             for bearing, n in merged:
-                outcome = self._apply(bearing, between(pose0, self.history.pose_at(bearing.stamp_s)))
+                then = self.history.pose_at(bearing.stamp_s)
+                if then is None:
+                    # stamped before the oldest odometry kept (a bearing applied at the first state, the
+                    # history since trimmed past it): it can no longer be placed, so it leaves the slot
+                    if n is not None:
+                        outcomes[n] = self._count(rejected(BearingReason.OUTSIDE_HISTORY))
+                    continue
+                outcome = self._apply(bearing, between(pose0, then))
+                kept.append(bearing)
                 if n is not None:
                     outcomes[n] = self._count(outcome)
                     self._track_gating(bearing, outcome)
-            slot.bearings = [bearing for bearing, _ in merged]
+            slot.bearings = kept
 
     def _apply(self, bearing: Bearing, robot_then: Pose2D) -> BearingOutcome:
         """Update with a bearing taken with the robot at `robot_then` in the current state's robot frame."""
