@@ -10,7 +10,7 @@ ROS_ENV := source $(ROOT)/scripts/ros_env.sh &&
 PACKAGE_SOURCES := $(shell find src compat -type f -not -path '*/__pycache__/*' -not -path '*/test/*' 2>/dev/null)
 PYTEST_ARGS ?=
 
-.PHONY: setup build test test-fast demo bench lint clean
+.PHONY: setup build test test-fast demo bench lint clean firmware hil hil-if-possible
 
 ## setup: create .venv with ROS 2 Jazzy and the libraries (once; again when requirements change)
 $(VENV)/.installed: requirements.txt requirements-nonros.txt constraints.txt scripts/bootstrap.sh scripts/fix_wheel_paths.py
@@ -28,18 +28,42 @@ $(INSTALL_BASE)/.built: $(VENV)/.installed $(PACKAGE_SOURCES) colcon.meta script
 
 build: $(INSTALL_BASE)/.built
 
-## test: the linters (ruff check, ruff format --check), then every test: the tiers without DDS (unit,
-## scenario, thesis, static), then the DDS tier with DDS_WORKERS pytest-xdist workers side by side (its
-## tests mostly wait; each claims a ROS_DOMAIN_ID of its own); exit 0 only when all pass. A part with no
-## test in one of the two runs (exit status 5) is not an error: PYTEST_ARGS="src/beams_ekf -x"
+## firmware: the microcontrollers' images with avr-gcc, warnings as errors: firmware/build/turret.elf and
+## .hex (firmware/turret), and firmware/beacon when it has a Makefile (docs/firmware.md)
+firmware:
+	$(MAKE) -C firmware
+
+## hil: the firmware and the simavr harness of the hardware-in-the-loop test (test/dds/test_firmware_hil.py)
+HIL_HARNESS := $(BUILD_BASE)/hil/turret_hil
+export BEAMS_HIL_HARNESS := $(HIL_HARNESS)
+$(HIL_HARNESS): test/hil/turret_hil.c
+	@mkdir -p $(@D)
+	$(CC) -O2 -Wall -Wextra -Werror -I/usr/include/simavr -o $@ $< -lsimavr
+
+hil: firmware $(HIL_HARNESS)
+
+# `make test` builds them where the AVR toolchain and libsimavr are installed (scripts/bootstrap.sh does,
+# as root); elsewhere it says why and the HIL tests skip with that reason
+hil-if-possible:
+	@if command -v avr-gcc >/dev/null 2>&1 && [ -f /usr/include/simavr/sim_avr.h ]; then \
+	    $(MAKE) --no-print-directory hil; \
+	else \
+	    echo "make: avr-gcc or libsimavr-dev missing (scripts/bootstrap.sh installs them as root): the firmware HIL tests will skip"; \
+	fi
+
+## test: the linters (ruff check, ruff format --check), the firmware and its harness (when the AVR tools
+## are installed), then every test: the tiers without DDS (unit, scenario with the firmware HIL, thesis,
+## static), then the DDS tier with DDS_WORKERS pytest-xdist workers side by side (its tests mostly wait;
+## each claims a ROS_DOMAIN_ID of its own); exit 0 only when all pass. A part with no test in one of the
+## two runs (exit status 5) is not an error: PYTEST_ARGS="src/beams_ekf -x"
 DDS_WORKERS ?= 3
 DDS_PARALLEL := $(if $(filter-out 0 1,$(DDS_WORKERS)),-n $(DDS_WORKERS) --dist loadfile)
-test: build lint
+test: build lint hil-if-possible
 	$(ROS_ENV) python -m pytest -m "not dds" $(PYTEST_ARGS) || [ $$? -eq 5 ]
 	$(ROS_ENV) python -m pytest -m dds $(DDS_PARALLEL) $(PYTEST_ARGS) || [ $$? -eq 5 ]
 
-## test-fast: the linters and every test but the DDS tier (about 2 minutes)
-test-fast: build lint
+## test-fast: the linters, the firmware harness (when possible) and every test but the DDS tier
+test-fast: build lint hil-if-possible
 	$(ROS_ENV) python -m pytest -m "not dds" $(PYTEST_ARGS)
 
 ## demo: the simulated robot, the BeAMS sensor, ToTal and the EKF on a Eurobot match
@@ -59,4 +83,4 @@ lint: $(VENV)/.installed
 	$(VENV)/bin/ruff format --check $(LINT_PATHS)
 
 clean:
-	rm -rf $(BUILD_BASE) $(INSTALL_BASE) log
+	rm -rf $(BUILD_BASE) $(INSTALL_BASE) log firmware/build

@@ -8,7 +8,9 @@ from collections.abc import Mapping
 from typing import Any
 
 from beams_common.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SPECS
+from beams_common.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, rates_check
 from beams_common.parameters import ROS_NODE_PARAMETERS, ParameterSpec, ParameterTable
+from beams_common.plausibility import MAX_POSE_SIGMA_M, MOTION_SPECS, STAMP_SPECS, motion_limits_of
 from beams_ekf.bearing_ekf import ProcessNoise
 from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.settings import FilterSettings, LocaliserConfig
@@ -194,9 +196,10 @@ FILTER_SPECS = (
     ParameterSpec(
         "default_pose_sigma",
         list(_DEFAULTS.default_pose_sigma),
-        "Standard deviations (m, m, rad) of a pose without a usable covariance.",
+        "Standard deviations (m, m, rad) of a pose without a usable covariance (at most the table's size: "
+        "a larger prior wedged the filter).",
         minimum=1e-6,
-        maximum=100.0,
+        maximum=MAX_POSE_SIGMA_M,
         length=3,
         runtime=True,
     ),
@@ -241,6 +244,7 @@ def _settings_of(values: Mapping[str, Any]) -> FilterSettings:
         timing,
         bool(values["use_total_pose"]),
         tuple(float(v) for v in values["default_pose_sigma"]),
+        motion_limits_of(values),
     )
 
 
@@ -257,6 +261,10 @@ EKF_PARAMETERS = ParameterTable(
     (
         *GEOMETRY_SPECS,
         *FILTER_SPECS,
+        *MOTION_SPECS,
+        *STAMP_SPECS,
+        *BEARING_RATE_SPECS,
+        ODOMETRY_RATE_SPEC,
         ParameterSpec("map_frame", "map", "Frame of the estimate (REP-105)."),
         ParameterSpec("base_frame", "base_link", "The robot's frame (child)."),
         ParameterSpec("odom_frame", "odom", "The odometry's frame (child of the map -> odom transform)."),
@@ -265,7 +273,7 @@ EKF_PARAMETERS = ParameterTable(
             "publish_rate_hz", 20.0, "Rate of the published estimate (Hz).", minimum=0.1, maximum=1000.0
         ),
     ),
-    (*GEOMETRY_CHECKS, _filter_settings_check),
+    (*GEOMETRY_CHECKS, _filter_settings_check, rates_check),
 )
 
 

@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from beams_common.plausibility import MotionLimits
 from beams_ekf.bearing_ekf import ProcessNoise
 from beams_ekf.odometry_errors import OdometryErrorStates
 
@@ -96,6 +97,8 @@ class FilterSettings:
     use_total_pose: bool = True
     # standard deviations (m, m, rad) of a pose without a usable covariance
     default_pose_sigma: tuple[float, float, float] = (0.05, 0.05, 0.1)
+    # the robot's maximum speed and yaw rate: an odometry increment beyond them is a jump (issue 18)
+    motion_limits: MotionLimits = field(default_factory=MotionLimits)
 
     def __post_init__(self) -> None:
         if len(self.default_pose_sigma) != 3:
