@@ -10,7 +10,7 @@ ROS_ENV := source $(ROOT)/scripts/ros_env.sh &&
 PACKAGE_SOURCES := $(shell find src compat -type f -not -path '*/__pycache__/*' -not -path '*/test/*' 2>/dev/null)
 PYTEST_ARGS ?=
 
-.PHONY: setup build test demo bench lint clean firmware hil hil-if-possible
+.PHONY: setup build test test-fast demo bench lint clean firmware hil hil-if-possible
 
 ## setup: create .venv with ROS 2 Jazzy and the libraries (once; again when requirements change)
 $(VENV)/.installed: requirements.txt requirements-nonros.txt constraints.txt scripts/bootstrap.sh scripts/fix_wheel_paths.py
@@ -33,7 +33,7 @@ build: $(INSTALL_BASE)/.built
 firmware:
 	$(MAKE) -C firmware
 
-## hil: the firmware and the simavr harness of the hardware-in-the-loop test (test/test_firmware_hil.py)
+## hil: the firmware and the simavr harness of the hardware-in-the-loop test (test/dds/test_firmware_hil.py)
 HIL_HARNESS := $(BUILD_BASE)/hil/turret_hil
 export BEAMS_HIL_HARNESS := $(HIL_HARNESS)
 $(HIL_HARNESS): test/hil/turret_hil.c
@@ -52,9 +52,19 @@ hil-if-possible:
 	fi
 
 ## test: the linters (ruff check, ruff format --check), the firmware and its harness (when the AVR tools
-## are installed), then every test (unit, thesis figures, DDS integration, HIL); exit 0 only when all pass
+## are installed), then every test: the tiers without DDS (unit, scenario with the firmware HIL, thesis,
+## static), then the DDS tier with DDS_WORKERS pytest-xdist workers side by side (its tests mostly wait;
+## each claims a ROS_DOMAIN_ID of its own); exit 0 only when all pass. A part with no test in one of the
+## two runs (exit status 5) is not an error: PYTEST_ARGS="src/beams_ekf -x"
+DDS_WORKERS ?= 3
+DDS_PARALLEL := $(if $(filter-out 0 1,$(DDS_WORKERS)),-n $(DDS_WORKERS) --dist loadfile)
 test: build lint hil-if-possible
-	$(ROS_ENV) python -m pytest $(PYTEST_ARGS)
+	$(ROS_ENV) python -m pytest -m "not dds" $(PYTEST_ARGS) || [ $$? -eq 5 ]
+	$(ROS_ENV) python -m pytest -m dds $(DDS_PARALLEL) $(PYTEST_ARGS) || [ $$? -eq 5 ]
+
+## test-fast: the linters, the firmware harness (when possible) and every test but the DDS tier
+test-fast: build lint hil-if-possible
+	$(ROS_ENV) python -m pytest -m "not dds" $(PYTEST_ARGS)
 
 ## demo: the simulated robot, the BeAMS sensor, ToTal and the EKF on a Eurobot match
 DEMO_ARGS ?=
@@ -67,7 +77,7 @@ bench: build
 	$(ROS_ENV) python bench/run_all.py $(BENCH_ARGS)
 
 ## lint: ruff check and ruff format --check (a difference fails, as navigation2's linters fail its tests)
-LINT_PATHS := src test bench scripts compat
+LINT_PATHS := src test bench scripts compat conftest.py
 lint: $(VENV)/.installed
 	$(VENV)/bin/ruff check $(LINT_PATHS)
 	$(VENV)/bin/ruff format --check $(LINT_PATHS)

@@ -3,7 +3,7 @@
 `schedule_of(revolutions)` turns simulated revolutions into pin levels at exact CPU cycles (the receiver
 on PB0 = ICP1, the zero reference on PD2 = INT0); `run_harness` runs firmware/build/turret.elf under
 test/hil/turret_hil.c (built by `make hil`) with that schedule and returns what the UART sent. Used by
-test/test_firmware_hil.py and bench/bench_firmware.py.
+test/dds/test_firmware_hil.py and bench/bench_firmware.py.
 """
 
 import os

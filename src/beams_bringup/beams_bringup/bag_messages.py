@@ -23,6 +23,7 @@ from beams_bringup.bag_events import (
 )
 from beams_bringup.bag_io import BagRecorder, fully_qualified
 from beams_common import topics
+from beams_common.bearing_messages import BearingFields, bearing_array_message
 from beams_common.pose2d import Pose2D
 from beams_common.ros.messages import (
     ros_covariance,
@@ -83,26 +84,14 @@ class MessageBuilder:
     ) -> Any:
         """beams_msgs/BeaconBearingArray from (stamp ns, beacon id, bearing rad, variance rad^2) tuples,
         optionally followed by the angular window (rad; 0 without it)."""
-        bearing_type = self.types["beams_msgs/msg/BeaconBearing"]
-        items = [
-            bearing_type(
-                header=self.header(stamp, frame_id),
-                beacon_id=int(beacon),
-                bearing=float(angle),
-                variance=float(variance),
-                angular_window=float(window[0]) if window else 0.0,
-                rising_angle=0.0,
-                falling_angle=0.0,
-                codes_seen=1,
+        fields = [
+            BearingFields(
+                stamp, beacon, angle, variance, angular_window_rad=window[0] if window else 0.0, codes_seen=1
             )
             for stamp, beacon, angle, variance, *window in bearings
         ]
-        return self.types[BEARINGS_TYPE](
-            header=self.header(start, frame_id),
-            revolution=revolution % 2**32,
-            period=float(period_s),
-            bearings=items,
-            rejected_windows=0,
+        return bearing_array_message(
+            self.types, start, fields, period_s=period_s, revolution=revolution, frame_id=frame_id
         )
 
     def triangulated_pose(self, estimate: PoseEstimate, stamp: int, frame_id: str) -> Any:

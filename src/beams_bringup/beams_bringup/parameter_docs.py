@@ -1,11 +1,11 @@
-"""The README's parameter tables, written from the nodes' ParameterTables (one spec per parameter, so the
-documentation cannot drift from what the nodes declare).
+"""The node reference's parameter tables (docs/nodes.md), written from the nodes' ParameterTables (one
+spec per parameter, so the documentation cannot drift from what the nodes declare).
 
-    python -m beams_bringup.parameter_docs            # print every node's table
-    python -m beams_bringup.parameter_docs --write README.md   # replace the tables between the markers
+    python -m beams_bringup.parameter_docs                          # print every node's table
+    python -m beams_bringup.parameter_docs --write docs/nodes.md    # replace the tables between the markers
 
-Each table sits in README.md between `<!-- parameters: NAME -->` and `<!-- /parameters -->`;
-test_bringup_parameter_docs.py fails when one differs from what this module writes.
+Each table sits in docs/nodes.md between `<!-- parameters: NAME -->` and `<!-- /parameters -->`;
+test/static/test_docs_in_sync.py fails when one differs from what this module writes.
 """
 
 import argparse
@@ -67,26 +67,26 @@ def markdown_table(specs: tuple[ParameterSpec, ...]) -> str:
     return "\n".join(rows) + "\n"
 
 
-def write(readme: str) -> str:
-    """The README with every marked table written anew."""
+def write(document: str) -> str:
+    """The document with every marked table written anew."""
 
     def replace(match: re.Match) -> str:
         name = match.group("name").strip()
         if name not in TABLES:
-            raise KeyError(f"README names a parameter table {name!r}; known: {sorted(TABLES)}")
+            raise KeyError(f"the document names a parameter table {name!r}; known: {sorted(TABLES)}")
         return match.group(1) + markdown_table(TABLES[name]) + match.group(4)
 
-    return _BLOCK.sub(replace, readme)
+    return _BLOCK.sub(replace, document)
 
 
-def tables_in(readme: str) -> dict[str, str]:
-    """The tables the README holds, by name."""
-    return {m.group("name").strip(): m.group("body") for m in _BLOCK.finditer(readme)}
+def tables_in(document: str) -> dict[str, str]:
+    """The tables a document holds, by name."""
+    return {m.group("name").strip(): m.group("body") for m in _BLOCK.finditer(document)}
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--write", type=pathlib.Path, help="README to update in place")
+    parser.add_argument("--write", type=pathlib.Path, help="document to update in place (docs/nodes.md)")
     options = parser.parse_args(argv)
     if options.write:
         options.write.write_text(write(options.write.read_text()))

@@ -214,7 +214,7 @@ def test_settings_come_from_the_nodes_parameter_files():
 )
 def test_replay_refuses_a_parameter_file_the_node_refuses(tmp_path, override, reason):
     """A parameter file with a value out of range, a short list, a NaN or a misspelt name is refused by
-    the replay with the reason the node gives at start-up (test/test_parameters.py runs the node)."""
+    the replay with the reason the node gives at start-up (test/dds/test_parameters.py runs the node)."""
     params_file = tmp_path / "params.yaml"
     params_file.write_text(yaml.safe_dump({"/**/triangulation_node": {"ros__parameters": override}}))
     with pytest.raises(ParameterError, match=re.escape(reason)):

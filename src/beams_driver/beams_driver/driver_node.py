@@ -30,9 +30,10 @@ from rclpy.timer import Timer
 from beams_common import topics
 from beams_common.angles import wrap_to_pi
 from beams_common.bearing_correction import BearingCorrection
+from beams_common.bearing_messages import BearingFields, nanoseconds
 from beams_common.calibration_file import SensorCalibration, load_calibration
 from beams_common.parameters import ParameterTable
-from beams_common.ros.messages import pose2d_of, seconds_to_stamp, stamp_to_seconds
+from beams_common.ros.messages import bearing_array, pose2d_of, stamp_to_seconds
 from beams_common.ros.node_support import BEARINGS_QOS, Diagnostics, run_node, serve_calibration_reload
 from beams_common.ros.parameters import (
     ApplyChange,
@@ -51,7 +52,7 @@ from beams_driver.parameters import (
     codes_of,
     variance_model_of,
 )
-from beams_msgs.msg import BeaconBearing, BeaconBearingArray
+from beams_msgs.msg import BeaconBearingArray
 
 # Sources that deliver revolutions as they arrive: the host buffers this many pose messages per topic.
 POSE_QUEUE_DEPTH = 50
@@ -367,13 +368,14 @@ class DriverNode(LifecycleNode):
     # ---- publishing ----
 
     def _publish(self, decoded: DecodedRevolution) -> None:
-        msg = BeaconBearingArray()
-        msg.header.stamp = seconds_to_stamp(decoded.start_time_s)
-        msg.header.frame_id = self.frame_id
-        msg.revolution = decoded.revolution % 2**32
-        msg.period = decoded.period_s
-        msg.bearings = [self._bearing_message(b) for b in decoded.bearings]
-        msg.rejected_windows = min(len(decoded.rejections), 2**16 - 1)
+        msg = bearing_array(
+            nanoseconds(decoded.start_time_s),
+            [self._bearing_fields(b) for b in decoded.bearings],
+            period_s=decoded.period_s,
+            revolution=decoded.revolution,
+            rejected_windows=len(decoded.rejections),
+            frame_id=self.frame_id,
+        )
         self.publisher.publish(msg)
         self.diagnostics.increment("revolutions")
         self.diagnostics.increment("bearings", len(msg.bearings))
@@ -381,18 +383,18 @@ class DriverNode(LifecycleNode):
             self.diagnostics.increment(f"rejected_{rejection.kind}")
         self.diagnostics.set_level("ok", f"{len(msg.bearings)} bearings in the last revolution")
 
-    def _bearing_message(self, decoded) -> BeaconBearing:
-        msg = BeaconBearing()
-        msg.header.stamp = seconds_to_stamp(decoded.stamp_s)
-        msg.header.frame_id = self.frame_id
-        msg.beacon_id = decoded.beacon_id
-        msg.bearing = float(wrap_to_pi(self.correction.correct(decoded.bearing, decoded.angular_window)))
-        msg.variance = float(decoded.variance)
-        msg.angular_window = float(decoded.angular_window)
-        msg.rising_angle = float(decoded.rising_angle)
-        msg.falling_angle = float(decoded.falling_angle)
-        msg.codes_seen = decoded.codes_seen
-        return msg
+    def _bearing_fields(self, decoded) -> BearingFields:
+        """A decoded bearing, corrected by the calibration (power and rotation bias)."""
+        return BearingFields(
+            stamp_ns=nanoseconds(decoded.stamp_s),
+            beacon_id=decoded.beacon_id,
+            bearing_rad=float(wrap_to_pi(self.correction.correct(decoded.bearing, decoded.angular_window))),
+            variance_rad2=decoded.variance,
+            angular_window_rad=decoded.angular_window,
+            rising_angle_rad=decoded.rising_angle,
+            falling_angle_rad=decoded.falling_angle,
+            codes_seen=decoded.codes_seen,
+        )
 
 
 def main(args: list[str] | None = None) -> None:

@@ -6,7 +6,7 @@ driver only when that source is chosen) and a factory building the source from t
 the code list and a `SourceHost` (what the source may ask of the node: subscribe to a pose stream, a
 topic name, a log, the clock). The built-in kinds are `sim` (sim_source.py) and `serial`
 (serial_source.py); a new source is a new module with an EDGE_SOURCE kind, chosen with
-`source:=package.module:EDGE_SOURCE`, with no edit to the driver (test/test_edge_source_plugin.py
+`source:=package.module:EDGE_SOURCE`, with no edit to the driver (test/dds/test_edge_source_plugin.py
 plugs in a replay of recorded edges that way).
 """
 

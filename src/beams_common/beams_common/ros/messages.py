@@ -5,6 +5,8 @@ row-major over (x, y, z, roll, pitch, yaw) and a planar estimate says nothing of
 """
 
 import math
+from collections.abc import Iterable
+from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -12,12 +14,29 @@ from geometry_msgs.msg import Pose, PoseWithCovariance, TransformStamped
 from std_msgs.msg import Header
 from tf2_msgs.msg import TFMessage
 
+from beams_common.bearing_messages import BearingFields, bearing_array_message
 from beams_common.pose2d import Pose2D, yaw_of_quaternion
+from beams_msgs.msg import BeaconBearing, BeaconBearingArray
 
 # Rows/columns of x, y and yaw in ROS's 6x6 covariance.
 PLANAR_INDICES = (0, 1, 5)
 # Variance reported for z, roll and pitch, which a planar estimate does not know (REP-105 convention).
 UNKNOWN_VARIANCE = 1e6
+
+
+# rclpy's classes by their ROS names, for beams_common.bearing_messages
+RCLPY_BEARING_TYPES = {
+    "builtin_interfaces/msg/Time": Time,
+    "std_msgs/msg/Header": Header,
+    "beams_msgs/msg/BeaconBearing": BeaconBearing,
+    "beams_msgs/msg/BeaconBearingArray": BeaconBearingArray,
+}
+
+
+def bearing_array(start_ns: int, bearings: Iterable[BearingFields], **fields: Any) -> BeaconBearingArray:
+    """rclpy's beams_msgs/BeaconBearingArray (bearing_messages.bearing_array_message: period_s,
+    revolution, rejected_windows, frame_id)."""
+    return bearing_array_message(RCLPY_BEARING_TYPES, start_ns, bearings, **fields)
 
 
 def stamp_to_seconds(stamp: Time) -> float:

@@ -1,0 +1,85 @@
+"""estimate_noise end to end: bags of a still robot on the thesis-hardware simulator, written with rosbags
+(MCAP and sqlite3), through the installed console script; its parameter file read by the driver's table."""
+
+import math
+import os
+import pathlib
+import subprocess
+
+import pytest
+
+from beams_bringup.bag_io import beams_typestore
+from beams_bringup.bag_messages import simulated_messages, write_bag
+from beams_common.parameters import ParameterTable, load_parameter_file
+from beams_driver.parameters import DRIVER_PARAMETERS
+from beams_driver.sensor_sim import SensorSimConfig
+from beams_driver.sim_source import PARAMETERS as SIM_PARAMETERS
+from beams_sim.simulated_match import simulate_match
+from beams_sim.world import EurobotTrajectory
+
+ROOT = pathlib.Path(__file__).resolve().parents[2]
+INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
+COMMAND = INSTALL_BASE / "beams_driver" / "lib" / "beams_driver" / "estimate_noise"
+HARDWARE = SensorSimConfig.thesis_hardware()
+POSES = [(1.5, 1.0, 0.0), (0.9, 1.2, 1.0), (2.0, 0.5, -2.0)]
+
+
+def _bag(path: pathlib.Path, trajectory: EurobotTrajectory, seed: int, storage: str) -> pathlib.Path:
+    match = simulate_match(60.0, seed, trajectory=trajectory, sensor_config=HARDWARE)
+    return write_bag(path, simulated_messages(match, beams_typestore()), beams_typestore(), storage=storage)
+
+
+def _run(*arguments: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [str(COMMAND), *arguments],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env=dict(os.environ),
+    )
+
+
+@pytest.fixture(scope="module")
+def still_bags(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("noise")
+    return [
+        _bag(directory / f"pose{k}", EurobotTrajectory.static(pose, 60.0), k, ("mcap", "sqlite3")[k % 2])
+        for k, pose in enumerate(POSES)
+    ]
+
+
+def test_estimate_noise_writes_a_driver_parameter_file_with_the_injected_noise(still_bags, tmp_path):
+    """Table, plot and parameter file: the natural variance within 15% of the injected one at the mean
+    window (the band of src/beams_driver/test/test_driver_noise_estimation.py), the file accepted by the
+    driver's parameter table as `--params-file` would be; a published variance flagged as understated,
+    every fitted one ok."""
+    output, plot = tmp_path / "noise.yaml", tmp_path / "noise.png"
+    result = _run(*map(str, still_bags), "-o", str(output), "--plot", str(plot))
+    assert result.returncode == 0, result.stderr
+    rows = [line for line in result.stdout.splitlines() if "pose" in line.split(" ")[0]]
+    assert len(rows) == 3 * len(POSES)
+    # simulate_match publishes the thesis hardware's mean natural variance (6.8e-7 rad^2): ratios 1.1-1.6
+    assert any(row.split()[9] == "understated" for row in rows)
+    assert all(row.split()[-1] == "ok" for row in rows)
+    assert plot.stat().st_size > 10_000
+    table = DRIVER_PARAMETERS + ParameterTable("driver_node", SIM_PARAMETERS)
+    values = load_parameter_file(output, table)
+    window = values["natural_variance_reference_window_rad"]
+    rising, falling = HARDWARE.hardware.edge_std_rad(window, None)
+    injected = float(rising**2 + falling**2) / 4.0
+    assert values["natural_variance_rad2"] == pytest.approx(injected, rel=0.15)
+    assert math.radians(5.0) < window < math.radians(8.0)
+
+
+def test_estimate_noise_refuses_a_moving_robot_and_a_bag_without_bearings(tmp_path):
+    """A bag of a moving robot: exit 2 with one line naming the beacon and the movement; a bag with no
+    bearings topic, or a path that is no bag: exit 2 with the reason."""
+    moving = _bag(tmp_path / "moving", EurobotTrajectory.random(3, 60.0), 3, "mcap")
+    result = _run(str(moving))
+    assert result.returncode == 2
+    assert result.stderr.count("\n") == 1 and "the robot moved" in result.stderr
+    empty = write_bag(tmp_path / "empty", [], beams_typestore())
+    for bag, reason in ((empty, "no /beams/bearings"), (tmp_path / "nothing", "cannot read the bag")):
+        result = _run(str(bag))
+        assert result.returncode == 2 and reason in result.stderr, result.stderr
+        assert result.stderr.count("\n") == 1
