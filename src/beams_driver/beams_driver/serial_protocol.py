@@ -544,7 +544,7 @@ class RevolutionAssembler:
     ) -> None:
         if not 0 < period_tolerance < 0.5:
             raise ValueError(f"period_tolerance ({period_tolerance}) must be in (0, 0.5)")
-        if not 0 < min_tolerance_s:
+        if not min_tolerance_s > 0:
             raise ValueError(f"min_tolerance_s ({min_tolerance_s}) must be positive")
         self.period_tolerance = float(period_tolerance)
         self.min_tolerance_s = float(min_tolerance_s)
