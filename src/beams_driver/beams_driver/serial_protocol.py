@@ -515,6 +515,8 @@ class RevolutionAssembler:
     - "bad_revolution_period": a revolution whose length is implausible against the measured turret speed
       (below), or off the nominal by more than `period_tolerance` (the turret stalled or sped up, a zero
       reference was missed or a spurious one closed it);
+    - "edges_out_of_order": a revolution whose edges' counts go back in time (only a frame forged by
+      line noise that passed the checksum does that);
     - "zero_reference_too_early": zero references ignored (zero references, not revolutions): one less
       than `period_tolerance` of a turn after the revolution opened (switch bounce, noise), or a slightly
       early one the next zero reference showed to be spurious (it closed the revolution at the measured
@@ -639,6 +641,7 @@ class RevolutionAssembler:
         open revolution (published when its length is plausible) and opens the next one."""
         if self._zero_ticks is None:
             self._zero_ticks = zero_ticks
+            self._gap = False  # frames lost before the first revolution opened cost it nothing
             return []
         expected, tolerance = self.expected_span()
         span = zero_ticks - self._zero_ticks
@@ -675,6 +678,8 @@ class RevolutionAssembler:
             self.drops["bad_revolution_period"] += 1
         elif self._gap:
             self.drops["revolution_with_gap"] += 1
+        elif any(b < a for a, b in zip(self._edge_ticks[: n_edges - 1], self._edge_ticks[1:n_edges])):
+            self.drops["edges_out_of_order"] += 1  # a forged frame (noise that passed the CRC)
         else:
             result.append(self._build(span_ticks, n_edges))
         # Revolutions lost in a gap still advance the count, so numbers follow the turret.
