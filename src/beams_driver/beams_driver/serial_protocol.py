@@ -70,6 +70,7 @@ revolution) (eq. 2.1 with the measured turret speed).
 """
 
 import binascii
+import itertools
 import math
 import struct
 from collections import Counter, deque
@@ -678,7 +679,7 @@ class RevolutionAssembler:
             self.drops["bad_revolution_period"] += 1
         elif self._gap:
             self.drops["revolution_with_gap"] += 1
-        elif any(b < a for a, b in zip(self._edge_ticks[: n_edges - 1], self._edge_ticks[1:n_edges])):
+        elif any(b < a for a, b in itertools.pairwise(self._edge_ticks[:n_edges])):
             self.drops["edges_out_of_order"] += 1  # a forged frame (noise that passed the CRC)
         else:
             result.append(self._build(span_ticks, n_edges))
