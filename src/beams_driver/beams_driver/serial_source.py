@@ -9,7 +9,10 @@ reopened on the next read, whatever the back-off. Only `open()` raises, with a o
 says what to fix, when the device path does not exist or cannot be opened at start-up (permission
 denied, a baud rate the port refuses). Bytes that never form a valid frame (the sensor talks at
 another baud rate), a device of another protocol version (its hello, or the old firmware's v1 frames)
-and frames without a hello are reported by `stream_problem`.
+and frames without a hello are reported by `stream_problem`. As an EdgeSource (`SerialSource`), it says
+ERROR on /diagnostics while no zero reference comes although frames arrive (the turret stopped, its
+switch unplugged) or no frame comes at all, and WARNs for a while after lost frames, spurious zero
+references or revolutions of implausible length (docs/serial_integrity.md).
 
 Device time to host time: the device's timer starts anywhere, so the source maps it onto the host clock
 with the smallest observed (arrival - capture) offset, the one with the least transmission delay;
