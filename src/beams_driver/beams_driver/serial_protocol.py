@@ -114,6 +114,9 @@ MEASURED_SPANS = 9
 MIN_MEASURED_SPANS = 3
 SPAN_SIGMAS = 5.0
 MIN_SPAN_TOLERANCE_S = 20e-6
+# What frames lost inside a revolution cost (RevolutionAssembler): the whole revolution, or only the beacon
+# windows within the decoder's timeout of where they were lost (RevolutionEdges.lost_angles_rad).
+LOST_FRAMES_COSTS = ("revolution", "window")
 # 1.4826 MAD is the standard deviation of normal data.
 _MAD_TO_SIGMA = 1.4826
 
@@ -512,7 +515,11 @@ class RevolutionAssembler:
     (revolutions unless stated):
     - "edges_before_zero_reference": edges before the first zero reference (edges);
     - "edges_before_hello": edges while the device's clock is unknown (edges);
-    - "revolution_with_gap": a revolution during which frames were lost or rejected;
+    - "revolution_with_gap": a revolution during which frames were lost or rejected (lost_frames_cost
+      "revolution", or where the loss cannot be placed);
+    - "revolution_with_lost_frames": published all the same (lost_frames_cost "window"): the interval
+      between the received events around each loss is in `lost_angles_rad`, and the decoder rejects the
+      windows it touches (an edge lost inside a window never gives a bearing);
     - "bad_revolution_period": a revolution whose length is implausible against the measured turret speed
       (below), or off the nominal by more than `period_tolerance` (the turret stalled or sped up, a zero
       reference was missed or a spurious one closed it);
@@ -544,11 +551,15 @@ class RevolutionAssembler:
         period_tolerance: float = 0.02,
         time_offset_s: float = 0.0,
         min_tolerance_s: float = MIN_SPAN_TOLERANCE_S,
+        lost_frames_cost: str = "revolution",
     ) -> None:
         if not 0 < period_tolerance < 0.5:
             raise ValueError(f"period_tolerance ({period_tolerance}) must be in (0, 0.5)")
         if not min_tolerance_s > 0:
             raise ValueError(f"min_tolerance_s ({min_tolerance_s}) must be positive")
+        if lost_frames_cost not in LOST_FRAMES_COSTS:
+            raise ValueError(f"lost_frames_cost ({lost_frames_cost!r}) must be one of {LOST_FRAMES_COSTS}")
+        self.lost_frames_cost = lost_frames_cost
         self.period_tolerance = float(period_tolerance)
         self.min_tolerance_s = float(min_tolerance_s)
         self.tick_rate_hz: float | None = None
@@ -566,6 +577,11 @@ class RevolutionAssembler:
         self._gap = False
         # a slightly early zero reference: (ticks, edges received before it), until the next one decides
         self._pending: tuple[int, int] | None = None
+        # where frames were lost: (ticks of the events received before and after), and whether a loss
+        # could not be placed (no event before it)
+        self._lost_ticks: list[tuple[int, int]] = []
+        self._unplaced_gap = False
+        self._last_event_ticks: int | None = None
 
     def set_clock(self, tick_rate_hz: float | None, ticks_per_revolution: int | None) -> None:
         """The device's timer frequency (Hz) and nominal ticks per revolution; both must be positive."""
@@ -601,6 +617,8 @@ class RevolutionAssembler:
         self._edge_rising.clear()
         self._gap = False
         self._pending = None
+        self._lost_ticks.clear()
+        self._unplaced_gap = False
 
     def feed(self, events: Iterable[FrameEvent]) -> list[RevolutionEdges]:
         """Consume events; returns the revolutions they completed."""
@@ -608,6 +626,12 @@ class RevolutionAssembler:
         for event in events:
             if event.after_gap:
                 self._gap = True
+                if self._last_event_ticks is None:
+                    self._unplaced_gap = True
+                else:
+                    ends = (self._last_event_ticks, event.ticks)
+                    self._lost_ticks.append((min(ends), max(ends)))
+            self._last_event_ticks = event.ticks
             kind = event.kind
             if kind == EventKind.HELLO:
                 self._hello(event.hello)
@@ -642,7 +666,8 @@ class RevolutionAssembler:
         open revolution (published when its length is plausible) and opens the next one."""
         if self._zero_ticks is None:
             self._zero_ticks = zero_ticks
-            self._gap = False  # frames lost before the first revolution opened cost it nothing
+            self._gap = self._unplaced_gap = False  # losses before the first revolution cost it nothing
+            self._lost_ticks.clear()
             return []
         expected, tolerance = self.expected_span()
         span = zero_ticks - self._zero_ticks
@@ -677,11 +702,13 @@ class RevolutionAssembler:
         result = []
         if not plausible:
             self.drops["bad_revolution_period"] += 1
-        elif self._gap:
+        elif self._gap and (self.lost_frames_cost == "revolution" or self._unplaced_gap):
             self.drops["revolution_with_gap"] += 1
         elif any(b < a for a, b in itertools.pairwise(self._edge_ticks[:n_edges])):
             self.drops["edges_out_of_order"] += 1  # a forged frame (noise that passed the CRC)
         else:
+            if self._gap:
+                self.drops["revolution_with_lost_frames"] += 1
             result.append(self._build(span_ticks, n_edges))
         # Revolutions lost in a gap still advance the count, so numbers follow the turret.
         self._open_revolution += max(1, round(span_ticks / expected))
@@ -690,6 +717,8 @@ class RevolutionAssembler:
         self._edge_ticks = self._edge_ticks[n_edges:]
         self._edge_rising = self._edge_rising[n_edges:]
         self._gap = self._gap and split  # a gap before a held zero reference may lie after it: keep it
+        self._unplaced_gap = self._unplaced_gap and split
+        self._lost_ticks = [lost for lost in self._lost_ticks if lost[1] > zero_ticks]
         self._pending = None
         return result
 
@@ -709,4 +738,7 @@ class RevolutionAssembler:
             edge_times_s=np.asarray(edge_ticks, dtype=float) / self.tick_rate_hz + self.time_offset_s,
             edge_angles_rad=angles,
             edge_rising=np.asarray(self._edge_rising[:n_edges], dtype=bool),
+            lost_angles_rad=_TWO_PI
+            * (np.asarray(self._lost_ticks, dtype=float).reshape(-1, 2) - self._zero_ticks)
+            / span_ticks,
         )

@@ -39,6 +39,7 @@ from beams_driver.serial_protocol import (
     DEFAULT_BAUDRATE,
     FRAME_SIZE,
     HELLO_PERIOD_S,
+    LOST_FRAMES_COSTS,
     MIN_SPAN_TOLERANCE_S,
     EventKind,
     FrameEvent,
@@ -375,11 +376,20 @@ MIN_REVOLUTION_TOLERANCE = ParameterSpec(
     minimum=1e-6,
     maximum=5e-3,
 )
+LOST_FRAMES_COST = ParameterSpec(
+    "lost_frames_cost",
+    "revolution",
+    "What frames lost on the link (sequence gaps: line noise, the turret's queue overflowing) cost: "
+    "'revolution' drops the revolution they fall in; 'window' keeps it and drops only the beacon windows "
+    "within the decoder's timeout of where they were lost (for a noisy link).",
+    choices=LOST_FRAMES_COSTS,
+)
 SERIAL_PARAMETERS = (
     ParameterSpec("device", "/dev/ttyUSB0", "Serial device of the BeAMS sensor."),
     ParameterSpec("baud_rate", DEFAULT_BAUDRATE, "Serial baud rate.", minimum=9600, maximum=12_000_000),
     ZERO_REFERENCE_TIMEOUT,
     MIN_REVOLUTION_TOLERANCE,
+    LOST_FRAMES_COST,
 )
 SERIAL_POLL_PERIOD_S = 0.01
 # /diagnostics warns this long after the turret last lost frames, or after a refused zero reference or
@@ -438,7 +448,10 @@ class SerialSource:
             values["device"],
             values["baud_rate"],
             read_timeout_s=SERIAL_POLL_PERIOD_S / 2,
-            assembler=RevolutionAssembler(min_tolerance_s=float(value(MIN_REVOLUTION_TOLERANCE))),
+            assembler=RevolutionAssembler(
+                min_tolerance_s=float(value(MIN_REVOLUTION_TOLERANCE)),
+                lost_frames_cost=value(LOST_FRAMES_COST),
+            ),
             clock=host.now_s,
             log=host.log_warning,
         )
