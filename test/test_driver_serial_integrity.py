@@ -1,7 +1,8 @@
 """driver_node's serial source under faults of the link (issue 18), over DDS with a pseudo-terminal as the
 device: the optical switch unplugged (edges and heartbeats arrive, no zero reference) is an ERROR on
 /diagnostics with the reason, and bearings come back with it; line noise (0.1 % of the bytes) costs
-only the revolutions it touches, is no baud-rate problem, and never a wrong bearing."""
+only the revolutions it touches (or only the beacon windows, lost_frames_cost "window"), is no baud-rate
+problem, and never a wrong bearing."""
 
 import contextlib
 import os
@@ -128,7 +129,8 @@ def test_no_zero_reference_is_an_error_and_bearings_return_with_it(rclpy_node, s
     assert all(len(message.bearings) == 3 for message in bearings[published_before + 1 :])
 
 
-def test_line_noise_costs_only_the_revolutions_it_touches(rclpy_node, start_node):
+@pytest.mark.parametrize("cost", ["revolution", "window"])
+def test_line_noise_costs_only_the_revolutions_or_windows_it_touches(rclpy_node, start_node, cost):
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
     from beams_msgs.msg import BeaconBearingArray
@@ -136,7 +138,8 @@ def test_line_noise_costs_only_the_revolutions_it_touches(rclpy_node, start_node
     diagnostics = rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
     bearings = rclpy_node.subscribe(BeaconBearingArray, "beams/bearings")
     with streaming_pty(sensor_stream(51, lambda _k: True, byte_error_rate=0.001)) as device:
-        node = start_node("beams_driver", "driver_node", params={"source": "serial", "device": device})
+        params = {"source": "serial", "device": device, "lost_frames_cost": cost}
+        node = start_node("beams_driver", "driver_node", params=params)
         assert rclpy_node.spin_until(lambda: len(bearings) >= 25, WAIT_S), node.log()
         assert node.process.poll() is None
     statuses = driver_statuses(diagnostics)
@@ -144,6 +147,12 @@ def test_line_noise_costs_only_the_revolutions_it_touches(rclpy_node, start_node
     assert any(s.level == DiagnosticStatus.WARN and "lost" in s.message for s in statuses)
     values = rclpy_node.diagnostic_values("driver_node")
     assert int(values["serial_drops_lost_frames"]) >= 1
+    if cost == "window":  # revolutions with lost frames published, some with fewer than 3 bearings
+        assert int(values["serial_drops_revolution_with_lost_frames"]) >= 1
+        assert any(len(message.bearings) < 3 for message in bearings)
+    else:
+        assert "serial_drops_revolution_with_lost_frames" not in values
+        assert int(values["serial_drops_revolution_with_gap"]) >= 1
     # the published revolutions are whole: every bearing of the fixed robot within 5 sigma of the others
     # of its beacon (a wrong revolution would be 0.01-0.07 rad off)
     by_beacon: dict[int, list[tuple[float, float]]] = {}
