@@ -143,6 +143,36 @@ def noise_rows(byte_error_rate: float) -> list[tuple[str, float, str, str]]:
     ]
 
 
+def inserted_noise_rows(bytes_per_revolution: int = 5) -> list[tuple[str, float, str, str]]:
+    """The issue's line-noise fault (and the fault campaign's): random bytes inserted at random places of
+    every revolution's frames; the share of the clean stream's bearings kept with each lost_frames_cost,
+    and how many of them differ from the clean stream's."""
+    config, revolutions, _ = _simulated(REVOLUTIONS, seed=5)
+    encoder, rng = FrameEncoder(), np.random.default_rng(6)
+    data = bytearray()
+    for revolution in revolutions:
+        chunk = bytearray(encoder.revolution(revolution))
+        for _ in range(bytes_per_revolution):
+            position = int(rng.integers(len(chunk) + 1))
+            chunk[position:position] = bytes([int(rng.integers(256))])
+        data += chunk
+    clean = _bearings(config, _assemble(FrameEncoder().revolutions(revolutions)))
+    kept = {
+        cost: _bearings(config, _assemble(bytes(data), RevolutionAssembler(lost_frames_cost=cost)))
+        for cost in ("revolution", "window")
+    }
+    wrong = sum(kept["window"][key] != clean.get(key) for key in kept["window"])
+    return [
+        (
+            f"bearings kept, {bytes_per_revolution} random bytes inserted per revolution, cost window",
+            100.0 * len(kept["window"]) / len(clean),
+            "%",
+            f"cost revolution: {100.0 * len(kept['revolution']) / len(clean):.0f} %; {wrong} differ from the "
+            f"clean stream's (goal 0)",
+        )
+    ]
+
+
 def spurious_zero_rows() -> list[tuple[str, float, str, str]]:
     """The issue's fault: a spurious zero reference 1.2 ms before every real one. The worst error of the
     published bearings against the simulator's truth, in their own published standard deviations, with
@@ -258,6 +288,7 @@ def rows() -> list[tuple[str, float, str, str]]:
         ),
         *noise_rows(0.001),
         *noise_rows(0.01),
+        *inserted_noise_rows(),
         *spurious_zero_rows(),
     ]
 
