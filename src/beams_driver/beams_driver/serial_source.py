@@ -378,10 +378,10 @@ MIN_REVOLUTION_TOLERANCE = ParameterSpec(
 )
 LOST_FRAMES_COST = ParameterSpec(
     "lost_frames_cost",
-    "revolution",
+    "window",
     "What frames lost on the link (sequence gaps: line noise, the turret's queue overflowing) cost: "
-    "'revolution' drops the revolution they fall in; 'window' keeps it and drops only the beacon windows "
-    "within the decoder's timeout of where they were lost (for a noisy link).",
+    "'window' keeps the revolution and drops only the beacon windows within the decoder's timeout of where "
+    "they were lost (a kept bearing is exactly the clean stream's); 'revolution' drops the revolution.",
     choices=LOST_FRAMES_COSTS,
 )
 SERIAL_PARAMETERS = (
@@ -400,7 +400,7 @@ WARNED_DROPS = (
     (
         "lost_frames",
         "the turret lost {count} frames in the last {window} s: more edges than the link carries "
-        "(its queue overflowed) or line noise; their revolutions were dropped",
+        "(its queue overflowed) or line noise; the {cost}s they touched were dropped",
     ),
     (
         "zero_reference_too_early",
@@ -444,13 +444,14 @@ class SerialSource:
             return values.get(spec.name, spec.default)
 
         self.zero_reference_timeout_s = float(value(ZERO_REFERENCE_TIMEOUT))
+        self.lost_frames_cost = str(value(LOST_FRAMES_COST))
         self.serial = SerialEdgeSource(
             values["device"],
             values["baud_rate"],
             read_timeout_s=SERIAL_POLL_PERIOD_S / 2,
             assembler=RevolutionAssembler(
                 min_tolerance_s=float(value(MIN_REVOLUTION_TOLERANCE)),
-                lost_frames_cost=value(LOST_FRAMES_COST),
+                lost_frames_cost=self.lost_frames_cost,
             ),
             clock=host.now_s,
             log=host.log_warning,
@@ -508,7 +509,7 @@ class SerialSource:
                 values,
             )
         warnings = [
-            text.format(count=recent[reason], window=f"{RECENT_DROPS_WARN_S:.0f}")
+            text.format(count=recent[reason], window=f"{RECENT_DROPS_WARN_S:.0f}", cost=self.lost_frames_cost)
             for reason, text in WARNED_DROPS
             if recent[reason]
         ]

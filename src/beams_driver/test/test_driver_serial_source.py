@@ -386,9 +386,13 @@ def test_old_firmware_is_an_error_that_names_the_protocol(device: FakeDevice, li
     assert [w for w in host.warnings if "protocol v1" in w] == [health.message]
 
 
-def test_frames_the_turret_lost_are_counted_and_warned(device: FakeDevice, link: pathlib.Path) -> None:
+@pytest.mark.parametrize("cost", ["revolution", "window"])
+def test_frames_the_turret_lost_are_counted_and_warned(
+    device: FakeDevice, link: pathlib.Path, cost: str
+) -> None:
     """Its queue overflowed (events numbered, not sent): /diagnostics shows the count and a warning, and
-    the revolutions they fall in are dropped, the others kept."""
+    the revolution they fall in is dropped (cost "revolution") or published with where they were lost
+    (cost "window", the default: the decoder drops the windows near it), the others kept."""
     sent = simulated_revolutions(6, seed=31)
     encoder = FrameEncoder()
     data = bytearray()
@@ -405,18 +409,28 @@ def test_frames_the_turret_lost_are_counted_and_warned(device: FakeDevice, link:
         EventKind.ZERO_REFERENCE, round((sent[-1].start_time_s + sent[-1].period_s) * TIMER_HZ)
     )
     data += encoder.event(EventKind.HEARTBEAT, round((sent[-1].start_time_s + 1.5) * TIMER_HZ))  # a hello
-    source = SerialSource({"device": str(link), "baud_rate": 500_000}, (), FakeHost())
+    values = {"device": str(link), "baud_rate": 500_000, "lost_frames_cost": cost}
+    source = SerialSource(values, (), FakeHost())
+    expected = [0, 1, 3, 4, 5] if cost == "revolution" else [0, 1, 2, 3, 4, 5]
     try:
         device.write_in_background(bytes(data))
         received = poll_until(
             source,
-            lambda got: len(got) >= 5 and getattr(source.serial.parser.device, "dropped_events", 0) > 0,
+            lambda got: (
+                len(got) >= len(expected) and getattr(source.serial.parser.device, "dropped_events", 0) > 0
+            ),
         )
         health = source.health()
     finally:
         source.close()
-    assert [r.revolution for r in received] == [0, 1, 3, 4, 5]
+    assert [r.revolution for r in received] == expected
     assert health.level == "warn" and "lost 7 frames" in health.message
+    assert f"the {cost}s they touched were dropped" in health.message
+    if cost == "window":  # the 7 lost edges lie between the event before the first and the 8th edge
+        (lost,) = received[2].lost_angles_rad
+        assert 0.0 <= lost[0] <= sent[2].edge_angles_rad[0]
+        assert lost[1] == pytest.approx(sent[2].edge_angles_rad[7], abs=HALF_TICK_RAD * 1.0001)
+        assert received[2].n_edges == sent[2].n_edges - 7
     assert health.values["serial_drops_lost_frames"] == 7
     assert health.values["serial_device_dropped_events"] == 7
     assert health.values["serial_device_timer_hz"] == TIMER_HZ
