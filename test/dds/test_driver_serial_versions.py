@@ -105,7 +105,8 @@ def test_frames_the_firmware_lost_are_warned_and_counted(rclpy_node, start_node)
     diagnostics = rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
     bearings = rclpy_node.subscribe(BeaconBearingArray, "beams/bearings")
     with streaming_pty(revolution(k) for k in range(1000)) as device:
-        node = start_node("beams_driver", "driver_node", params={"source": "serial", "device": device})
+        params = {"source": "serial", "device": device, "lost_frames_cost": "revolution"}  # whole ones
+        node = start_node("beams_driver", "driver_node", params=params)
         warned = rclpy_node.spin_until(
             lambda: driver_statuses(diagnostics, DiagnosticStatus.WARN, "lost") and len(bearings) >= 20,
             WAIT_S,

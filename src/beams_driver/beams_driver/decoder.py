@@ -66,7 +66,8 @@ class Rejection:
 
     @property
     def kind(self) -> str:
-        """Category: malformed, truncated, undecodable, compound, inconsistent, ambiguous, too_few_codes."""
+        """Category: malformed, truncated, undecodable, compound, inconsistent, ambiguous, too_few_codes,
+        lost_frames."""
         return self.reason.split(":", 1)[0]
 
 
@@ -104,6 +105,7 @@ class _OpenWindow:
     revolution: int
     angles: np.ndarray
     rising: np.ndarray
+    lost: np.ndarray  # that revolution's lost intervals (RevolutionEdges.lost_angles_rad)
 
 
 class BearingDecoder:
@@ -154,13 +156,14 @@ class BearingDecoder:
         result = DecodedRevolution(edges.revolution, edges.start_time_s, edges.period_s)
         omega = edges.turret_speed_rad_s
         timeout_rad = self.timeout_bits * self.bit_time_s * omega
-        angles, rising = edges.edge_angles_rad, edges.edge_rising
+        angles, rising, lost = edges.edge_angles_rad, edges.edge_rising, edges.lost_angles_rad
         carried, self._open = self._open, None
         follows_previous = self._last_revolution == edges.revolution - 1
         self._last_revolution = edges.revolution
         if carried is not None and follows_previous:
             angles = np.concatenate([carried.angles - _TWO_PI, angles])
             rising = np.concatenate([carried.rising, rising])
+            lost = np.concatenate([carried.lost - _TWO_PI, lost])
         elif carried is not None:
             where = float(wrap_to_pi(carried.angles[-1]))
             result.rejections.append(Rejection("truncated: the next revolution is missing", where))
@@ -177,12 +180,16 @@ class BearingDecoder:
         if windows and (windows[-1][1][-1] or _TWO_PI - windows[-1][0][-1] <= timeout_rad):
             last_angles, last_rising = windows.pop()
             if last_angles[-1] - last_angles[0] < _TWO_PI:
-                self._open = _OpenWindow(edges.revolution, last_angles, last_rising)
+                self._open = _OpenWindow(edges.revolution, last_angles, last_rising, edges.lost_angles_rad)
             else:
                 # A receiver stuck on (or flooded) never closes a window: drop it rather than grow it.
                 where = float(wrap_to_pi(last_angles[-1]))
                 result.rejections.append(Rejection("malformed: a window longer than a revolution", where))
         for window_angles, window_rising in windows:
+            if _touches(lost, window_angles[0] - timeout_rad, window_angles[-1] + timeout_rad):
+                where = float(wrap_to_pi(0.5 * (window_angles[0] + window_angles[-1])))
+                result.rejections.append(Rejection("lost_frames: edges of the window may be missing", where))
+                continue
             outcome = self._decode_window(window_angles, window_rising, omega)
             if isinstance(outcome, Rejection):
                 result.rejections.append(outcome)
@@ -284,6 +291,11 @@ class BearingDecoder:
             codes_seen=int(codes_seen),
             stamp_s=float(start_time_s + middle / omega),
         )
+
+
+def _touches(intervals: np.ndarray, low: float, high: float) -> bool:
+    """Whether any interval (m, 2) overlaps [low, high]."""
+    return bool(np.any((intervals[:, 0] <= high) & (intervals[:, 1] >= low)))
 
 
 def _split(angles: np.ndarray, rising: np.ndarray, timeout_rad: float) -> list[tuple[np.ndarray, np.ndarray]]:

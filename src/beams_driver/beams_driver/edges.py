@@ -5,7 +5,7 @@ switch (the zero reference); since the timer also drives the turret, each captur
 and a turret angle (eq. 2.1). Every source (simulator, serial device) delivers this; the decoder reads it.
 """
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -22,7 +22,9 @@ class RevolutionEdges:
 
     revolution: revolution counter; start_time_s: instant of the zero-reference pulse opening it;
     period_s: turret period; edge_times_s (n,): increasing instants; edge_angles_rad (n,): turret angles
-    in [0, 2 pi) from the zero reference (CCW, robot frame); edge_rising (n,): True for 0 -> 1 edges.
+    in [0, 2 pi) from the zero reference (CCW, robot frame); edge_rising (n,): True for 0 -> 1 edges;
+    lost_angles_rad (m, 2): turret angle intervals (same origin, may reach outside [0, 2 pi)) in which
+    edges may have been lost (frames lost on a serial link): the decoder rejects the windows they touch.
     """
 
     revolution: int
@@ -31,6 +33,7 @@ class RevolutionEdges:
     edge_times_s: np.ndarray
     edge_angles_rad: np.ndarray
     edge_rising: np.ndarray
+    lost_angles_rad: np.ndarray = field(default_factory=lambda: np.empty((0, 2)))
 
     def __post_init__(self) -> None:
         times = np.asarray(self.edge_times_s, dtype=float).reshape(-1)
@@ -45,7 +48,13 @@ class RevolutionEdges:
             raise ValueError(f"revolution {self.revolution}: period must be positive, got {self.period_s}")
         if times.size and np.any(np.diff(times) < 0.0):
             raise ValueError(f"revolution {self.revolution}: edge times must be increasing")
-        for name, array in (("edge_times_s", times), ("edge_angles_rad", angles), ("edge_rising", rising)):
+        lost = np.asarray(self.lost_angles_rad, dtype=float).reshape(-1, 2)
+        for name, array in (
+            ("edge_times_s", times),
+            ("edge_angles_rad", angles),
+            ("edge_rising", rising),
+            ("lost_angles_rad", lost),
+        ):
             array.setflags(write=False)
             object.__setattr__(self, name, array)
 

@@ -70,9 +70,10 @@ revolution) (eq. 2.1 with the measured turret speed).
 """
 
 import binascii
+import itertools
 import math
 import struct
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterable
 from dataclasses import dataclass
 from enum import IntEnum
@@ -106,6 +107,18 @@ _HELLO_FIELDS = struct.Struct("<BBIII")  # version, flags, timer Hz, ticks per r
 _CRC = struct.Struct("<H")
 _HELLO_BOOT_FLAG = 0x01
 _TWO_PI = 2.0 * math.pi
+# The measured turret speed (RevolutionAssembler): revolution lengths kept, lengths needed before they are
+# used instead of the nominal, spread multiple of the tolerance, and its floor (s): the firmware's zero
+# reference is up to 8 us late (docs/firmware.md), so two of them bound a length within +-8 us.
+MEASURED_SPANS = 9
+MIN_MEASURED_SPANS = 3
+SPAN_SIGMAS = 5.0
+MIN_SPAN_TOLERANCE_S = 20e-6
+# What frames lost inside a revolution cost (RevolutionAssembler): the whole revolution, or only the beacon
+# windows within the decoder's timeout of where they were lost (RevolutionEdges.lost_angles_rad).
+LOST_FRAMES_COSTS = ("revolution", "window")
+# 1.4826 MAD is the standard deviation of normal data.
+_MAD_TO_SIGMA = 1.4826
 
 
 class EventKind(IntEnum):
@@ -502,9 +515,33 @@ class RevolutionAssembler:
     (revolutions unless stated):
     - "edges_before_zero_reference": edges before the first zero reference (edges);
     - "edges_before_hello": edges while the device's clock is unknown (edges);
-    - "revolution_with_gap": a revolution during which frames were lost or rejected;
-    - "bad_revolution_period": a revolution whose tick count is off the nominal by more than
-      `period_tolerance` (the turret stalled or a zero reference was missed).
+    - "revolution_with_gap": a revolution during which frames were lost or rejected (lost_frames_cost
+      "revolution", or where the loss cannot be placed);
+    - "revolution_with_lost_frames": published all the same (lost_frames_cost "window"): the interval
+      between the received events around each loss is in `lost_angles_rad`, and the decoder rejects the
+      windows it touches (an edge lost inside a window never gives a bearing);
+    - "bad_revolution_period": a revolution whose length is implausible against the measured turret speed
+      (below), or off the nominal by more than `period_tolerance` (the turret stalled or sped up, a zero
+      reference was missed or a spurious one closed it);
+    - "edges_out_of_order": a revolution whose edges' counts go back in time (only a frame forged by
+      line noise that passed the checksum does that);
+    - "zero_reference_too_early": zero references ignored (zero references, not revolutions): one less
+      than `period_tolerance` of a turn after the revolution opened (switch bounce, noise), or a slightly
+      early one the next zero reference showed to be spurious (it closed the revolution at the measured
+      length).
+
+    The measured turret speed (section 2.4.2: the angle is eq. 2.1 with the speed measured over the
+    revolution, so a spurious zero reference that shortens a revolution by 1.2 % turns every bearing of
+    it by up to 0.075 rad): the expected length is the median of the last `MEASURED_SPANS` revolution
+    lengths within the nominal gate, the tolerance `SPAN_SIGMAS` times their robust spread (1.4826 MAD),
+    at least `min_tolerance_s`; until `MIN_MEASURED_SPANS` lengths are known, the nominal length from the
+    hello with `min_tolerance_s`. A revolution is published only when its length is within that tolerance:
+    a bearing then carries at most 2*pi*tolerance/length of error from the turret speed (1.3 mrad for
+    20 us at 10 turn/s, below the bearing's own standard deviation, about 0.7 mrad). A zero reference a
+    little early (between `period_tolerance` and the tolerance) is held until the next one says whether
+    it was spurious (the next one closes the revolution at the measured length) or the turret sped up.
+    Lengths refused but within the nominal gate still enter the estimate, so a turret whose speed really
+    changed is followed after a few revolutions.
     """
 
     def __init__(
@@ -513,12 +550,21 @@ class RevolutionAssembler:
         ticks_per_revolution: int | None = None,
         period_tolerance: float = 0.02,
         time_offset_s: float = 0.0,
+        min_tolerance_s: float = MIN_SPAN_TOLERANCE_S,
+        lost_frames_cost: str = "revolution",
     ) -> None:
         if not 0 < period_tolerance < 0.5:
             raise ValueError(f"period_tolerance ({period_tolerance}) must be in (0, 0.5)")
+        if not min_tolerance_s > 0:
+            raise ValueError(f"min_tolerance_s ({min_tolerance_s}) must be positive")
+        if lost_frames_cost not in LOST_FRAMES_COSTS:
+            raise ValueError(f"lost_frames_cost ({lost_frames_cost!r}) must be one of {LOST_FRAMES_COSTS}")
+        self.lost_frames_cost = lost_frames_cost
         self.period_tolerance = float(period_tolerance)
+        self.min_tolerance_s = float(min_tolerance_s)
         self.tick_rate_hz: float | None = None
         self.ticks_per_revolution: int | None = None
+        self._spans: deque[int] = deque(maxlen=MEASURED_SPANS)
         if tick_rate_hz is not None or ticks_per_revolution is not None:
             self.set_clock(tick_rate_hz, ticks_per_revolution)
         self.time_offset_s = float(time_offset_s)
@@ -529,6 +575,13 @@ class RevolutionAssembler:
         self._edge_ticks: list[int] = []
         self._edge_rising: list[bool] = []
         self._gap = False
+        # a slightly early zero reference: (ticks, edges received before it), until the next one decides
+        self._pending: tuple[int, int] | None = None
+        # where frames were lost: (ticks of the events received before and after), and whether a loss
+        # could not be placed (no event before it)
+        self._lost_ticks: list[tuple[int, int]] = []
+        self._unplaced_gap = False
+        self._last_event_ticks: int | None = None
 
     def set_clock(self, tick_rate_hz: float | None, ticks_per_revolution: int | None) -> None:
         """The device's timer frequency (Hz) and nominal ticks per revolution; both must be positive."""
@@ -539,15 +592,33 @@ class RevolutionAssembler:
         self.tick_rate_hz = float(tick_rate_hz)
         self.ticks_per_revolution = int(ticks_per_revolution)
         self._tolerance_ticks = self.period_tolerance * self.ticks_per_revolution
+        self._min_tolerance_ticks = self.min_tolerance_s * self.tick_rate_hz
+        self._spans.clear()  # lengths measured with another clock mean nothing now
+
+    def expected_span(self) -> tuple[float, float]:
+        """(ticks, tolerance in ticks) of the next revolution: the measured turret speed when
+        MIN_MEASURED_SPANS lengths are known, else the nominal; the tolerance is SPAN_SIGMAS robust
+        standard deviations of the measured lengths, at least min_tolerance_s."""
+        assert self.ticks_per_revolution is not None
+        if len(self._spans) < MIN_MEASURED_SPANS:
+            return float(self.ticks_per_revolution), self._min_tolerance_ticks
+        spans = np.asarray(self._spans, dtype=float)
+        median = float(np.median(spans))
+        sigma = _MAD_TO_SIGMA * float(np.median(np.abs(spans - median)))
+        return median, max(self._min_tolerance_ticks, SPAN_SIGMAS * sigma)
 
     def reset(self) -> None:
-        """Forget the open revolution (e.g. after a reconnection); the next zero reference opens one."""
+        """Forget the open revolution (e.g. after a reconnection); the next zero reference opens one.
+        The measured turret speed is kept (the same device turns at the same speed)."""
         if self._zero_ticks is not None:
             self._open_revolution += 1
         self._zero_ticks = None
         self._edge_ticks.clear()
         self._edge_rising.clear()
         self._gap = False
+        self._pending = None
+        self._lost_ticks.clear()
+        self._unplaced_gap = False
 
     def feed(self, events: Iterable[FrameEvent]) -> list[RevolutionEdges]:
         """Consume events; returns the revolutions they completed."""
@@ -555,6 +626,12 @@ class RevolutionAssembler:
         for event in events:
             if event.after_gap:
                 self._gap = True
+                if self._last_event_ticks is None:
+                    self._unplaced_gap = True
+                else:
+                    ends = (self._last_event_ticks, event.ticks)
+                    self._lost_ticks.append((min(ends), max(ends)))
+            self._last_event_ticks = event.ticks
             kind = event.kind
             if kind == EventKind.HELLO:
                 self._hello(event.hello)
@@ -562,9 +639,7 @@ class RevolutionAssembler:
                 if kind in (EventKind.RISING, EventKind.FALLING):
                     self.drops["edges_before_hello"] += 1
             elif kind == EventKind.ZERO_REFERENCE:
-                revolution = self._close(event.ticks)
-                if revolution is not None:
-                    completed.append(revolution)
+                completed += self._zero_reference(event.ticks)
             elif kind != EventKind.HEARTBEAT:
                 if self._zero_ticks is None:
                     self.drops["edges_before_zero_reference"] += 1
@@ -574,38 +649,84 @@ class RevolutionAssembler:
         return completed
 
     def _hello(self, hello: DeviceHello | None) -> None:
-        """A device's hello: a new clock starts the revolutions afresh."""
-        if hello is None or (hello.timer_hz, hello.ticks_per_revolution) == (
-            self.tick_rate_hz,
-            self.ticks_per_revolution,
-        ):
+        """A device's hello: a new clock, or a reset device (its boot hello), starts the revolutions
+        afresh; the revolution the reset cut is counted as one with a gap."""
+        if hello is None:
             return
-        self.set_clock(hello.timer_hz, hello.ticks_per_revolution)
+        if (hello.timer_hz, hello.ticks_per_revolution) != (self.tick_rate_hz, self.ticks_per_revolution):
+            self.set_clock(hello.timer_hz, hello.ticks_per_revolution)
+        elif not hello.boot:
+            return
+        if self._zero_ticks is not None:
+            self.drops["revolution_with_gap"] += 1
         self.reset()
 
-    def _close(self, zero_ticks: int) -> RevolutionEdges | None:
-        """Close the open revolution at this zero reference and open the next one."""
-        result = None
-        if self._zero_ticks is not None:
-            span_ticks = zero_ticks - self._zero_ticks
+    def _zero_reference(self, zero_ticks: int) -> list[RevolutionEdges]:
+        """A zero reference: ignored when far too early, held when a little early, else it closes the
+        open revolution (published when its length is plausible) and opens the next one."""
+        if self._zero_ticks is None:
+            self._zero_ticks = zero_ticks
+            self._gap = self._unplaced_gap = False  # losses before the first revolution cost it nothing
+            self._lost_ticks.clear()
+            return []
+        expected, tolerance = self.expected_span()
+        span = zero_ticks - self._zero_ticks
+        if span < expected - self._tolerance_ticks:
+            self.drops["zero_reference_too_early"] += 1  # a bounce or noise on the switch's line
+            return []
+        if abs(span - expected) <= tolerance:
+            if self._pending is not None:
+                self.drops["zero_reference_too_early"] += 1  # the held one was spurious
+            return self._close(zero_ticks, len(self._edge_ticks), plausible=True)
+        if span < expected and self._pending is None:
+            self._pending = (zero_ticks, len(self._edge_ticks))  # spurious or a faster turret: wait
+            return []
+        completed: list[RevolutionEdges] = []
+        if self._pending is not None:
+            # the held one was no spurious zero reference: it closes the revolution (too short), and this
+            # one is judged against it
+            completed += self._close(*self._pending, plausible=False)
+            completed += self._zero_reference(zero_ticks)
+            return completed
+        return self._close(zero_ticks, len(self._edge_ticks), plausible=False)
+
+    def _close(self, zero_ticks: int, n_edges: int, *, plausible: bool) -> list[RevolutionEdges]:
+        """Close the open revolution at this zero reference (its first n_edges edges) and open the next."""
+        assert self._zero_ticks is not None and self.ticks_per_revolution is not None
+        span_ticks = zero_ticks - self._zero_ticks
+        expected, _ = self.expected_span()
+        if abs(span_ticks - self.ticks_per_revolution) <= self._tolerance_ticks:
+            self._spans.append(span_ticks)  # the measured turret speed, refused lengths included
+        else:
+            plausible = False
+        result = []
+        if not plausible:
+            self.drops["bad_revolution_period"] += 1
+        elif self._gap and (self.lost_frames_cost == "revolution" or self._unplaced_gap):
+            self.drops["revolution_with_gap"] += 1
+        elif any(b < a for a, b in itertools.pairwise(self._edge_ticks[:n_edges])):
+            self.drops["edges_out_of_order"] += 1  # a forged frame (noise that passed the CRC)
+        else:
             if self._gap:
-                self.drops["revolution_with_gap"] += 1
-            elif abs(span_ticks - self.ticks_per_revolution) > self._tolerance_ticks:
-                self.drops["bad_revolution_period"] += 1
-            else:
-                result = self._build(span_ticks)
-            # Revolutions lost in a gap still advance the count, so numbers follow the turret.
-            self._open_revolution += max(1, round(span_ticks / self.ticks_per_revolution))
+                self.drops["revolution_with_lost_frames"] += 1
+            result.append(self._build(span_ticks, n_edges))
+        # Revolutions lost in a gap still advance the count, so numbers follow the turret.
+        self._open_revolution += max(1, round(span_ticks / expected))
         self._zero_ticks = zero_ticks
-        self._edge_ticks = []
-        self._edge_rising = []
-        self._gap = False
+        split = n_edges < len(self._edge_ticks)
+        self._edge_ticks = self._edge_ticks[n_edges:]
+        self._edge_rising = self._edge_rising[n_edges:]
+        self._gap = self._gap and split  # a gap before a held zero reference may lie after it: keep it
+        self._unplaced_gap = self._unplaced_gap and split
+        self._lost_ticks = [lost for lost in self._lost_ticks if lost[1] > zero_ticks]
+        self._pending = None
         return result
 
-    def _build(self, span_ticks: int) -> RevolutionEdges:
-        """The revolution opened by the last zero reference and spanning span_ticks."""
-        assert self._zero_ticks is not None
-        since_zero = np.asarray(self._edge_ticks, dtype=np.int64) - self._zero_ticks
+    def _build(self, span_ticks: int, n_edges: int) -> RevolutionEdges:
+        """The revolution opened by the last zero reference, spanning span_ticks, of its first n_edges."""
+        assert self._zero_ticks is not None and self.tick_rate_hz is not None
+        edge_ticks = self._edge_ticks[:n_edges]
+        since_zero = np.asarray(edge_ticks, dtype=np.int64) - self._zero_ticks
         # An edge latched on the closing zero reference's tick stays inside [0, 2*pi); one latched a few
         # ticks before the opening one (its interrupt came first) is at angle 0.
         angles = np.clip(_TWO_PI * since_zero / span_ticks, 0.0, math.nextafter(_TWO_PI, 0.0))
@@ -614,7 +735,10 @@ class RevolutionAssembler:
             revolution=self._open_revolution,
             start_time_s=self._zero_ticks / self.tick_rate_hz + self.time_offset_s,
             period_s=span_ticks / self.tick_rate_hz,
-            edge_times_s=np.asarray(self._edge_ticks, dtype=float) / self.tick_rate_hz + self.time_offset_s,
+            edge_times_s=np.asarray(edge_ticks, dtype=float) / self.tick_rate_hz + self.time_offset_s,
             edge_angles_rad=angles,
-            edge_rising=np.asarray(self._edge_rising, dtype=bool),
+            edge_rising=np.asarray(self._edge_rising[:n_edges], dtype=bool),
+            lost_angles_rad=_TWO_PI
+            * (np.asarray(self._lost_ticks, dtype=float).reshape(-1, 2) - self._zero_ticks)
+            / span_ticks,
         )

@@ -9,7 +9,10 @@ reopened on the next read, whatever the back-off. Only `open()` raises, with a o
 says what to fix, when the device path does not exist or cannot be opened at start-up (permission
 denied, a baud rate the port refuses). Bytes that never form a valid frame (the sensor talks at
 another baud rate), a device of another protocol version (its hello, or the old firmware's v1 frames)
-and frames without a hello are reported by `stream_problem`.
+and frames without a hello are reported by `stream_problem`. As an EdgeSource (`SerialSource`), it says
+ERROR on /diagnostics while no zero reference comes although frames arrive (the turret stopped, its
+switch unplugged) or no frame comes at all, and WARNs for a while after lost frames, spurious zero
+references or revolutions of implausible length (docs/serial_integrity.md).
 
 Device time to host time: the device's timer starts anywhere, so the source maps it onto the host clock
 with the smallest observed (arrival - capture) offset, the one with the least transmission delay;
@@ -36,15 +39,19 @@ from beams_driver.serial_protocol import (
     DEFAULT_BAUDRATE,
     FRAME_SIZE,
     HELLO_PERIOD_S,
+    LOST_FRAMES_COSTS,
+    MIN_SPAN_TOLERANCE_S,
     EventKind,
     FrameEvent,
     FrameParser,
     RevolutionAssembler,
 )
 
-# Bytes without one valid frame among them after which the stream is called unreadable: a wrong baud
-# rate turns every frame into garbage, while a sound stream has a frame every FRAME_SIZE bytes.
+# Bytes without one valid frame among them, and seconds, after which the stream is called unreadable: a
+# wrong baud rate turns every frame into garbage, while a sound stream has a frame every FRAME_SIZE bytes;
+# line noise (even 1 % of the bytes) or a burst of it on plugging in leaves frames whole within both.
 UNREADABLE_STREAM_BYTES = 64 * FRAME_SIZE
+UNREADABLE_STREAM_S = 0.5
 # Frames without a hello for this long (the firmware sends four a second): the device does not say its clock.
 HELLO_WAIT_S = 3.0 * HELLO_PERIOD_S
 
@@ -71,6 +78,7 @@ class SerialEdgeSource:
         max_clock_drift: float = 1e-4,
         drop_log_period_s: float = 5.0,
         assembler: RevolutionAssembler | None = None,
+        monotonic: Callable[[], float] = time.monotonic,
         clock: Callable[[], float] = time.time,
         sleep: Callable[[float], None] = time.sleep,
         log: Callable[[str], None] | None = None,
@@ -94,6 +102,7 @@ class SerialEdgeSource:
         self.reconnections = 0
         self.failed_reconnections = 0
         self._clock = clock
+        self._monotonic = monotonic
         self._sleep = sleep
         self._log = log or (lambda message: None)
         self._serial_factory = serial_factory
@@ -111,6 +120,10 @@ class SerialEdgeSource:
         self._device_clock: tuple[int, int] | None = None
         self._problem_key = ""
         self._frames_without_hello_since: float | None = None
+        self._connected_s = 0.0  # monotonic: the port opened (or reopened)
+        self._last_frame_s: float | None = None  # a valid frame from a known device
+        self._last_valid_bytes_s = 0.0  # any valid frame, or the port opened
+        self._last_zero_reference_s: float | None = None
         self.stream_problem = ""  # why the bytes that arrive are not usable ("" while they are)
         self.last_error = ""  # why the last (re)connection attempt failed
 
@@ -125,6 +138,12 @@ class SerialEdgeSource:
             )
         self._port = self._open_port()
         self._opened = True
+        self._connected()
+
+    def _connected(self) -> None:
+        """A new stream: the silences are measured from now."""
+        self._connected_s = self._last_valid_bytes_s = self._monotonic()
+        self._last_frame_s = self._last_zero_reference_s = None
 
     def close(self) -> None:
         """Close the port (idempotent); read() returns nothing afterwards."""
@@ -168,11 +187,30 @@ class SerialEdgeSource:
         if not data:
             return []
         events = self.parser.feed(data)
+        self._note_arrivals(events)
         self._check_stream(len(data))
         self._update_clock(events, self._clock())
         revolutions = self.assembler.feed(events)
         self._log_new_drops()
         return revolutions
+
+    def _note_arrivals(self, events: list[FrameEvent]) -> None:
+        if events:
+            now = self._monotonic()
+            self._last_frame_s = now
+            if any(event.kind == EventKind.ZERO_REFERENCE for event in events):
+                self._last_zero_reference_s = now
+
+    def zero_reference_silence_s(self) -> float | None:
+        """Seconds without a zero reference while frames of a known device arrive (since the stream began
+        if none came yet); None while no frame arrives (another problem, said elsewhere)."""
+        if self._last_frame_s is None:
+            return None
+        return self._monotonic() - (self._last_zero_reference_s or self._connected_s)
+
+    def frame_silence_s(self) -> float:
+        """Seconds since the last frame of a known device (since the stream began if none came)."""
+        return self._monotonic() - (self._last_frame_s or self._connected_s)
 
     def _check_stream(self, n_bytes: int) -> None:
         """Say once why the bytes that arrive give no edges: no frame at all (the baud rate), a device
@@ -181,7 +219,8 @@ class SerialEdgeSource:
         frames = parser.event_frames + parser.hellos + parser.drops["protocol_v1_frames"]
         if frames == self._frames_seen:
             self._bytes_since_frame += n_bytes
-            if self._bytes_since_frame >= UNREADABLE_STREAM_BYTES:
+            silent_s = self._monotonic() - self._last_valid_bytes_s
+            if self._bytes_since_frame >= UNREADABLE_STREAM_BYTES and silent_s >= UNREADABLE_STREAM_S:
                 self._report(
                     "no_frame",
                     f"serial device {self.device}: {self._bytes_since_frame} bytes and no valid frame: is "
@@ -190,6 +229,7 @@ class SerialEdgeSource:
             return
         self._frames_seen = frames
         self._bytes_since_frame = 0
+        self._last_valid_bytes_s = self._monotonic()
         if parser.problem:
             self._report(parser.problem, f"serial device {self.device}: {parser.problem}")
         elif parser.device is None:
@@ -259,6 +299,7 @@ class SerialEdgeSource:
         # A new stream: its sequence numbers, timer epoch and open revolution are unrelated to the old one.
         self.parser.new_stream()
         self.assembler.reset()
+        self._connected()
         self._offset_s = None
         self._bytes_since_frame = 0
         self._frames_without_hello_since = None
@@ -318,13 +359,80 @@ def open_failure_reason(device: str, baudrate: int, error: Exception) -> str:
 
 # ---- the serial device as the driver's EdgeSource (`source: serial`) ----
 
+ZERO_REFERENCE_TIMEOUT = ParameterSpec(
+    "zero_reference_timeout_s",
+    2.0,
+    "Seconds without a zero reference, while the turret's frames arrive, after which /diagnostics says "
+    "ERROR (the turret stopped or its optical switch is unplugged); the start-up ramp takes about 1.2 s.",
+    minimum=0.2,
+    maximum=60.0,
+)
+MIN_REVOLUTION_TOLERANCE = ParameterSpec(
+    "min_revolution_tolerance_s",
+    MIN_SPAN_TOLERANCE_S,
+    "Smallest tolerance (s) on a revolution's length against the measured turret speed (5 robust standard "
+    "deviations of the recent lengths, at least this): a revolution outside it is refused, its bearings "
+    "would be off by up to 2*pi*error/period.",
+    minimum=1e-6,
+    maximum=5e-3,
+)
+LOST_FRAMES_COST = ParameterSpec(
+    "lost_frames_cost",
+    "window",
+    "What frames lost on the link (sequence gaps: line noise, the turret's queue overflowing) cost: "
+    "'window' keeps the revolution and drops only the beacon windows within the decoder's timeout of where "
+    "they were lost (a kept bearing is exactly the clean stream's); 'revolution' drops the revolution.",
+    choices=LOST_FRAMES_COSTS,
+)
 SERIAL_PARAMETERS = (
     ParameterSpec("device", "/dev/ttyUSB0", "Serial device of the BeAMS sensor."),
     ParameterSpec("baud_rate", DEFAULT_BAUDRATE, "Serial baud rate.", minimum=9600, maximum=12_000_000),
+    ZERO_REFERENCE_TIMEOUT,
+    MIN_REVOLUTION_TOLERANCE,
+    LOST_FRAMES_COST,
 )
 SERIAL_POLL_PERIOD_S = 0.01
-# /diagnostics warns this long after the turret last lost frames.
-LOST_FRAMES_WARN_S = 5.0
+# /diagnostics warns this long after the turret last lost frames, or after a refused zero reference or
+# revolution length.
+RECENT_DROPS_WARN_S = 5.0
+# The drops /diagnostics warns about while recent, and what each means for the operator.
+WARNED_DROPS = (
+    (
+        "lost_frames",
+        "the turret lost {count} frames in the last {window} s: more edges than the link carries "
+        "(its queue overflowed) or line noise; the {cost}s they touched were dropped",
+    ),
+    (
+        "zero_reference_too_early",
+        "{count} spurious zero references in the last {window} s (switch bounce or "
+        "noise on its line): ignored",
+    ),
+    (
+        "bad_revolution_period",
+        "{count} revolutions of implausible length in the last {window} s (the turret "
+        "stalled or changed speed, or a zero reference was missed): refused",
+    ),
+)
+
+
+class RecentCount:
+    """How much a growing counter grew in the last window_s seconds (for a warning that clears itself)."""
+
+    def __init__(self, window_s: float, monotonic: Callable[[], float] = time.monotonic) -> None:
+        self.window_s = float(window_s)
+        self._monotonic = monotonic
+        self._total = 0
+        self._history: deque[tuple[float, int]] = deque()
+
+    def update(self, total: int) -> int:
+        """The counter's growth over the last window_s, given its current total."""
+        now = self._monotonic()
+        if total != self._total:
+            self._history.append((now, total - self._total))
+            self._total = total
+        while self._history and now - self._history[0][0] > self.window_s:
+            self._history.popleft()
+        return sum(count for _, count in self._history)
 
 
 class SerialSource:
@@ -332,18 +440,26 @@ class SerialSource:
     reason), read at every poll; a reconnection breaks the revolutions' continuity."""
 
     def __init__(self, values: Mapping[str, Any], _codes: Sequence[Any], host: SourceHost) -> None:
+        def value(spec: ParameterSpec) -> Any:
+            return values.get(spec.name, spec.default)
+
+        self.zero_reference_timeout_s = float(value(ZERO_REFERENCE_TIMEOUT))
+        self.lost_frames_cost = str(value(LOST_FRAMES_COST))
         self.serial = SerialEdgeSource(
             values["device"],
             values["baud_rate"],
             read_timeout_s=SERIAL_POLL_PERIOD_S / 2,
+            assembler=RevolutionAssembler(
+                min_tolerance_s=float(value(MIN_REVOLUTION_TOLERANCE)),
+                lost_frames_cost=self.lost_frames_cost,
+            ),
             clock=host.now_s,
             log=host.log_warning,
         )
         self.serial.open()
         self._log_info = host.log_info
         self._reconnections = 0
-        self._lost_total = 0
-        self._lost_history: deque[tuple[float, int]] = deque()
+        self._recent = {reason: RecentCount(RECENT_DROPS_WARN_S) for reason, _ in WARNED_DROPS}
 
     def poll(self, now_s: float) -> SourcePoll:
         revolutions = self.serial.read()
@@ -362,37 +478,44 @@ class SerialSource:
         )
         device = serial.parser.device
         if device is not None:
+            expected_ticks, tolerance_ticks = serial.assembler.expected_span()
             values.update(
                 serial_device_protocol_version=device.version,
                 serial_device_timer_hz=device.timer_hz,
                 serial_device_ticks_per_revolution=device.ticks_per_revolution,
                 serial_device_dropped_events=device.dropped_events,
+                serial_turret_period_s=expected_ticks / device.timer_hz,
+                serial_turret_period_tolerance_s=tolerance_ticks / device.timer_hz,
             )
+        recent = {reason: counter.update(serial.drops[reason]) for reason, counter in self._recent.items()}
         if not serial.connected:
             why = f" ({serial.last_error})" if serial.last_error else ""
             return SourceHealth("error", f"serial device {serial.device} lost, reconnecting{why}", values)
         if serial.stream_problem:
             return SourceHealth("error", serial.stream_problem, values)
-        lost = self._recently_lost_frames()
-        if lost:
+        silence_s = serial.zero_reference_silence_s()
+        if silence_s is not None and silence_s > self.zero_reference_timeout_s:
             return SourceHealth(
-                "warn",
-                f"the turret lost {lost} frames in the last {LOST_FRAMES_WARN_S:.0f} s: more edges than the "
-                f"link carries (its queue overflowed); their revolutions were dropped",
+                "error",
+                f"no zero reference for {silence_s:.1f} s: turret stopped or switch unplugged (the turret's "
+                f"frames still arrive)",
                 values,
             )
+        if serial.frame_silence_s() > self.zero_reference_timeout_s:
+            return SourceHealth(
+                "error",
+                f"no frame from the turret for {serial.frame_silence_s():.1f} s (the firmware sends a "
+                f"heartbeat every 33 ms): its firmware hung or the link is cut",
+                values,
+            )
+        warnings = [
+            text.format(count=recent[reason], window=f"{RECENT_DROPS_WARN_S:.0f}", cost=self.lost_frames_cost)
+            for reason, text in WARNED_DROPS
+            if recent[reason]
+        ]
+        if warnings:
+            return SourceHealth("warn", "; ".join(warnings), values)
         return SourceHealth("ok", None, values)
-
-    def _recently_lost_frames(self) -> int:
-        """Frames lost (sequence gaps) in the last LOST_FRAMES_WARN_S, for the warning."""
-        now = time.monotonic()
-        total = self.serial.parser.drops["lost_frames"]
-        if total != self._lost_total:
-            self._lost_history.append((now, total - self._lost_total))
-            self._lost_total = total
-        while self._lost_history and now - self._lost_history[0][0] > LOST_FRAMES_WARN_S:
-            self._lost_history.popleft()
-        return sum(count for _, count in self._lost_history)
 
     def close(self) -> None:
         self.serial.close()

@@ -324,12 +324,12 @@ def test_baud_rate_the_port_refuses_is_one_clear_line(device: FakeDevice, link: 
 
 
 def test_stream_at_another_baud_rate_is_named_once(device: FakeDevice, link: pathlib.Path) -> None:
-    """Bytes that never form a frame (what a sensor at another baud rate sends) are reported once,
-    in one line naming the baud rate; the first valid frame clears the report."""
+    """Bytes that never form a frame (what a sensor at another baud rate sends, without pause) are
+    reported once, in one line naming the baud rate; the first valid frame clears the report."""
     logs: list[str] = []
-    garbage = np.random.default_rng(5).integers(0, 256, UNREADABLE_STREAM_BYTES * 3, dtype=np.uint8)
+    garbage = np.random.default_rng(5).integers(0, 256, UNREADABLE_STREAM_BYTES * 8, dtype=np.uint8)
     with SerialEdgeSource(str(link), log=logs.append) as source:
-        device.write_in_background(garbage.tobytes()).join(WAIT_S)
+        writer = device.write_in_background(garbage.tobytes(), chunk=64, pause_s=0.01)
         deadline = time.monotonic() + WAIT_S
         while not source.stream_problem and time.monotonic() < deadline:
             assert source.read() == []
@@ -337,6 +337,7 @@ def test_stream_at_another_baud_rate_is_named_once(device: FakeDevice, link: pat
             "no valid frame: is baud_rate 500000 the sensor's (its default is 500000)?"
         )
         assert [line for line in logs if "no valid frame" in line] == [source.stream_problem]
+        writer.join(WAIT_S)
         device.write_in_background(FrameEncoder().revolutions(simulated_revolutions(3, seed=23)))
         assert read_until(source, 2) and source.stream_problem == ""
 
@@ -385,9 +386,13 @@ def test_old_firmware_is_an_error_that_names_the_protocol(device: FakeDevice, li
     assert [w for w in host.warnings if "protocol v1" in w] == [health.message]
 
 
-def test_frames_the_turret_lost_are_counted_and_warned(device: FakeDevice, link: pathlib.Path) -> None:
+@pytest.mark.parametrize("cost", ["revolution", "window"])
+def test_frames_the_turret_lost_are_counted_and_warned(
+    device: FakeDevice, link: pathlib.Path, cost: str
+) -> None:
     """Its queue overflowed (events numbered, not sent): /diagnostics shows the count and a warning, and
-    the revolutions they fall in are dropped, the others kept."""
+    the revolution they fall in is dropped (cost "revolution") or published with where they were lost
+    (cost "window", the default: the decoder drops the windows near it), the others kept."""
     sent = simulated_revolutions(6, seed=31)
     encoder = FrameEncoder()
     data = bytearray()
@@ -404,18 +409,28 @@ def test_frames_the_turret_lost_are_counted_and_warned(device: FakeDevice, link:
         EventKind.ZERO_REFERENCE, round((sent[-1].start_time_s + sent[-1].period_s) * TIMER_HZ)
     )
     data += encoder.event(EventKind.HEARTBEAT, round((sent[-1].start_time_s + 1.5) * TIMER_HZ))  # a hello
-    source = SerialSource({"device": str(link), "baud_rate": 500_000}, (), FakeHost())
+    values = {"device": str(link), "baud_rate": 500_000, "lost_frames_cost": cost}
+    source = SerialSource(values, (), FakeHost())
+    expected = [0, 1, 3, 4, 5] if cost == "revolution" else [0, 1, 2, 3, 4, 5]
     try:
         device.write_in_background(bytes(data))
         received = poll_until(
             source,
-            lambda got: len(got) >= 5 and getattr(source.serial.parser.device, "dropped_events", 0) > 0,
+            lambda got: (
+                len(got) >= len(expected) and getattr(source.serial.parser.device, "dropped_events", 0) > 0
+            ),
         )
         health = source.health()
     finally:
         source.close()
-    assert [r.revolution for r in received] == [0, 1, 3, 4, 5]
+    assert [r.revolution for r in received] == expected
     assert health.level == "warn" and "lost 7 frames" in health.message
+    assert f"the {cost}s they touched were dropped" in health.message
+    if cost == "window":  # the 7 lost edges lie between the event before the first and the 8th edge
+        (lost,) = received[2].lost_angles_rad
+        assert 0.0 <= lost[0] <= sent[2].edge_angles_rad[0]
+        assert lost[1] == pytest.approx(sent[2].edge_angles_rad[7], abs=HALF_TICK_RAD * 1.0001)
+        assert received[2].n_edges == sent[2].n_edges - 7
     assert health.values["serial_drops_lost_frames"] == 7
     assert health.values["serial_device_dropped_events"] == 7
     assert health.values["serial_device_timer_hz"] == TIMER_HZ
@@ -438,3 +453,106 @@ def test_frames_without_a_hello_are_an_error(
     assert received == []
     assert "no hello" in health.message and "flash firmware/turret" in health.message
     assert health.values["serial_drops_before_hello"] > 0
+
+
+def paced_revolutions(
+    device: FakeDevice, revolutions: list[RevolutionEdges], silent: range
+) -> threading.Thread:
+    """One revolution per turret period, as the sensor sends them; during `silent` (revolution numbers)
+    the optical switch is unplugged: its edges and heartbeats still come, no zero reference."""
+    encoder = FrameEncoder()
+
+    def run() -> None:
+        for edges in revolutions:
+            if device.unplugged.is_set():
+                return
+            if edges.revolution in silent:
+                data = b"".join(
+                    encoder.event(EventKind.RISING if rising else EventKind.FALLING, round(t * TIMER_HZ))
+                    for t, rising in zip(edges.edge_times_s, edges.edge_rising, strict=True)
+                )
+            else:
+                data = encoder.revolution(edges)
+            with contextlib.suppress(OSError):
+                os.write(device.master, data)
+            time.sleep(edges.period_s)
+
+    thread = threading.Thread(target=run, daemon=True)
+    thread.start()
+    return thread
+
+
+def test_no_zero_reference_is_an_error_until_it_returns(device: FakeDevice, link: pathlib.Path) -> None:
+    """The switch unplugged for 1.5 s while edges and heartbeats still come: nothing is published,
+    /diagnostics says ERROR with the reason within the timeout, and both recover when it is back."""
+    sent = simulated_revolutions(45, seed=32)
+    host = FakeHost()
+    source = SerialSource(
+        {"device": str(link), "baud_rate": 500_000, "zero_reference_timeout_s": 0.5}, (), host
+    )
+    try:
+        paced_revolutions(device, sent, silent=range(10, 25))
+        before = poll_until(source, lambda got: len(got) >= 8)
+        assert source.health().level == "ok"
+        during = poll_until(source, lambda _: source.health().level == "error", timeout_s=5.0)
+        health = source.health()
+        assert health.message.startswith("no zero reference for "), health.message
+        assert health.message.endswith(
+            "s: turret stopped or switch unplugged (the turret's frames still arrive)"
+        )
+        silence_s = float(health.message.split()[4])
+        assert 0.5 <= silence_s < 1.0
+        after = poll_until(source, lambda got: len(got) >= 10)
+        health = source.health()
+    finally:
+        source.close()
+    assert {r.revolution for r in during} <= set(range(10))
+    assert health.level != "error" and "no zero reference" not in (health.message or ""), health.message
+    assert after and min(r.revolution for r in after) >= 25
+    assert_same_edges([sent[r.revolution] for r in before + during + after], before + during + after)
+
+
+def test_line_noise_is_not_called_a_baud_rate_problem(device: FakeDevice, link: pathlib.Path) -> None:
+    """1 % of the bytes replaced by random ones: frames still form, so no baud-rate diagnosis; the
+    revolutions the noise spared are published (the assembler's tests count them exactly)."""
+    sent = simulated_revolutions(40, seed=33)
+    clean = FrameEncoder().revolutions(sent)
+    rng = np.random.default_rng(34)
+    damaged = np.frombuffer(clean, dtype=np.uint8).copy()
+    hit = rng.random(len(damaged)) < 0.01
+    damaged[hit] = rng.integers(0, 256, int(hit.sum()))
+    logs: list[str] = []
+    source = SerialSource({"device": str(link), "baud_rate": 500_000}, (), FakeHost())
+    source.serial._log = logs.append
+    try:
+        device.write_in_background(
+            damaged.tobytes() + FrameEncoder(first_sequence=9).revolutions(sent[:3]), 500, 0.005
+        )
+        received = poll_until(
+            source, lambda _: source.serial.parser.bytes_fed >= len(damaged) + len(clean) // 20
+        )
+        health = source.health()
+    finally:
+        source.close()
+    assert source.serial.parser.drops["lost_frames"] > 50
+    assert not [line for line in logs if "no valid frame" in line]
+    assert health.level == "warn" and "lost" in health.message, health.message
+    assert received
+
+
+def test_a_forged_frame_out_of_time_order_refuses_its_revolution() -> None:
+    """Noise that passed the checksum (1 in 65536 bad frames) may put an edge back in time: the revolution
+    is refused and counted, never built."""
+    from beams_driver.serial_protocol import FrameEvent, RevolutionAssembler
+
+    assembler = RevolutionAssembler(TIMER_HZ, TICKS_PER_REVOLUTION)
+    events = [
+        FrameEvent(EventKind.ZERO_REFERENCE, 0, 0, False),
+        FrameEvent(EventKind.RISING, 1000, 1, False),
+        FrameEvent(EventKind.FALLING, 500, 2, False),
+        FrameEvent(EventKind.ZERO_REFERENCE, TICKS_PER_REVOLUTION, 3, False),
+        FrameEvent(EventKind.RISING, TICKS_PER_REVOLUTION + 1000, 4, False),
+        FrameEvent(EventKind.ZERO_REFERENCE, 2 * TICKS_PER_REVOLUTION, 5, False),
+    ]
+    assert [r.revolution for r in assembler.feed(events)] == [1]
+    assert assembler.drops["edges_out_of_order"] == 1
