@@ -54,6 +54,10 @@ SUCCESS = TransitionCallbackReturn.SUCCESS
 FAILURE = TransitionCallbackReturn.FAILURE
 ERROR = TransitionCallbackReturn.ERROR
 RCLError = _rclpy.RCLError
+# the WARN of a driver publishing bearings no calibration corrected (the message's `calibrated` false)
+UNCALIBRATED = (
+    "uncalibrated: no calibration_file, the bearings carry the power bias (within 0.23 deg, thesis 5.7)"
+)
 
 
 class RosSourceHost:
@@ -360,12 +364,18 @@ class DriverNode(LifecycleNode):
         msg.period = decoded.period_s
         msg.bearings = [self._bearing_message(b) for b in decoded.bearings]
         msg.rejected_windows = min(len(decoded.rejections), 2**16 - 1)
+        msg.calibrated = not self.correction.is_identity
         self.publisher.publish(msg)
         self.diagnostics.increment("revolutions")
         self.diagnostics.increment("bearings", len(msg.bearings))
         for rejection in decoded.rejections:
             self.diagnostics.increment(f"rejected_{rejection.kind}")
-        self.diagnostics.set_level("ok", f"{len(msg.bearings)} bearings in the last revolution")
+        self.diagnostics.set("calibrated", msg.calibrated)
+        status = f"{len(msg.bearings)} bearings in the last revolution"
+        if msg.calibrated:
+            self.diagnostics.set_level("ok", status)
+        else:
+            self.diagnostics.set_level("warn", f"{UNCALIBRATED}; {status}")
 
     def _bearing_message(self, decoded) -> BeaconBearing:
         msg = BeaconBearing()

@@ -40,6 +40,7 @@ from beams_common.validation import bearing_problem, one_sighting_per_beacon, re
 from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise, turret_pose
 from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.pose_filter import BearingOutcome, PoseFilter
+from beams_ekf.power_bias_states import PowerBiasStates, power_bias_states_of
 
 # bearings waiting for odometry beyond this many are dropped, oldest first (a dead odometry source)
 MAX_PENDING_BEARINGS = 64
@@ -134,6 +135,8 @@ class FilterSettings:
         default_factory=lambda: ProcessNoise.wheel_noise(WHEEL_VARIANCE_M2_PER_M, WHEEL_BASE_M)
     )
     odometry_errors: OdometryErrorStates | None = field(default_factory=OdometryErrorStates)
+    # the power bias of uncalibrated bearings as states (estimated or considered); None: white noise
+    power_bias: PowerBiasStates | None = field(default_factory=PowerBiasStates)
     # chi-square (1 dof) probability of the per-bearing gate
     gate_probability: float = 0.999
     localiser: LocaliserConfig = field(default_factory=LocaliserConfig)
@@ -197,6 +200,7 @@ def filter_settings(parameters: Mapping[str, Any]) -> FilterSettings:
     return FilterSettings(
         noise,
         errors,
+        power_bias_states_of(dict(parameters)),
         float(parameters.get("gate_probability", defaults.gate_probability)),
         config,
         bool(parameters.get("use_total_pose", defaults.use_total_pose)),
@@ -540,7 +544,10 @@ class Localiser:
     def _apply(self, bearing: Bearing, robot_then: Pose2D) -> BearingOutcome:
         """Update with a bearing taken with the robot at `robot_then` in the current state's robot frame."""
         lever = turret_pose(robot_then, self.ekf.sensor_offset_m)
-        return self.ekf.update_bearing(bearing.beacon_id, bearing.bearing_rad, bearing.variance_rad2, lever)
+        window = 0.0 if bearing.calibrated else bearing.angular_window_rad  # an uncorrected power bias
+        return self.ekf.update_bearing(
+            bearing.beacon_id, bearing.bearing_rad, bearing.variance_rad2, lever, window
+        )
 
     def _track_gating(self, bearing: Bearing, outcome: BearingOutcome) -> None:
         """Record whether a new bearing was gated (kidnap evidence) and the last accepted one."""
@@ -674,5 +681,6 @@ def build_localiser(
         settings.process_noise,
         settings.gate_probability,
         settings.odometry_errors,
+        settings.power_bias,
     )
     return Localiser(ekf, settings.localiser)
