@@ -183,6 +183,7 @@ class BearingEkf:
         self._bias = slice(bias_start, self.dim)
         self._ekf = _OdometryEkf(dim_x=self.dim, dim_z=1)
         self._window_fit = WindowFit()
+        self._learn_bias = False  # whether the bearing being applied updates the power bias states
         self._initialised = False
 
     def configure(
@@ -316,13 +317,16 @@ class BearingEkf:
             raise ZeroDivisionError(f"the sensor is on beacon {beacon_id}") from None
         jacobian = np.zeros((1, self.dim))
         jacobian[0, :3] = d_pose
+        self._learn_bias = False
         if self.power_bias is not None and uncorrected_window_rad > 0.0:
             turret = compose(self.pose, lever)
             distance_m = hypot(
                 self.beacons_xy[beacon_id][0] - turret[0], self.beacons_xy[beacon_id][1] - turret[1]
             )
             window = self._window_fit.window_rad(beacon_id, distance_m, uncorrected_window_rad)
-            basis = self.power_bias.basis(window)
+            # until the window fit is ready, the noisy measured window only carries the bias's uncertainty
+            self._learn_bias = window is not None and self.power_bias.estimate
+            basis = self.power_bias.basis(uncorrected_window_rad if window is None else window)
             jacobian[0, self._bias] = basis
             expected = wrap_to_pi(expected + float(basis @ x[self._bias, 0]))
         return expected, jacobian
@@ -361,10 +365,11 @@ class BearingEkf:
         self, jacobian: np.ndarray, variance_rad2: float, residual: float, innovation_variance: float
     ) -> None:
         """x += K r, P = (I - K H) P (I - K H)' + K R K' (filterpy's form), K = P H' / S; the gain rows
-        of consider parameters are zero (Schmidt-Kalman): the Joseph form stays right for that gain."""
+        of consider parameters (and of the bias states for a bearing that cannot teach them) are zero
+        (Schmidt-Kalman): the Joseph form stays right for that gain."""
         p = self._ekf.P
         gain = (p @ jacobian.T) / innovation_variance
-        if self.power_bias is not None and not self.power_bias.estimate:
+        if self.power_bias is not None and not self._learn_bias:
             gain[self._bias] = 0.0
         reduce = np.eye(self.dim) - gain @ jacobian
         self._ekf.x = self._ekf.x + gain * residual

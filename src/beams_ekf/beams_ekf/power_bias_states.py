@@ -103,9 +103,9 @@ class WindowFit:
         self._sums: dict[int, np.ndarray] = {}
         self._recent: dict[int, deque[float]] = {}
 
-    def window_rad(self, beacon_id: int, distance_m: float, measured_window_rad: float) -> float:
+    def window_rad(self, beacon_id: int, distance_m: float, measured_window_rad: float) -> float | None:
         """The window to evaluate the bias at: the fit at distance_m once it holds MIN_SAMPLES windows
-        over a spread of distances, else the measured window; the measured one joins the fit."""
+        over a spread of distances, else None (the fit is not ready); the measured one joins the fit."""
         recent = self._recent.setdefault(beacon_id, deque(maxlen=self._REMEMBERED))
         log_distance = log(max(distance_m, 1e-3))
         sums = self._sums.setdefault(beacon_id, np.zeros(6))
@@ -116,10 +116,10 @@ class WindowFit:
         count, sx, sxx, sy, sxy, _ = sums
         spread = sxx * count - sx * sx
         if count < self.MIN_SAMPLES or spread < 1e-3 * count * count:
-            return measured_window_rad
+            return None
         slope = (sxy * count - sx * sy) / spread
         fitted = (sy - slope * sx) / count + slope * log_distance
-        return sqrt(fitted) if fitted > 0.0 else measured_window_rad
+        return sqrt(fitted) if fitted > 0.0 else None
 
 
 # ekf_node's parameters of the power-bias states (added to its table, beams_ekf.parameters)
