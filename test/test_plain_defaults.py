@@ -14,9 +14,15 @@ import math
 
 import numpy as np
 import pytest
-from test_system_faults import NODE_EXECUTABLES
 
 pytestmark = pytest.mark.dds
+
+ROBOT_NODES = (
+    ("beams_sim", "sim_world_node"),
+    ("beams_driver", "driver_node"),
+    ("beams_triangulation", "triangulation_node"),
+    ("beams_ekf", "ekf_node"),
+)
 
 SPREAD_BAND = (0.7, 1.43)
 NEES_BAND = (2.0, 4.5)
@@ -60,8 +66,8 @@ def test_plain_defaults_are_honest(start_node, rclpy_node):
         driver_statuses.extend(s for s in msg.status if s.name == "/driver_node: driver")
 
     node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 50)
-    for name in NODE_EXECUTABLES:
-        start_node(*NODE_EXECUTABLES[name])  # no parameter at all
+    for package, executable in ROBOT_NODES:
+        start_node(package, executable)  # no parameter at all
     start_node("beams_sim", "sim_world_node", {"trajectory": "static"}, "still")
     start_node("beams_driver", "driver_node", None, "still")
 
