@@ -106,3 +106,24 @@ def test_plain_defaults_are_honest(start_node, rclpy_node):
     assert len(nees) > 100
     assert NEES_BAND[0] <= nees.mean() <= NEES_BAND[1], nees.mean()
     assert math.isfinite(nees.max())
+
+
+def test_save_calibration_writes_a_file_the_driver_reads(start_node, rclpy_node, tmp_path):
+    """ekf_node's ~/save_calibration writes the learnt power bias as a chapter-7 calibration file (here
+    nothing learnt yet: the prior, a zero curve); a path it cannot write (under a file) is refused with
+    the reason."""
+    from std_srvs.srv import Trigger
+
+    from beams_common.calibration_file import load_calibration
+
+    path = tmp_path / "learnt.yaml"
+    start_node("beams_ekf", "ekf_node", {"self_calibration_file": str(path)})
+    reply = rclpy_node.call(Trigger, "/ekf_node/save_calibration", Trigger.Request(), 20.0)
+    assert reply.success, reply.message
+    assert str(path) in reply.message
+    calibration = load_calibration(path)
+    assert calibration.bearing_correction.window_range_rad is not None
+    assert calibration.bearing_correction.is_identity  # nothing learnt: no bearing came
+    start_node("beams_ekf", "ekf_node", {"self_calibration_file": str(path / "x.yaml")}, "bad")
+    reply = rclpy_node.call(Trigger, "/bad/ekf_node/save_calibration", Trigger.Request(), 20.0)
+    assert not reply.success and "not saved" in reply.message

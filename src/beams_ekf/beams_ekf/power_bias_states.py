@@ -150,6 +150,12 @@ POWER_BIAS_PARAMETERS = (
         maximum=1.0,
         length=2,
     ),
+    ParameterSpec(
+        "self_calibration_file",
+        "self_calibration.yaml",
+        "Where the ~/save_calibration service writes the power bias learnt while driving (a chapter-7 "
+        "calibration file for driver_node's calibration_file; the previous one kept as .bak).",
+    ),
 )
 
 
