@@ -80,9 +80,11 @@ class MessageBuilder:
         bearings: Iterable[tuple[int, int, float, float] | tuple[int, int, float, float, float]],
         revolution: int,
         frame_id: str = "beams_sensor",
+        calibrated: bool = True,
     ) -> Any:
         """beams_msgs/BeaconBearingArray from (stamp ns, beacon id, bearing rad, variance rad^2) tuples,
-        optionally followed by the angular window (rad; 0 without it)."""
+        optionally followed by the angular window (rad; 0 without it); `calibrated`: the driver's flag
+        (true: no power bias to model, as for the simulator's default unbiased receiver)."""
         bearing_type = self.types["beams_msgs/msg/BeaconBearing"]
         items = [
             bearing_type(
@@ -103,6 +105,7 @@ class MessageBuilder:
             period=float(period_s),
             bearings=items,
             rejected_windows=0,
+            calibrated=calibrated,
         )
 
     def triangulated_pose(self, estimate: PoseEstimate, stamp: int, frame_id: str) -> Any:
