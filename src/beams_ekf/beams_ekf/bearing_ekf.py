@@ -38,6 +38,7 @@ from beams_common.pose2d import Pose2D, compose
 from beams_ekf.odometry_errors import OdometryErrorStates, corrected_increment
 from beams_ekf.pose_filter import BearingOutcome
 from beams_ekf.power_bias_states import BASIS_SIZE, PowerBiasStates, WindowFit
+from beams_ekf.turret_offset_states import OFFSET_SIZE, TurretOffsetStates
 
 
 @dataclass(frozen=True)
@@ -172,15 +173,20 @@ class BearingEkf:
         gate_probability: float = 0.999,
         odometry_errors: OdometryErrorStates | None = None,
         power_bias: PowerBiasStates | None = None,
+        turret_offset: TurretOffsetStates | None = None,
     ) -> None:
         self.configure(beacons_xy, sensor_offset_m, process_noise or ProcessNoise(), gate_probability)
         self.odometry_errors = odometry_errors
         self.power_bias = power_bias
-        # state layout: pose (3), odometry errors (3, optional), power bias (BASIS_SIZE, optional)
+        self.turret_offset = turret_offset
+        # state layout: pose (3), odometry errors (3), power bias (BASIS_SIZE), turret offset correction
+        # (OFFSET_SIZE), each but the pose optional
         bias_start = 3 if odometry_errors is None else 6
-        self.dim = bias_start + (0 if power_bias is None else BASIS_SIZE)
+        offset_start = bias_start + (0 if power_bias is None else BASIS_SIZE)
+        self.dim = offset_start + (0 if turret_offset is None else OFFSET_SIZE)
         self._errors = slice(3, bias_start)
-        self._bias = slice(bias_start, self.dim)
+        self._bias = slice(bias_start, offset_start)
+        self._offset = slice(offset_start, self.dim)
         self._ekf = _OdometryEkf(dim_x=self.dim, dim_z=1)
         self._window_fit = WindowFit()
         self._learn_bias = False  # whether the bearing being applied updates the power bias states
@@ -223,6 +229,14 @@ class BearingEkf:
         return self._ekf.x[self._errors, 0].copy(), self._ekf.P[self._errors, self._errors].copy()
 
     @property
+    def turret_offset_estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The correction (dx, dy) (m) of the configured turret offset and its 2x2 covariance, or None
+        without those states."""
+        if self.turret_offset is None:
+            return None
+        return self._ekf.x[self._offset, 0].copy(), self._ekf.P[self._offset, self._offset].copy()
+
+    @property
     def power_bias_estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(beta_1, beta_2, beta_3) (rad) and their 3x3 covariance, or None without those states."""
         if self.power_bias is None:
@@ -247,6 +261,7 @@ class BearingEkf:
         for states, block, known in (
             (self.odometry_errors, self._errors, self.odometry_error_estimate),
             (self.power_bias, self._bias, self.power_bias_estimate),
+            (self.turret_offset, self._offset, self.turret_offset_estimate),
         ):
             if states is not None:
                 learnt = known if self._initialised else None
@@ -309,6 +324,11 @@ class BearingEkf:
         the power bias f(w) (eq. 7.17) of a bearing no calibration corrected, at its window (0: none)."""
         lever = lever if lever is not None else (self.sensor_offset_m[0], self.sensor_offset_m[1], 0.0)
         x = self._ekf.x
+        if self.turret_offset is not None:
+            # the offset's correction, in base_link, turned into the lever's frame (the robot then)
+            lc, ls = cos(lever[2]), sin(lever[2])
+            dx, dy = float(x[self._offset][0, 0]), float(x[self._offset][1, 0])
+            lever = (lever[0] + lc * dx - ls * dy, lever[1] + ls * dx + lc * dy, lever[2])
         try:
             expected, d_pose = bearing_measurement(
                 (float(x[0, 0]), float(x[1, 0]), float(x[2, 0])), self.beacons_xy[beacon_id], lever
@@ -317,6 +337,12 @@ class BearingEkf:
             raise ZeroDivisionError(f"the sensor is on beacon {beacon_id}") from None
         jacobian = np.zeros((1, self.dim))
         jacobian[0, :3] = d_pose
+        if self.turret_offset is not None:
+            # dh/d(lever x, y) is dh/d(turret) = d_pose[:2] turned by the heading, then by the lever's angle
+            c, s = cos(float(x[2, 0])), sin(float(x[2, 0]))
+            d_lever = np.array([d_pose[0] * c + d_pose[1] * s, -d_pose[0] * s + d_pose[1] * c])
+            lc, ls = cos(lever[2]), sin(lever[2])
+            jacobian[0, self._offset] = d_lever @ np.array([[lc, -ls], [ls, lc]])
         self._learn_bias = False
         if self.power_bias is not None and uncorrected_window_rad > 0.0:
             turret = compose(self.pose, lever)

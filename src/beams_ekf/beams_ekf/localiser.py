@@ -41,6 +41,7 @@ from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise, turret_pose
 from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.pose_filter import BearingOutcome, PoseFilter
 from beams_ekf.power_bias_states import PowerBiasStates, power_bias_states_of
+from beams_ekf.turret_offset_states import TurretOffsetStates, turret_offset_states_of
 
 # bearings waiting for odometry beyond this many are dropped, oldest first (a dead odometry source)
 MAX_PENDING_BEARINGS = 64
@@ -137,6 +138,8 @@ class FilterSettings:
     odometry_errors: OdometryErrorStates | None = field(default_factory=OdometryErrorStates)
     # the power bias of uncalibrated bearings as states (estimated or considered); None: white noise
     power_bias: PowerBiasStates | None = field(default_factory=PowerBiasStates)
+    # the turret offset's correction as states (self-calibration); None: the configured offset is exact
+    turret_offset: TurretOffsetStates | None = None
     # chi-square (1 dof) probability of the per-bearing gate
     gate_probability: float = 0.999
     localiser: LocaliserConfig = field(default_factory=LocaliserConfig)
@@ -205,6 +208,7 @@ def filter_settings(parameters: Mapping[str, Any]) -> FilterSettings:
         config,
         bool(parameters.get("use_total_pose", defaults.use_total_pose)),
         sigma,
+        turret_offset_states_of(dict(parameters)),
     )
 
 
@@ -682,5 +686,6 @@ def build_localiser(
         settings.gate_probability,
         settings.odometry_errors,
         settings.power_bias,
+        settings.turret_offset,
     )
     return Localiser(ekf, settings.localiser)

@@ -7,6 +7,7 @@ from beams_common.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SPECS
 from beams_common.parameters import ParameterSpec, ParameterTable
 from beams_ekf.localiser import FilterSettings, filter_parameter_defaults, filter_settings
 from beams_ekf.power_bias_states import POWER_BIAS_PARAMETERS
+from beams_ekf.turret_offset_states import TURRET_OFFSET_PARAMETERS
 
 # The filter's parameters: (name, description, minimum, maximum); defaults from FilterSettings.
 _FILTER_PARAMETERS = (
@@ -146,6 +147,7 @@ EKF_PARAMETERS = ParameterTable(
         *GEOMETRY_SPECS,
         *(_filter_spec(*row) for row in _FILTER_PARAMETERS),
         *POWER_BIAS_PARAMETERS,
+        *TURRET_OFFSET_PARAMETERS,
         ParameterSpec("map_frame", "map", "Frame of the estimate (REP-105)."),
         ParameterSpec("base_frame", "base_link", "The robot's frame (child)."),
         ParameterSpec("odom_frame", "odom", "The odometry's frame (child of the map -> odom transform)."),
