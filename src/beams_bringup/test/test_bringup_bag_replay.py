@@ -160,8 +160,8 @@ def test_bad_input_is_counted_and_skipped(tmp_path, messages, typestore, replaye
     assert counts["total_bad_input"] == 4  # two NaN bearings, two unknown ids
     assert counts["revolutions"] - replayed[0].counts["revolutions"] == 6
     assert counts["total_no_pose"] - replayed[0].counts["total_no_pose"] == 2  # the empty ones
-    assert counts["ekf_bearings_invalid measurement"] == 6
-    assert counts["ekf_bearings_unknown beacon"] == 6
+    assert counts["ekf_bearings_invalid_measurement"] == 6
+    assert counts["ekf_bearings_unknown_beacon"] == 6
     # the Localiser refuses a bad bearing before scheduling it: the estimates are those of the clean bag
     assert result.ekf.rows == replayed[0].ekf.rows
     assert result.total.rows == replayed[0].total.rows

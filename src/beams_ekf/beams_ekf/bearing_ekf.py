@@ -36,7 +36,7 @@ from scipy.stats import chi2
 from beams_common.angles import wrap_to_pi
 from beams_common.pose2d import Pose2D, compose
 from beams_ekf.odometry_errors import OdometryErrorStates, corrected_increment
-from beams_ekf.pose_filter import BearingOutcome
+from beams_ekf.pose_filter import BearingOutcome, BearingReason, rejected
 from beams_ekf.power_bias_states import BASIS_SIZE, PowerBiasStates, WindowFit
 from beams_ekf.turret_offset_states import OFFSET_SIZE, TurretOffsetStates
 
@@ -369,20 +369,20 @@ class BearingEkf:
         `uncorrected_window_rad` > 0: the bearing's window when no calibration corrected it (its power
         bias is then modelled)."""
         if not self._initialised:
-            return BearingOutcome(False, float("nan"), float("nan"), "uninitialised")
+            return rejected(BearingReason.UNINITIALISED)
         if beacon_id not in self.beacons_xy:
-            return BearingOutcome(False, float("nan"), float("nan"), "unknown beacon")
+            return rejected(BearingReason.UNKNOWN_BEACON)
         if not (isfinite(bearing_rad) and isfinite(variance_rad2) and variance_rad2 > 0.0):
-            return BearingOutcome(False, float("nan"), float("nan"), "invalid measurement")
+            return rejected(BearingReason.INVALID_MEASUREMENT)
         try:
             expected, jacobian = self.predicted_bearing(beacon_id, lever, uncorrected_window_rad)
         except ZeroDivisionError:
-            return BearingOutcome(False, float("nan"), float("nan"), "sensor on beacon")
+            return rejected(BearingReason.SENSOR_ON_BEACON)
         residual = wrap_to_pi(bearing_rad - expected)
         innovation_variance = float((jacobian @ self._ekf.P @ jacobian.T)[0, 0]) + variance_rad2
         nis = residual * residual / innovation_variance
         if nis > self.gate:
-            return BearingOutcome(False, nis, residual, "gated")
+            return BearingOutcome(False, nis, residual, BearingReason.GATED)
         self._joseph_update(jacobian, variance_rad2, residual, innovation_variance)
         self._ekf.x[2, 0] = wrap_to_pi(float(self._ekf.x[2, 0]))
         return BearingOutcome(True, nis, residual)

@@ -27,7 +27,7 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from beams_common import topics
-from beams_common.bearing import bearings_of_message
+from beams_common.bearing_intake import bearings_message_intake
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import geometry_of_calibration, runtime_geometry
 from beams_common.ros.messages import (
@@ -47,18 +47,15 @@ from beams_common.ros.node_support import (
     serve_calibration_reload,
     startup_geometry,
 )
-from beams_common.ros.parameters import apply_runtime_changes, declare_table
+from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
 from beams_common.validation import (
     bounded,
     operator_pose_problem,
     planar_estimate_problem,
 )
-from beams_ekf.localiser import (
-    Estimate,
-    build_localiser,
-    filter_settings,
-)
-from beams_ekf.parameters import EKF_PARAMETERS
+from beams_ekf.localiser import build_localiser
+from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
+from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
 from beams_ekf.self_calibration import save_self_calibration
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_msgs.srv import SetPose
@@ -100,7 +97,7 @@ class EkfNode(Node):
         self.create_service(Trigger, topics.RESET, self._on_reset)
         self.create_service(Trigger, topics.SAVE_CALIBRATION, self._on_save_calibration)
         serve_calibration_reload(self, self._apply_calibration)
-        apply_runtime_changes(self, EKF_PARAMETERS, self.parameters, self._apply_parameters)
+        apply_runtime_changes(self, EKF_PARAMETERS, self.parameters, self._prepare_parameters)
         self.create_timer(1.0 / rate_hz, self._publish)
         self.get_logger().info(
             f"ekf_node ready: {len(self.localiser.ekf.beacons_xy)} beacons, turret offset "
@@ -108,11 +105,18 @@ class EkfNode(Node):
         )
 
     # -- parameters -----------------------------------------------------------------------------------
-    def _apply_parameters(self, values: dict, changed: set[str]) -> None:
-        """A runtime change (validated by the table): the beacon geometry, the process noise, the gate."""
-        self.geometry = geometry = runtime_geometry(values, changed, self.geometry)
-        self.settings = filter_settings(values)
-        self.localiser.configure(geometry.beacon_map.as_dict(), geometry.turret_offset_m, self.settings)
+    def _prepare_parameters(self, values: dict, changed: set[str]) -> ApplyChange:
+        """A runtime change (validated by the table): the new beacon geometry (a calibration file read)
+        and settings, built now (ValueError, OSError: refused); the process noise and the gate applied
+        by the returned step."""
+        geometry = runtime_geometry(values, changed, self.geometry)
+        settings = filter_settings(values)
+
+        def apply() -> None:
+            self.geometry, self.settings = geometry, settings
+            self.localiser.configure(geometry.beacon_map.as_dict(), geometry.turret_offset_m, settings)
+
+        return apply
 
     def _on_save_calibration(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """The power bias learnt so far as a chapter-7 calibration file (beams_ekf.self_calibration)."""
@@ -130,40 +134,28 @@ class EkfNode(Node):
     def _on_odometry(self, msg: Odometry) -> None:
         stamp_s = stamp_to_seconds(msg.header.stamp)
         outcome = self.localiser.on_odometry(stamp_s, pose2d_of(msg.pose.pose))
-        if outcome == "invalid":
+        if outcome is OdometryOutcome.INVALID:
             self.diagnostics.refuse("odometry_refused", f"odometry at {stamp_s:.3f} s: non-finite pose")
-        if outcome in ("reference", "predicted"):
+        if outcome.used:
             self._last_twist = msg.twist
             self._last_odometry_stamp = (stamp_s, msg.header.stamp)
-        if outcome == "reference":  # a time jump resets what was published too
+        if outcome is OdometryOutcome.REFERENCE:  # a time jump resets what was published too
             self._published_stamp_s = None
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
-        if self.diagnostics.oversized_revolution(msg):  # refused before any per-bearing work
+        intake = bearings_message_intake(msg, stamp_to_seconds, self.localiser.ekf.beacons_xy)
+        for key, reason in intake.revolution_refusals():
+            self.diagnostics.refuse(key, f"revolution {msg.revolution}: {reason}")
+        self.localiser.on_intake(intake)  # counts the bearings refused, applies those kept
+        if intake.too_many:  # refused before any per-bearing work
             return
-        bearings = bearings_of_message(msg, stamp_to_seconds)
-        counts = self.localiser.stats.counts
-        invalid_before = counts["bearings_invalid measurement"] + counts["bearings_unknown beacon"]
-        refused = self.localiser.on_revolution(bearings)
-        if refused:
-            self.diagnostics.refuse(
-                "revolutions_conflicting_beacon", f"revolution {msg.revolution}: " + refused
-            )
-        invalid = counts["bearings_invalid measurement"] + counts["bearings_unknown beacon"] - invalid_before
-        if invalid:
-            self.diagnostics.refuse(
-                "revolutions_with_invalid_bearings",
-                f"revolution {msg.revolution}: "
-                f"{invalid} bearing(s) refused (unknown beacon, non-finite value or "
-                "non-physical variance)",
-            )
         self._changed = True
         self._publish()  # at once: the end-to-end latency from a revolution to the estimate stays small
 
     def _on_total_pose(self, msg: TriangulatedPose) -> None:
         if not (self.settings.use_total_pose and msg.accepted):
             return
-        if self._offer_pose(msg.header.stamp, msg.pose, operator=False) == "invalid":
+        if self._offer_pose(msg.header.stamp, msg.pose, operator=False) is PoseOutcome.INVALID:
             self.diagnostics.refuse("total_poses_refused", "accepted ToTal pose with a non-finite value")
 
     def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
@@ -188,7 +180,7 @@ class EkfNode(Node):
             self.diagnostics.refuse("operator_poses_refused", problem)
             return False, f"operator pose refused: {problem}"
         what = self._offer_pose(msg.header.stamp, msg.pose, operator=True)
-        if what != "initialisations":
+        if what is not PoseOutcome.INITIALISED:
             self.diagnostics.refuse("operator_poses_refused", f"the filter did not take it: {what}")
             return False, f"operator pose refused by the filter: {what}"
         self.get_logger().info(f"operator pose: {what}")
@@ -201,7 +193,7 @@ class EkfNode(Node):
         self.localiser.configure(beacon_map.as_dict(), offset, self.settings)
         return f"beacons {list(beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
 
-    def _offer_pose(self, stamp, pose_with_covariance, *, operator: bool) -> str:
+    def _offer_pose(self, stamp, pose_with_covariance, *, operator: bool) -> PoseOutcome:
         return self.localiser.offer_pose(
             stamp_to_seconds(stamp),
             pose2d_of(pose_with_covariance.pose),

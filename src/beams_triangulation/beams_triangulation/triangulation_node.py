@@ -27,7 +27,7 @@ from rclpy.qos import qos_profile_sensor_data
 from visualization_msgs.msg import Marker, MarkerArray
 
 from beams_common import topics
-from beams_common.bearing import bearings_of_message
+from beams_common.bearing_intake import bearings_message_intake
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import geometry_of_calibration, runtime_geometry
 from beams_common.ros.messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
@@ -38,16 +38,13 @@ from beams_common.ros.node_support import (
     serve_calibration_reload,
     startup_geometry,
 )
-from beams_common.ros.parameters import apply_runtime_changes, declare_table
-from beams_common.validation import (
-    bounded,
-    one_sighting_per_beacon,
-    planar_estimate_problem,
-)
+from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
+from beams_common.validation import bounded, planar_estimate_problem
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
-from beams_triangulation.gating import NoPose, PoseEstimate, RevolutionPose
+from beams_triangulation.gating import NoPose, PoseEstimate
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
 from beams_triangulation.pipeline import TriangulationPipeline
+from beams_triangulation.revolution import RevolutionPose
 
 
 def estimate_pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
@@ -67,7 +64,7 @@ class TriangulationNode(Node):
         self.use_odometry = settings.use_odometry
         self.publish_markers = self.parameters["publish_markers"]
         self.pipeline = TriangulationPipeline(geometry.beacon_map, settings, geometry.turret_offset_m)
-        apply_runtime_changes(self, TRIANGULATION_PARAMETERS, self.parameters, self._apply_parameters)
+        apply_runtime_changes(self, TRIANGULATION_PARAMETERS, self.parameters, self._prepare_parameters)
         serve_calibration_reload(self, self._apply_calibration)
         self.diagnostics = Diagnostics(self, "triangulation")
         self.diagnostics.set_level("warn", "waiting for bearings")
@@ -86,14 +83,20 @@ class TriangulationNode(Node):
         )
 
     # -- parameters -----------------------------------------------------------------------------------
-    def _apply_parameters(self, values: dict, changed: set[str]) -> None:
-        """A runtime change (validated by the table): the gates, the beacon geometry, the frame, markers."""
-        self.geometry = geometry = runtime_geometry(values, changed, self.geometry)
-        self.pipeline.configure(
-            geometry.beacon_map, triangulation_settings(values).gates, geometry.turret_offset_m
-        )
-        self.map_frame = values["map_frame"]
-        self.publish_markers = values["publish_markers"]
+    def _prepare_parameters(self, values: dict, changed: set[str]) -> ApplyChange:
+        """A runtime change (validated by the table): the beacon geometry (a calibration file read) and
+        the gates built now (ValueError, OSError: refused), applied with the frame and the markers by the
+        returned step."""
+        geometry = runtime_geometry(values, changed, self.geometry)
+        gates = triangulation_settings(values).gates
+
+        def apply() -> None:
+            self.geometry = geometry
+            self.pipeline.configure(geometry.beacon_map, gates, geometry.turret_offset_m)
+            self.map_frame = values["map_frame"]
+            self.publish_markers = values["publish_markers"]
+
+        return apply
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
         self.geometry = geometry = geometry_of_calibration(calibration)
@@ -104,22 +107,23 @@ class TriangulationNode(Node):
     # -- inputs ---------------------------------------------------------------------------------------
     def _on_odometry(self, msg: Odometry) -> None:
         twist = (msg.twist.twist.linear.x, msg.twist.twist.angular.z)
-        rejected = self.pipeline.rejected_odometry
-        self._handle(
-            self.pipeline.on_odometry(stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose), twist)
-        )
-        if self.pipeline.rejected_odometry > rejected:
-            self.diagnostics.refuse("odometry_rejected_non_finite", "odometry with a non-finite value")
+        stamp_s, pose = stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose)
+        refused, completed = self.pipeline.take_odometry(stamp_s, pose, twist)
+        if refused:
+            self.diagnostics.refuse("odometry_rejected_non_finite", refused)
+        self._handle(completed)
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
         self.diagnostics.increment("revolutions")
-        if self.diagnostics.oversized_revolution(msg):  # refused before any per-bearing work
+        intake = bearings_message_intake(msg, stamp_to_seconds, self.pipeline.estimator.known_ids)
+        if intake.too_many:  # refused before any per-bearing work
+            self.diagnostics.refuse(
+                "revolutions_too_many_bearings", f"revolution {msg.revolution}: {intake.too_many}"
+            )
             return
-        bearings = bearings_of_message(msg, stamp_to_seconds)
-        dropped = one_sighting_per_beacon(bearings).dropped
-        if dropped:  # the pipeline keeps one sighting per beacon (gating.drop_repeated_beacons)
-            self.diagnostics.increment("repeated_beacon_sightings", len(dropped))
-        self._handle(self.pipeline.on_revolution(msg.revolution, bearings))
+        for key, count in intake.counts().items():  # a refusal other than a repeat: bad input (no pose)
+            self.diagnostics.increment(key, count)
+        self._handle(self.pipeline.on_intake(msg.revolution, intake))
 
     def _handle(self, completed: list[tuple[int, RevolutionPose]]) -> None:
         """Publish the revolutions the pipeline completed (or say why they gave no pose)."""

@@ -8,17 +8,10 @@ import pytest
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_common.bearing import Bearing
-from beams_triangulation.gating import (
-    GateConfig,
-    NoPose,
-    PoseEstimate,
-    best_triplet,
-    drop_repeated_beacons,
-    estimate_pose,
-    estimate_revolution,
-    gate,
-)
+from beams_common.bearing_intake import revolution_intake
+from beams_triangulation.gating import GateConfig, NoPose, PoseEstimate, best_triplet, gate
 from beams_triangulation.pose_covariance import pose_covariance
+from beams_triangulation.revolution import estimate_pose, estimate_revolution
 from beams_triangulation.total import expected_bearings, triangulate
 
 SIGMA_RAD = np.deg2rad(0.1)
@@ -167,12 +160,12 @@ def test_a_beacon_seen_twice_keeps_the_sighting_closest_in_time():
         Bearing(0.06, 1, bearings[2], 1e-6),
         Bearing(0.098, 3, bearings[0], 1e-6),
     ]
-    kept = drop_repeated_beacons(revolution)
+    kept = revolution_intake(revolution, EUROBOT_BEACON_MAP.ids).kept
     assert [b.beacon_id for b in kept] == [3, 2, 1]
     # Median instant 0.045 s: the sighting at 0.001 s (0.044 s away) is closer than the one at 0.098 s.
     assert kept[0].stamp_s == 0.001
     revolution[0] = Bearing(-0.02, 3, 0.9, 1e-6)
-    assert drop_repeated_beacons(revolution)[0].stamp_s == 0.098
+    assert revolution_intake(revolution, EUROBOT_BEACON_MAP.ids).kept[0].stamp_s == 0.098
     outcome = estimate_revolution(revolution, EUROBOT_BEACON_MAP)
     assert (outcome.result.x, outcome.result.y) == pytest.approx(pose[:2], abs=1e-9)
 
