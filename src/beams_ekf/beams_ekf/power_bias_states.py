@@ -96,7 +96,11 @@ class WindowFit:
     counted twice: the last windows of each beacon are remembered.
     """
 
-    MIN_SAMPLES = 30
+    # ready after 10 s of a beacon's windows over distances spread by +-14% (std of ln d 0.14): with 30
+    # windows and no spread required, the first fits' slopes taught the curve wrongly on some matches
+    # (mean NEES over the first 30 s up to 8.4, 5.4 now; bench_self_calibration)
+    MIN_SAMPLES = 100
+    MIN_LOG_DISTANCE_VARIANCE = 0.02
     _REMEMBERED = 16
 
     def __init__(self) -> None:
@@ -105,7 +109,8 @@ class WindowFit:
 
     def window_rad(self, beacon_id: int, distance_m: float, measured_window_rad: float) -> float | None:
         """The window to evaluate the bias at: the fit at distance_m once it holds MIN_SAMPLES windows
-        over a spread of distances, else None (the fit is not ready); the measured one joins the fit."""
+        whose ln-distances vary by MIN_LOG_DISTANCE_VARIANCE, else None (the fit is not ready); the
+        measured one joins the fit."""
         recent = self._recent.setdefault(beacon_id, deque(maxlen=self._REMEMBERED))
         log_distance = log(max(distance_m, 1e-3))
         sums = self._sums.setdefault(beacon_id, np.zeros(6))
@@ -115,7 +120,7 @@ class WindowFit:
             sums += (1.0, log_distance, log_distance * log_distance, w2, w2 * log_distance, 0.0)
         count, sx, sxx, sy, sxy, _ = sums
         spread = sxx * count - sx * sx
-        if count < self.MIN_SAMPLES or spread < 1e-3 * count * count:
+        if count < self.MIN_SAMPLES or spread < self.MIN_LOG_DISTANCE_VARIANCE * count * count:
             return None
         slope = (sxy * count - sx * sy) / spread
         fitted = (sy - slope * sx) / count + slope * log_distance
