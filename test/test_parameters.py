@@ -112,7 +112,9 @@ def _revolution(pose, beacons=BEACONS, revolution=0):
 def test_runtime_changes_are_applied_validated_or_refused(start_node, rclpy_node, tmp_path):
     from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 
-    node = start_node("beams_triangulation", "triangulation_node", {"use_odometry": False})
+    # stamps at 1000 s, not on the node's clock: the stamp plausibility check off
+    params = {"use_odometry": False, "max_stamp_age_s": 0.0, "max_stamp_lead_s": 0.0}
+    node = start_node("beams_triangulation", "triangulation_node", params)
     publisher = rclpy_node.node.create_publisher(BeaconBearingArray, "beams/bearings", 10)
     poses = rclpy_node.subscribe(TriangulatedPose, "beams/pose")
     pose = (1.3, 0.7, 0.4)

@@ -13,8 +13,9 @@ the reason and a count per kind, for the node's /diagnostics and the offline rep
    INVALID_MEASUREMENT (non-finite value or stamp, non-physical variance).
 
 What a consumer does with a refusal is its own policy: the EKF uses the bearings kept, ToTal gives the
-revolution no pose when anything but a repeated sighting was refused. Checks on top of these (stamp
-plausibility, say) belong here, as another rule with its own BearingRefusal.
+revolution no pose when anything but a repeated sighting or an unknown beacon was refused. Checks on top
+of these belong here, as another rule with its own BearingRefusal (the stamp plausibility against the
+receiving clock is the nodes': the offline replay has no receiving clock).
 """
 
 from collections import Counter
@@ -68,7 +69,9 @@ class RevolutionIntake:
 
     def revolution_refusals(self) -> list[tuple[str, str]]:
         """(diagnostic key, reason) for each kind of refusal that concerns the revolution: refused whole,
-        a beacon seen twice at one instant, bearings unknown or invalid (a repeated sighting is not)."""
+        a beacon seen twice at one instant, invalid bearings. A repeated sighting is not, nor a beacon
+        not on the map (another team's beacon in view is ordinary on a Eurobot table: only counted,
+        issue 18)."""
         if self.too_many:
             return [("revolutions_too_many_bearings", self.too_many)]
         refusals = []
@@ -77,7 +80,7 @@ class RevolutionIntake:
                 f"beacon(s) {self.conflicting_ids} seen twice at one instant (not physical): bearings refused"
             )
             refusals.append(("revolutions_conflicting_beacon", reason))
-        invalid = self.refused_as(BearingRefusal.UNKNOWN_BEACON, BearingRefusal.INVALID_MEASUREMENT)
+        invalid = self.refused_as(BearingRefusal.INVALID_MEASUREMENT)
         if invalid:
             reason = f"{len(invalid)} bearing(s) refused, the first: {invalid[0].reason}"
             refusals.append(("revolutions_with_invalid_bearings", reason))

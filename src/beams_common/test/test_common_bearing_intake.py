@@ -37,7 +37,7 @@ def test_each_refusal_has_its_kind_count_and_revolution_reason():
             _revolution((0.0, 1, 0.1, VARIANCE), (0.03, 9, 0.2, VARIANCE), (0.06, 2, 0.3, VARIANCE)),
             [1, 2],
             {"bearings_unknown_beacon": 1},
-            ["revolutions_with_invalid_bearings"],
+            [],  # another team's beacon: counted, not a refusal of the revolution (issue 18)
         ),
         (
             _revolution((0.0, 1, math.nan, VARIANCE), (0.03, 2, 0.2, 0.0), (0.06, 3, 0.3, VARIANCE)),
@@ -55,7 +55,7 @@ def test_each_refusal_has_its_kind_count_and_revolution_reason():
             _revolution((0.0, 2, 0.1, VARIANCE), (0.0, 2, 0.2, VARIANCE), (0.05, 7, 0.3, VARIANCE)),
             [],
             {"bearings_conflicting_beacon": 2, "bearings_unknown_beacon": 1},
-            ["revolutions_conflicting_beacon", "revolutions_with_invalid_bearings"],
+            ["revolutions_conflicting_beacon"],
         ),
     ]
     for bearings, kept_ids, counts, keys in cases:

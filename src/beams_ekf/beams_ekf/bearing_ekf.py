@@ -385,6 +385,9 @@ class BearingEkf:
             return BearingOutcome(False, nis, residual, BearingReason.GATED)
         self._joseph_update(jacobian, variance_rad2, residual, innovation_variance)
         self._ekf.x[2, 0] = wrap_to_pi(float(self._ekf.x[2, 0]))
+        # rounding drifts P from symmetric: after a wide prior (sigma 4 m) by more than the 1e-9 the
+        # published-estimate invariant allows (issue 18: every later estimate refused)
+        self._ekf.P = 0.5 * (self._ekf.P + self._ekf.P.T)
         return BearingOutcome(True, nis, residual)
 
     def _joseph_update(

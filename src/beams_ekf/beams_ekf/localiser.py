@@ -15,7 +15,9 @@ possible, thesis ch. 8 "System deployment") or the filter is lost (`NisMonitor`:
 innovations, over a sliding window, too large for the covariance: the next ToTal fix restarts it).
 Time going backwards (a rosbag played in a loop: consecutive odometry messages in the past, not one
 stray; `beams_common.time_jumps`) resets everything; odometry gaps inflate the covariance instead of
-freezing the filter.
+freezing the filter; an odometry increment beyond the robot's speed or yaw rate (a +100 m jump: issue
+18, `beams_common.plausibility`) is never predicted with: the sample becomes the new reference and the
+covariance grows by the most the robot could have moved (`Localiser._rereference`).
 
 This module is the timing and the replay of late bearings; the consistency monitors are in
 `consistency` (NisMonitor, KidnapEvidence), the settings in `settings` (built from the parameters by
@@ -34,7 +36,8 @@ import numpy as np
 
 from beams_common.bearing import Bearing
 from beams_common.bearing_intake import RevolutionIntake, bearing_refusal, revolution_intake
-from beams_common.pose2d import Pose2D, between, compose, is_finite_pose
+from beams_common.plausibility import MotionLimits, odometry_step_problem
+from beams_common.pose2d import Pose2D, between, compose, inverse, is_finite_pose
 from beams_common.pose_buffer import PoseBuffer
 from beams_common.time_jumps import StampOrder, TimeJumpDetector
 from beams_common.validation import odometry_problem
@@ -86,9 +89,17 @@ class Localiser:
     """Odometry history + a PoseFilter (BearingEkf by default) + initialisation, kidnap and time-jump
     logic."""
 
-    def __init__(self, ekf: PoseFilter, config: LocaliserConfig | None = None) -> None:
+    def __init__(
+        self,
+        ekf: PoseFilter,
+        config: LocaliserConfig | None = None,
+        motion_limits: MotionLimits | None = None,
+    ) -> None:
         self.ekf = ekf
         self.config = config or LocaliserConfig()
+        self.motion_limits = motion_limits or MotionLimits()
+        # why the last odometry jump was refused ('' before any)
+        self.last_odometry_jump = ""
         self.history = PoseBuffer(self.config.odometry_history_s, self.config.max_odometry_extrapolation_s)
         self.stats = LocaliserCounters()
         config = self.config
@@ -121,7 +132,8 @@ class Localiser:
         settings: FilterSettings,
     ) -> None:
         """New beacon geometry, process noise and bearing gate (a runtime parameter change, a calibration
-        reload); the estimate and the odometry history stay."""
+        reload) and motion limits; the estimate and the odometry history stay."""
+        self.motion_limits = settings.motion_limits
         self.ekf.configure(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability)
 
     def reset(self, reason: str = "reset") -> None:
@@ -151,6 +163,14 @@ class Localiser:
             self.reset("time_jump_resets")
             latest = None
         self.stats.counts["odometry"] += 1
+        jump = (
+            ""
+            if latest is None
+            else odometry_step_problem(stamp_s - latest[0], between(latest[1], odom_pose), self.motion_limits)
+        )
+        if jump:
+            self._rereference(stamp_s, odom_pose, stamp_s - latest[0], jump)
+            return OdometryOutcome.JUMPED
         if latest is None or not self.ekf.initialised:
             self.history.append(stamp_s, odom_pose, _Slot(self.ekf.state()) if self.ekf.initialised else None)
             self._stamp_s = stamp_s if self.ekf.initialised else None
@@ -162,6 +182,24 @@ class Localiser:
         self._stamp_s = stamp_s
         self._apply_pending(stamp_s)
         return OdometryOutcome.PREDICTED
+
+    def _rereference(self, stamp_s: float, odom_pose: Pose2D, interval_s: float, reason: str) -> None:
+        """An odometry increment the robot cannot make (`plausibility.odometry_step_problem`): a reset or a
+        fault of the odometry source. The history (poses of the odometry's old frame, which would carry
+        a late bearing or a ToTal fix across the jump) is dropped, the sample becomes the reference, and
+        the covariance grows by the largest motion the robot could have made over the interval (its
+        motion there is unknown). The estimate never follows the jump."""
+        self.stats.counts["odometry_jumps"] += 1
+        self.last_odometry_jump = reason
+        self.history.clear()
+        if not self.ekf.initialised:
+            self.history.append(stamp_s, odom_pose, None)
+            return
+        max_translation_m, max_rotation_rad = self.motion_limits.max_step(interval_s)
+        self.ekf.add_time_noise(max_translation_m**2, max_rotation_rad**2)
+        self.history.append(stamp_s, odom_pose, _Slot(self.ekf.state()))
+        self._stamp_s = stamp_s
+        self._apply_pending(stamp_s)
 
     def _apply_pending(self, newest_s: float) -> None:
         """Apply the waiting bearings the odometry now covers."""
@@ -190,6 +228,16 @@ class Localiser:
             return None
         then = self.history.pose_at(stamp_s)
         return None if then is None else between(then, latest[1])
+
+    def pose_at(self, stamp_s: float) -> Pose2D | None:
+        """The estimate carried back to stamp_s by the odometry since (map frame); None before the filter
+        is initialised or when the history does not cover stamp_s (without odometry: the estimate)."""
+        if not self.ekf.initialised:
+            return None
+        if self.history.latest is None:
+            return self.ekf.pose
+        motion = self._motion_since(stamp_s)
+        return None if motion is None else compose(self.ekf.pose, inverse(motion))
 
     # -- bearings -------------------------------------------------------------------------------------
     def on_revolution(self, bearings: Sequence[Bearing]) -> RevolutionIntake:
@@ -312,12 +360,21 @@ class Localiser:
             # the bearings already applied in this interval are applied again, without being counted
             merged = [(b, None) for b in slot.bearings] + new
             merged.sort(key=lambda item: item[0].stamp_s)
+            kept: list[Bearing] = []
             for bearing, n in merged:
-                outcome = self._apply(bearing, between(pose0, self.history.pose_at(bearing.stamp_s)))
+                then = self.history.pose_at(bearing.stamp_s)
+                if then is None:
+                    # stamped before the oldest odometry kept (a bearing applied at the first state, the
+                    # history since trimmed past it): it can no longer be placed, so it leaves the slot
+                    if n is not None:
+                        outcomes[n] = self._count(rejected(BearingReason.OUTSIDE_HISTORY))
+                    continue
+                outcome = self._apply(bearing, between(pose0, then))
+                kept.append(bearing)
                 if n is not None:
                     outcomes[n] = self._count(outcome)
                     self._track_gating(bearing, outcome)
-            slot.bearings = [bearing for bearing, _ in merged]
+            slot.bearings = kept
 
     def _apply(self, bearing: Bearing, robot_then: Pose2D) -> BearingOutcome:
         """Update with a bearing taken with the robot at `robot_then` in the current state's robot frame."""
@@ -448,4 +505,4 @@ def build_localiser(
         settings.power_bias,
         settings.turret_offset,
     )
-    return Localiser(ekf, settings.localiser)
+    return Localiser(ekf, settings.localiser, settings.motion_limits)

@@ -8,7 +8,9 @@ from collections.abc import Mapping
 from typing import Any
 
 from beams_common.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SPECS
+from beams_common.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, rates_check
 from beams_common.parameters import ROS_NODE_PARAMETERS, ParameterSpec, ParameterTable
+from beams_common.plausibility import MAX_POSE_SIGMA_M, MOTION_SPECS, STAMP_SPECS, motion_limits_of
 from beams_ekf.bearing_ekf import ProcessNoise
 from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.power_bias_states import POWER_BIAS_PARAMETERS, power_bias_states_of
@@ -196,9 +198,10 @@ FILTER_SPECS = (
     ParameterSpec(
         "default_pose_sigma",
         list(_DEFAULTS.default_pose_sigma),
-        "Standard deviations (m, m, rad) of a pose without a usable covariance.",
+        "Standard deviations (m, m, rad) of a pose without a usable covariance (at most the table's size: "
+        "a larger prior wedged the filter).",
         minimum=1e-6,
-        maximum=100.0,
+        maximum=MAX_POSE_SIGMA_M,
         length=3,
         runtime=True,
     ),
@@ -243,8 +246,9 @@ def _settings_of(values: Mapping[str, Any]) -> FilterSettings:
         timing,
         bool(values["use_total_pose"]),
         tuple(float(v) for v in values["default_pose_sigma"]),
-        power_bias_states_of(values),
-        turret_offset_states_of(values),
+        motion_limits_of(values),
+        power_bias=power_bias_states_of(values),
+        turret_offset=turret_offset_states_of(values),
     )
 
 
@@ -261,6 +265,10 @@ EKF_PARAMETERS = ParameterTable(
     (
         *GEOMETRY_SPECS,
         *FILTER_SPECS,
+        *MOTION_SPECS,
+        *STAMP_SPECS,
+        *BEARING_RATE_SPECS,
+        ODOMETRY_RATE_SPEC,
         *POWER_BIAS_PARAMETERS,
         *TURRET_OFFSET_PARAMETERS,
         ParameterSpec("map_frame", "map", "Frame of the estimate (REP-105)."),
@@ -271,7 +279,7 @@ EKF_PARAMETERS = ParameterTable(
             "publish_rate_hz", 20.0, "Rate of the published estimate (Hz).", minimum=0.1, maximum=1000.0
         ),
     ),
-    (*GEOMETRY_CHECKS, _filter_settings_check),
+    (*GEOMETRY_CHECKS, _filter_settings_check, rates_check),
 )
 
 

@@ -312,3 +312,32 @@ def test_bearings_ahead_of_odometry_wait_for_it(match):
     deferred = sum(o.reason == "deferred" for o in outcomes)
     assert deferred > 20 and early.stats.counts["bearings_deferred"] == deferred
     np.testing.assert_allclose(early.estimate().pose, in_order.estimate().pose, atol=1e-12)
+
+
+def test_a_bearing_kept_from_before_the_first_state_leaves_once_the_history_no_longer_covers_it() -> None:
+    """Found by the fault campaign (ekf_node died with a TypeError): a bearing stamped before the filter's
+    first state is applied at that state and kept there for re-filtering; once the odometry history is
+    trimmed past its stamp, a later bearing in the same interval re-filters the slot. The old bearing must
+    leave the slot (it can no longer be placed), the new one must still be applied, nothing raises."""
+    pose = (1.0, 1.0, 0.3)
+    sensor = compose(pose, (*OFFSET, 0.0))
+
+    def bearing(stamp_s: float, beacon_id: int) -> Bearing:
+        bx, by = EUROBOT_BEACONS[beacon_id]
+        direction = np.arctan2(by - sensor[1], bx - sensor[0]) - pose[2]
+        return Bearing(stamp_s, beacon_id, float(wrap_to_pi(direction)), 1e-6)
+
+    localiser = _localiser(LocaliserConfig(odometry_history_s=0.5))
+    stamps = np.round(np.arange(0.0, 0.52, 0.02), 6)
+    for stamp_s in stamps:
+        localiser.on_odometry(float(stamp_s), pose)
+    localiser.on_pose(0.5, pose, START_COVARIANCE, operator=True)
+    first = localiser.on_bearings([bearing(0.1, 1)])  # before the first state: applied there
+    assert first[0].accepted
+    for stamp_s in np.round(np.arange(0.52, 0.9, 0.02), 6):  # the history now starts after 0.1 s
+        localiser.on_odometry(float(stamp_s), pose)
+    assert localiser.pose_at(0.1) is None
+    late = localiser.on_bearings([bearing(0.51, 2)])  # the slot of 0.5 s is filtered again
+    assert late[0].accepted, late[0].reason
+    estimate = localiser.estimate()
+    assert estimate is not None and hypot(estimate.pose[0] - pose[0], estimate.pose[1] - pose[1]) < 1e-3

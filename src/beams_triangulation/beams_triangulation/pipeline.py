@@ -14,6 +14,8 @@ from typing import Any
 from beams_common.beacon_map import BeaconMap
 from beams_common.bearing import Bearing
 from beams_common.bearing_intake import RevolutionIntake, revolution_intake
+from beams_common.plausibility import MotionLimits, odometry_step_problem
+from beams_common.pose2d import between
 from beams_common.validation import odometry_problem
 from beams_triangulation.gating import GateConfig
 from beams_triangulation.motion_compensation import odometry_buffer
@@ -29,6 +31,8 @@ class TriangulationSettings:
     use_odometry: bool = True
     odometry_history_s: float = 2.0
     max_odometry_extrapolation_s: float = 0.05
+    # the robot's maximum speed and yaw rate: an odometry increment beyond them is a jump (issue 18)
+    motion_limits: MotionLimits = field(default_factory=MotionLimits)
 
 
 Tag = Any  # what the caller attaches to a revolution (its number live, its due instant offline)
@@ -55,12 +59,22 @@ class TriangulationPipeline:
         self.estimator = RevolutionEstimator(beacon_map, settings.gates, turret_offset_m)
         self.odometry = odometry_buffer(settings.odometry_history_s, settings.max_odometry_extrapolation_s)
         self.rejected_odometry = 0  # non-finite samples dropped
+        # odometry increments beyond the motion limits, and the reason of the last sample's ('' when none)
+        self.odometry_jumps = 0
+        self.last_odometry_jump = ""
         self._pending: tuple[Tag, RevolutionIntake] | None = None
 
-    def configure(self, beacon_map: BeaconMap, gates: GateConfig, turret_offset_m: Sequence[float]) -> None:
-        """New beacon geometry or gates (a runtime parameter change, a calibration reload); the odometry
-        and the waiting revolution stay."""
-        self.settings = replace(self.settings, gates=gates)
+    def configure(
+        self,
+        beacon_map: BeaconMap,
+        gates: GateConfig,
+        turret_offset_m: Sequence[float],
+        motion_limits: MotionLimits | None = None,
+    ) -> None:
+        """New beacon geometry, gates or motion limits (a runtime parameter change, a calibration
+        reload); the odometry and the waiting revolution stay."""
+        limits = motion_limits or self.settings.motion_limits
+        self.settings = replace(self.settings, gates=gates, motion_limits=limits)
         self.estimator = RevolutionEstimator(beacon_map, gates, turret_offset_m)
 
     def on_odometry(
@@ -74,13 +88,26 @@ class TriangulationPipeline:
     ) -> tuple[str, list[tuple[Tag, RevolutionPose]]]:
         """An odometry sample (odom frame; speed m/s, yaw rate rad/s): (why it was refused, '' when taken
         (`validation.odometry_problem`, counted in rejected_odometry); the revolutions it completed).
-        Ignored without use_odometry."""
+        Ignored without use_odometry. A sample that jumped (`plausibility.odometry_step_problem`: beyond
+        the robot's speed or yaw rate from the previous one) starts the odometry over, so that no
+        revolution is compensated across the jump; `last_odometry_jump` says why (counted in
+        odometry_jumps)."""
+        self.last_odometry_jump = ""
         if not self.settings.use_odometry:
             return "", []
         problem = odometry_problem(stamp_s, pose, twist)
         if problem:
             self.rejected_odometry += 1
             return problem, []
+        latest = self.odometry.latest
+        if latest is not None and stamp_s > latest[0]:
+            step = between(latest[1], tuple(pose))
+            self.last_odometry_jump = odometry_step_problem(
+                stamp_s - latest[0], step, self.settings.motion_limits
+            )
+            if self.last_odometry_jump:
+                self.odometry_jumps += 1
+                self.odometry.clear()
         self.odometry.add(stamp_s, tuple(pose), twist)
         if self._pending is not None and self._covered(self._pending[1]):
             return "", self.flush()

@@ -4,8 +4,10 @@ with odometry, or the motion seen between revolutions in the variances), the cov
 `estimate_revolution` is the whole of it for one revolution; `RevolutionEstimator` runs it on a stream
 (remembering the last pose for the motion); `pipeline.TriangulationPipeline` adds the odometry and the
 wait for it. The intake (`beams_common.bearing_intake`) is the EKF's too; ToTal's policy on it: a
-revolution with any bearing refused (a beacon seen twice at one instant, an unknown beacon, an invalid
-measurement) gives no pose (bad input), a repeated sighting is only set aside.
+revolution with a beacon seen twice at one instant or an invalid measurement gives no pose (bad input);
+a repeated sighting, and a bearing of a beacon not on the map (another team's beacon in view, issue 18:
+1 pose in 8 s when it made the revolution bad input), are set aside (counted by the intake) and the
+revolution's other bearings still count.
 """
 
 from __future__ import annotations
@@ -50,12 +52,12 @@ class RevolutionPose:
 
 def bad_input(intake: RevolutionIntake) -> str:
     """Why ToTal gives the revolution no pose for its input (the first refusal), or '' when only repeated
-    sightings (or nothing) were set aside."""
+    sightings or unknown beacons (or nothing) were set aside."""
     if intake.too_many:
         return intake.too_many
     if intake.conflicting_ids:
         return f"duplicated beacon id in one revolution: beacon(s) {intake.conflicting_ids} at one instant"
-    invalid = intake.refused_as(BearingRefusal.UNKNOWN_BEACON, BearingRefusal.INVALID_MEASUREMENT)
+    invalid = intake.refused_as(BearingRefusal.INVALID_MEASUREMENT)
     return invalid[0].reason if invalid else ""
 
 
