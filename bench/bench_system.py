@@ -214,6 +214,7 @@ def restamped(msg, now_ns: int):
         period=msg.period,
         bearings=list(msg.bearings),
         rejected_windows=msg.rejected_windows,
+        calibrated=msg.calibrated,
     )
     for stamped in [copy.header, *(b.header for b in copy.bearings)]:
         moved = stamp_ns(stamped.stamp) + shift

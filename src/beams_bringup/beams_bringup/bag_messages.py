@@ -81,9 +81,11 @@ class MessageBuilder:
         bearings: Iterable[tuple[int, int, float, float] | tuple[int, int, float, float, float]],
         revolution: int,
         frame_id: str = "beams_sensor",
+        calibrated: bool = True,
     ) -> Any:
         """beams_msgs/BeaconBearingArray from (stamp ns, beacon id, bearing rad, variance rad^2) tuples,
-        optionally followed by the angular window (rad; 0 without it)."""
+        optionally followed by the angular window (rad; 0 without it); `calibrated`: the driver's flag
+        (true: no power bias to model, as for the simulator's default unbiased receiver)."""
         fields = [
             BearingFields(
                 stamp, beacon, angle, variance, angular_window_rad=window[0] if window else 0.0, codes_seen=1
@@ -91,7 +93,13 @@ class MessageBuilder:
             for stamp, beacon, angle, variance, *window in bearings
         ]
         return bearing_array_message(
-            self.types, start, fields, period_s=period_s, revolution=revolution, frame_id=frame_id
+            self.types,
+            start,
+            fields,
+            period_s=period_s,
+            revolution=revolution,
+            frame_id=frame_id,
+            calibrated=calibrated,
         )
 
     def triangulated_pose(self, estimate: PoseEstimate, stamp: int, frame_id: str) -> Any:

@@ -6,10 +6,14 @@ tree (the executables `ros2 run` starts), records every topic to an MCAP bag as 
 (pose errors against the truth, bearings per second, rejected windows), stops the nodes with SIGINT and
 leaves a trajectory plot and a summary table in the output directory.
 
-`--sensor-model` chooses the simulated receiver (driver_node's sim_noise_model). With thesis_hardware
-the driver runs as on a calibrated robot: a calibration file in the output directory whose power-bias
-correction is the simulated receiver's bias inverted (a perfect chapter-7 calibration), and the natural
-variance that matches the receiver's edge noise on the table (beams_sim.simulated_match).
+By default every node runs with its own defaults, as a new user's robot would: the driver uncalibrated
+(WARN "uncalibrated" on /diagnostics, `calibrated: false` on beams/bearings) and the EKF estimating the
+power bias while the robot drives (self-calibration, docs/self_calibration.md). `--calibrated` gives the
+driver a perfect chapter-7 calibration instead: a file in the output directory whose power-bias correction
+is the simulated receiver's bias inverted. `--sensor-model` chooses the simulated receiver (driver_node's
+sim_noise_model); for the ideal one the driver gets that receiver's natural variance (the defaults are the
+thesis hardware's). The summary names the calibration state and gives the EKF's mean NEES (3 for a
+consistent filter) beside the RMS errors.
 """
 
 import argparse
@@ -20,7 +24,7 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import rclpy
@@ -46,17 +50,13 @@ from beams_bringup.trajectory_metrics import (
     rms_table,
 )
 from beams_common import topics
+from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.calibration_file import SensorCalibration, save_calibration
-from beams_common.ros.messages import pose2d_of
+from beams_common.ros.messages import planar_covariance, pose2d_of
 from beams_common.ros.node_support import BEARINGS_QOS
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
-from beams_sim.simulated_match import (
-    SENSOR_MODELS,
-    calibration_of,
-    sensor_config_of,
-    table_natural_variance_rad2,
-)
+from beams_sim.simulated_match import SENSOR_MODELS, calibration_of, sensor_config_of
 
 ROOT = pathlib.Path.cwd()
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
@@ -114,6 +114,9 @@ class MatchRecord(RunTracks):
     revolutions: int = 0
     rejected_windows: int = 0
     poses_rejected: int = 0
+    # the EKF's (x, y, yaw) covariance of each beams/ekf/odometry row, for its NEES
+    ekf_covariances: list[np.ndarray] = field(default_factory=list)
+    uncalibrated_revolutions: int = 0
 
     def on_message(self, topic: str, msg) -> None:
         tracks = {
@@ -123,8 +126,11 @@ class MatchRecord(RunTracks):
         }
         if topic in tracks:
             tracks[topic].add(0, stamp_ns(msg.header.stamp), pose2d_of(msg.pose.pose))
+            if topic == topics.EKF_ODOMETRY:
+                self.ekf_covariances.append(planar_covariance(msg.pose.covariance))
         elif topic == topics.BEARINGS:
             self.revolutions += 1
+            self.uncalibrated_revolutions += not msg.calibrated
             self.bearings += len(msg.bearings)
             self.rejected_windows += msg.rejected_windows
         elif topic == topics.POSE:
@@ -143,15 +149,23 @@ class SensorSetup:
     description: str
 
 
-def sensor_setup(sensor_model: str, output: pathlib.Path) -> SensorSetup:
-    """driver_node's arguments for a sensor model: sim_noise_model, the matching natural variance and,
-    for a receiver with a power bias, a calibration file that removes it (written to the output)."""
+def sensor_setup(sensor_model: str, output: pathlib.Path, calibrated: bool) -> SensorSetup:
+    """driver_node's arguments for a sensor model: sim_noise_model, for the ideal receiver its natural
+    variance (the defaults are the thesis hardware's) and, `calibrated`, for a receiver with a power bias,
+    a calibration file that removes it (written to the output)."""
     config = sensor_config_of(sensor_model)
-    natural_rad2 = table_natural_variance_rad2(config)
-    arguments = ["-p", f"sim_noise_model:={sensor_model}", "-p", f"natural_variance_rad2:={natural_rad2!r}"]
-    description = f"sensor model {sensor_model}, natural variance {natural_rad2:.3g} rad^2"
+    arguments = ["-p", f"sim_noise_model:={sensor_model}"]
+    description = f"sensor model {sensor_model}"
+    if config.hardware is None:
+        arguments += ["-p", f"natural_variance_rad2:={config.natural_variance_rad2!r}"]
+        arguments += ["-p", "natural_variance_slope_rad2_per_rad:=0.0"]
+        description += f", natural variance {config.natural_variance_rad2:.3g} rad^2"
     correction = calibration_of(config)
-    if not correction.is_identity:
+    if correction.is_identity:
+        description += ", no power bias to calibrate"
+    elif not calibrated:
+        description += ", UNCALIBRATED (the driver's default): the EKF self-calibrates the power bias"
+    else:
         path = output / "calibration.yaml"
         # the driver takes only the bearing correction from it; the geometry is the default map's
         save_calibration(
@@ -217,12 +231,46 @@ def progress_line(record: MatchRecord, elapsed_s: float, bearings_per_s: float) 
     )
 
 
+def nees_against_truth(track: np.ndarray, covariances: list[np.ndarray], truth: np.ndarray) -> np.ndarray:
+    """NEES (chi-square, 3 dof, for a consistent filter) of each estimate of a track (rows: segment,
+    stamp s, x, y, theta) with its 3x3 covariance, against the truth interpolated at its stamp (rows
+    outside the truth's span, or with a covariance that is not positive definite, are left out)."""
+    values = []
+    if len(truth) < 2:
+        return np.empty(0)
+    heading = np.unwrap(truth[:, 4])
+    for row, covariance in zip(track, covariances, strict=True):
+        if not truth[0, 1] <= row[1] <= truth[-1, 1]:
+            continue
+        error = np.array(
+            [
+                row[2] - np.interp(row[1], truth[:, 1], truth[:, 2]),
+                row[3] - np.interp(row[1], truth[:, 1], truth[:, 3]),
+                wrap_to_pi(row[4] - np.interp(row[1], truth[:, 1], heading)),
+            ]
+        )
+        try:
+            values.append(float(error @ np.linalg.solve(covariance, error)))
+        except np.linalg.LinAlgError:
+            continue
+    return np.array(values)
+
+
 def summary_table(record: MatchRecord, sensor: SensorSetup) -> str:
     tracks = record.in_map("truth")  # dead reckoning from the true start
     rows = (("odometry", tracks["odometry"]), ("ToTal (accepted)", tracks["ToTal"]), ("EKF", tracks["EKF"]))
-    lines = [f"Simulated {sensor.description}.", "", *rms_table(rows, tracks["truth"])]
+    nees = nees_against_truth(record.ekf.array(), record.ekf_covariances, tracks["truth"])
+    state = (
+        f"uncalibrated ({record.uncalibrated_revolutions} of {record.revolutions} revolutions flagged "
+        "calibrated: false)"
+        if record.uncalibrated_revolutions
+        else "calibrated"
+    )
+    lines = [f"Simulated {sensor.description}.", f"Driver: {state}.", "", *rms_table(rows, tracks["truth"])]
     lines += [
         "",
+        f"EKF mean NEES {nees.mean() if len(nees) else float('nan'):.2f} over {len(nees)} estimates "
+        "(3 for a consistent filter; chi-square, 3 dof)",
         f"revolutions {record.revolutions}, bearings {record.bearings}, "
         f"rejected windows {record.rejected_windows}, ToTal poses gated out {record.poses_rejected}",
     ]
@@ -243,10 +291,15 @@ def main() -> int:
         default=SENSOR_MODELS[0],
         help="simulated receiver (driver_node's sim_noise_model), default %(default)s",
     )
+    parser.add_argument(
+        "--calibrated",
+        action="store_true",
+        help="give the driver a perfect chapter-7 calibration (default: uncalibrated, self-calibrating)",
+    )
     options = parser.parse_args()
     output = options.output or ROOT / "out" / f"demo-{datetime.datetime.now():%Y%m%d-%H%M%S}"
     output.mkdir(parents=True, exist_ok=True)
-    sensor = sensor_setup(options.sensor_model, output)
+    sensor = sensor_setup(options.sensor_model, output, options.calibrated)
     env = dict(os.environ)
     env.setdefault("ROS_DOMAIN_ID", "0")  # ROS 2's default: `ros2 topic echo` in another shell sees the demo
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = env.get("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")

@@ -15,16 +15,24 @@ from beams_triangulation.revolution import estimate_revolution
 
 
 def bearing_events(
-    revolutions: Iterable, variance_rad2: Callable[[int, float], float] | None = None
+    revolutions: Iterable,
+    variance_rad2: Callable[[int, float], float] | None = None,
+    calibrated: bool = True,
 ) -> list[BearingEvent]:
     """The bearings of decoded revolutions (beams_driver.decoder.DecodedRevolution), arriving when their
-    revolution ends; `variance_rad2(beacon_id, angular_window_rad)` replaces the published variance."""
+    revolution ends; `variance_rad2(beacon_id, angular_window_rad)` replaces the published variance;
+    `calibrated` False: no calibration corrected them (the driver's flag)."""
     events = []
     for revolution in revolutions:
         arrival_s = revolution.start_time_s + revolution.period_s
         for b in revolution.bearings:
             variance = b.variance if variance_rad2 is None else variance_rad2(b.beacon_id, b.angular_window)
-            events.append(BearingEvent(arrival_s, b.stamp_s, b.beacon_id, b.bearing, float(variance)))
+            variance = float(variance)
+            events.append(
+                BearingEvent(
+                    arrival_s, b.stamp_s, b.beacon_id, b.bearing, variance, b.angular_window, calibrated
+                )
+            )
     return events
 
 
@@ -89,13 +97,15 @@ def replay_match(
     initial_pose: Pose2D,
     initial_covariance: np.ndarray,
     fixes: Iterable[PoseEvent] = (),
+    calibrated: bool = True,
 ) -> ReplayResult:
-    """`replay` of a SimulatedMatch: its odometry, its published bearings, ToTal's `fixes`."""
+    """`replay` of a SimulatedMatch: its odometry, its published bearings (`calibrated` False: as an
+    uncalibrated driver flags them), ToTal's `fixes`."""
     return replay(
         localiser,
         match.odometry.stamp_s,
         match_odometry(match),
-        bearing_events(match.revolutions),
+        bearing_events(match.revolutions, calibrated=calibrated),
         match.truth_at,
         initial_pose,
         initial_covariance,

@@ -47,9 +47,12 @@ def bearing_array_message(
     revolution: int = 0,
     rejected_windows: int = 0,
     frame_id: str = SENSOR_FRAME,
+    calibrated: bool = True,
 ) -> Any:
     """beams_msgs/BeaconBearingArray of one revolution begun at start_ns (its header stamp), each
-    bearing stamped with its own instant; revolution wraps to uint32, rejected_windows saturates."""
+    bearing stamped with its own instant; revolution wraps to uint32, rejected_windows saturates.
+    `calibrated`: the driver's flag (false: the bearings carry the uncorrected power bias, which the EKF
+    then models; true for bearings that need no correction, such as synthetic ones)."""
 
     def header(stamp_ns: int) -> Any:
         time = types["builtin_interfaces/msg/Time"](sec=stamp_ns // NS_PER_S, nanosec=stamp_ns % NS_PER_S)
@@ -75,4 +78,5 @@ def bearing_array_message(
         period=float(period_s),
         bearings=items,
         rejected_windows=min(int(rejected_windows), _MAX_REJECTED_WINDOWS),
+        calibrated=bool(calibrated),
     )

@@ -60,6 +60,10 @@ SUCCESS = TransitionCallbackReturn.SUCCESS
 FAILURE = TransitionCallbackReturn.FAILURE
 ERROR = TransitionCallbackReturn.ERROR
 RCLError = _rclpy.RCLError
+# the WARN of a driver publishing bearings no calibration corrected (the message's `calibrated` false)
+UNCALIBRATED = (
+    "uncalibrated: no calibration_file, the bearings carry the power bias (within 0.23 deg, thesis 5.7)"
+)
 
 
 class RosSourceHost:
@@ -375,13 +379,19 @@ class DriverNode(LifecycleNode):
             revolution=decoded.revolution,
             rejected_windows=len(decoded.rejections),
             frame_id=self.frame_id,
+            calibrated=not self.correction.is_identity,
         )
         self.publisher.publish(msg)
         self.diagnostics.increment("revolutions")
         self.diagnostics.increment("bearings", len(msg.bearings))
         for rejection in decoded.rejections:
             self.diagnostics.increment(f"rejected_{rejection.kind}")
-        self.diagnostics.set_level("ok", f"{len(msg.bearings)} bearings in the last revolution")
+        self.diagnostics.set("calibrated", msg.calibrated)
+        status = f"{len(msg.bearings)} bearings in the last revolution"
+        if msg.calibrated:
+            self.diagnostics.set_level("ok", status)
+        else:
+            self.diagnostics.set_level("warn", f"{UNCALIBRATED}; {status}")
 
     def _bearing_fields(self, decoded) -> BearingFields:
         """A decoded bearing, corrected by the calibration (power and rotation bias)."""

@@ -17,7 +17,24 @@ from beams_driver.decoder import MIN_CODES_SEEN
 from beams_driver.sensor_sim import SensorSimConfig
 from beams_driver.variance import VARIANCE_MODES, VarianceModel
 
-_SIMULATED = SensorSimConfig()
+# The defaults describe the receiver the simulated sensor emulates by default (sim_noise_model
+# thesis_hardware, sections 5.5-5.7), so that the nodes run with no parameter publish honest variances.
+_THESIS_HARDWARE = SensorSimConfig.thesis_hardware()
+
+
+def hardware_natural_variance_line(config: SensorSimConfig) -> tuple[float, float, float]:
+    """(natural variance at the smallest window (rad^2), its slope (rad^2 per rad), that window (rad)):
+    the receiver's edge noise (sigma_r^2 + sigma_f^2) / 4, linear in the window over the experiment's
+    windows (fig. 5.3, section 5.6), as the driver's variance model takes it; constant for a receiver
+    without hardware noise."""
+    if config.hardware is None:
+        return config.natural_variance_rad2, 0.0, 0.0
+    low, high = config.hardware.window_range_rad
+    at_low, at_high = (float(config.hardware.natural_variance_rad2(w, None)) for w in (low, high))
+    return at_low, (at_high - at_low) / (high - low), low
+
+
+_NATURAL_AT_LOW, _NATURAL_SLOPE, _NATURAL_LOW_WINDOW = hardware_natural_variance_line(_THESIS_HARDWARE)
 
 
 def codes_of(values: Mapping[str, Any]) -> tuple[BeaconCode, ...]:
@@ -102,25 +119,27 @@ SENSOR_PARAMETERS = ParameterTable(
         ),
         ParameterSpec(
             "natural_variance_rad2",
-            _SIMULATED.natural_variance_rad2,
+            _NATURAL_AT_LOW,
             "Natural (noise) variance added to the code variance (rad^2), at "
-            "natural_variance_reference_window_rad when it depends on the window.",
+            "natural_variance_reference_window_rad when it depends on the window; default: the thesis "
+            "hardware's edge noise (fig. 5.3) at the smallest window of section 5.3's experiment (6 m).",
             minimum=0.0,
             maximum=1e-2,
             runtime=True,
         ),
         ParameterSpec(
             "natural_variance_slope_rad2_per_rad",
-            0.0,
+            _NATURAL_SLOPE,
             "Growth of the natural variance with the angular window (rad^2 per rad; thesis section 5.5), "
-            "as estimate_noise fits it; 0: constant natural variance.",
+            "as estimate_noise fits it; 0: constant natural variance. Default: the thesis hardware's "
+            "(fig. 5.3, linear between the windows of 6 m and 1 m).",
             minimum=-1e-2,
             maximum=1e-2,
             runtime=True,
         ),
         ParameterSpec(
             "natural_variance_reference_window_rad",
-            0.0,
+            _NATURAL_LOW_WINDOW,
             "Angular window (rad) at which natural_variance_rad2 holds when the slope is not 0.",
             minimum=0.0,
             maximum=1.0,

@@ -18,6 +18,11 @@ effective "lever" pose (px, py, ptheta) that the same measurement model handles 
 Optionally (`odometry_errors`), the state also holds the odometry's systematic errors (k_s, k_theta, h)
 of `odometry_errors.OdometryErrorStates`: each prediction then applies the increment they correct, and
 the bearings estimate them through the pose's cross-covariance with them.
+
+Optionally (`power_bias`), the state also holds the power bias of uncalibrated bearings
+(`power_bias_states.PowerBiasStates`, eq. 7.19 on a Chebyshev basis of the angular window): a bearing the
+driver did not correct is predicted as h(x) + f(w), estimated (self-calibration) or, as Schmidt-Kalman
+consider parameters, only carried in the covariance (their gain rows zero, the Joseph update).
 """
 
 from collections.abc import Mapping, Sequence
@@ -32,6 +37,8 @@ from beams_common.angles import wrap_to_pi
 from beams_common.pose2d import Pose2D, compose
 from beams_ekf.odometry_errors import OdometryErrorStates, corrected_increment
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, rejected
+from beams_ekf.power_bias_states import BASIS_SIZE, PowerBiasStates, WindowFit
+from beams_ekf.turret_offset_states import OFFSET_SIZE, TurretOffsetStates
 
 
 @dataclass(frozen=True)
@@ -165,11 +172,24 @@ class BearingEkf:
         process_noise: ProcessNoise | None = None,
         gate_probability: float = 0.999,
         odometry_errors: OdometryErrorStates | None = None,
+        power_bias: PowerBiasStates | None = None,
+        turret_offset: TurretOffsetStates | None = None,
     ) -> None:
         self.configure(beacons_xy, sensor_offset_m, process_noise or ProcessNoise(), gate_probability)
         self.odometry_errors = odometry_errors
-        self.dim = 3 if odometry_errors is None else 6
+        self.power_bias = power_bias
+        self.turret_offset = turret_offset
+        # state layout: pose (3), odometry errors (3), power bias (BASIS_SIZE), turret offset correction
+        # (OFFSET_SIZE), each but the pose optional
+        bias_start = 3 if odometry_errors is None else 6
+        offset_start = bias_start + (0 if power_bias is None else BASIS_SIZE)
+        self.dim = offset_start + (0 if turret_offset is None else OFFSET_SIZE)
+        self._errors = slice(3, bias_start)
+        self._bias = slice(bias_start, offset_start)
+        self._offset = slice(offset_start, self.dim)
         self._ekf = _OdometryEkf(dim_x=self.dim, dim_z=1)
+        self._window_fit = WindowFit()
+        self._learn_bias = False  # whether the bearing being applied updates the power bias states
         self._initialised = False
 
     def configure(
@@ -206,13 +226,29 @@ class BearingEkf:
         """(k_s, k_theta, h) and their 3x3 covariance, or None without those states."""
         if self.odometry_errors is None:
             return None
-        return self._ekf.x[3:, 0].copy(), self._ekf.P[3:, 3:].copy()
+        return self._ekf.x[self._errors, 0].copy(), self._ekf.P[self._errors, self._errors].copy()
+
+    @property
+    def turret_offset_estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The correction (dx, dy) (m) of the configured turret offset and its 2x2 covariance, or None
+        without those states."""
+        if self.turret_offset is None:
+            return None
+        return self._ekf.x[self._offset, 0].copy(), self._ekf.P[self._offset, self._offset].copy()
+
+    @property
+    def power_bias_estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(beta_1, beta_2, beta_3) (rad) and their 3x3 covariance, or None without those states."""
+        if self.power_bias is None:
+            return None
+        return self._ekf.x[self._bias, 0].copy(), self._ekf.P[self._bias, self._bias].copy()
 
     def initialise(self, pose: Pose2D, covariance: np.ndarray) -> None:
         """Start (or restart) from a pose and its 3x3 covariance (ToTal's fix or an operator's pose).
 
-        Odometry error states start from their prior the first time; a restart keeps what the bearings
-        taught them (the odometry did not change), uncorrelated with the new pose.
+        Odometry error and power bias states start from their prior the first time; a restart keeps what
+        the bearings taught them (the odometry and the sensor did not change), uncorrelated with the new
+        pose.
         """
         covariance = np.asarray(covariance, dtype=float).reshape(3, 3)
         if not (all(isfinite(v) for v in pose) and np.all(np.isfinite(covariance))):
@@ -222,10 +258,15 @@ class BearingEkf:
         x, p = np.zeros((self.dim, 1)), np.zeros((self.dim, self.dim))
         x[:3, 0] = (pose[0], pose[1], wrap_to_pi(pose[2]))
         p[:3, :3] = 0.5 * (covariance + covariance.T)
-        if self.odometry_errors is not None:
-            known = self.odometry_error_estimate if self._initialised else None
-            x[3:, 0] = known[0] if known else self.odometry_errors.prior_mean
-            p[3:, 3:] = known[1] if known else self.odometry_errors.prior_covariance
+        for states, block, known in (
+            (self.odometry_errors, self._errors, self.odometry_error_estimate),
+            (self.power_bias, self._bias, self.power_bias_estimate),
+            (self.turret_offset, self._offset, self.turret_offset_estimate),
+        ):
+            if states is not None:
+                learnt = known if self._initialised else None
+                x[block, 0] = learnt[0] if learnt else states.prior_mean
+                p[block, block] = learnt[1] if learnt else states.prior_covariance
         self._ekf.x, self._ekf.P = x, p
         self._initialised = True
 
@@ -252,11 +293,11 @@ class BearingEkf:
         self._ekf.Q = np.zeros((self.dim, self.dim))
         if self.odometry_errors is not None:
             # the true motion is the reported one corrected by the error states (odometry_errors)
-            moved, d_errors, _ = corrected_increment(increment, self._ekf.x[3:, 0])
+            moved, d_errors, _ = corrected_increment(increment, self._ekf.x[self._errors, 0])
             rotation = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-            self._ekf.F[:3, 3:] = rotation @ d_errors
+            self._ekf.F[:3, self._errors] = rotation @ d_errors
             walk = self.odometry_errors.walk_variance_per_m * hypot(increment[0], increment[1])
-            self._ekf.Q[3:, 3:] = walk * np.eye(3)
+            self._ekf.Q[self._errors, self._errors] = walk * np.eye(3)
         dx, dy = moved[0], moved[1]
         # Jacobian of compose(x, u) with respect to the pose
         self._ekf.F[:3, :3] = [[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]]
@@ -276,10 +317,18 @@ class BearingEkf:
         added[:3] = (position_variance_m2, position_variance_m2, heading_variance_rad2)
         self._ekf.P = self._ekf.P + np.diag(added)
 
-    def predicted_bearing(self, beacon_id: int, lever: Pose2D | None = None) -> tuple[float, np.ndarray]:
-        """h(x) and its 1 x dim Jacobian for one beacon, the turret at `lever` in the robot frame."""
+    def predicted_bearing(
+        self, beacon_id: int, lever: Pose2D | None = None, uncorrected_window_rad: float = 0.0
+    ) -> tuple[float, np.ndarray]:
+        """h(x) and its 1 x dim Jacobian for one beacon, the turret at `lever` in the robot frame; plus
+        the power bias f(w) (eq. 7.17) of a bearing no calibration corrected, at its window (0: none)."""
         lever = lever if lever is not None else (self.sensor_offset_m[0], self.sensor_offset_m[1], 0.0)
         x = self._ekf.x
+        if self.turret_offset is not None:
+            # the offset's correction, in base_link, turned into the lever's frame (the robot then)
+            lc, ls = cos(lever[2]), sin(lever[2])
+            dx, dy = float(x[self._offset][0, 0]), float(x[self._offset][1, 0])
+            lever = (lever[0] + lc * dx - ls * dy, lever[1] + ls * dx + lc * dy, lever[2])
         try:
             expected, d_pose = bearing_measurement(
                 (float(x[0, 0]), float(x[1, 0]), float(x[2, 0])), self.beacons_xy[beacon_id], lever
@@ -288,12 +337,37 @@ class BearingEkf:
             raise ZeroDivisionError(f"the sensor is on beacon {beacon_id}") from None
         jacobian = np.zeros((1, self.dim))
         jacobian[0, :3] = d_pose
+        if self.turret_offset is not None:
+            # dh/d(lever x, y) is dh/d(turret) = d_pose[:2] turned by the heading, then by the lever's angle
+            c, s = cos(float(x[2, 0])), sin(float(x[2, 0]))
+            d_lever = np.array([d_pose[0] * c + d_pose[1] * s, -d_pose[0] * s + d_pose[1] * c])
+            lc, ls = cos(lever[2]), sin(lever[2])
+            jacobian[0, self._offset] = d_lever @ np.array([[lc, -ls], [ls, lc]])
+        self._learn_bias = False
+        if self.power_bias is not None and uncorrected_window_rad > 0.0:
+            turret = compose(self.pose, lever)
+            distance_m = hypot(
+                self.beacons_xy[beacon_id][0] - turret[0], self.beacons_xy[beacon_id][1] - turret[1]
+            )
+            window = self._window_fit.window_rad(beacon_id, distance_m, uncorrected_window_rad)
+            # until the window fit is ready, the noisy measured window only carries the bias's uncertainty
+            self._learn_bias = window is not None and self.power_bias.estimate
+            basis = self.power_bias.basis(uncorrected_window_rad if window is None else window)
+            jacobian[0, self._bias] = basis
+            expected = wrap_to_pi(expected + float(basis @ x[self._bias, 0]))
         return expected, jacobian
 
     def update_bearing(
-        self, beacon_id: int, bearing_rad: float, variance_rad2: float, lever: Pose2D | None = None
+        self,
+        beacon_id: int,
+        bearing_rad: float,
+        variance_rad2: float,
+        lever: Pose2D | None = None,
+        uncorrected_window_rad: float = 0.0,
     ) -> BearingOutcome:
-        """Update with one bearing (sensor frame) of variance R, gated at the chi-square threshold."""
+        """Update with one bearing (sensor frame) of variance R, gated at the chi-square threshold;
+        `uncorrected_window_rad` > 0: the bearing's window when no calibration corrected it (its power
+        bias is then modelled)."""
         if not self._initialised:
             return rejected(BearingReason.UNINITIALISED)
         if beacon_id not in self.beacons_xy:
@@ -301,7 +375,7 @@ class BearingEkf:
         if not (isfinite(bearing_rad) and isfinite(variance_rad2) and variance_rad2 > 0.0):
             return rejected(BearingReason.INVALID_MEASUREMENT)
         try:
-            expected, jacobian = self.predicted_bearing(beacon_id, lever)
+            expected, jacobian = self.predicted_bearing(beacon_id, lever, uncorrected_window_rad)
         except ZeroDivisionError:
             return rejected(BearingReason.SENSOR_ON_BEACON)
         residual = wrap_to_pi(bearing_rad - expected)
@@ -309,19 +383,26 @@ class BearingEkf:
         nis = residual * residual / innovation_variance
         if nis > self.gate:
             return BearingOutcome(False, nis, residual, BearingReason.GATED)
-        # the innovation is already wrapped, so filterpy's residual only has to return it
-        self._ekf.update(
-            np.array([bearing_rad]),
-            HJacobian=lambda _x: jacobian,
-            Hx=lambda _x: expected,
-            R=np.array([[variance_rad2]]),
-            residual=lambda _z, _hx: np.array([[residual]]),
-        )
+        self._joseph_update(jacobian, variance_rad2, residual, innovation_variance)
         self._ekf.x[2, 0] = wrap_to_pi(float(self._ekf.x[2, 0]))
         # rounding drifts P from symmetric: after a wide prior (sigma 4 m) by more than the 1e-9 the
         # published-estimate invariant allows (issue 18: every later estimate refused)
         self._ekf.P = 0.5 * (self._ekf.P + self._ekf.P.T)
         return BearingOutcome(True, nis, residual)
+
+    def _joseph_update(
+        self, jacobian: np.ndarray, variance_rad2: float, residual: float, innovation_variance: float
+    ) -> None:
+        """x += K r, P = (I - K H) P (I - K H)' + K R K' (filterpy's form), K = P H' / S; the gain rows
+        of consider parameters (and of the bias states for a bearing that cannot teach them) are zero
+        (Schmidt-Kalman): the Joseph form stays right for that gain."""
+        p = self._ekf.P
+        gain = (p @ jacobian.T) / innovation_variance
+        if self.power_bias is not None and not self._learn_bias:
+            gain[self._bias] = 0.0
+        reduce = np.eye(self.dim) - gain @ jacobian
+        self._ekf.x = self._ekf.x + gain * residual
+        self._ekf.P = reduce @ p @ reduce.T + variance_rad2 * (gain @ gain.T)
 
     def position_sigma_m(self) -> float:
         """Square root of the trace of the position covariance (m)."""

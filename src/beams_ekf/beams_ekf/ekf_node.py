@@ -9,7 +9,8 @@ Publishes `beams/ekf/odometry` (nav_msgs/Odometry, map -> base_link, pose and tw
 and `beams/ekf/pose` (PoseWithCovarianceStamped) after each revolution's bearings and at
 `publish_rate_hz` as odometry moves it, the map -> odom transform on `/tf` (REP-105: the odometry's
 source publishes odom -> base_link), plus `/diagnostics`.
-Service `~/reset` (std_srvs/Trigger) forgets the estimate until the next pose.
+Service `~/reset` (std_srvs/Trigger) forgets the estimate until the next pose; `~/save_calibration`
+(std_srvs/Trigger) writes the power bias learnt while driving to `self_calibration_file` (issue 19).
 All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
 
 Plausibility (issue 18, `beams_common.plausibility`): a revolution whose newest bearing, or an odometry
@@ -67,6 +68,7 @@ from beams_ekf.ekf_health import WAITING_FOR_POSE, EkfHealth
 from beams_ekf.localiser import build_localiser
 from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
 from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
+from beams_ekf.self_calibration import save_self_calibration
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_msgs.srv import SetPose
 
@@ -110,6 +112,7 @@ class EkfNode(Node):
         self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE, self._on_initial_pose, 10)
         self.create_service(SetPose, topics.SET_POSE, self._on_set_pose)
         self.create_service(Trigger, topics.RESET, self._on_reset)
+        self.create_service(Trigger, topics.SAVE_CALIBRATION, self._on_save_calibration)
         serve_calibration_reload(self, self._apply_calibration)
         apply_runtime_changes(self, EKF_PARAMETERS, self.parameters, self._prepare_parameters)
         self.create_timer(1.0 / rate_hz, self._publish)
@@ -135,6 +138,18 @@ class EkfNode(Node):
             self.health.configure(values, self._now_s())
 
         return apply
+
+    def _on_save_calibration(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """The power bias learnt so far as a chapter-7 calibration file (beams_ekf.self_calibration)."""
+        path = self.parameters["self_calibration_file"]
+        geometry = self.geometry
+        try:
+            save_self_calibration(self.localiser.ekf, geometry.beacon_map, geometry.turret_offset_m, path)
+        except (ValueError, OSError) as error:
+            response.success, response.message = False, bounded(f"not saved: {error}")
+            return response
+        response.success, response.message = True, f"power bias written to {path}"
+        return response
 
     # -- inputs ---------------------------------------------------------------------------------------
     def _now_s(self) -> float:

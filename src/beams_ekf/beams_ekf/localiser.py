@@ -379,7 +379,10 @@ class Localiser:
     def _apply(self, bearing: Bearing, robot_then: Pose2D) -> BearingOutcome:
         """Update with a bearing taken with the robot at `robot_then` in the current state's robot frame."""
         lever = turret_pose(robot_then, self.ekf.sensor_offset_m)
-        return self.ekf.update_bearing(bearing.beacon_id, bearing.bearing_rad, bearing.variance_rad2, lever)
+        window = 0.0 if bearing.calibrated else bearing.angular_window_rad  # an uncorrected power bias
+        return self.ekf.update_bearing(
+            bearing.beacon_id, bearing.bearing_rad, bearing.variance_rad2, lever, window
+        )
 
     def _track_gating(self, bearing: Bearing, outcome: BearingOutcome) -> None:
         """Record whether a new bearing was gated (kidnap evidence) and the last accepted one."""
@@ -499,5 +502,7 @@ def build_localiser(
         settings.process_noise,
         settings.gate_probability,
         settings.odometry_errors,
+        settings.power_bias,
+        settings.turret_offset,
     )
     return Localiser(ekf, settings.localiser, settings.motion_limits)

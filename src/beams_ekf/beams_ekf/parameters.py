@@ -13,7 +13,9 @@ from beams_common.parameters import ROS_NODE_PARAMETERS, ParameterSpec, Paramete
 from beams_common.plausibility import MAX_POSE_SIGMA_M, MOTION_SPECS, STAMP_SPECS, motion_limits_of
 from beams_ekf.bearing_ekf import ProcessNoise
 from beams_ekf.odometry_errors import OdometryErrorStates
+from beams_ekf.power_bias_states import POWER_BIAS_PARAMETERS, power_bias_states_of
 from beams_ekf.settings import FilterSettings, LocaliserConfig
+from beams_ekf.turret_offset_states import TURRET_OFFSET_PARAMETERS, turret_offset_states_of
 
 _DEFAULTS = FilterSettings()
 _NOISE = _DEFAULTS.process_noise
@@ -245,6 +247,8 @@ def _settings_of(values: Mapping[str, Any]) -> FilterSettings:
         bool(values["use_total_pose"]),
         tuple(float(v) for v in values["default_pose_sigma"]),
         motion_limits_of(values),
+        power_bias=power_bias_states_of(values),
+        turret_offset=turret_offset_states_of(values),
     )
 
 
@@ -265,6 +269,8 @@ EKF_PARAMETERS = ParameterTable(
         *STAMP_SPECS,
         *BEARING_RATE_SPECS,
         ODOMETRY_RATE_SPEC,
+        *POWER_BIAS_PARAMETERS,
+        *TURRET_OFFSET_PARAMETERS,
         ParameterSpec("map_frame", "map", "Frame of the estimate (REP-105)."),
         ParameterSpec("base_frame", "base_link", "The robot's frame (child)."),
         ParameterSpec("odom_frame", "odom", "The odometry's frame (child of the map -> odom transform)."),

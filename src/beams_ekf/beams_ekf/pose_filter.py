@@ -94,10 +94,16 @@ class PoseFilter(Protocol):
         """Grow the uncertainty for a time without odometry (a gap)."""
 
     def update_bearing(
-        self, beacon_id: int, bearing_rad: float, variance_rad2: float, lever: Pose2D | None = None
+        self,
+        beacon_id: int,
+        bearing_rad: float,
+        variance_rad2: float,
+        lever: Pose2D | None = None,
+        uncorrected_window_rad: float = 0.0,
     ) -> BearingOutcome:
         """Correct with one bearing (sensor frame) of the given variance; `lever` is the turret's pose
-        relative to the robot's estimate when the bearing was taken."""
+        relative to the robot's estimate when the bearing was taken; `uncorrected_window_rad` > 0 is the
+        angular window of a bearing no calibration corrected (it carries the power bias, eq. 7.17)."""
 
     def configure(
         self,

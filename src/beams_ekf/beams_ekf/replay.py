@@ -10,6 +10,7 @@ import numpy as np
 from scipy.stats import chi2
 
 from beams_common.angles import wrap_to_pi
+from beams_common.bearing import Bearing
 from beams_common.pose2d import Pose2D
 from beams_ekf.localiser import Localiser
 from beams_ekf.synthetic import BearingEvent
@@ -81,7 +82,18 @@ def replay(
             if isinstance(event, PoseEvent):
                 localiser.on_pose(event.stamp_s, event.pose, event.covariance, operator=False)
             else:
-                localiser.on_bearing(event.stamp_s, event.beacon_id, event.bearing_rad, event.variance_rad2)
+                localiser.on_bearings(
+                    [
+                        Bearing(
+                            event.stamp_s,
+                            event.beacon_id,
+                            event.bearing_rad,
+                            event.variance_rad2,
+                            event.angular_window_rad,
+                            event.calibrated,
+                        )
+                    ]
+                )
         estimate = localiser.estimate()
         if estimate is not None:
             times.append(estimate.stamp_s)

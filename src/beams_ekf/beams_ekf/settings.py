@@ -13,6 +13,8 @@ import numpy as np
 from beams_common.plausibility import MotionLimits
 from beams_ekf.bearing_ekf import ProcessNoise
 from beams_ekf.odometry_errors import OdometryErrorStates
+from beams_ekf.power_bias_states import PowerBiasStates
+from beams_ekf.turret_offset_states import TurretOffsetStates
 
 
 @dataclass(frozen=True)
@@ -99,6 +101,10 @@ class FilterSettings:
     default_pose_sigma: tuple[float, float, float] = (0.05, 0.05, 0.1)
     # the robot's maximum speed and yaw rate: an odometry increment beyond them is a jump (issue 18)
     motion_limits: MotionLimits = field(default_factory=MotionLimits)
+    # the power bias of uncalibrated bearings as states (estimated or considered); None: white noise
+    power_bias: PowerBiasStates | None = field(default_factory=PowerBiasStates)
+    # the turret offset's correction as states (self-calibration); None: the configured offset is exact
+    turret_offset: TurretOffsetStates | None = None
 
     def __post_init__(self) -> None:
         if len(self.default_pose_sigma) != 3:

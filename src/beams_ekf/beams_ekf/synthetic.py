@@ -24,6 +24,9 @@ class BearingEvent:
     beacon_id: int
     bearing_rad: float
     variance_rad2: float
+    # the angular window (rad, 0: unknown) and whether a calibration corrected the bearing
+    angular_window_rad: float = 0.0
+    calibrated: bool = True
 
 
 @dataclass(frozen=True)

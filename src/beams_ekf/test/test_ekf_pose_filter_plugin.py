@@ -65,7 +65,9 @@ class DeadReckoning:
     def add_time_noise(self, position_variance_m2: float, heading_variance_rad2: float) -> None:
         self._covariance = self._covariance + np.diag([position_variance_m2] * 2 + [heading_variance_rad2])
 
-    def update_bearing(self, beacon_id, bearing_rad, variance_rad2, lever=None) -> BearingOutcome:
+    def update_bearing(
+        self, beacon_id, bearing_rad, variance_rad2, lever=None, uncorrected_window_rad=0.0
+    ) -> BearingOutcome:
         return rejected(BearingReason.NOT_USED)
 
 

@@ -1,0 +1,45 @@
+"""What the EKF learnt of the sensor while driving, as a chapter-7 calibration file (issue 19).
+
+The power-bias states (`power_bias_states`) hold the curve f(w) of eq. 7.19 on a Chebyshev basis; the
+file holds it as eq. 7.19's (a, b, c, d) with the window range (beams_common.calibration_file), so
+driver_node corrects the bearings with it and the chapter-7 tools (`calibrate`, the plots) read it. With
+turret offset states (`turret_offset_states`) the file's turret offset is the configured one corrected.
+"""
+
+import os
+
+from beams_common.beacon_map import BeaconMap
+from beams_common.calibration_file import SensorCalibration, save_calibration
+from beams_ekf.bearing_ekf import BearingEkf
+
+
+def self_calibration(
+    ekf: BearingEkf, beacon_map: BeaconMap, turret_offset_m: tuple[float, float]
+) -> SensorCalibration:
+    """The calibration of the filter's power-bias estimate, with the geometry it runs with (turret_offset_m
+    the configured offset, corrected by the filter's estimate when it has turret offset states);
+    ValueError when the filter has no power-bias states."""
+    estimate = ekf.power_bias_estimate
+    if estimate is None or ekf.power_bias is None:
+        raise ValueError("the filter has no power-bias states (power_bias_states is 'off')")
+    correction = ekf.power_bias.correction(estimate[0])
+    offset = ekf.turret_offset_estimate
+    if offset is not None:
+        turret_offset_m = (turret_offset_m[0] + float(offset[0][0]), turret_offset_m[1] + float(offset[0][1]))
+    warnings = () if ekf.power_bias.estimate else ("power_bias_states 'consider': the prior, nothing learnt",)
+    return SensorCalibration(
+        beacon_map,
+        correction,
+        turret_offset_m,
+        warnings=warnings,
+        created_utc=SensorCalibration.now_utc(),
+    )
+
+
+def save_self_calibration(
+    ekf: BearingEkf, beacon_map: BeaconMap, turret_offset_m: tuple[float, float], path: str | os.PathLike
+) -> SensorCalibration:
+    """Write `self_calibration` to path (atomically, the previous file kept as .bak); returns it."""
+    calibration = self_calibration(ekf, beacon_map, turret_offset_m)
+    save_calibration(calibration, path)
+    return calibration
