@@ -32,6 +32,7 @@ from beams_common.angles import wrap_to_pi
 from beams_common.bearing_correction import BearingCorrection
 from beams_common.calibration_file import SensorCalibration, load_calibration
 from beams_common.parameters import ParameterTable
+from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.messages import pose2d_of, seconds_to_stamp, stamp_to_seconds
 from beams_common.ros.node_support import BEARINGS_QOS, Diagnostics, run_node, serve_calibration_reload
 from beams_common.ros.parameters import ParameterValidationError, apply_runtime_changes, declare_table
@@ -143,7 +144,7 @@ def _refuse_unavailable_transitions(node: LifecycleNode) -> None:
     service.callback = guarded
 
 
-class DriverNode(LifecycleNode):
+class DriverNode(GuardedCallbacks, LifecycleNode):
     def __init__(self) -> None:
         super().__init__("driver_node")
         _refuse_unavailable_transitions(self)
@@ -194,6 +195,13 @@ class DriverNode(LifecycleNode):
             if self.unexpected is not None:
                 raise self.unexpected
             raise ParameterValidationError(self.failure)
+
+    def recover_from_callback_exception(self, site: str) -> str:
+        """A callback failed halfway (GuardedCallbacks): no decoding window joins across it."""
+        if self.decoder is None:
+            return ""
+        self.decoder.reset()
+        return "decoder reset"
 
     # ---- the lifecycle transitions ----
 

@@ -29,6 +29,7 @@ from beams_common import topics
 from beams_common.bearing import bearings_of_message
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import geometry_of_calibration, runtime_geometry
+from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.messages import (
     planar_covariance,
     planar_tf_message,
@@ -64,7 +65,7 @@ from beams_msgs.srv import SetPose
 WAITING_FOR_POSE = "waiting for an initial pose (beams/pose, /initialpose or the set_pose service)"
 
 
-class EkfNode(Node):
+class EkfNode(GuardedCallbacks, Node):
     """ROS wiring of `Localiser` (see the module docstring)."""
 
     def __init__(self) -> None:
@@ -103,6 +104,12 @@ class EkfNode(Node):
             f"ekf_node ready: {len(self.localiser.ekf.beacons_xy)} beacons, turret offset "
             f"{self.localiser.ekf.sensor_offset_m} m, gate {self.localiser.ekf.gate:.2f}"
         )
+
+    def recover_from_callback_exception(self, site: str) -> str:
+        """A callback failed halfway (GuardedCallbacks): the filter may be half-updated, so it starts over."""
+        self.localiser.reset("resets_after_callback_exception")
+        self._published_stamp_s = None
+        return "filter reset: it re-initialises from the next fix"
 
     # -- parameters -----------------------------------------------------------------------------------
     def _apply_parameters(self, values: dict, changed: set[str]) -> None:

@@ -22,6 +22,7 @@ from rclpy.time import Time
 from tf2_msgs.msg import TFMessage
 
 from beams_common import topics
+from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.messages import planar_tf_message, ros_covariance, set_pose2d
 from beams_common.ros.node_support import TF_QOS, Diagnostics, run_node
 from beams_common.ros.parameters import ParameterValidationError, declare_table
@@ -34,7 +35,7 @@ POSITION_SIGMA_PER_M = 0.01
 HEADING_SIGMA_PER_RAD = 0.01
 
 
-class SimWorldNode(Node):
+class SimWorldNode(GuardedCallbacks, Node):
     def __init__(self) -> None:
         super().__init__("sim_world_node")
         self.diagnostics = Diagnostics(self, "sim_world")
