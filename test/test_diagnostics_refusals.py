@@ -115,3 +115,15 @@ def test_ekf_node_answers_a_refused_reload_then_a_nan_set_pose_and_keeps_serving
     ), rclpy_node.diagnostic_values("ekf_node")
     assert "Traceback" not in node.log()
     assert diagnostics
+
+
+def test_conditions_are_listed_worst_first_and_lasting_before_held(diagnostics_node):
+    diagnostics, published = diagnostics_node
+    diagnostics.set_condition("slow", "warn", "input slow")
+    diagnostics.set_condition("interleaved", "error", "sources interleave", hold_s=60.0)
+    diagnostics.set_condition("graph", "error", "2 publishers: /a, /b")
+    diagnostics.set_level("ok", "tracking")
+    diagnostics.publish()
+    status = published[-1].status[0]
+    assert status.level == b"\x02"
+    assert status.message == "2 publishers: /a, /b; sources interleave; input slow; tracking"

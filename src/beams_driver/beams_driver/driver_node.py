@@ -33,6 +33,7 @@ from beams_common.bearing_correction import BearingCorrection
 from beams_common.calibration_file import SensorCalibration, load_calibration
 from beams_common.parameters import ParameterTable
 from beams_common.ros.callback_guard import GuardedCallbacks
+from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import pose2d_of, seconds_to_stamp, stamp_to_seconds
 from beams_common.ros.node_support import BEARINGS_QOS, Diagnostics, run_node, serve_calibration_reload
 from beams_common.ros.parameters import ParameterValidationError, apply_runtime_changes, declare_table
@@ -144,7 +145,7 @@ def _refuse_unavailable_transitions(node: LifecycleNode) -> None:
     service.callback = guarded
 
 
-class DriverNode(GuardedCallbacks, LifecycleNode):
+class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
     def __init__(self) -> None:
         super().__init__("driver_node")
         _refuse_unavailable_transitions(self)

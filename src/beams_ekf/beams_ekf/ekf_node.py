@@ -30,6 +30,7 @@ from beams_common.bearing import bearings_of_message
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import geometry_of_calibration, runtime_geometry
 from beams_common.ros.callback_guard import GuardedCallbacks
+from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import (
     planar_covariance,
     planar_tf_message,
@@ -65,7 +66,7 @@ from beams_msgs.srv import SetPose
 WAITING_FOR_POSE = "waiting for an initial pose (beams/pose, /initialpose or the set_pose service)"
 
 
-class EkfNode(GuardedCallbacks, Node):
+class EkfNode(WatchedInputs, GuardedCallbacks, Node):
     """ROS wiring of `Localiser` (see the module docstring)."""
 
     def __init__(self) -> None:

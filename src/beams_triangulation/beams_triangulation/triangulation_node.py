@@ -31,6 +31,7 @@ from beams_common.bearing import bearings_of_message
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import geometry_of_calibration, runtime_geometry
 from beams_common.ros.callback_guard import GuardedCallbacks
+from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
 from beams_common.ros.node_support import (
     BEARINGS_QOS,
@@ -56,7 +57,7 @@ def estimate_pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
     return pose_with_covariance((estimate.x, estimate.y, estimate.heading), estimate.covariance)
 
 
-class TriangulationNode(GuardedCallbacks, Node):
+class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
     """ROS wiring of `pipeline.TriangulationPipeline` (see the module docstring)."""
 
     def __init__(self) -> None:

@@ -276,6 +276,10 @@ class Diagnostics:
             del self._conditions[name]
         return {name: (level, reason) for name, (level, reason, _) in self._conditions.items()}
 
+    def _held(self, name: str) -> bool:
+        """True when the condition ends by itself (a hold time), False when it lasts until cleared."""
+        return self._conditions[name][2] is not None
+
     def callback_failed(self, site: str, summary: str) -> None:
         """A callback let an exception out (the guard caught it): counted in `callback_exceptions`, kept
         in `last_callback_exception`, and the status ERROR for CALLBACK_FAULT_HOLD_S."""
@@ -301,9 +305,16 @@ class Diagnostics:
             self._refusal = None
             level = refusal_level if _LEVELS[refusal_level] > _LEVELS[level] else level
             message = bounded(f"{message}; refused {reason}")
-        for condition_level, reason in self.active_conditions().values():
-            level = condition_level if _LEVELS[condition_level] > _LEVELS[level] else level
-            message = bounded(f"{reason}; {message}")
+        conditions = self.active_conditions()
+        if conditions:
+            # the worst first, and among equals the ones held until cleared (the graph's, which name
+            # the publishers): the text is bounded, the end may be cut
+            ordered = sorted(
+                conditions, key=lambda name: (-ord(_LEVELS[conditions[name][0]]), self._held(name))
+            )
+            worst = conditions[ordered[0]][0]
+            level = worst if _LEVELS[worst] > _LEVELS[level] else level
+            message = bounded("; ".join([*(conditions[name][1] for name in ordered), message]))
         self._send(level, message, self._node.get_clock().now().to_msg())
 
     def _send(self, level: str, message: str, stamp: Any) -> None:
