@@ -32,14 +32,16 @@ from beams_common.angles import wrap_to_pi
 from beams_common.bearing_correction import BearingCorrection
 from beams_common.calibration_file import SensorCalibration, load_calibration
 from beams_common.parameters import ParameterTable
+from beams_common.rate_monitor import RateMonitor
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import pose2d_of, seconds_to_stamp, stamp_to_seconds
 from beams_common.ros.node_support import BEARINGS_QOS, Diagnostics, run_node, serve_calibration_reload
 from beams_common.ros.parameters import ParameterValidationError, apply_runtime_changes, declare_table
+from beams_common.ros.rate_status import RateStatus
 from beams_driver.decoder import BearingDecoder, DecodedRevolution
 from beams_driver.edge_source import EdgeSource, PoseCallback, source_kind
-from beams_driver.edges import RevolutionEdges
+from beams_driver.edges import TURRET_PERIOD_S, RevolutionEdges
 from beams_driver.parameters import (
     DRIVER_PARAMETERS,
     LIFECYCLE_PARAMETERS,
@@ -56,6 +58,9 @@ SUCCESS = TransitionCallbackReturn.SUCCESS
 FAILURE = TransitionCallbackReturn.FAILURE
 ERROR = TransitionCallbackReturn.ERROR
 RCLError = _rclpy.RCLError
+# the published revolutions' rate is OK within +-50 % of the turret's (5-15 Hz): none for 2 s is ERROR,
+# double (two sources) WARN; a wide band, as a real turret's speed and a loaded machine's polling vary
+REVOLUTION_RATE_TOLERANCE = 0.5
 
 
 class RosSourceHost:
@@ -150,6 +155,12 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
         super().__init__("driver_node")
         _refuse_unavailable_transitions(self)
         self.diagnostics = Diagnostics(self, "driver")
+        turret_hz = 1.0 / TURRET_PERIOD_S
+        self.revolution_rate = RateStatus(
+            self.diagnostics,
+            "revolution",
+            RateMonitor(turret_hz, turret_hz, tolerance=REVOLUTION_RATE_TOLERANCE, what="revolutions"),
+        )
         self.host = RosSourceHost(self)
         self.failure = ""  # the last failed transition's reason
         self.unexpected: Exception | None = None
@@ -242,6 +253,7 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
             self.decoder.reset()
             self._stale_before_s = self.host.now_s()
         self._poll_timer = self.create_timer(self.kind.poll_period_s, self._poll)
+        self.revolution_rate.start(self.host.now_s())
         self._show_state("active")
         self.get_logger().info(
             f"{self.kind.name} source, codes {[str(c) for c in self.codes]}, variance mode "
@@ -276,6 +288,7 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
     on_error = _transition(_error, LifecycleNode.on_error)
 
     def _stop_polling(self) -> None:
+        self.revolution_rate.stop()
         if self._poll_timer is not None:
             self.destroy_timer(self._poll_timer)
             self._poll_timer = None
@@ -341,8 +354,11 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
         poll = self.source.poll(now_s)
         if poll.continuity_broken:
             self.decoder.reset()  # no window is joined across a gap in the stream
-        for edges in self._fresh(poll.revolutions, now_s):
+        fresh = self._fresh(poll.revolutions, now_s)
+        for edges in fresh:
             self._publish(self.decoder.decode(edges))
+        self.revolution_rate.tick(now_s, len(fresh))
+        self.revolution_rate.update(now_s)
         health = self.source.health()
         for key, value in health.values.items():
             self.diagnostics.set(key, value)
