@@ -85,3 +85,47 @@ def test_a_second_driver_is_said_at_error_naming_both_and_the_error_clears(start
     values = {kv.key: kv.value for kv in latest("ekf_node").values}
     assert int(values.get("input_source_problems", 0)) >= 2, values  # the graph's and the messages'
     assert "/beams/" in values.get("last_input_publishers_problem", ""), values
+
+
+def test_a_second_simulated_world_is_said_by_every_node_that_reads_odometry_or_ground_truth(
+    start_node, rclpy_node
+):
+    """Two sim_world_nodes on one clock: their odometry stamps still increase merged, so the graph says
+    it: ekf_node and triangulation_node (odom) and driver_node (ground truth) ERROR, naming both."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    watchers = {"ekf_node": "/odom", "triangulation_node": "/odom", "driver_node": "/beams/sim/ground_truth"}
+    latest: dict[str, object] = {}
+
+    def on_diagnostics(msg) -> None:
+        for status in msg.status:
+            for name in watchers:
+                if f"/{name}:" in status.name:
+                    latest[name] = status
+
+    rclpy_node.node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 50)
+    start_node("beams_sim", "sim_world_node")
+    for package, executable in (
+        ("beams_driver", "driver_node"),
+        ("beams_triangulation", "triangulation_node"),
+        ("beams_ekf", "ekf_node"),
+    ):
+        start_node(package, executable)
+    assert rclpy_node.spin_until(lambda: len(latest) == len(watchers), UP_TIMEOUT_S)
+    second = start_node("beams_sim", "sim_world_node")
+
+    def said(name: str) -> bool:
+        status = latest[name]
+        return (
+            status.level == DiagnosticStatus.ERROR
+            and f"2 publishers on {watchers[name]}: /sim_world_node (x2)" in status.message
+        )
+
+    assert rclpy_node.spin_until(lambda: rclpy_node.node.count_publishers("/odom") == 2, UP_TIMEOUT_S)
+    assert rclpy_node.spin_until(lambda: all(said(n) for n in watchers), DETECTION_BOUND_S + 1.0), {
+        n: latest[n].message for n in watchers
+    }
+    second.assert_clean_exit()
+    assert rclpy_node.spin_until(lambda: not any(said(n) for n in watchers), CLEAR_BOUND_S), {
+        n: latest[n].message for n in watchers
+    }
