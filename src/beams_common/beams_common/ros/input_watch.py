@@ -96,10 +96,12 @@ class WatchedInputs:
         return observed
 
     def check_input_publishers(self) -> None:
-        """The graph check: more than one publisher on a watched input is an ERROR condition."""
+        """The graph check: more than one publisher on a watched input is an ERROR condition (an input
+        the node no longer subscribes to, a driver cleaned up, is not judged)."""
+        subscribed = {subscription.topic_name for subscription in self.subscriptions}
         for topic in self.__dict__.get("_watched_inputs", {}):
-            publishers = self.get_publishers_info_by_topic(topic)
             name = f"publishers {topic}"
+            publishers = self.get_publishers_info_by_topic(topic) if topic in subscribed else []
             if len(publishers) > 1:
                 names = sorted(_qualified(info.node_namespace, info.node_name) for info in publishers)
                 listed = ", ".join(
