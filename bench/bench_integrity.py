@@ -5,7 +5,8 @@ The robot's four nodes run under the demo's supervisor (beams_bringup.supervisor
 RESPAWN_DELAY_S, as beams.launch.py does); each node in turn is killed with SIGKILL, KILL_ROUNDS times,
 and the delay from the kill to the EKF's next beams/ekf/odometry message is timed (the EKF goes on
 predicting on odometry while another node is down; killed itself, it is back after the delay, its
-start-up and its first fix). Then a second driver_node is started in the namespace, ROUNDS times: the
+start-up and its first fix), and the longest EKF silence in the SILENCE_WINDOW_S
+after it. Then a second driver_node is started in the namespace, ROUNDS times: the
 delay from the second publisher showing in this probe's graph to ERROR on ekf_node's and
 triangulation_node's /diagnostics naming both.
 
@@ -13,10 +14,12 @@ Usage: python bench/bench_integrity.py   (in ROS_DOMAIN_ID 69 unless the environ
 `make build`; `rows()` is what bench/run_all.py collects.)
 """
 
+import itertools
 import os
 import pathlib
 import signal
 import subprocess
+import sys
 import tempfile
 import time
 
@@ -27,6 +30,7 @@ SECOND_DRIVER_ROUNDS = 3
 UP_TIMEOUT_S = 60.0
 BACK_TIMEOUT_S = 20.0
 SETTLE_S = 2.0
+SILENCE_WINDOW_S = 8.0
 Row = tuple[str, float, str, str]
 
 
@@ -74,9 +78,17 @@ class Probe:
         rclpy.try_shutdown()
 
 
-def kill_delays(probe: Probe, supervisor, node_names: list[str]) -> dict[str, list[float]]:
-    """For each node, KILL_ROUNDS times: SIGKILL, then the delay to the EKF's next output (s)."""
+def longest_silence(arrivals: list[float], start: float, end: float) -> float:
+    """The longest interval without an arrival within [start, end] (s)."""
+    inside = [start, *sorted(t for t in arrivals if start < t < end), end]
+    return max(later - earlier for earlier, later in itertools.pairwise(inside))
+
+
+def kill_delays(probe: Probe, supervisor, node_names: list[str]) -> tuple[dict, dict]:
+    """For each node, KILL_ROUNDS times: SIGKILL, then the delay to the EKF's next output and the
+    longest EKF silence in the SILENCE_WINDOW_S after the kill (s)."""
     delays: dict[str, list[float]] = {name: [] for name in node_names}
+    silences: dict[str, list[float]] = {name: [] for name in node_names}
     for _ in range(KILL_ROUNDS):
         for name in node_names:
             probe.spin_until(lambda: False, SETTLE_S, supervisor.poll)
@@ -95,7 +107,10 @@ def kill_delays(probe: Probe, supervisor, node_names: list[str]) -> dict[str, li
             delays[name].append(min(t for t in probe.ekf_outputs if t > killed_at + 0.2) - killed_at)
             # the killed node must be running again before the next kill
             probe.spin_until(lambda n=name: supervisor.pid(n) is not None, BACK_TIMEOUT_S, supervisor.poll)
-    return delays
+            end = killed_at + SILENCE_WINDOW_S
+            probe.spin_until(lambda end=end: time.monotonic() > end, 60.0, supervisor.poll)
+            silences[name].append(longest_silence(probe.ekf_outputs, killed_at, end))
+    return delays, silences
 
 
 def second_driver_delays(probe: Probe, supervisor, command: list[str], env: dict[str, str]) -> list[float]:
@@ -144,24 +159,30 @@ def rows() -> list[Row]:
     env = dict(os.environ)
     with tempfile.TemporaryDirectory() as directory:
         output = pathlib.Path(directory)
-        commands = node_commands(3600.0, sensor_setup(SENSOR_MODELS[0], output))
+        commands = node_commands(600.0, sensor_setup(SENSOR_MODELS[0], output))
         supervisor = NodeSupervisor(commands, env, output)
         probe = Probe()
         supervisor.start()
         try:
             if not probe.spin_until(lambda: bool(probe.ekf_outputs), UP_TIMEOUT_S, supervisor.poll):
-                raise RuntimeError(f"no EKF output within {UP_TIMEOUT_S} s; logs in {output}")
-            kills = kill_delays(probe, supervisor, list(commands))
+                logs = "\n".join(n.log_path.read_text()[-2000:] for n in supervisor.nodes.values())
+                raise RuntimeError(f"no EKF output within {UP_TIMEOUT_S} s:\n{logs}")
+            kills, silences = kill_delays(probe, supervisor, list(commands))
             second = second_driver_delays(probe, supervisor, commands["driver_node"], env)
         finally:
             supervisor.stop()
             probe.close()
+    print(f"EKF back after each kill (s): {kills}; longest EKF silence (s): {silences}", file=sys.stderr)
+    print(f"second driver said after (s): {second}", file=sys.stderr)
     result: list[Row] = []
     for name, delays in kills.items():
         goal = f"issue 18 goal 2 s ({RESPAWN_DELAY_S:g} s respawn delay + start-up)"
         result.append(
             (f"EKF output again after kill -9 of {name}, worst of {KILL_ROUNDS}", max(delays), "s", goal)
         )
+        window = f"{SILENCE_WINDOW_S:g} s"
+        figure = f"longest EKF silence in the {window} after kill -9 of {name}, worst of {KILL_ROUNDS}"
+        result.append((figure, max(silences[name]), "s", "0.05 s (publish_rate_hz 20) when nothing stops"))
     result.append(
         (
             f"second driver_node said ERROR (ekf and triangulation), worst of {len(second)}",

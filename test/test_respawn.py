@@ -2,12 +2,18 @@
 `ros2 launch` does with respawn (beams.launch.py; its real-tool check is in test_ros2_cli.py).
 
 The whole robot runs under the supervisor the demo uses; each node in turn is killed with SIGKILL (no
-chance to clean up), and the EKF's output (beams/ekf/odometry) is seen again within EKF_BACK_S of the
-kill, and the killed node's own output too (its process started again). The EKF killed itself is back
-within RESPAWN_DELAY_S + EKF_START_S: a Python node with scipy.stats (filterpy.kalman and the localiser
-import it) takes 2.2-2.7 s to start on the 2-core machine under a load of 15 (1 s of it unloaded).
+chance to clean up); the killed node's own output is seen again (its process started again), and the
+longest silence of the EKF's output (beams/ekf/odometry) in the SILENCE_WINDOW_S after the kill is
+bounded:
+- the driver or the triangulation killed: the EKF goes on (predicting on odometry), silent at most
+  EKF_BACK_S (measured <= 0.17 s, bench/bench_integrity.py);
+- the odometry source (sim_world_node) or the EKF itself killed: the EKF's output needs that node back,
+  RESPAWN_DELAY_S plus a Python node's start-up: 2.2-2.7 s for ekf_node on the 2-core machine under a
+  load of 15 (scipy.stats, imported by filterpy.kalman and the localiser, is 2 s of it), 1 s unloaded;
+  measured silences 2.1-4.6 s. Bounded by RESPAWN_DELAY_S + NODE_START_S.
 """
 
+import itertools
 import os
 import signal
 import time
@@ -18,8 +24,11 @@ pytestmark = pytest.mark.dds
 
 UP_TIMEOUT_S = 60.0
 EKF_BACK_S = 2.0
-# ekf_node's own start-up (measured 2.2-2.7 s under load), then its first fix from a ToTal pose
-EKF_START_S = 4.0
+# a Python node's start-up under load (ekf_node measured 2.2-2.7 s), then the EKF's first output
+NODE_START_S = 5.0
+SILENCE_WINDOW_S = 8.0
+# nodes the EKF's output needs: the odometry source and the EKF itself
+EKF_NEEDS = ("sim_world_node", "ekf_node")
 # the killed node's own output: the respawn delay, a Python node's start-up on a loaded machine, the
 # EKF's first fix from a ToTal pose
 NODE_BACK_S = 15.0
@@ -95,16 +104,6 @@ def test_each_node_killed_in_turn_comes_back_and_the_ekf_output_within_2_s(rclpy
         assert pid is not None, f"{name} is not running: {events}\n{logs()}"
         killed_at = time.monotonic()
         os.kill(pid, signal.SIGKILL)
-        # the EKF publishes again (or never stopped: it predicts on odometry) within 2 s of the kill
-        bound_s = RESPAWN_DELAY_S + EKF_START_S if name == "ekf_node" else EKF_BACK_S
-
-        def ekf_back(since: float = killed_at + 0.2) -> bool:
-            return seen_after(ekf_topic, since)
-
-        assert rclpy_node.spin_until(supervised(ekf_back), bound_s), (
-            f"no EKF output within {bound_s} s of killing {name}: {events}\n{logs()}"
-        )
-        back_after = min(t for t in arrivals[ekf_topic] if t > killed_at + 0.2) - killed_at
 
         def node_back(node=supervisor.nodes[name], topic=own_output, since=killed_at + 1.0) -> bool:
             return node.restarts >= 1 and seen_after(topic, since)
@@ -112,11 +111,23 @@ def test_each_node_killed_in_turn_comes_back_and_the_ekf_output_within_2_s(rclpy
         assert rclpy_node.spin_until(supervised(node_back), NODE_BACK_S), (
             f"{name} not back within {NODE_BACK_S} s: {events}\n{logs()}"
         )
-        print(f"{name} killed: EKF output {back_after:.2f} s after the kill")
+        rclpy_node.spin_until(
+            supervised(lambda end=killed_at + SILENCE_WINDOW_S: time.monotonic() > end), 60.0
+        )
+        silence_s = longest_silence(arrivals[ekf_topic], killed_at, killed_at + SILENCE_WINDOW_S)
+        bound_s = RESPAWN_DELAY_S + NODE_START_S if name in EKF_NEEDS else EKF_BACK_S
+        print(f"{name} killed: longest EKF silence {silence_s:.2f} s (bound {bound_s:g} s)")
+        assert silence_s <= bound_s, f"EKF silent {silence_s:.2f} s after killing {name}: {events}\n{logs()}"
     assert [node.restarts for node in supervisor.nodes.values()] == [1, 1, 1, 1], events
     assert all(
         exit_status == -signal.SIGKILL for node in supervisor.nodes.values() for exit_status in node.exits
     )
+
+
+def longest_silence(arrivals: list[float], start: float, end: float) -> float:
+    """The longest interval without an arrival within [start, end] (s)."""
+    inside = [start, *sorted(t for t in arrivals if start < t < end), end]
+    return max(later - earlier for earlier, later in itertools.pairwise(inside))
 
 
 def test_a_node_refusing_its_parameters_is_not_restarted(ros_env, tmp_path):

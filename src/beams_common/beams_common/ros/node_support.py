@@ -259,7 +259,10 @@ class Diagnostics:
         if level not in _LEVELS:
             raise ValueError(f"diagnostic level must be one of {sorted(_LEVELS)}, got {level!r}")
         until_s = None if hold_s is None else time.monotonic() + hold_s
+        known = self._conditions.get(name)
         self._conditions[name] = (level, bounded(reason), until_s)
+        if level == "error" and (known is None or known[0] != level):
+            self.publish()  # an ERROR is said at once, not at the next tick (up to period_s later)
 
     def clear_condition(self, name: str) -> None:
         self._conditions.pop(name, None)
