@@ -274,3 +274,19 @@ def _past(deadline: float) -> bool:
     import time
 
     return time.monotonic() > deadline
+
+
+def test_a_failing_diagnostics_publication_does_not_escape_either(make_node, monkeypatch):
+    """The guard shows a failure on /diagnostics, at once: when that publication fails too (the fault
+    is in Diagnostics itself), the second exception stays inside the guard."""
+    from beams_ekf.ekf_node import EkfNode
+
+    node = make_node(EkfNode)
+    monkeypatch.setattr(node.diagnostics._publisher, "publish", fail)
+    monkeypatch.setattr(node, "_operator_pose", fail)
+    answer = set_pose(node)  # the fault, then its ERROR published at once: that fails too
+    assert answer.success is False and "InjectedFaultError" in answer.message
+    assert node.diagnostics.get("callback_exceptions") >= 1
+    monkeypatch.undo()
+    node.diagnostics._publisher.publish = node.published_diagnostics.append
+    assert set_pose(node).success

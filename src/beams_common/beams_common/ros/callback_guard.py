@@ -145,7 +145,10 @@ class GuardedCallbacks:
         recovered = self._recover(site)
         summary = f"{reason}; {recovered}" if recovered else reason
         if diagnostics is not None:
-            diagnostics.callback_failed(site, summary)
+            try:
+                diagnostics.callback_failed(site, summary)
+            except Exception:  # /diagnostics itself failing (it publishes an ERROR at once) stays here
+                log_at(logger, "error", f"could not show the failure of {site}: {traceback.format_exc()}")
         return bounded(f"{site}: {summary}")
 
     def _recover(self, site: str) -> str:
