@@ -13,6 +13,7 @@ import pytest
 pytestmark = pytest.mark.dds
 
 UP_TIMEOUT_S = 60.0
+GUARD_LINE = "the node keeps running"  # callback_guard's log line for an exception it caught
 # the graph check runs every 0.5 s and /diagnostics is published once a second
 DETECTION_BOUND_S = 2.0
 CLEAR_BOUND_S = 8.0
@@ -31,9 +32,12 @@ def test_a_second_driver_is_said_at_error_naming_both_and_the_error_clears(start
                     statuses[name].append((time.monotonic(), status))
 
     rclpy_node.node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 50)
-    start_node("beams_sim", "sim_world_node")
-    start_node("beams_driver", "driver_node")
-    nodes = [start_node("beams_triangulation", "triangulation_node"), start_node("beams_ekf", "ekf_node")]
+    nodes = [
+        start_node("beams_sim", "sim_world_node"),
+        start_node("beams_driver", "driver_node"),
+        start_node("beams_triangulation", "triangulation_node"),
+        start_node("beams_ekf", "ekf_node"),
+    ]
 
     def latest(name: str):
         return statuses[name][-1][1] if statuses[name] else None
@@ -86,6 +90,22 @@ def test_a_second_driver_is_said_at_error_naming_both_and_the_error_clears(start
     values = {kv.key: kv.value for kv in latest("ekf_node").values}
     assert int(values.get("input_source_problems", 0)) >= 2, values  # the graph's and the messages'
     assert "/beams/" in values.get("last_input_publishers_problem", ""), values
+    stop_every_node_reporting_guarded_exceptions(nodes)
+
+
+def stop_every_node_reporting_guarded_exceptions(nodes) -> None:
+    """Every node exits 0 on SIGINT with no traceback, except one the callback guard logged: the
+    interleaved revolutions of two drivers are inputs the pipelines were not written for, so an
+    exception they raise is caught, counted and shown (test_callback_guard.py), and printed here
+    for whoever reads the test's output; an exception that escaped still fails the test."""
+    for node in nodes:
+        status = node.stop()
+        output = node.log()
+        assert status == 0, f"{node.name} exited {status}:\n{output}"
+        guarded = output.count(GUARD_LINE)
+        assert output.count("Traceback") <= guarded, f"{node.name}: a traceback not from the guard:\n{output}"
+        if guarded:
+            print(f"{node.name}: {guarded} exception(s) caught by the callback guard:\n{output}")
 
 
 def test_a_second_simulated_world_is_said_by_every_node_that_reads_odometry_or_ground_truth(
