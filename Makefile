@@ -10,7 +10,7 @@ ROS_ENV := source $(ROOT)/scripts/ros_env.sh &&
 PACKAGE_SOURCES := $(shell find src compat -type f -not -path '*/__pycache__/*' -not -path '*/test/*' 2>/dev/null)
 PYTEST_ARGS ?=
 
-.PHONY: setup build test demo bench lint clean
+.PHONY: setup build test demo bench lint clean firmware hil hil-if-possible
 
 ## setup: create .venv with ROS 2 Jazzy and the libraries (once; again when requirements change)
 $(VENV)/.installed: requirements.txt requirements-nonros.txt constraints.txt scripts/bootstrap.sh scripts/fix_wheel_paths.py
@@ -28,9 +28,32 @@ $(INSTALL_BASE)/.built: $(VENV)/.installed $(PACKAGE_SOURCES) colcon.meta script
 
 build: $(INSTALL_BASE)/.built
 
-## test: the linters (ruff check, ruff format --check), then every test (unit, thesis figures, DDS
-## integration); exit 0 only when all pass
-test: build lint
+## firmware: the microcontrollers' images with avr-gcc, warnings as errors: firmware/build/turret.elf and
+## .hex (firmware/turret), and firmware/beacon when it has a Makefile (docs/firmware.md)
+firmware:
+	$(MAKE) -C firmware
+
+## hil: the firmware and the simavr harness of the hardware-in-the-loop test (test/test_firmware_hil.py)
+HIL_HARNESS := $(BUILD_BASE)/hil/turret_hil
+export BEAMS_HIL_HARNESS := $(HIL_HARNESS)
+$(HIL_HARNESS): test/hil/turret_hil.c
+	@mkdir -p $(@D)
+	$(CC) -O2 -Wall -Wextra -Werror -I/usr/include/simavr -o $@ $< -lsimavr
+
+hil: firmware $(HIL_HARNESS)
+
+# `make test` builds them where the AVR toolchain and libsimavr are installed (scripts/bootstrap.sh does,
+# as root); elsewhere it says why and the HIL tests skip with that reason
+hil-if-possible:
+	@if command -v avr-gcc >/dev/null 2>&1 && [ -f /usr/include/simavr/sim_avr.h ]; then \
+	    $(MAKE) --no-print-directory hil; \
+	else \
+	    echo "make: avr-gcc or libsimavr-dev missing (scripts/bootstrap.sh installs them as root): the firmware HIL tests will skip"; \
+	fi
+
+## test: the linters (ruff check, ruff format --check), the firmware and its harness (when the AVR tools
+## are installed), then every test (unit, thesis figures, DDS integration, HIL); exit 0 only when all pass
+test: build lint hil-if-possible
 	$(ROS_ENV) python -m pytest $(PYTEST_ARGS)
 
 ## demo: the simulated robot, the BeAMS sensor, ToTal and the EKF on a Eurobot match
@@ -50,4 +73,4 @@ lint: $(VENV)/.installed
 	$(VENV)/bin/ruff format --check $(LINT_PATHS)
 
 clean:
-	rm -rf $(BUILD_BASE) $(INSTALL_BASE) log
+	rm -rf $(BUILD_BASE) $(INSTALL_BASE) log firmware/build

@@ -28,5 +28,15 @@ if ! command -v ip >/dev/null 2>&1 && command -v apt-get >/dev/null 2>&1 && [ "$
     apt-get update -qq && apt-get install -y -qq iproute2 >/dev/null \
         || echo "bootstrap: iproute2 could not be installed: test/test_system_hosts.py will skip"
 fi
+# The turret's firmware (make firmware) needs avr-gcc and avr-libc, its hardware-in-the-loop test (make
+# hil, test/test_firmware_hil.py) simavr's library: a root CI machine gets Debian's packages here; elsewhere
+# the HIL tests skip and say why.
+if ! { command -v avr-gcc >/dev/null 2>&1 && [ -f /usr/include/simavr/sim_avr.h ]; } \
+    && command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+    echo "bootstrap: installing gcc-avr, avr-libc, simavr and libsimavr-dev (for make firmware and the HIL test)"
+    { apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq \
+        gcc-avr binutils-avr avr-libc simavr libsimavr-dev gcc make >/dev/null; } \
+        || echo "bootstrap: the AVR toolchain or simavr could not be installed: test/test_firmware_hil.py will skip"
+fi
 touch "$VENV/.installed"
 echo "bootstrap: done"

@@ -88,14 +88,16 @@ def set_pose(node, request=None):
     return service(node, "set_pose").callback(request or operator_pose(), SetPose.Response())
 
 
-def revolution_message(revolution: int = 1):
+def revolution_message(node, revolution: int = 1):
+    """A well-formed revolution stamped now on the node's clock (a stale stamp is refused earlier)."""
     from beams_msgs.msg import BeaconBearing, BeaconBearingArray
 
+    now = node.get_clock().now().to_msg()
     msg = BeaconBearingArray(revolution=revolution, period=0.1)
-    msg.header.stamp.sec = 1
+    msg.header.stamp = now
     for beacon_id, bearing in ((1, 0.5), (2, 2.0), (3, -2.0)):
         b = BeaconBearing(beacon_id=beacon_id, bearing=bearing, variance=1e-6)
-        b.header.stamp.sec = 1
+        b.header.stamp = now
         msg.bearings.append(b)
     return msg
 
@@ -115,8 +117,8 @@ def test_ekf_subscription_fault_is_counted_shown_and_resets_the_filter(make_node
     node = make_node(EkfNode)
     assert set_pose(node).success
     assert node.localiser.estimate() is not None
-    monkeypatch.setattr(node.localiser, "on_revolution", fail)
-    subscription(node, "beams/bearings").callback(revolution_message())  # no exception escapes
+    monkeypatch.setattr(node.localiser, "on_intake", fail)
+    subscription(node, "beams/bearings").callback(revolution_message(node))  # no exception escapes
     assert_fault_shown(node, "subscription /beams/bearings")
     assert node.localiser.estimate() is None, "the filter re-initialises from the next fix"
     assert node.localiser.stats.counts["resets_after_callback_exception"] == 1
@@ -154,12 +156,13 @@ def test_ekf_timer_fault_is_counted_and_the_next_tick_runs(make_node, monkeypatc
 
 
 def test_ekf_parameter_callback_fault_refuses_the_change_with_the_reason(make_node, monkeypatch):
+    """A fault while the change is prepared (the on-set callback): refused with the reason."""
     from rclpy.parameter import Parameter
 
-    from beams_ekf.ekf_node import EkfNode
+    import beams_ekf.ekf_node
 
-    node = make_node(EkfNode)
-    monkeypatch.setattr(node.localiser, "configure", fail)
+    node = make_node(beams_ekf.ekf_node.EkfNode)
+    monkeypatch.setattr(beams_ekf.ekf_node, "runtime_geometry", fail)
     [result] = node.set_parameters([Parameter("gate_probability", value=0.99)])
     assert not result.successful
     assert "internal error" in result.reason and "InjectedFaultError" in result.reason
@@ -169,13 +172,32 @@ def test_ekf_parameter_callback_fault_refuses_the_change_with_the_reason(make_no
     assert result.successful, result.reason
 
 
+def test_ekf_post_set_fault_is_counted_and_resets_the_filter(make_node, monkeypatch):
+    """A fault while an accepted change is applied (the post-set callback, after rclpy set the value):
+    counted, shown, the filter reset (its settings may be half-applied); the next change applies."""
+    from rclpy.parameter import Parameter
+
+    from beams_ekf.ekf_node import EkfNode
+
+    node = make_node(EkfNode)
+    assert set_pose(node).success
+    monkeypatch.setattr(node.localiser, "configure", fail)
+    node.set_parameters([Parameter("gate_probability", value=0.99)])
+    assert_fault_shown(node, "parameter post-set")
+    assert node.localiser.estimate() is None
+    monkeypatch.undo()
+    [result] = node.set_parameters([Parameter("gate_probability", value=0.995)])
+    assert result.successful, result.reason
+    assert node.diagnostics.get("callback_exceptions") == 1
+
+
 def test_triangulation_fault_drops_the_waiting_revolution_and_keeps_publishing(make_node, monkeypatch):
     from beams_triangulation.triangulation_node import TriangulationNode
 
     node = make_node(TriangulationNode)
     before = node.pipeline
-    monkeypatch.setattr(node.pipeline, "on_revolution", fail)
-    subscription(node, "beams/bearings").callback(revolution_message())
+    monkeypatch.setattr(node.pipeline, "on_intake", fail)
+    subscription(node, "beams/bearings").callback(revolution_message(node))
     assert_fault_shown(node, "subscription /beams/bearings")
     assert node.pipeline is not before, "a new pipeline: no waiting revolution, no odometry history"
     assert node.pipeline.settings == before.settings
@@ -208,7 +230,7 @@ def test_a_fault_in_a_dds_delivered_message_leaves_the_spinning_node_serving(mak
     from beams_msgs.srv import SetPose
 
     node = make_node(EkfNode)
-    monkeypatch.setattr(node.localiser, "on_revolution", fail)
+    monkeypatch.setattr(node.localiser, "on_intake", fail)
     probe = rclpy.create_node("guard_probe")
     executor = EventsExecutor()
     executor.add_node(node)
@@ -218,7 +240,7 @@ def test_a_fault_in_a_dds_delivered_message_leaves_the_spinning_node_serving(mak
         client = probe.create_client(SetPose, "ekf_node/set_pose")
         deadline = _deadline()
         while node.diagnostics.get("callback_exceptions") == 0 and not _past(deadline):
-            publisher.publish(revolution_message())
+            publisher.publish(revolution_message(node))
             executor.spin_once(timeout_sec=0.1)
         assert node.diagnostics.get("callback_exceptions") >= 1
         monkeypatch.undo()

@@ -135,7 +135,7 @@ def test_stream_at_another_baud_rate_is_an_error_naming_the_baud_rate(rclpy_node
     try:
         assert rclpy_node.spin_until(reported, WAIT_S), node.log()
         message = next(s.message for msg in diagnostics for s in msg.status if "no valid frame" in s.message)
-        assert message.endswith("is baud_rate 460800 the sensor's (its default is 460800)?"), message
+        assert message.endswith("is baud_rate 500000 the sensor's (its default is 500000)?"), message
         assert node.process.poll() is None
     finally:
         node.assert_clean_exit()

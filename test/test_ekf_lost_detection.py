@@ -9,7 +9,8 @@ import pytest
 from scipy.stats import chi2
 
 from beams_bringup.match_replay import match_fixes, replay_match
-from beams_ekf.localiser import FilterSettings, Localiser, NisMonitor, build_localiser
+from beams_ekf.consistency import NisMonitor
+from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
 from beams_sim.simulated_match import simulate_match
 
 GATE = float(chi2.ppf(0.999, df=1))

@@ -106,7 +106,13 @@ class _Feeder:
 
 
 def _params():
-    return {"turret_offset_m": list(OFFSET), "publish_rate_hz": 50.0}
+    # synthetic stamps (T0_S), not on the node's clock: the stamp plausibility check off
+    return {
+        "turret_offset_m": list(OFFSET),
+        "publish_rate_hz": 50.0,
+        "max_stamp_age_s": 0.0,
+        "max_stamp_lead_s": 0.0,
+    }
 
 
 def _error_m(msg, match) -> float:

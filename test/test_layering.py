@@ -25,6 +25,15 @@ ALLOWED = {
         "beams_calibration",
         "beams_msgs",
     },
+    # the fault campaign (issue 18): stands on the robot's packages, nothing stands on it
+    "beams_tools": {
+        "beams_common",
+        "beams_driver",
+        "beams_sim",
+        "beams_triangulation",
+        "beams_ekf",
+        "beams_msgs",
+    },
 }
 ROS_MODULES = ("rclpy", "launch", "launch_ros")
 

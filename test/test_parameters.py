@@ -112,7 +112,9 @@ def _revolution(pose, beacons=BEACONS, revolution=0):
 def test_runtime_changes_are_applied_validated_or_refused(start_node, rclpy_node, tmp_path):
     from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 
-    node = start_node("beams_triangulation", "triangulation_node", {"use_odometry": False})
+    # stamps at 1000 s, not on the node's clock: the stamp plausibility check off
+    params = {"use_odometry": False, "max_stamp_age_s": 0.0, "max_stamp_lead_s": 0.0}
+    node = start_node("beams_triangulation", "triangulation_node", params)
     publisher = rclpy_node.node.create_publisher(BeaconBearingArray, "beams/bearings", 10)
     poses = rclpy_node.subscribe(TriangulatedPose, "beams/pose")
     pose = (1.3, 0.7, 0.4)
@@ -132,6 +134,10 @@ def test_runtime_changes_are_applied_validated_or_refused(start_node, rclpy_node
     (result,) = _set(rclpy_node, "triangulation_node", beacon_x=[0.0, 1.0])
     assert not result.successful and "beacon_x needs 3 to 64 values" in result.reason
     assert _get(rclpy_node, "triangulation_node", "beacon_x") == [-0.062, -0.062, 3.062]
+    # ... and the behaviour in use stays: the gate of 1e-9 m still rejects the pose
+    count = len(poses)
+    assert rclpy_node.publish_until(publisher, _revolution(pose), lambda: len(poses) > count, WAIT_S)
+    assert not poses[-1].accepted and "std" in poses[-1].reason
     (result,) = _set(rclpy_node, "triangulation_node", max_position_std_m=0.05)
     assert result.successful
 
@@ -154,6 +160,46 @@ def test_runtime_changes_are_applied_validated_or_refused(start_node, rclpy_node
     assert not result.successful and "missing.yaml" in result.reason
     assert _get(rclpy_node, "triangulation_node", "calibration_file") == ""
     assert node.process.poll() is None and "Traceback" not in node.log()
+
+
+def test_a_change_is_validated_in_on_set_and_applied_in_post_set(rclpy_node):
+    """apply_runtime_changes on a node in this process: prepare refuses with its reason (nothing is
+    applied, the values stay), an accepted change is applied once rclpy has set it."""
+    from rclpy.parameter import Parameter
+
+    from beams_common.parameters import ParameterSpec, ParameterTable
+    from beams_common.ros.parameters import apply_runtime_changes, declare_table
+
+    table = ParameterTable(
+        "test_node",
+        (
+            ParameterSpec("gain", 1.0, "A gain.", minimum=0.0, maximum=10.0, runtime=True),
+            ParameterSpec("limit", 5.0, "Above the gain.", minimum=0.0, maximum=10.0, runtime=True),
+        ),
+    )
+    node = rclpy_node.node
+    current = declare_table(node, table)
+    applied: list[tuple[float, float]] = []  # (the value applied, the node's parameter value then)
+
+    def prepare(values: dict, changed: set[str]):
+        if values["gain"] > values["limit"]:
+            raise ValueError(f"gain {values['gain']} above limit {values['limit']}")
+        gain = values["gain"]
+        return lambda: applied.append((gain, node.get_parameter("gain").value))
+
+    apply_runtime_changes(node, table, current, prepare)
+    for gain, limit in ((2.0, 5.0), (7.0, 5.0), (3.0, 2.0), (4.0, 5.0), (11.0, 5.0)):
+        results = node.set_parameters_atomically(
+            [Parameter("gain", value=gain), Parameter("limit", value=limit)]
+        )
+        ok = gain <= limit <= 10.0 and gain <= 10.0
+        assert results.successful is ok, (gain, limit, results.reason)
+        if not ok and gain <= 10.0:
+            assert f"gain {gain} above limit {limit}" == results.reason
+    # applied in post-set (the parameter already set), only the accepted ones, in order
+    assert applied == [(2.0, 2.0), (4.0, 4.0)]
+    assert current == {"gain": 4.0, "limit": 5.0}
+    assert node.get_parameter("gain").value == 4.0 and node.get_parameter("limit").value == 5.0
 
 
 def test_every_node_declares_each_parameter_read_only_or_runtime(start_node, rclpy_node):

@@ -380,8 +380,8 @@ def check_malformed_burst(graph, probe: RobotProbe) -> float:
     /diagnostics. Returns the stamp the burst started at."""
     keys = (
         ("triangulation", "bad_input"),
-        ("ekf", "bearings_invalid measurement"),
-        ("ekf", "bearings_unknown beacon"),
+        ("ekf", "bearings_invalid_measurement"),
+        ("ekf", "bearings_unknown_beacon"),
         ("ekf", "odometry_invalid"),
         ("driver", "ground_truth_rejected_non_finite"),
     )

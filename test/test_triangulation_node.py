@@ -13,7 +13,13 @@ pytestmark = pytest.mark.dds
 BEACONS = {1: (-0.062, -0.062), 2: (-0.062, 2.062), 3: (3.062, 1.0)}
 OFFSET = (0.03, -0.02)
 T0_S = 1000.0  # stamps that look like a real clock's
-PARAMS = {"turret_offset_m": list(OFFSET), "use_odometry": False}
+# synthetic stamps (T0_S), not on the node's clock: the stamp plausibility check off
+PARAMS = {
+    "turret_offset_m": list(OFFSET),
+    "use_odometry": False,
+    "max_stamp_age_s": 0.0,
+    "max_stamp_lead_s": 0.0,
+}
 WAIT_S = 20.0
 VARIANCE_RAD2 = float(np.deg2rad(0.1) ** 2)
 

@@ -64,10 +64,11 @@ from beams_common.angles import wrap_to_pi
 from beams_common.ros.messages import (
     pose2d_of,
 )
-from beams_ekf.localiser import Estimate
+from beams_ekf.outcomes import Estimate
 from beams_ekf.parameters import EKF_PARAMETERS
-from beams_triangulation.gating import PoseEstimate, RevolutionPose
+from beams_triangulation.gating import PoseEstimate
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
+from beams_triangulation.revolution import RevolutionPose
 
 
 # -- the replay -----------------------------------------------------------------------------------------

@@ -11,7 +11,7 @@ from beams_common.pose2d import Pose2D, interpolate
 from beams_ekf.localiser import Localiser
 from beams_ekf.replay import PoseEvent, ReplayResult, replay
 from beams_ekf.synthetic import BearingEvent
-from beams_triangulation.gating import estimate_revolution
+from beams_triangulation.revolution import estimate_revolution
 
 
 def bearing_events(

@@ -15,7 +15,7 @@ from rosbags.rosbag2 import Reader
 from beams_bringup.bag_events import LIVE_EKF_TOPIC, relative_topic, stamp_ns
 from beams_bringup.replay_settings import ReplaySettings
 from beams_bringup.trajectory_metrics import RunTracks
-from beams_common.bearing import bearings_of_message
+from beams_common.bearing_intake import bearings_message_intake
 from beams_common.pose2d import Pose2D, is_finite_pose
 from beams_common.ros.messages import (
     planar_covariance,
@@ -23,9 +23,11 @@ from beams_common.ros.messages import (
     seconds_to_stamp,
     stamp_to_seconds,
 )
-from beams_ekf.localiser import Estimate, build_localiser
-from beams_triangulation.gating import NoPose, PoseEstimate, RevolutionPose
+from beams_ekf.localiser import build_localiser
+from beams_ekf.outcomes import Estimate
+from beams_triangulation.gating import NoPose, PoseEstimate
 from beams_triangulation.pipeline import TriangulationPipeline
+from beams_triangulation.revolution import RevolutionPose
 
 
 # -- the pipelines --------------------------------------------------------------------------------------
@@ -92,12 +94,12 @@ class ReplayPipelines:
         completed = self.triangulation.on_odometry(stamp_s, pose, twist)
         outcome = self.localiser.on_odometry(stamp_s, pose)
         start = None if self.live_start is None else self.live_start.get(stamp_ns(message.header.stamp))
-        if start is not None and outcome in ("reference", "predicted"):
+        if start is not None and outcome.used:
             self.localiser.on_pose(stamp_s, start.pose, start.covariance, operator=True)
             self.live_start = None
         estimate = self.localiser.estimate()
         poses = self._total_poses(completed)  # after the odometry, as ekf_node receives them
-        if outcome not in ("reference", "predicted") or estimate is None or estimate.stamp_s != stamp_s:
+        if not outcome.used or estimate is None or estimate.stamp_s != stamp_s:
             return None, poses
         return estimate, poses
 
@@ -116,9 +118,14 @@ class ReplayPipelines:
             return []
         self.counts["revolutions"] += 1
         self.counts["bearings"] += len(message.bearings)
-        bearings = bearings_of_message(message, stamp_to_seconds)
-        completed = self.triangulation.on_revolution(None, bearings)
-        self.localiser.on_revolution(bearings)
+        # each node's intake, with its own beacon map, as the nodes take beams/bearings
+        known_ids = self.triangulation.estimator.known_ids
+        completed = self.triangulation.on_intake(
+            None, bearings_message_intake(message, stamp_to_seconds, known_ids)
+        )
+        self.localiser.on_intake(
+            bearings_message_intake(message, stamp_to_seconds, self.localiser.ekf.beacons_xy)
+        )
         return self._total_poses(completed)
 
     def _total_poses(self, completed: list[tuple[Any, RevolutionPose]]) -> list[RevolutionPose]:

@@ -11,8 +11,8 @@ from typing import Any
 from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_common.geometry_parameters import geometry_of
 from beams_common.parameters import ROS_NODE_PARAMETERS, ParameterTable, load_parameter_file
-from beams_ekf.localiser import FilterSettings, filter_settings
-from beams_ekf.parameters import EKF_PARAMETERS
+from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
+from beams_ekf.settings import FilterSettings
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
 from beams_triangulation.pipeline import TriangulationSettings
 

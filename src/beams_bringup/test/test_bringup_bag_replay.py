@@ -157,11 +157,12 @@ def test_bad_input_is_counted_and_skipped(tmp_path, messages, typestore, replaye
     counts = result.counts
     assert counts["messages_undecodable"] == 1
     assert counts["ekf_odometry_invalid"] == 1
-    assert counts["total_bad_input"] == 4  # two NaN bearings, two unknown ids
+    assert counts["total_bad_input"] == 2  # the two NaN revolutions
     assert counts["revolutions"] - replayed[0].counts["revolutions"] == 6
-    assert counts["total_no_pose"] - replayed[0].counts["total_no_pose"] == 2  # the empty ones
-    assert counts["ekf_bearings_invalid measurement"] == 6
-    assert counts["ekf_bearings_unknown beacon"] == 6
+    # the empty ones, and the unknown ids' (left out, issue 18: no beacon of the map remains)
+    assert counts["total_no_pose"] - replayed[0].counts["total_no_pose"] == 4
+    assert counts["ekf_bearings_invalid_measurement"] == 6
+    assert counts["ekf_bearings_unknown_beacon"] == 6
     # the Localiser refuses a bad bearing before scheduling it: the estimates are those of the clean bag
     assert result.ekf.rows == replayed[0].ekf.rows
     assert result.total.rows == replayed[0].total.rows

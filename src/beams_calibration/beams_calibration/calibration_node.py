@@ -22,6 +22,7 @@ import sys
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -87,7 +88,10 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
         self.dataset_file = Path(self.parameters["dataset_file"])
         self.prior_map = beacon_map_of(self.parameters)
         self._apply_parameters(self.parameters, set(self.parameters))
-        apply_runtime_changes(self, CALIBRATION_PARAMETERS, self.parameters, self._apply_parameters)
+        # the table validates everything these settings need: nothing to prepare, applied in post-set
+        apply_runtime_changes(
+            self, CALIBRATION_PARAMETERS, self.parameters, lambda v, c: partial(self._apply_parameters, v, c)
+        )
         self._check_dataset_file()
         self.diagnostics = Diagnostics(self, "calibration")
         self._capture: _Capture | None = None

@@ -35,6 +35,7 @@ import yaml
 from beams_common import file_schema
 from beams_common.beacon_map import BeaconMap
 from beams_common.bearing_correction import BearingCorrection
+from beams_common.calibration_checks import calibration_value_problem
 
 FILE_FORMAT = "beams-calibration"
 FILE_VERSION = 1
@@ -221,15 +222,21 @@ def load_calibration(path: str | os.PathLike) -> SensorCalibration:
     """Read a calibration file.
 
     Raises FileNotFoundError (an OSError) for a missing file and CalibrationFileError (a ValueError)
-    naming the file and the faulty entry for a malformed one.
+    naming the file and the faulty entry for a malformed one, or the implausible value for one whose
+    values no calibration finds (`calibration_checks.calibration_value_problem`: a rotation bias of 3 rad,
+    a power bias of 1e300).
     """
     source = Path(path)
     if not source.is_file():
         raise FileNotFoundError(f"calibration file {source} does not exist")
     try:
-        return calibration_from_dict(file_schema.read_yaml(source))
+        calibration = calibration_from_dict(file_schema.read_yaml(source))
     except ValueError as error:  # SchemaError, or BeaconMap's and BearingCorrection's own checks
         raise CalibrationFileError(f"calibration file {source}: {error}") from None
+    problem = calibration_value_problem(calibration.bearing_correction, calibration.turret_offset_m)
+    if problem:
+        raise CalibrationFileError(f"calibration file {source}: implausible, {problem}")
+    return calibration
 
 
 def calibration_from_dict(document: Any) -> SensorCalibration:

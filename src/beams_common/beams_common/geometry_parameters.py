@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_common.calibration_checks import calibration_nominal_problem
 from beams_common.calibration_file import SensorCalibration, load_calibration
 from beams_common.parameters import ParameterSpec
 
@@ -102,18 +103,30 @@ class BeaconGeometry:
     calibration: SensorCalibration | None = None
 
 
-def geometry_of_calibration(calibration: SensorCalibration) -> BeaconGeometry:
-    """The geometry a calibration file carries: the calibrated beacon map and turret offset."""
+def geometry_of_calibration(
+    calibration: SensorCalibration, nominal: Mapping[str, Any] | None = None
+) -> BeaconGeometry:
+    """The geometry a calibration file carries: the calibrated beacon map and turret offset. With the
+    nominal parameter values (beacon_ids/x/y, turret_offset_m), ValueError when the calibration is no
+    correction of them (`calibration_checks.calibration_nominal_problem`)."""
     offset = calibration.turret_offset_m
+    if nominal is not None:
+        nominal_offset = nominal.get("turret_offset_m", TURRET_OFFSET.default)
+        problem = calibration_nominal_problem(
+            calibration.beacon_map, offset, beacon_map_of(nominal), nominal_offset
+        )
+        if problem:
+            raise ValueError(f"calibration refused, implausible against the nominal geometry: {problem}")
     return BeaconGeometry(calibration.beacon_map, (float(offset[0]), float(offset[1])), calibration)
 
 
 def geometry_of(values: Mapping[str, Any]) -> BeaconGeometry:
-    """The geometry the parameters give: the calibration file's when one is named, else the map and
-    offset parameters. Raises OSError or ValueError (with the file's reason) for a bad calibration file."""
+    """The geometry the parameters give: the calibration file's when one is named (checked against the
+    map and offset parameters, its nominal geometry), else the map and offset parameters. Raises OSError
+    or ValueError (with the file's reason) for a bad calibration file."""
     path = values.get("calibration_file", "")
     if path:
-        return geometry_of_calibration(load_calibration(path))
+        return geometry_of_calibration(load_calibration(path), values)
     offset = values.get("turret_offset_m", TURRET_OFFSET.default)
     return BeaconGeometry(beacon_map_of(values), (float(offset[0]), float(offset[1])))
 

@@ -8,6 +8,8 @@ anything else is the reason, bounded in length, that a service reply, a log line
   one rule of the triangulation and the EKF), one sighting per beacon (`one_sighting_per_beacon`).
 - Outputs: a planar pose leaves a node only finite with a symmetric positive definite covariance
   (`planar_estimate_problem`).
+- Odometry: a sample finite in stamp, pose and twist (`odometry_problem`, the triangulation's and the
+  EKF's rule).
 - Requests: an operator's pose (`operator_pose_problem`).
 """
 
@@ -114,6 +116,16 @@ def one_sighting_per_beacon(bearings: Sequence[Sighting]) -> Sightings:
         else:
             dropped.append(bearing)
     return Sightings(list(kept.values()), dropped, conflicting)
+
+
+def odometry_problem(stamp_s: float, pose: Sequence[float], twist: Sequence[float] | None = None) -> str:
+    """Why an odometry sample (stamp s, pose (x, y, theta) in the odom frame, optional twist) is refused:
+    a non-finite value; ''."""
+    if not (math.isfinite(stamp_s) and all(math.isfinite(float(v)) for v in pose)):
+        return bounded(f"odometry at {float(stamp_s):.3f} s: non-finite stamp or pose {tuple(pose)}")
+    if twist is not None and not all(math.isfinite(float(v)) for v in twist):
+        return bounded(f"odometry at {stamp_s:.3f} s: non-finite twist {tuple(twist)}")
+    return ""
 
 
 def covariance_problem(covariance: Any, size: int = 3) -> str:

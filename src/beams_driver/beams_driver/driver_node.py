@@ -31,13 +31,18 @@ from beams_common import topics
 from beams_common.angles import wrap_to_pi
 from beams_common.bearing_correction import BearingCorrection
 from beams_common.calibration_file import SensorCalibration, load_calibration
+from beams_common.health import RATE_WINDOW_S, RateMonitor
 from beams_common.parameters import ParameterTable
-from beams_common.rate_monitor import RateMonitor
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import pose2d_of, seconds_to_stamp, stamp_to_seconds
 from beams_common.ros.node_support import BEARINGS_QOS, Diagnostics, run_node, serve_calibration_reload
-from beams_common.ros.parameters import ParameterValidationError, apply_runtime_changes, declare_table
+from beams_common.ros.parameters import (
+    ApplyChange,
+    ParameterValidationError,
+    apply_runtime_changes,
+    declare_table,
+)
 from beams_common.ros.rate_status import RateStatus
 from beams_driver.decoder import BearingDecoder, DecodedRevolution
 from beams_driver.edge_source import EdgeSource, PoseCallback, source_kind
@@ -159,7 +164,12 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
         self.revolution_rate = RateStatus(
             self.diagnostics,
             "revolution",
-            RateMonitor(turret_hz, turret_hz, tolerance=REVOLUTION_RATE_TOLERANCE, what="revolutions"),
+            RateMonitor(
+                "revolutions",
+                RATE_WINDOW_S,
+                turret_hz * (1.0 - REVOLUTION_RATE_TOLERANCE),
+                turret_hz * (1.0 + REVOLUTION_RATE_TOLERANCE),
+            ),
         )
         self.host = RosSourceHost(self)
         self.failure = ""  # the last failed transition's reason
@@ -196,7 +206,7 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
         )
         self.frame_id = self.parameters["frame_id"]
         serve_calibration_reload(self, self._apply_calibration)
-        apply_runtime_changes(self, DRIVER_PARAMETERS, self.parameters, self._apply_parameters)
+        apply_runtime_changes(self, DRIVER_PARAMETERS, self.parameters, self._prepare_parameters)
 
     def _start(self) -> None:
         """autostart: configure and activate now; a refusal stops the node (run_node: one line, exit 2)."""
@@ -328,18 +338,27 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
         except (OSError, ValueError) as error:
             raise ParameterValidationError(f"calibration_file: {error}") from None
 
-    def _apply_parameters(self, values: dict, changed: set[str]) -> None:
-        """A runtime change (validated by the table): the variance model, the frame, the calibration.
-        Unconfigured, the values are kept for the next configure."""
+    def _prepare_parameters(self, values: dict, changed: set[str]) -> ApplyChange:
+        """A runtime change (validated by the table): the calibration read and the variance model built
+        now (ValueError, OSError: refused); the returned step applies them with the frame. Unconfigured,
+        the values are kept for the next configure."""
+        correction = self.correction
         if "calibration_file" in changed:
             path = values["calibration_file"]
-            self.correction = load_calibration(path).bearing_correction if path else BearingCorrection()
-        self.frame_id = values["frame_id"]
-        if self.decoder is not None:
-            # the exact model enumerates every code (~20 ms): only a change of its parameters rebuilds it
-            if changed & VARIANCE_PARAMETERS:
-                self.decoder.variance_model = variance_model_of(values, self.codes, self.receiver)
-            self.decoder.min_codes_seen = values["min_complete_codes"]
+            correction = load_calibration(path).bearing_correction if path else BearingCorrection()
+        # the exact model enumerates every code (~20 ms): only a change of its parameters rebuilds it
+        rebuild = self.decoder is not None and bool(changed & VARIANCE_PARAMETERS)
+        model = variance_model_of(values, self.codes, self.receiver) if rebuild else None
+
+        def apply() -> None:
+            self.correction = correction
+            self.frame_id = values["frame_id"]
+            if self.decoder is not None:
+                if model is not None:
+                    self.decoder.variance_model = model
+                self.decoder.min_codes_seen = values["min_complete_codes"]
+
+        return apply
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
         self.correction = calibration.bearing_correction

@@ -1,50 +1,72 @@
-"""The serial wire format of the BeAMS sensor microcontroller: edge captures, framed and checksummed.
+"""The serial wire format of the BeAMS turret's microcontroller, protocol version 2.
 
-The sensor's PIC drives the stepper motor and captures the receiver's edges with one common timer
-(thesis section 2.4.1-2.4.2): a 625 kHz timer, 62400 timer ticks per turret revolution (0.1 mrad per
-tick, 625000/62400 = 10.016 turn/s), and an optical switch that marks the zero angle reference.
-Instead of decoding on the microcontroller, the firmware streams every capture to the host, which
-runs the decoder (`beams_driver.decoder`). This module is both ends of that link: `FrameEncoder`
-(what the firmware, or the simulator standing in for it, sends), `FrameParser` (bytes in, events
-out) and `RevolutionAssembler` (events in, `RevolutionEdges` out).
+The sensor's microcontroller drives the stepper motor and captures the receiver's edges with one common
+timer (thesis section 2.4.1-2.4.2); instead of decoding on the microcontroller, the firmware streams every
+capture to the host, which runs the decoder (`beams_driver.decoder`). This module is both ends of that
+link: `FrameEncoder` (what the firmware, or the simulator standing in for it, sends), `FrameParser`
+(bytes in, events out) and `RevolutionAssembler` (events in, `RevolutionEdges` out). The firmware is
+firmware/turret/ (docs/firmware.md).
 
-Frame layout (8 bytes, multi-byte fields little-endian)::
+Version 2: the host assumes neither a timer rate nor a baud rate. The thesis's PIC ran a 625 kHz timer
+(62400 ticks per revolution at 10.016 turn/s); the reference board, an ATmega328P at 16 MHz, cannot make
+625 kHz, and its timer runs at 2 MHz (200000 ticks per revolution at 10 turn/s). The device says which
+in a hello frame, sent at start-up and four times a second; the host converts ticks to seconds with it
+and refuses a device of another protocol version with the reason. Every capture carries its 32-bit
+timer count (overflow-extended on the device; it wraps after 2^32 ticks, 35 min at 2 MHz), so the host
+never has to guess how many 16-bit wraps passed, even across lost frames. Frames leave the device in
+the order its interrupts queued them, which may differ from time order by a few ticks (a zero reference
+and an edge latched together); the host takes the difference between consecutive counts signed.
+
+Frame layout (multi-byte fields little-endian)::
 
     offset  size  field
     0       1     sync 1 = 0xA5
-    1       1     sync 2 = 0x5A
-    2       1     kind: 0x01 rising edge, 0x02 falling edge, 0x03 zero reference, 0x04 heartbeat
-    3       1     sequence number, +1 per frame sent, modulo 256
-    4       2     timer value latched at the event (625 kHz, uint16, wraps every 65536 ticks = 104.9 ms)
-    6       2     CRC-16/CCITT-FALSE of bytes 2..5 (poly 0x1021, init 0xFFFF, no reflection, xorout 0)
+    1       1     sync 2 = 0x5B (protocol v1 used 0x5A: the two protocols never share a frame)
+    2       1     kind: 0x01 rising edge, 0x02 falling edge, 0x03 zero reference, 0x04 heartbeat, 0x10 hello
+    3       1     sequence number, +1 per event captured (modulo 256), numbered at capture time
+    4       4     timer count at the event (uint32, device ticks)
+    8       14    hello only: version (uint8), flags (uint8; bit 0: first hello since the device's reset),
+                  timer frequency (uint32, Hz), nominal ticks per turret revolution (uint32), events the
+                  device dropped since its reset (uint32; its ring buffer was full)
+    8 / 22  2     CRC-16/CCITT-FALSE of every byte from the kind to the end of the fields
+                  (poly 0x1021, init 0xFFFF, no reflection, xorout 0)
 
-The CRC is the one `binascii.crc_hqx(data, 0xFFFF)` computes (check value of b"123456789": 0x29B1).
+An event frame is 10 bytes, a hello 24. The CRC is the one `binascii.crc_hqx(data, 0xFFFF)` computes
+(check value of b"123456789": 0x29B1).
 
 Kinds:
 - rising / falling edge: the receiver output went 0 -> 1 / 1 -> 0 (section 2.4.3, phi_R and phi_F);
 - zero reference: the turret passed the optical switch (section 2.4.2); it opens a revolution;
-- heartbeat: sent when no other frame went out for `HEARTBEAT_INTERVAL_TICKS` (half the timer's wrap
-  period), so that consecutive frames are always less than one wrap apart and the host can unwrap
-  the 16-bit timer even when no beacon is in sight or the turret stalls.
+- heartbeat: sent periodically (every 32.8 ms by the firmware: once per wrap of its 16-bit timer), so
+  that a live device is never silent (no beacon in sight, the turret stopped) and consecutive frames are
+  always far less than 2^31 ticks apart;
+- hello: the device's protocol version and clock (see above); its layout is the same in every version,
+  so that a host can always tell which version a device speaks.
+
+Lost frames: the firmware numbers each event when it is captured, before it is queued; an event its
+ring buffer has no room for is dropped, and the gap in the sequence numbers tells the host (counted as
+"lost_frames"), as does the hello's dropped-events counter (`DeviceHello.dropped_events`).
 
 Examples (hex)::
 
-    rising edge,    seq 0,   timer 0x1234:  A5 5A 01 00 34 12 56 09
-    falling edge,   seq 1,   timer 0x1290:  A5 5A 02 01 90 12 00 74
-    zero reference, seq 255, timer 0xFFF0:  A5 5A 03 FF F0 FF 4E DD
+    hello v2,        seq 0, timer 0x00000000, 2 MHz, 200000 ticks/rev, boot, none dropped:
+                     A5 5B 10 00 00 00 00 00 02 01 80 84 1E 00 40 0D 03 00 00 00 00 00 5E 23
+    rising edge,    seq 1,   timer 0x00012345:  A5 5B 01 01 45 23 01 00 9F DF
+    falling edge,   seq 2,   timer 0x000123A1:  A5 5B 02 02 A1 23 01 00 B6 B1
+    zero reference, seq 255, timer 0xFFFFFFF0:  A5 5B 03 FF F0 FF FF FF 7E D7
 
-Link: 460800 baud, 8N1 by default (57600 frames/s at most; a revolution with 5 beacons in sight
-carries a few hundred edges, i.e. a few thousand frames/s).
+Link: 500000 baud, 8N1 by default (exact from 16 MHz: UBRR 3 with U2X), 5000 event frames/s at most.
 
 Host side. The parser hunts for the sync pair and checks the CRC and the kind; on a bad checksum it
 drops the candidate's sync pair and hunts again from the byte after it, so that a corrupted byte, a
-truncated frame (another sync pair starts inside the candidate) or a bad checksum costs only the
-frames it touches. Every drop is counted by reason in `FrameParser.drops`. The 16-bit timer is
-unwrapped into a monotonic tick count by adding the forward difference modulo 65536 between
-consecutive frames; a gap in the sequence numbers (lost frames) marks the next event `after_gap`, and the
-assembler then discards the revolution it falls in, since the unwrapping across a gap is ambiguous.
-The angle of an edge is 2*pi * (ticks since the revolution's zero reference) / (ticks between the
-two zero references that bound the revolution) (eq. 2.1 with the measured turret speed).
+truncated frame (another sync pair starts inside the candidate) or a bad checksum costs only the frames
+it touches. Every drop is counted by reason in `FrameParser.drops`. Events before the first hello are
+dropped (the host does not know the device's clock yet). A version-1 frame (sync A5 5A, valid v1
+checksum) is recognised and counted, and a stream of them sets `FrameParser.problem`: the device runs the
+old firmware. A gap in the sequence numbers marks the next event `after_gap`, and the assembler then
+discards the revolution it falls in (its edges are incomplete). The angle of an edge is 2*pi * (ticks
+since the revolution's zero reference) / (ticks between the two zero references that bound the
+revolution) (eq. 2.1 with the measured turret speed).
 """
 
 import binascii
@@ -52,6 +74,7 @@ import math
 import struct
 from collections import Counter
 from collections.abc import Iterable
+from dataclasses import dataclass
 from enum import IntEnum
 from typing import NamedTuple
 
@@ -59,16 +82,29 @@ import numpy as np
 
 from beams_driver.edges import RevolutionEdges
 
+PROTOCOL_VERSION = 2
+SYNC = b"\xa5\x5b"
+FRAME_SIZE = 10  # an event frame; a hello is HELLO_SIZE
+HELLO_SIZE = 24
+TIMER_MODULUS = 1 << 32
+_HALF_MODULUS = TIMER_MODULUS // 2
+DEFAULT_BAUDRATE = 500_000
+# The simulated device's clock (FrameEncoder's defaults): the thesis's PIC timer (section 2.4.2).
 TIMER_HZ = 625_000
 TICKS_PER_REVOLUTION = 62_400
-TIMER_MODULUS = 1 << 16
-HEARTBEAT_INTERVAL_TICKS = TIMER_MODULUS // 2
-SYNC = b"\xa5\x5a"
-FRAME_SIZE = 8
-DEFAULT_BAUDRATE = 460_800
+# The firmware's hello and heartbeat periods (seconds of device time).
+HELLO_PERIOD_S = 0.25
+HEARTBEAT_PERIOD_S = 0.025
+V1_SYNC = b"\xa5\x5a"
+V1_FRAME_SIZE = 8
+# Valid version-1 frames, with no version-2 frame among them, after which the stream is called v1.
+V1_FRAMES_BEFORE_PROBLEM = 4
 _CRC_INIT = 0xFFFF
-_BODY = struct.Struct("<BBH")  # kind, sequence, timer
+_HEADER = struct.Struct("<BBI")  # kind, sequence, timer
+_V1_BODY = struct.Struct("<BBH")  # protocol v1: kind, sequence, 16-bit timer
+_HELLO_FIELDS = struct.Struct("<BBIII")  # version, flags, timer Hz, ticks per revolution, dropped events
 _CRC = struct.Struct("<H")
+_HELLO_BOOT_FLAG = 0x01
 _TWO_PI = 2.0 * math.pi
 
 
@@ -79,18 +115,59 @@ class EventKind(IntEnum):
     FALLING = 0x02
     ZERO_REFERENCE = 0x03
     HEARTBEAT = 0x04
+    HELLO = 0x10
 
 
-_KNOWN_KINDS = frozenset(int(kind) for kind in EventKind)
+# plain ints and a lookup table: the parser's per-frame path avoids the Enum machinery
+_HELLO_KIND = int(EventKind.HELLO)
+_EVENT_KIND_OF = {int(kind): kind for kind in EventKind if kind != EventKind.HELLO}
+_V1_KINDS = frozenset((0x01, 0x02, 0x03, 0x04))
+
+
+@dataclass(frozen=True)
+class DeviceHello:
+    """What the device says of itself in a hello frame."""
+
+    version: int
+    timer_hz: int
+    ticks_per_revolution: int
+    dropped_events: int = 0
+    boot: bool = False
+
+    def problem(self) -> str:
+        """Why this host cannot use the device ("" when it can)."""
+        if self.version != PROTOCOL_VERSION:
+            newer = self.version > PROTOCOL_VERSION
+            return (
+                f"the turret's firmware speaks BeAMS serial protocol v{self.version} and this host speaks "
+                f"v{PROTOCOL_VERSION}: "
+                + ("update the host (beams_driver)" if newer else "flash firmware/turret (docs/firmware.md)")
+            )
+        if self.timer_hz <= 0 or self.ticks_per_revolution <= 0:
+            return (
+                f"the turret's hello says timer {self.timer_hz} Hz, {self.ticks_per_revolution} ticks per "
+                f"revolution: both must be positive (a firmware built with a wrong configuration)"
+            )
+        return ""
+
+
+V1_STREAM_PROBLEM = (
+    f"the turret's firmware speaks BeAMS serial protocol v1 (8-byte frames, 16-bit 625 kHz timer, no hello) "
+    f"and this host speaks v{PROTOCOL_VERSION}: flash firmware/turret (docs/firmware.md)"
+)
 
 
 class FrameEvent(NamedTuple):
-    """One correctly framed capture, with the timer unwrapped to a monotonic tick count."""
+    """One correctly framed event, with the timer unwrapped to a monotonic tick count.
+
+    hello: the device's hello for kind HELLO (the assembler takes the device's clock from it).
+    """
 
     kind: EventKind
     ticks: int
     sequence: int
     after_gap: bool
+    hello: DeviceHello | None = None
 
 
 def crc16(data: bytes) -> int:
@@ -98,59 +175,125 @@ def crc16(data: bytes) -> int:
     return binascii.crc_hqx(data, _CRC_INIT)
 
 
-def encode_frame(kind: EventKind, sequence: int, timer: int) -> bytes:
-    """One 8-byte frame; the timer is taken modulo 65536 as the 16-bit hardware timer would."""
-    body = _BODY.pack(int(kind), sequence & 0xFF, timer % TIMER_MODULUS)
+def _framed(body: bytes) -> bytes:
     return SYNC + body + _CRC.pack(crc16(body))
 
 
-class FrameEncoder:
-    """The firmware's side of the link: numbers the frames and inserts heartbeats (a simulated device).
+def encode_frame(kind: EventKind | int, sequence: int, timer: int) -> bytes:
+    """One 10-byte event frame; the timer is taken modulo 2^32 as the device's extended count is."""
+    return _framed(_HEADER.pack(int(kind), sequence & 0xFF, timer % TIMER_MODULUS))
 
-    Ticks are given unwrapped (monotonic); the frames carry them modulo 65536.
+
+def encode_v1_frame(kind: int, sequence: int, timer: int) -> bytes:
+    """A protocol v1 frame, what the old firmware sends (sync A5 5A, kind, sequence, 16-bit timer, CRC):
+    the parser recognises them to name the old firmware."""
+    body = _V1_BODY.pack(kind, sequence & 0xFF, timer % (1 << 16))
+    return V1_SYNC + body + _CRC.pack(crc16(body))
+
+
+def encode_hello(sequence: int, timer: int, hello: DeviceHello) -> bytes:
+    """One 24-byte hello frame."""
+    header = _HEADER.pack(int(EventKind.HELLO), sequence & 0xFF, timer % TIMER_MODULUS)
+    flags = _HELLO_BOOT_FLAG if hello.boot else 0
+    fields = _HELLO_FIELDS.pack(
+        hello.version & 0xFF, flags, hello.timer_hz, hello.ticks_per_revolution, hello.dropped_events
+    )
+    return _framed(header + fields)
+
+
+class FrameEncoder:
+    """The firmware's side of the link (a simulated device): numbers the events at capture, sends a hello
+    first and every `HELLO_PERIOD_S`, and a heartbeat every `HEARTBEAT_PERIOD_S` (device time), as
+    firmware/turret does.
+
+    Ticks are given unwrapped (monotonic); the frames carry them modulo 2^32. `event(..., lost=True)`
+    models an event the firmware captured but had no room for: numbered, counted, not sent.
     """
 
-    def __init__(self, first_sequence: int = 0) -> None:
+    def __init__(
+        self,
+        first_sequence: int = 0,
+        timer_hz: int = TIMER_HZ,
+        ticks_per_revolution: int = TICKS_PER_REVOLUTION,
+        version: int = PROTOCOL_VERSION,
+    ) -> None:
         self._sequence = first_sequence & 0xFF
         self._last_ticks: int | None = None
+        self.timer_hz = int(timer_hz)
+        self.ticks_per_revolution = int(ticks_per_revolution)
+        self.version = version
+        self.dropped_events = 0
+        self._heartbeat_ticks = max(1, round(HEARTBEAT_PERIOD_S * timer_hz))
+        self._heartbeats_per_hello = max(1, round(HELLO_PERIOD_S / HEARTBEAT_PERIOD_S))
+        self._next_periodic: int | None = None
+        self._periodic_count = 0
+        self._booted = False
 
-    def event(self, kind: EventKind, ticks: int) -> bytes:
-        """The frame of one capture, preceded by the heartbeats the firmware sends while idle."""
+    def event(self, kind: EventKind, ticks: int, *, lost: bool = False) -> bytes:
+        """The frame of one capture, preceded by the periodic frames (hello, heartbeats) due before it."""
         if self._last_ticks is not None and ticks < self._last_ticks:
             raise ValueError(f"captures must be in time order: {ticks} after {self._last_ticks}")
         out = bytearray()
-        if self._last_ticks is not None:
-            while ticks - self._last_ticks > HEARTBEAT_INTERVAL_TICKS:
-                out += self._frame(EventKind.HEARTBEAT, self._last_ticks + HEARTBEAT_INTERVAL_TICKS)
-        out += self._frame(kind, ticks)
+        if self._next_periodic is None:  # start-up: the boot hello
+            out += self._hello(ticks)
+            self._next_periodic = ticks + self._heartbeat_ticks
+        while self._next_periodic <= ticks:
+            self._periodic_count += 1
+            due = self._next_periodic
+            out += (
+                self._hello(due)
+                if self._periodic_count % self._heartbeats_per_hello == 0
+                else self._frame(EventKind.HEARTBEAT, due)
+            )
+            self._next_periodic += self._heartbeat_ticks
+        if lost:
+            self._sequence = (self._sequence + 1) & 0xFF
+            self.dropped_events += 1
+            self._last_ticks = ticks
+        else:
+            out += self._frame(kind, ticks)
         return bytes(out)
 
-    def revolution(self, edges: RevolutionEdges, tick_rate_hz: float = TIMER_HZ) -> bytes:
+    def revolution(self, edges: RevolutionEdges, tick_rate_hz: float | None = None) -> bytes:
         """The frames of one revolution: its opening zero reference, then every edge in time order."""
-        opening_ticks = seconds_to_ticks(edges.start_time_s, tick_rate_hz)
+        rate = self.timer_hz if tick_rate_hz is None else tick_rate_hz
+        opening_ticks = seconds_to_ticks(edges.start_time_s, rate)
         out = bytearray(self.event(EventKind.ZERO_REFERENCE, opening_ticks))
-        ticks = np.rint(np.asarray(edges.edge_times_s, dtype=float) * tick_rate_hz).astype(np.int64)
+        ticks = np.rint(np.asarray(edges.edge_times_s, dtype=float) * rate).astype(np.int64)
         for tick, rising in zip(ticks.tolist(), np.asarray(edges.edge_rising).tolist(), strict=True):
             out += self.event(EventKind.RISING if rising else EventKind.FALLING, tick)
         return bytes(out)
 
-    def revolutions(self, revolutions: Iterable[RevolutionEdges], tick_rate_hz: float = TIMER_HZ) -> bytes:
+    def revolutions(self, revolutions: Iterable[RevolutionEdges], tick_rate_hz: float | None = None) -> bytes:
         """Consecutive revolutions, closed by the zero reference that ends the last one."""
+        rate = self.timer_hz if tick_rate_hz is None else tick_rate_hz
         out = bytearray()
         last: RevolutionEdges | None = None
         for edges in revolutions:
-            out += self.revolution(edges, tick_rate_hz)
+            out += self.revolution(edges, rate)
             last = edges
         if last is not None:
             closing_s = last.start_time_s + last.period_s
-            out += self.event(EventKind.ZERO_REFERENCE, seconds_to_ticks(closing_s, tick_rate_hz))
+            out += self.event(EventKind.ZERO_REFERENCE, seconds_to_ticks(closing_s, rate))
         return bytes(out)
+
+    def _hello(self, ticks: int) -> bytes:
+        hello = DeviceHello(
+            self.version, self.timer_hz, self.ticks_per_revolution, self.dropped_events, not self._booted
+        )
+        self._booted = True
+        frame = encode_hello(self._sequence, ticks, hello)
+        self._advance(ticks)
+        return frame
 
     def _frame(self, kind: EventKind, ticks: int) -> bytes:
         frame = encode_frame(kind, self._sequence, ticks)
+        self._advance(ticks)
+        return frame
+
+    def _advance(self, ticks: int) -> None:
         self._sequence = (self._sequence + 1) & 0xFF
         self._last_ticks = ticks
-        return frame
 
 
 def seconds_to_ticks(time_s: float, tick_rate_hz: float = TIMER_HZ) -> int:
@@ -165,21 +308,32 @@ class FrameParser:
     - "garbage_bytes": bytes skipped while hunting for a sync pair (bytes, not frames);
     - "bad_crc": a candidate frame whose checksum does not match;
     - "truncated": a candidate cut short by the next frame's sync pair (so its checksum fails too);
-    - "unknown_kind": a frame with a valid checksum but a kind this host does not know;
-    - "lost_frames": frames missing according to the sequence numbers.
-    Byte accounting: bytes fed = 8 * (events + unknown_kind) + 2 * (bad_crc + truncated)
-    + garbage_bytes + pending bytes.
+    - "unknown_kind": an event frame with a valid checksum but a kind this host does not know;
+    - "lost_frames": frames missing according to the sequence numbers;
+    - "before_hello": events before the device's first hello (its clock is not known yet);
+    - "incompatible_device": events from a device whose hello this host refuses (`problem` says why);
+    - "protocol_v1_frames": well-formed frames of protocol version 1 (the old firmware).
+    Byte accounting: bytes fed = FRAME_SIZE * event_frames + HELLO_SIZE * hellos + V1_FRAME_SIZE *
+    protocol_v1_frames + 2 * (bad_crc + truncated) + garbage_bytes + pending bytes, where `event_frames`
+    counts the well-formed event frames (used, dropped or of an unknown kind) and `hellos` the hello
+    frames (accepted or refused). `device` is the last accepted hello, `problem` why the stream cannot
+    be used ("" while it can).
     """
 
     def __init__(self) -> None:
         self.drops: Counter[str] = Counter()
         self.frames_ok = 0
+        self.event_frames = 0
+        self.hellos = 0
         self.bytes_fed = 0
+        self.device: DeviceHello | None = None
+        self.problem = ""
         self._buffer = bytearray()
         self._last_sequence: int | None = None
-        self._last_timer = 0
+        self._last_timer: int | None = None
         self._ticks = 0
         self._gap = False
+        self._v1_run = 0
 
     @property
     def pending_bytes(self) -> int:
@@ -187,9 +341,14 @@ class FrameParser:
         return len(self._buffer)
 
     def new_stream(self) -> None:
-        """Forget the partial frame and the sequence (the device was reconnected); ticks stay monotonic."""
+        """Forget the partial frame, the sequence and the device (it was reconnected, and may have been
+        reflashed: the next hello says); ticks stay monotonic."""
         self._buffer.clear()
         self._last_sequence = None
+        self._last_timer = None
+        self.device = None
+        self.problem = ""
+        self._v1_run = 0
         self._gap = True
 
     def feed(self, data: bytes) -> list[FrameEvent]:
@@ -201,31 +360,35 @@ class FrameParser:
         position = 0
         end = len(buffer)
         while True:
-            start = buffer.find(SYNC, position)
+            start = buffer.find(SYNC[:1], position)
             if start < 0:
-                # A trailing 0xA5 may be the first half of the next sync pair.
-                keep = 1 if end > position and buffer[end - 1] == SYNC[0] else 0
-                self._skip(end - keep - position)
-                position = end - keep
+                self._skip(end - position)
+                position = end
                 break
             self._skip(start - position)
             position = start
-            if end - start < FRAME_SIZE:
-                break
-            event = self._parse_candidate(buffer, start)
-            if event is None:
-                position = start + len(SYNC)
-                continue
-            position = start + FRAME_SIZE
-            if event is not _UNKNOWN:
-                events.append(event)
+            if end - start < 3:
+                break  # the sync pair and the kind are needed to know the candidate's size
+            if buffer[start + 1] == V1_SYNC[1]:
+                consumed = self._v1_candidate(buffer, start, end)
+            elif buffer[start + 1] == SYNC[1]:
+                consumed = self._candidate(buffer, start, end, events)
+            else:
+                consumed = -1
+            if consumed == 0:
+                break  # incomplete: wait for more bytes
+            if consumed < 0:
+                self._skip(1)  # a lone 0xA5
+                position = start + 1
+            else:
+                position = start + consumed
         del buffer[:position]
         return events
 
     def flush(self) -> int:
         """Drop a pending partial frame at the end of a stream (a truncated frame); returns its bytes."""
         pending = len(self._buffer)
-        if pending >= len(SYNC):
+        if pending >= len(SYNC) and self._buffer[:2] == SYNC:
             self.drops["truncated"] += 1
             self._skip(pending - len(SYNC))
         else:
@@ -238,38 +401,94 @@ class FrameParser:
         if n_bytes > 0:
             self.drops["garbage_bytes"] += n_bytes
 
-    def _parse_candidate(self, buffer: bytearray, start: int) -> FrameEvent | object | None:
-        """The event of the frame at start, _UNKNOWN for an unknown kind, None for a rejected candidate."""
+    def _v1_candidate(self, buffer: bytearray, start: int, end: int) -> int:
+        """Bytes consumed by a version-1 frame at start, 0 if incomplete, -1 if it is not one."""
+        if end - start < V1_FRAME_SIZE:
+            return 0
         body = bytes(buffer[start + 2 : start + 6])
-        (received_crc,) = _CRC.unpack_from(buffer, start + 6)
-        if crc16(body) != received_crc:
-            truncated = buffer.find(SYNC, start + 1, start + FRAME_SIZE) >= 0
+        if body[0] not in _V1_KINDS or crc16(body) != _CRC.unpack_from(buffer, start + 6)[0]:
+            return -1
+        self.drops["protocol_v1_frames"] += 1
+        self._v1_run += 1
+        if self._v1_run >= V1_FRAMES_BEFORE_PROBLEM:
+            self.problem = V1_STREAM_PROBLEM
+        return V1_FRAME_SIZE
+
+    def _candidate(self, buffer: bytearray, start: int, end: int, events: list[FrameEvent]) -> int:
+        """Bytes consumed by the version-2 candidate at start (2 for a rejected one), 0 if incomplete."""
+        size = HELLO_SIZE if buffer[start + 2] == _HELLO_KIND else FRAME_SIZE
+        if end - start < size:
+            return 0
+        body = bytes(buffer[start + 2 : start + size - 2])
+        if crc16(body) != _CRC.unpack_from(buffer, start + size - 2)[0]:
+            truncated = buffer.find(SYNC, start + 1, start + size) >= 0
             self.drops["truncated" if truncated else "bad_crc"] += 1
             self._gap = True
-            return None
-        kind, sequence, timer = _BODY.unpack(body)
-        if kind not in _KNOWN_KINDS:
-            self.drops["unknown_kind"] += 1
-            return _UNKNOWN
-        return self._accept(EventKind(kind), sequence, timer)
+            return len(SYNC)
+        self._v1_run = 0
+        if self.problem == V1_STREAM_PROBLEM:
+            self.problem = ""
+        kind, sequence, timer = _HEADER.unpack_from(body)
+        if kind == _HELLO_KIND:
+            event = self._hello(sequence, timer, DeviceHello(*_hello_fields(body)))
+        else:
+            self.event_frames += 1
+            event_kind = _EVENT_KIND_OF.get(kind)
+            if event_kind is None:
+                self.drops["unknown_kind"] += 1
+                return size
+            event = self._accept(event_kind, sequence, timer)
+        if event is not None:
+            events.append(event)
+        return size
 
-    def _accept(self, kind: EventKind, sequence: int, timer: int) -> FrameEvent:
+    def _hello(self, sequence: int, timer: int, hello: DeviceHello) -> FrameEvent | None:
+        self.hellos += 1
+        problem = hello.problem()
+        if problem:
+            self.problem = problem
+            self.device = None
+            self._gap = True
+            return None
+        if hello.boot or (self.device is not None and _clock_of(hello) != _clock_of(self.device)):
+            # a reset (or reflashed) device: its numbering and its timer start again
+            self._last_sequence = None
+            self._last_timer = None
+            self._gap = True
+        self.device = hello
+        self.problem = ""
+        return self._accept(EventKind.HELLO, sequence, timer, hello)
+
+    def _accept(
+        self, kind: EventKind, sequence: int, timer: int, hello: DeviceHello | None = None
+    ) -> FrameEvent | None:
         if self._last_sequence is not None:
             lost = (sequence - self._last_sequence - 1) & 0xFF
             if lost:
                 self.drops["lost_frames"] += lost
                 self._gap = True
-        # Consecutive frames are less than one wrap apart (heartbeats), so the forward difference is exact.
-        self._ticks += (timer - self._last_timer) % TIMER_MODULUS
-        self._last_timer = timer
         self._last_sequence = sequence
-        event = FrameEvent(kind, self._ticks, sequence, self._gap)
+        # 32-bit counts, taken as a signed difference: frames are less than 2^31 ticks apart (heartbeats)
+        # but may leave the device a few ticks out of time order (interrupt priorities).
+        if self._last_timer is not None:
+            self._ticks += (timer - self._last_timer + _HALF_MODULUS) % TIMER_MODULUS - _HALF_MODULUS
+        self._last_timer = timer
+        if self.device is None:
+            self.drops["incompatible_device" if self.problem else "before_hello"] += 1
+            return None
+        event = FrameEvent(kind, self._ticks, sequence, self._gap, hello)
         self._gap = False
         self.frames_ok += 1
         return event
 
 
-_UNKNOWN = object()
+def _hello_fields(body: bytes) -> tuple[int, int, int, int, bool]:
+    version, flags, timer_hz, ticks_per_revolution, dropped = _HELLO_FIELDS.unpack_from(body, _HEADER.size)
+    return version, timer_hz, ticks_per_revolution, dropped, bool(flags & _HELLO_BOOT_FLAG)
+
+
+def _clock_of(hello: DeviceHello) -> tuple[int, int]:
+    return hello.timer_hz, hello.ticks_per_revolution
 
 
 class RevolutionAssembler:
@@ -277,9 +496,12 @@ class RevolutionAssembler:
 
     The angle of an edge is 2*pi times its ticks since the opening zero reference over the ticks of the
     whole revolution (eq. 2.1, the turret speed measured over that revolution). Times are the device's
-    ticks divided by `tick_rate_hz` plus `time_offset_s` (which the owner may update to map the device
-    clock onto its own). Drops counted in `drops` (revolutions unless stated):
+    ticks divided by its timer frequency plus `time_offset_s` (which the owner may update to map the device
+    clock onto its own). The timer frequency and the nominal ticks per revolution come from the device's
+    hello (a HELLO event); given here, they hold until a hello says otherwise. Drops counted in `drops`
+    (revolutions unless stated):
     - "edges_before_zero_reference": edges before the first zero reference (edges);
+    - "edges_before_hello": edges while the device's clock is unknown (edges);
     - "revolution_with_gap": a revolution during which frames were lost or rejected;
     - "bad_revolution_period": a revolution whose tick count is off the nominal by more than
       `period_tolerance` (the turret stalled or a zero reference was missed).
@@ -287,20 +509,18 @@ class RevolutionAssembler:
 
     def __init__(
         self,
-        tick_rate_hz: float = TIMER_HZ,
-        ticks_per_revolution: int = TICKS_PER_REVOLUTION,
+        tick_rate_hz: float | None = None,
+        ticks_per_revolution: int | None = None,
         period_tolerance: float = 0.02,
         time_offset_s: float = 0.0,
     ) -> None:
-        if not tick_rate_hz > 0 or not ticks_per_revolution > 0 or not 0 < period_tolerance < 0.5:
-            raise ValueError(
-                f"tick_rate_hz ({tick_rate_hz}) and ticks_per_revolution ({ticks_per_revolution}) must be "
-                f"positive and period_tolerance ({period_tolerance}) in (0, 0.5)"
-            )
-        self.tick_rate_hz = float(tick_rate_hz)
-        self.ticks_per_revolution = int(ticks_per_revolution)
+        if not 0 < period_tolerance < 0.5:
+            raise ValueError(f"period_tolerance ({period_tolerance}) must be in (0, 0.5)")
         self.period_tolerance = float(period_tolerance)
-        self._tolerance_ticks = period_tolerance * ticks_per_revolution
+        self.tick_rate_hz: float | None = None
+        self.ticks_per_revolution: int | None = None
+        if tick_rate_hz is not None or ticks_per_revolution is not None:
+            self.set_clock(tick_rate_hz, ticks_per_revolution)
         self.time_offset_s = float(time_offset_s)
         self.drops: Counter[str] = Counter()
         self.revolutions_ok = 0
@@ -309,6 +529,16 @@ class RevolutionAssembler:
         self._edge_ticks: list[int] = []
         self._edge_rising: list[bool] = []
         self._gap = False
+
+    def set_clock(self, tick_rate_hz: float | None, ticks_per_revolution: int | None) -> None:
+        """The device's timer frequency (Hz) and nominal ticks per revolution; both must be positive."""
+        if tick_rate_hz is None or ticks_per_revolution is None or not tick_rate_hz > 0:
+            raise ValueError(f"tick_rate_hz ({tick_rate_hz}) must be positive")
+        if not ticks_per_revolution > 0:
+            raise ValueError(f"ticks_per_revolution ({ticks_per_revolution}) must be positive")
+        self.tick_rate_hz = float(tick_rate_hz)
+        self.ticks_per_revolution = int(ticks_per_revolution)
+        self._tolerance_ticks = self.period_tolerance * self.ticks_per_revolution
 
     def reset(self) -> None:
         """Forget the open revolution (e.g. after a reconnection); the next zero reference opens one."""
@@ -326,7 +556,12 @@ class RevolutionAssembler:
             if event.after_gap:
                 self._gap = True
             kind = event.kind
-            if kind == EventKind.ZERO_REFERENCE:
+            if kind == EventKind.HELLO:
+                self._hello(event.hello)
+            elif self.tick_rate_hz is None:
+                if kind in (EventKind.RISING, EventKind.FALLING):
+                    self.drops["edges_before_hello"] += 1
+            elif kind == EventKind.ZERO_REFERENCE:
                 revolution = self._close(event.ticks)
                 if revolution is not None:
                     completed.append(revolution)
@@ -337,6 +572,16 @@ class RevolutionAssembler:
                 self._edge_ticks.append(event.ticks)
                 self._edge_rising.append(kind == EventKind.RISING)
         return completed
+
+    def _hello(self, hello: DeviceHello | None) -> None:
+        """A device's hello: a new clock starts the revolutions afresh."""
+        if hello is None or (hello.timer_hz, hello.ticks_per_revolution) == (
+            self.tick_rate_hz,
+            self.ticks_per_revolution,
+        ):
+            return
+        self.set_clock(hello.timer_hz, hello.ticks_per_revolution)
+        self.reset()
 
     def _close(self, zero_ticks: int) -> RevolutionEdges | None:
         """Close the open revolution at this zero reference and open the next one."""
@@ -361,8 +606,9 @@ class RevolutionAssembler:
         """The revolution opened by the last zero reference and spanning span_ticks."""
         assert self._zero_ticks is not None
         since_zero = np.asarray(self._edge_ticks, dtype=np.int64) - self._zero_ticks
-        # An edge latched on the closing zero reference's tick stays inside [0, 2*pi).
-        angles = np.minimum(_TWO_PI * since_zero / span_ticks, math.nextafter(_TWO_PI, 0.0))
+        # An edge latched on the closing zero reference's tick stays inside [0, 2*pi); one latched a few
+        # ticks before the opening one (its interrupt came first) is at angle 0.
+        angles = np.clip(_TWO_PI * since_zero / span_ticks, 0.0, math.nextafter(_TWO_PI, 0.0))
         self.revolutions_ok += 1
         return RevolutionEdges(
             revolution=self._open_revolution,

@@ -8,11 +8,14 @@ return are logged and counted, and bad bytes are counted drops (see `FrameParser
 reopened on the next read, whatever the back-off. Only `open()` raises, with a one-line message that
 says what to fix, when the device path does not exist or cannot be opened at start-up (permission
 denied, a baud rate the port refuses). Bytes that never form a valid frame (the sensor talks at
-another baud rate) are reported by `stream_problem`.
+another baud rate), a device of another protocol version (its hello, or the old firmware's v1 frames)
+and frames without a hello are reported by `stream_problem`.
 
 Device time to host time: the device's timer starts anywhere, so the source maps it onto the host clock
 with the smallest observed (arrival - capture) offset, the one with the least transmission delay;
-the offset may grow by `max_clock_drift` s/s to follow a device clock that runs slow.
+the offset may grow by `max_clock_drift` s/s to follow a device clock that runs slow. The device's
+timer frequency comes from its hello (protocol v2); a device that resets or changes its clock starts the
+mapping afresh.
 """
 
 import contextlib
@@ -20,7 +23,7 @@ import errno
 import grp
 import os
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
@@ -32,6 +35,8 @@ from beams_driver.edges import RevolutionEdges
 from beams_driver.serial_protocol import (
     DEFAULT_BAUDRATE,
     FRAME_SIZE,
+    HELLO_PERIOD_S,
+    EventKind,
     FrameEvent,
     FrameParser,
     RevolutionAssembler,
@@ -40,6 +45,8 @@ from beams_driver.serial_protocol import (
 # Bytes without one valid frame among them after which the stream is called unreadable: a wrong baud
 # rate turns every frame into garbage, while a sound stream has a frame every FRAME_SIZE bytes.
 UNREADABLE_STREAM_BYTES = 64 * FRAME_SIZE
+# Frames without a hello for this long (the firmware sends four a second): the device does not say its clock.
+HELLO_WAIT_S = 3.0 * HELLO_PERIOD_S
 
 
 class DeviceNotFoundError(FileNotFoundError):
@@ -100,7 +107,11 @@ class SerialEdgeSource:
         self._next_drop_log_s = 0.0
         self._device_missing = False
         self._bytes_since_frame = 0
-        self.stream_problem = ""  # why the bytes that arrive are not frames ("" while frames arrive)
+        self._frames_seen = 0
+        self._device_clock: tuple[int, int] | None = None
+        self._problem_key = ""
+        self._frames_without_hello_since: float | None = None
+        self.stream_problem = ""  # why the bytes that arrive are not usable ("" while they are)
         self.last_error = ""  # why the last (re)connection attempt failed
 
     # ---- life cycle ----
@@ -157,25 +168,50 @@ class SerialEdgeSource:
         if not data:
             return []
         events = self.parser.feed(data)
-        self._check_stream(events, len(data))
+        self._check_stream(len(data))
         self._update_clock(events, self._clock())
         revolutions = self.assembler.feed(events)
         self._log_new_drops()
         return revolutions
 
-    def _check_stream(self, events: list[FrameEvent], n_bytes: int) -> None:
-        """Bytes keep arriving and none forms a frame: say so once, with the likely cause."""
-        if events:
-            self._bytes_since_frame = 0
-            self.stream_problem = ""
+    def _check_stream(self, n_bytes: int) -> None:
+        """Say once why the bytes that arrive give no edges: no frame at all (the baud rate), a device
+        of another protocol version (the parser's reason), or frames without a hello."""
+        parser = self.parser
+        frames = parser.event_frames + parser.hellos + parser.drops["protocol_v1_frames"]
+        if frames == self._frames_seen:
+            self._bytes_since_frame += n_bytes
+            if self._bytes_since_frame >= UNREADABLE_STREAM_BYTES:
+                self._report(
+                    "no_frame",
+                    f"serial device {self.device}: {self._bytes_since_frame} bytes and no valid frame: is "
+                    f"baud_rate {self.baudrate} the sensor's (its default is {DEFAULT_BAUDRATE})?",
+                )
             return
-        self._bytes_since_frame += n_bytes
-        if self._bytes_since_frame >= UNREADABLE_STREAM_BYTES and not self.stream_problem:
-            self.stream_problem = (
-                f"serial device {self.device}: {self._bytes_since_frame} bytes and no valid frame: is "
-                f"baud_rate {self.baudrate} the sensor's (its default is {DEFAULT_BAUDRATE})?"
-            )
-            self._log(self.stream_problem)
+        self._frames_seen = frames
+        self._bytes_since_frame = 0
+        if parser.problem:
+            self._report(parser.problem, f"serial device {self.device}: {parser.problem}")
+        elif parser.device is None:
+            now = time.monotonic()
+            if self._frames_without_hello_since is None:
+                self._frames_without_hello_since = now
+            elif now - self._frames_without_hello_since >= HELLO_WAIT_S:
+                self._report(
+                    "no_hello",
+                    f"serial device {self.device}: frames but no hello for {HELLO_WAIT_S:.0f} s: the "
+                    f"turret's firmware must say its protocol version and clock (flash firmware/turret)",
+                )
+        else:
+            self._frames_without_hello_since = None
+            self.stream_problem = self._problem_key = ""
+
+    def _report(self, key: str, problem: str) -> None:
+        """Set stream_problem; log it once per kind of problem (key)."""
+        if key != self._problem_key:
+            self._problem_key = key
+            self.stream_problem = problem
+            self._log(problem)
 
     def _open_port(self) -> Any:
         try:
@@ -225,7 +261,8 @@ class SerialEdgeSource:
         self.assembler.reset()
         self._offset_s = None
         self._bytes_since_frame = 0
-        self.stream_problem = ""
+        self._frames_without_hello_since = None
+        self.stream_problem = self._problem_key = ""
         self.last_error = ""
         self.reconnections += 1
         self._log(f"serial device {self.device} reconnected")
@@ -246,9 +283,14 @@ class SerialEdgeSource:
 
     def _update_clock(self, events: list[FrameEvent], arrival_s: float) -> None:
         """Map device ticks onto the host clock with the least-delayed arrival seen so far."""
-        if not events:
+        if not events or self.parser.device is None:
             return
-        candidate = arrival_s - events[-1].ticks / self.assembler.tick_rate_hz
+        device = self.parser.device
+        clock = (device.timer_hz, device.ticks_per_revolution)
+        if clock != self._device_clock or any(e.kind == EventKind.HELLO and e.hello.boot for e in events):
+            self._offset_s = None  # a device reset or a new clock: the old mapping means nothing
+            self._device_clock = clock
+        candidate = arrival_s - events[-1].ticks / self.parser.device.timer_hz
         if self._offset_s is None:
             self._offset_s = candidate
         else:
@@ -281,6 +323,8 @@ SERIAL_PARAMETERS = (
     ParameterSpec("baud_rate", DEFAULT_BAUDRATE, "Serial baud rate.", minimum=9600, maximum=12_000_000),
 )
 SERIAL_POLL_PERIOD_S = 0.01
+# /diagnostics warns this long after the turret last lost frames.
+LOST_FRAMES_WARN_S = 5.0
 
 
 class SerialSource:
@@ -298,6 +342,8 @@ class SerialSource:
         self.serial.open()
         self._log_info = host.log_info
         self._reconnections = 0
+        self._lost_total = 0
+        self._lost_history: deque[tuple[float, int]] = deque()
 
     def poll(self, now_s: float) -> SourcePoll:
         revolutions = self.serial.read()
@@ -314,12 +360,39 @@ class SerialSource:
             serial_disconnections=serial.disconnections,
             serial_reconnections=serial.reconnections,
         )
+        device = serial.parser.device
+        if device is not None:
+            values.update(
+                serial_device_protocol_version=device.version,
+                serial_device_timer_hz=device.timer_hz,
+                serial_device_ticks_per_revolution=device.ticks_per_revolution,
+                serial_device_dropped_events=device.dropped_events,
+            )
         if not serial.connected:
             why = f" ({serial.last_error})" if serial.last_error else ""
             return SourceHealth("error", f"serial device {serial.device} lost, reconnecting{why}", values)
         if serial.stream_problem:
             return SourceHealth("error", serial.stream_problem, values)
+        lost = self._recently_lost_frames()
+        if lost:
+            return SourceHealth(
+                "warn",
+                f"the turret lost {lost} frames in the last {LOST_FRAMES_WARN_S:.0f} s: more edges than the "
+                f"link carries (its queue overflowed); their revolutions were dropped",
+                values,
+            )
         return SourceHealth("ok", None, values)
+
+    def _recently_lost_frames(self) -> int:
+        """Frames lost (sequence gaps) in the last LOST_FRAMES_WARN_S, for the warning."""
+        now = time.monotonic()
+        total = self.serial.parser.drops["lost_frames"]
+        if total != self._lost_total:
+            self._lost_history.append((now, total - self._lost_total))
+            self._lost_total = total
+        while self._lost_history and now - self._lost_history[0][0] > LOST_FRAMES_WARN_S:
+            self._lost_history.popleft()
+        return sum(count for _, count in self._lost_history)
 
     def close(self) -> None:
         self.serial.close()

@@ -16,15 +16,28 @@ import numpy as np
 import pytest
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_driver import serial_source
 from beams_driver.decoder import BearingDecoder
 from beams_driver.edges import RevolutionEdges
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
-from beams_driver.serial_protocol import FRAME_SIZE, TICKS_PER_REVOLUTION, FrameEncoder
+from beams_driver.serial_protocol import (
+    FRAME_SIZE,
+    HELLO_SIZE,
+    TICKS_PER_REVOLUTION,
+    TIMER_HZ,
+    V1_STREAM_PROBLEM,
+    EventKind,
+    FrameEncoder,
+    FrameParser,
+    encode_frame,
+    encode_v1_frame,
+)
 from beams_driver.serial_source import (
     UNREADABLE_STREAM_BYTES,
     DeviceNotFoundError,
     DeviceOpenError,
     SerialEdgeSource,
+    SerialSource,
 )
 from beams_driver.variance import VarianceModel
 
@@ -40,19 +53,24 @@ class FakeDevice:
         self.slave_path = os.ttyname(slave)
         self._slave = slave  # keep the pty alive until the source has opened its end
         self.link = link
+        self.unplugged = threading.Event()  # writers stop: the closed fd numbers may be reused
         if link.is_symlink():
             link.unlink()
         link.symlink_to(self.slave_path)
 
-    def write_in_background(self, data: bytes, chunk: int = 997) -> threading.Thread:
-        """Write from a thread: the pty buffer is small and blocks until the source reads."""
+    def write_in_background(self, data: bytes, chunk: int = 997, pause_s: float = 0.0) -> threading.Thread:
+        """Write from a thread (the pty buffer is small and blocks until the source reads), pausing
+        pause_s between chunks."""
 
         def run() -> None:
             for offset in range(0, len(data), chunk):
+                if self.unplugged.is_set():
+                    return
                 try:
                     os.write(self.master, data[offset : offset + chunk])
                 except OSError:
                     return  # the test unplugged the device mid-write
+                time.sleep(pause_s)
 
         thread = threading.Thread(target=run, daemon=True)
         thread.start()
@@ -65,6 +83,8 @@ class FakeDevice:
 
         def run() -> None:
             for edges in revolutions:
+                if self.unplugged.is_set():
+                    return
                 try:
                     os.write(self.master, encoder.revolution(edges))
                 except OSError:
@@ -76,6 +96,7 @@ class FakeDevice:
         return thread
 
     def unplug(self) -> None:
+        self.unplugged.set()
         for fd in (self.master, self._slave):
             with contextlib.suppress(OSError):
                 os.close(fd)
@@ -100,6 +121,14 @@ def simulated_revolutions(count: int, seed: int, first: int = 0) -> list[Revolut
     simulator = SensorSimulator(config, EUROBOT_BEACON_MAP, np.random.default_rng(seed))
     pose = (1.2, 0.8, 0.3)
     return [simulator.revolution(lambda t: pose, k * config.period_s) for k in range(first, first + count)]
+
+
+def frame_offset(data: bytes, index: int) -> int:
+    """Byte offset of the index-th frame of an encoder's stream (hellos are longer than events)."""
+    offset = 0
+    for _ in range(index):
+        offset += HELLO_SIZE if data[offset + 2] == EventKind.HELLO else FRAME_SIZE
+    return offset
 
 
 def read_until(source: SerialEdgeSource, count: int, timeout_s: float = WAIT_S) -> list[RevolutionEdges]:
@@ -168,8 +197,19 @@ def test_corrupted_stream_on_the_pty_drops_only_damaged_revolutions(
 ) -> None:
     sent = simulated_revolutions(10, seed=12)
     data = bytearray(FrameEncoder().revolutions(sent))
-    frames_before_rev4 = sum(1 + r.n_edges for r in sent[:4])
-    data[(frames_before_rev4 + 3) * FRAME_SIZE + 6] ^= 0xFF  # a checksum byte in revolution 4
+    # revolution 4 starts 0.4 s in: a checksum byte of the fourth frame after its zero reference
+    rev4 = (
+        FrameParser()
+        .feed(bytes(data))
+        .index(
+            next(
+                e
+                for e in FrameParser().feed(bytes(data))
+                if e.kind == EventKind.ZERO_REFERENCE and e.ticks >= 4 * 62400
+            )
+        )
+    )
+    data[frame_offset(bytes(data), rev4 + 3) + FRAME_SIZE - 1] ^= 0xFF
     data[len(data) // 2 : len(data) // 2] = b"\x00\xa5\x13garbage"
     logs: list[str] = []
     with SerialEdgeSource(str(link), log=logs.append) as source:
@@ -294,8 +334,107 @@ def test_stream_at_another_baud_rate_is_named_once(device: FakeDevice, link: pat
         while not source.stream_problem and time.monotonic() < deadline:
             assert source.read() == []
         assert source.stream_problem.endswith(
-            "no valid frame: is baud_rate 460800 the sensor's (its default is 460800)?"
+            "no valid frame: is baud_rate 500000 the sensor's (its default is 500000)?"
         )
         assert [line for line in logs if "no valid frame" in line] == [source.stream_problem]
         device.write_in_background(FrameEncoder().revolutions(simulated_revolutions(3, seed=23)))
         assert read_until(source, 2) and source.stream_problem == ""
+
+
+class FakeHost:
+    """What SerialSource asks of driver_node: a clock and a log."""
+
+    def __init__(self) -> None:
+        self.warnings: list[str] = []
+
+    def now_s(self) -> float:
+        return time.time()
+
+    def log_warning(self, message: str) -> None:
+        self.warnings.append(message)
+
+    def log_info(self, message: str) -> None:
+        pass
+
+
+def poll_until(source: SerialSource, predicate, timeout_s: float = WAIT_S) -> list[RevolutionEdges]:
+    """Poll until predicate(revolutions received so far) holds, or timeout_s."""
+    received: list[RevolutionEdges] = []
+    deadline = time.monotonic() + timeout_s
+    while not predicate(received) and time.monotonic() < deadline:
+        received += source.poll(time.time()).revolutions
+    return received
+
+
+def test_old_firmware_is_an_error_that_names_the_protocol(device: FakeDevice, link: pathlib.Path) -> None:
+    """A v1 stream (the old firmware's frames) on a v2 host: no bearing, one ERROR naming the fix."""
+    ticks = np.sort(np.random.default_rng(30).integers(0, 20 * TICKS_PER_REVOLUTION, 2000))
+    data = b"".join(encode_v1_frame(1 + i % 3, i, int(t)) for i, t in enumerate(ticks))
+    host = FakeHost()
+    source = SerialSource({"device": str(link), "baud_rate": 500_000}, (), host)
+    try:
+        device.write_in_background(data)
+        received = poll_until(source, lambda _: source.health().level == "error")
+        health = source.health()
+    finally:
+        source.close()
+    assert received == []
+    assert health.message.endswith(V1_STREAM_PROBLEM)
+    assert "protocol v1" in health.message and "flash firmware/turret" in health.message
+    assert health.values["serial_drops_protocol_v1_frames"] > 0
+    assert [w for w in host.warnings if "protocol v1" in w] == [health.message]
+
+
+def test_frames_the_turret_lost_are_counted_and_warned(device: FakeDevice, link: pathlib.Path) -> None:
+    """Its queue overflowed (events numbered, not sent): /diagnostics shows the count and a warning, and
+    the revolutions they fall in are dropped, the others kept."""
+    sent = simulated_revolutions(6, seed=31)
+    encoder = FrameEncoder()
+    data = bytearray()
+    for revolution in sent:
+        data += encoder.event(EventKind.ZERO_REFERENCE, round(revolution.start_time_s * TIMER_HZ))
+        for index, (time_s, rising) in enumerate(
+            zip(revolution.edge_times_s, revolution.edge_rising, strict=True)
+        ):
+            kind = EventKind.RISING if rising else EventKind.FALLING
+            data += encoder.event(
+                kind, round(time_s * TIMER_HZ), lost=revolution.revolution == 2 and index < 7
+            )
+    data += encoder.event(
+        EventKind.ZERO_REFERENCE, round((sent[-1].start_time_s + sent[-1].period_s) * TIMER_HZ)
+    )
+    data += encoder.event(EventKind.HEARTBEAT, round((sent[-1].start_time_s + 1.5) * TIMER_HZ))  # a hello
+    source = SerialSource({"device": str(link), "baud_rate": 500_000}, (), FakeHost())
+    try:
+        device.write_in_background(bytes(data))
+        received = poll_until(
+            source,
+            lambda got: len(got) >= 5 and getattr(source.serial.parser.device, "dropped_events", 0) > 0,
+        )
+        health = source.health()
+    finally:
+        source.close()
+    assert [r.revolution for r in received] == [0, 1, 3, 4, 5]
+    assert health.level == "warn" and "lost 7 frames" in health.message
+    assert health.values["serial_drops_lost_frames"] == 7
+    assert health.values["serial_device_dropped_events"] == 7
+    assert health.values["serial_device_timer_hz"] == TIMER_HZ
+
+
+def test_frames_without_a_hello_are_an_error(
+    device: FakeDevice, link: pathlib.Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A device that never says its clock (a firmware that skips the hello): no edge is used, and after
+    HELLO_WAIT_S an error says why."""
+    monkeypatch.setattr(serial_source, "HELLO_WAIT_S", 0.3)
+    data = b"".join(encode_frame(EventKind.RISING, i, 1000 * i) for i in range(20000))
+    source = SerialSource({"device": str(link), "baud_rate": 500_000}, (), FakeHost())
+    try:
+        device.write_in_background(data, chunk=200, pause_s=0.002)
+        received = poll_until(source, lambda _: source.health().level == "error")
+        health = source.health()
+    finally:
+        source.close()
+    assert received == []
+    assert "no hello" in health.message and "flash firmware/turret" in health.message
+    assert health.values["serial_drops_before_hello"] > 0

@@ -31,7 +31,7 @@ from scipy.stats import chi2
 from beams_common.angles import wrap_to_pi
 from beams_common.pose2d import Pose2D, compose
 from beams_ekf.odometry_errors import OdometryErrorStates, corrected_increment
-from beams_ekf.pose_filter import BearingOutcome
+from beams_ekf.pose_filter import BearingOutcome, BearingReason, rejected
 
 
 @dataclass(frozen=True)
@@ -295,20 +295,20 @@ class BearingEkf:
     ) -> BearingOutcome:
         """Update with one bearing (sensor frame) of variance R, gated at the chi-square threshold."""
         if not self._initialised:
-            return BearingOutcome(False, float("nan"), float("nan"), "uninitialised")
+            return rejected(BearingReason.UNINITIALISED)
         if beacon_id not in self.beacons_xy:
-            return BearingOutcome(False, float("nan"), float("nan"), "unknown beacon")
+            return rejected(BearingReason.UNKNOWN_BEACON)
         if not (isfinite(bearing_rad) and isfinite(variance_rad2) and variance_rad2 > 0.0):
-            return BearingOutcome(False, float("nan"), float("nan"), "invalid measurement")
+            return rejected(BearingReason.INVALID_MEASUREMENT)
         try:
             expected, jacobian = self.predicted_bearing(beacon_id, lever)
         except ZeroDivisionError:
-            return BearingOutcome(False, float("nan"), float("nan"), "sensor on beacon")
+            return rejected(BearingReason.SENSOR_ON_BEACON)
         residual = wrap_to_pi(bearing_rad - expected)
         innovation_variance = float((jacobian @ self._ekf.P @ jacobian.T)[0, 0]) + variance_rad2
         nis = residual * residual / innovation_variance
         if nis > self.gate:
-            return BearingOutcome(False, nis, residual, "gated")
+            return BearingOutcome(False, nis, residual, BearingReason.GATED)
         # the innovation is already wrapped, so filterpy's residual only has to return it
         self._ekf.update(
             np.array([bearing_rad]),
@@ -318,6 +318,9 @@ class BearingEkf:
             residual=lambda _z, _hx: np.array([[residual]]),
         )
         self._ekf.x[2, 0] = wrap_to_pi(float(self._ekf.x[2, 0]))
+        # rounding drifts P from symmetric: after a wide prior (sigma 4 m) by more than the 1e-9 the
+        # published-estimate invariant allows (issue 18: every later estimate refused)
+        self._ekf.P = 0.5 * (self._ekf.P + self._ekf.P.T)
         return BearingOutcome(True, nis, residual)
 
     def position_sigma_m(self) -> float:

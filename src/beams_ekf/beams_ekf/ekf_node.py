@@ -11,6 +11,15 @@ and `beams/ekf/pose` (PoseWithCovarianceStamped) after each revolution's bearing
 source publishes odom -> base_link), plus `/diagnostics`.
 Service `~/reset` (std_srvs/Trigger) forgets the estimate until the next pose.
 All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
+
+Plausibility (issue 18, `beams_common.plausibility`): a revolution whose newest bearing, or an odometry
+message, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s` ahead of the node's clock
+is refused with the reason; an odometry increment beyond `max_speed_m_per_s` or
+`max_yaw_rate_rad_per_s` is never followed (the localiser re-references and grows the covariance); an
+operator's pose with a standard deviation beyond the table is refused; a calibration is checked against
+chapter 7's ranges and the nominal geometry, and flagged when it makes the recent bearings worse.
+/diagnostics carries the status (`ekf_health`: waiting, tracking, degraded or lost, with the reasons; the
+`status` value); the pose messages cannot carry it.
 """
 
 import math
@@ -26,9 +35,11 @@ from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
 from beams_common import topics
-from beams_common.bearing import bearings_of_message
+from beams_common.bearing_intake import RevolutionIntake, bearings_message_intake
+from beams_common.calibration_checks import BearingSample, RecentBearings
 from beams_common.calibration_file import SensorCalibration
-from beams_common.geometry_parameters import geometry_of_calibration, runtime_geometry
+from beams_common.geometry_parameters import BeaconGeometry, geometry_of_calibration, runtime_geometry
+from beams_common.plausibility import StampCheck, pose_covariance_problem, stamp_tolerance_of
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import (
@@ -48,22 +59,22 @@ from beams_common.ros.node_support import (
     serve_calibration_reload,
     startup_geometry,
 )
-from beams_common.ros.parameters import apply_runtime_changes, declare_table
+from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
 from beams_common.validation import (
     bounded,
     operator_pose_problem,
     planar_estimate_problem,
 )
-from beams_ekf.localiser import (
-    Estimate,
-    build_localiser,
-    filter_settings,
-)
-from beams_ekf.parameters import EKF_PARAMETERS
+from beams_ekf.ekf_health import WAITING_FOR_POSE, EkfHealth
+from beams_ekf.localiser import build_localiser
+from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
+from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_msgs.srv import SetPose
 
-WAITING_FOR_POSE = "waiting for an initial pose (beams/pose, /initialpose or the set_pose service)"
+# a calibration that disagrees with the recent bearings keeps the status degraded this long (s): the NIS
+# test then has a window of new bearings to judge it on
+CALIBRATION_FLAG_HOLD_S = 10.0
 
 
 class EkfNode(WatchedInputs, GuardedCallbacks, Node):
@@ -83,6 +94,9 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         rate_hz = self.parameters["publish_rate_hz"]
         self.diagnostics = Diagnostics(self, "ekf")
         self.diagnostics.set_level("warn", WAITING_FOR_POSE)
+        self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
+        self.health = EkfHealth(self.parameters, self._now_s())
+        self.recent_bearings = RecentBearings()
         self._last_twist = None
         # the newest odometry header stamp, republished exactly (a float loses nanoseconds at epoch scale)
         self._last_odometry_stamp: tuple[float, Time] | None = None
@@ -99,7 +113,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         self.create_service(SetPose, topics.SET_POSE, self._on_set_pose)
         self.create_service(Trigger, topics.RESET, self._on_reset)
         serve_calibration_reload(self, self._apply_calibration)
-        apply_runtime_changes(self, EKF_PARAMETERS, self.parameters, self._apply_parameters)
+        apply_runtime_changes(self, EKF_PARAMETERS, self.parameters, self._prepare_parameters)
         self.create_timer(1.0 / rate_hz, self._publish)
         self.get_logger().info(
             f"ekf_node ready: {len(self.localiser.ekf.beacons_xy)} beacons, turret offset "
@@ -113,50 +127,78 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         return "filter reset: it re-initialises from the next fix"
 
     # -- parameters -----------------------------------------------------------------------------------
-    def _apply_parameters(self, values: dict, changed: set[str]) -> None:
-        """A runtime change (validated by the table): the beacon geometry, the process noise, the gate."""
-        self.geometry = geometry = runtime_geometry(values, changed, self.geometry)
-        self.settings = filter_settings(values)
-        self.localiser.configure(geometry.beacon_map.as_dict(), geometry.turret_offset_m, self.settings)
+    def _prepare_parameters(self, values: dict, changed: set[str]) -> ApplyChange:
+        """A runtime change (validated by the table): the new beacon geometry (a calibration file read)
+        and settings, built now (ValueError, OSError: refused); the process noise and the gate applied
+        by the returned step."""
+        geometry = runtime_geometry(values, changed, self.geometry)
+        settings = filter_settings(values)
+        tolerance = stamp_tolerance_of(values)
+
+        def apply() -> None:
+            if geometry is not self.geometry:
+                self._flag_worse_calibration(geometry)
+            self.geometry, self.settings, self.stamp_check.tolerance = geometry, settings, tolerance
+            self.localiser.configure(geometry.beacon_map.as_dict(), geometry.turret_offset_m, settings)
+            self.health.configure(values, self._now_s())
+
+        return apply
 
     # -- inputs ---------------------------------------------------------------------------------------
+    def _now_s(self) -> float:
+        """The receiving clock (ROS time: /clock under use_sim_time), s."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _implausible_stamp(self, kind: str, what: str, stamp_s: float, now_s: float) -> bool:
+        """True, the input refused with the reason, when its stamp is beyond the tolerance against the
+        receiving clock (`plausibility.StampCheck`); the status degraded once the refusals are confirmed
+        (two in a row)."""
+        problem, confirmed = self.stamp_check.check(kind, what, stamp_s, now_s)
+        if problem:
+            self.diagnostics.refuse(f"{kind}_stamp_refused", problem)
+        if confirmed:  # not one hiccup: the status shows it
+            self.health.fault(f"{kind}_stamp", now_s, problem)
+        return bool(problem)
+
     def _on_odometry(self, msg: Odometry) -> None:
+        now_s = self._now_s()
+        self.health.on_odometry(now_s)
         stamp_s = stamp_to_seconds(msg.header.stamp)
+        if self._implausible_stamp("odometry", f"odometry at {stamp_s:.3f} s", stamp_s, now_s):
+            return
         outcome = self.localiser.on_odometry(stamp_s, pose2d_of(msg.pose.pose))
-        if outcome == "invalid":
+        if outcome is OdometryOutcome.INVALID:
             self.diagnostics.refuse("odometry_refused", f"odometry at {stamp_s:.3f} s: non-finite pose")
-        if outcome in ("reference", "predicted"):
+        if outcome is OdometryOutcome.JUMPED:  # counted by the localiser as odometry_jumps
+            reason = f"{self.localiser.last_odometry_jump}: re-referenced, covariance grown"
+            self.diagnostics.refuse("odometry_jumps_refused", reason)
+            self.health.fault("odometry_jump", now_s, reason)
+        if outcome.used:
             self._last_twist = msg.twist
             self._last_odometry_stamp = (stamp_s, msg.header.stamp)
-        if outcome == "reference":  # a time jump resets what was published too
+        if outcome is OdometryOutcome.REFERENCE:  # a time jump resets what was published too
             self._published_stamp_s = None
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
-        if self.diagnostics.oversized_revolution(msg):  # refused before any per-bearing work
+        now_s = self._now_s()
+        self.health.on_bearings(now_s)
+        intake = bearings_message_intake(msg, stamp_to_seconds, self.localiser.ekf.beacons_xy)
+        newest_s = _newest_stamp_s(intake)
+        if self._implausible_stamp("bearings", f"revolution {msg.revolution}", newest_s, now_s):
+            return  # a bearing applied at the wrong instant is confidently wrong (issue 18: 0.3-0.45 m)
+        for key, reason in intake.revolution_refusals():
+            self.diagnostics.refuse(key, f"revolution {msg.revolution}: {reason}")
+        self.localiser.on_intake(intake)  # counts the bearings refused, applies those kept
+        if intake.too_many:  # refused before any per-bearing work
             return
-        bearings = bearings_of_message(msg, stamp_to_seconds)
-        counts = self.localiser.stats.counts
-        invalid_before = counts["bearings_invalid measurement"] + counts["bearings_unknown beacon"]
-        refused = self.localiser.on_revolution(bearings)
-        if refused:
-            self.diagnostics.refuse(
-                "revolutions_conflicting_beacon", f"revolution {msg.revolution}: " + refused
-            )
-        invalid = counts["bearings_invalid measurement"] + counts["bearings_unknown beacon"] - invalid_before
-        if invalid:
-            self.diagnostics.refuse(
-                "revolutions_with_invalid_bearings",
-                f"revolution {msg.revolution}: "
-                f"{invalid} bearing(s) refused (unknown beacon, non-finite value or "
-                "non-physical variance)",
-            )
+        self._remember_bearings(intake)
         self._changed = True
         self._publish()  # at once: the end-to-end latency from a revolution to the estimate stays small
 
     def _on_total_pose(self, msg: TriangulatedPose) -> None:
         if not (self.settings.use_total_pose and msg.accepted):
             return
-        if self._offer_pose(msg.header.stamp, msg.pose, operator=False) == "invalid":
+        if self._offer_pose(msg.header.stamp, msg.pose, operator=False) is PoseOutcome.INVALID:
             self.diagnostics.refuse("total_poses_refused", "accepted ToTal pose with a non-finite value")
 
     def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
@@ -177,24 +219,51 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         problem = operator_pose_problem(
             (position.x, position.y, position.z), (q.x, q.y, q.z, q.w), msg.pose.covariance
         )
+        problem = problem or pose_covariance_problem(planar_covariance(msg.pose.covariance))
         if problem:
             self.diagnostics.refuse("operator_poses_refused", problem)
             return False, f"operator pose refused: {problem}"
         what = self._offer_pose(msg.header.stamp, msg.pose, operator=True)
-        if what != "initialisations":
+        if what is not PoseOutcome.INITIALISED:
             self.diagnostics.refuse("operator_poses_refused", f"the filter did not take it: {what}")
             return False, f"operator pose refused by the filter: {what}"
         self.get_logger().info(f"operator pose: {what}")
+        self._changed = True  # published even at the instant of the last publication
         self._publish()
         return True, f"operator pose: {what}"
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
-        self.geometry = geometry = geometry_of_calibration(calibration)
+        geometry = geometry_of_calibration(calibration, self.parameters)  # ValueError: refused
+        worse = self._flag_worse_calibration(geometry)
+        self.geometry = geometry
         beacon_map, offset = geometry.beacon_map, geometry.turret_offset_m
         self.localiser.configure(beacon_map.as_dict(), offset, self.settings)
-        return f"beacons {list(beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
+        replaced = f"beacons {list(beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
+        return f"{replaced}; WARNING: {worse}" if worse else replaced
 
-    def _offer_pose(self, stamp, pose_with_covariance, *, operator: bool) -> str:
+    def _remember_bearings(self, intake: RevolutionIntake) -> None:
+        """Keep the revolution's bearings with the estimate at their instants (a new calibration is
+        compared on them)."""
+        for bearing in intake.kept:
+            pose = self.localiser.pose_at(bearing.stamp_s)
+            if pose is not None:
+                self.recent_bearings.add(BearingSample(pose, bearing.beacon_id, bearing.bearing_rad))
+
+    def _flag_worse_calibration(self, geometry: BeaconGeometry) -> str:
+        """Why a new geometry makes the recent bearings worse (flagged: WARN on /diagnostics, the status
+        degraded for CALIBRATION_FLAG_HOLD_S), or ''. Applied all the same: the estimate the bearings
+        are compared with was made under the old geometry, and the NIS test judges the new one."""
+        old, new = self.geometry, geometry
+        worse = self.recent_bearings.worse_problem(
+            (old.beacon_map.as_dict(), old.turret_offset_m), (new.beacon_map.as_dict(), new.turret_offset_m)
+        )
+        self.recent_bearings.clear()  # the poses kept were estimated under the old geometry
+        if worse:
+            self.diagnostics.refuse("calibrations_flagged_worse", worse)
+            self.health.fault("calibration_worse", self._now_s(), worse, CALIBRATION_FLAG_HOLD_S)
+        return worse
+
+    def _offer_pose(self, stamp, pose_with_covariance, *, operator: bool) -> PoseOutcome:
         return self.localiser.offer_pose(
             stamp_to_seconds(stamp),
             pose2d_of(pose_with_covariance.pose),
@@ -205,6 +274,8 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self.localiser.reset("manual_resets")
+        self.health.reset()
+        self.recent_bearings.clear()
         self._published_stamp_s = None
         response.success = True
         response.message = "EKF reset: waiting for a pose (beams/pose, ~/set_pose or /initialpose)"
@@ -247,29 +318,39 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
             self.tf_publisher.publish(planar_tf_message(odometry.header, self.odom_frame, map_to_odom))
 
     def _update_diagnostics(self, estimate: Estimate | None) -> None:
+        """The counters, and the status (`ekf_health`): its level and message, and `status` (waiting,
+        tracking, degraded or lost) as a value of its own."""
         stats = self.localiser.stats
         for key, value in stats.counts.items():
             self.diagnostics.set(key, value)
-        if estimate is None:
-            self.diagnostics.set_level("warn", WAITING_FOR_POSE)
-            return
-        self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
-        self.diagnostics.set("recent_gated_bearings", self.localiser.recent_gated_bearings)
-        self.diagnostics.set("lost_nis_window_sum", self.localiser.nis_monitor.window_sum)
-        since_s = (
-            estimate.stamp_s - stats.last_bearing_stamp_s
-            if stats.last_bearing_stamp_s is not None
-            else float("inf")
+        since_s = float("inf")
+        if estimate is not None:
+            self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
+            self.diagnostics.set("recent_gated_bearings", self.localiser.recent_gated_bearings)
+            self.diagnostics.set("lost_nis_window_sum", self.localiser.nis_monitor.window_sum)
+            if stats.last_bearing_stamp_s is not None:
+                since_s = estimate.stamp_s - stats.last_bearing_stamp_s
+            self.diagnostics.set("time_since_last_bearing_s", since_s)
+        now_s = self._now_s()
+        verdict = self.health.verdict(
+            now_s,
+            initialised=estimate is not None,
+            nis_lost=self.localiser.nis_monitor.lost,
+            kidnap_suspected=self.localiser.kidnap_suspected,
+            bearing_silence_s=since_s,
         )
-        self.diagnostics.set("time_since_last_bearing_s", since_s)
-        if since_s > 1.0:
-            self.diagnostics.set_level("warn", "no accepted bearing for more than 1 s: odometry only")
-        elif self.localiser.nis_monitor.lost:
-            self.diagnostics.set_level("warn", "lost: innovations too large, waiting for a ToTal pose")
-        elif self.localiser.kidnap_suspected:
-            self.diagnostics.set_level("warn", "bearings gated out: robot moved? waiting for a ToTal pose")
-        else:
-            self.diagnostics.set_level("ok", "tracking")
+        self.diagnostics.set("status", str(verdict.status))
+        self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
+        self.diagnostics.set("odometry_rate_hz", self.health.odometry_rate.rate_hz(now_s))
+        self.diagnostics.set_level(verdict.level, verdict.message)
+
+
+def _newest_stamp_s(intake: RevolutionIntake) -> float:
+    """The newest finite stamp of a revolution's bearings (kept or refused), nan without one."""
+    stamps = [
+        b.stamp_s for b in (*intake.kept, *(r.bearing for r in intake.refused)) if math.isfinite(b.stamp_s)
+    ]
+    return max(stamps) if stamps else math.nan
 
 
 def _fill_pose(pose_with_covariance, estimate: Estimate) -> None:

@@ -15,193 +15,40 @@ possible, thesis ch. 8 "System deployment") or the filter is lost (`NisMonitor`:
 innovations, over a sliding window, too large for the covariance: the next ToTal fix restarts it).
 Time going backwards (a rosbag played in a loop: consecutive odometry messages in the past, not one
 stray; `beams_common.time_jumps`) resets everything; odometry gaps inflate the covariance instead of
-freezing the filter.
+freezing the filter; an odometry increment beyond the robot's speed or yaw rate (a +100 m jump: issue
+18, `beams_common.plausibility`) is never predicted with: the sample becomes the new reference and the
+covariance grows by the most the robot could have moved (`Localiser._rereference`).
 
-ekf_node and the offline replay (`bag_replay`) share what lies between their inputs and the filter:
-`filter_settings` (parameter values to the filter's settings), `build_localiser`,
-and `Localiser.offer_pose` with its rules (`usable_covariance`, `operator_pose_stamp_s`).
+This module is the timing and the replay of late bearings; the consistency monitors are in
+`consistency` (NisMonitor, KidnapEvidence), the settings in `settings` (built from the parameters by
+`parameters.filter_settings`), the answers in `outcomes`. ekf_node and the offline replay (`bag_replay`)
+share what lies between their inputs and the filter: the bearing intake (`beams_common.bearing_intake`,
+`Localiser.on_intake`), `build_localiser`, and `Localiser.offer_pose` with its rules
+(`usable_covariance`, `operator_pose_stamp_s`).
 """
 
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field, fields
-from math import hypot, isfinite
-from typing import Any
+from dataclasses import dataclass, field
+from math import isfinite
 
 import numpy as np
-from scipy.stats import chi2
 
-from beams_common.angles import wrap_to_pi
 from beams_common.bearing import Bearing
+from beams_common.bearing_intake import RevolutionIntake, bearing_refusal, revolution_intake
+from beams_common.plausibility import MotionLimits, odometry_step_problem
 from beams_common.pose2d import Pose2D, between, compose, inverse, is_finite_pose
 from beams_common.pose_buffer import PoseBuffer
 from beams_common.time_jumps import StampOrder, TimeJumpDetector
-from beams_common.validation import bearing_problem, one_sighting_per_beacon, revolution_size_problem
-from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise, turret_pose
-from beams_ekf.odometry_errors import OdometryErrorStates
-from beams_ekf.pose_filter import BearingOutcome, PoseFilter
+from beams_common.validation import odometry_problem
+from beams_ekf.bearing_ekf import BearingEkf, turret_pose
+from beams_ekf.consistency import KidnapEvidence, NisMonitor
+from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
+from beams_ekf.pose_filter import BearingOutcome, BearingReason, PoseFilter, rejected
+from beams_ekf.settings import FilterSettings, LocaliserConfig
 
 # bearings waiting for odometry beyond this many are dropped, oldest first (a dead odometry source)
 MAX_PENDING_BEARINGS = 64
-
-
-@dataclass(frozen=True)
-class LocaliserConfig:
-    """Timing and re-initialisation parameters (defaults suit 50 Hz odometry and a 10 Hz turret)."""
-
-    odometry_history_s: float = 1.0
-    max_odometry_extrapolation_s: float = 0.05
-    # an odometry step longer than this is a gap: the covariance grows with its duration
-    odometry_gap_s: float = 0.25
-    gap_position_variance_m2_per_s: float = 1.0e-3
-    gap_heading_variance_rad2_per_s: float = 1.0e-3
-    # a gap never inflates more than this long (the table bounds how lost the robot can be)
-    max_gap_inflation_s: float = 10.0
-    # the filter is "lost" when at least kidnap_gated_bearings of the last kidnap_window_bearings new
-    # bearings were gated out (a consistent filter gates 1 - gate_probability of them); a lost filter
-    # takes ToTal's fix when the fix is elsewhere: inconsistent with the estimate (chi-square, 3 dof,
-    # at kidnap_probability, the two covariances summed) or farther than the distance/heading below
-    kidnap_gated_bearings: int = 6
-    kidnap_window_bearings: int = 12
-    kidnap_probability: float = 0.999
-    kidnap_distance_m: float = 0.25
-    kidnap_heading_rad: float = 0.35
-    # odometry stamps going back by more than this, in time_jump_confirmations consecutive messages,
-    # reset the filter (a bag loop); smaller steps, and a single stray old message, are dropped
-    time_jump_tolerance_s: float = 0.0
-    time_jump_confirmations: int = 2
-    # lost detection (NisMonitor): the NIS of the last lost_nis_window_bearings new bearings, summed,
-    # beyond the chi-square quantile at lost_nis_probability (0: the monitor is off)
-    lost_nis_window_bearings: int = 30
-    lost_nis_probability: float = 1.0 - 1.0e-6
-
-    def __post_init__(self) -> None:
-        if self.lost_nis_window_bearings < 0 or not 0.0 < self.lost_nis_probability < 1.0:
-            raise ValueError(
-                f"need lost_nis_window_bearings >= 0 and lost_nis_probability in (0, 1), got "
-                f"{self.lost_nis_window_bearings} and {self.lost_nis_probability}"
-            )
-        if not (
-            self.odometry_history_s > 0.0
-            and self.max_odometry_extrapolation_s >= 0.0
-            and self.odometry_gap_s > 0.0
-        ):
-            raise ValueError(
-                "odometry_history_s and odometry_gap_s must be > 0, max_odometry_extrapolation_s >= 0"
-            )
-        if not 1 <= self.kidnap_gated_bearings <= self.kidnap_window_bearings:
-            raise ValueError(
-                f"need 1 <= kidnap_gated_bearings <= kidnap_window_bearings, got "
-                f"{self.kidnap_gated_bearings} and {self.kidnap_window_bearings}"
-            )
-        if self.time_jump_confirmations < 1:
-            raise ValueError(f"time_jump_confirmations must be >= 1, got {self.time_jump_confirmations}")
-        if not 0.0 < self.kidnap_probability < 1.0:
-            raise ValueError(f"kidnap_probability must be in (0, 1), got {self.kidnap_probability}")
-
-
-# ekf_node's parameter name of each ProcessNoise field (those of LocaliserConfig are its field names)
-PROCESS_NOISE_PARAMETERS = {
-    "translation_m2_per_m": "translation_variance_m2_per_m",
-    "rotation_rad2_per_rad": "rotation_variance_rad2_per_rad",
-    "rotation_rad2_per_m": "rotation_variance_rad2_per_m",
-    "cross_track_m2_per_m": "cross_track_variance_m2_per_m",
-}
-# ekf_node's parameter name of each OdometryErrorStates prior (odometry_error_states switches them on)
-ODOMETRY_ERROR_PARAMETERS = {
-    "scale_sigma": "odometry_scale_sigma",
-    "rotation_scale_sigma": "odometry_rotation_scale_sigma",
-    "heading_drift_sigma_rad_per_m": "odometry_heading_drift_sigma_rad_per_m",
-}
-
-# The wheels' random error, variance per metre rolled, of the simulated robot (sim_world's OdometryDrift:
-# noise 1 mm/sqrt(m) is 1.0e-6; the random part of the half-normal slip, 0.005^2 (1 - 2/pi) of a step's
-# squared length, adds at most 0.09e-6 at the 1 cm steps of 0.5 m/s and 50 Hz), and its wheel base (m).
-WHEEL_VARIANCE_M2_PER_M = 1.1e-6
-WHEEL_BASE_M = 0.3
-
-
-@dataclass(frozen=True)
-class FilterSettings:
-    """What ekf_node takes from its parameters (besides the beacon geometry).
-
-    By default the filter estimates the odometry's systematic errors (`odometry_errors`), so its process
-    noise is the wheels' random noise alone (`ProcessNoise.wheel_noise`); without those states the
-    process noise must also cover the systematic errors as white noise (ProcessNoise's own defaults).
-    """
-
-    process_noise: ProcessNoise = field(
-        default_factory=lambda: ProcessNoise.wheel_noise(WHEEL_VARIANCE_M2_PER_M, WHEEL_BASE_M)
-    )
-    odometry_errors: OdometryErrorStates | None = field(default_factory=OdometryErrorStates)
-    # chi-square (1 dof) probability of the per-bearing gate
-    gate_probability: float = 0.999
-    localiser: LocaliserConfig = field(default_factory=LocaliserConfig)
-    # initialise (and re-initialise after a kidnapping) from ToTal's accepted poses
-    use_total_pose: bool = True
-    # standard deviations (m, m, rad) of a pose without a usable covariance
-    default_pose_sigma: tuple[float, float, float] = (0.05, 0.05, 0.1)
-
-    @property
-    def default_pose_covariance(self) -> np.ndarray:
-        """The 3x3 covariance of default_pose_sigma."""
-        return np.diag(np.square(self.default_pose_sigma))
-
-
-def filter_parameter_defaults() -> dict[str, Any]:
-    """ekf_node's filter parameters by name with their defaults (FilterSettings'), for declaring them."""
-    defaults = FilterSettings()
-    values: dict[str, Any] = {
-        parameter: getattr(defaults.process_noise, name)
-        for name, parameter in PROCESS_NOISE_PARAMETERS.items()
-    }
-    errors = defaults.odometry_errors or OdometryErrorStates()
-    values.update({parameter: getattr(errors, name) for name, parameter in ODOMETRY_ERROR_PARAMETERS.items()})
-    values["odometry_error_states"] = defaults.odometry_errors is not None
-    values.update({f.name: getattr(defaults.localiser, f.name) for f in fields(LocaliserConfig)})
-    values.update(
-        gate_probability=defaults.gate_probability,
-        use_total_pose=defaults.use_total_pose,
-        default_pose_sigma=list(defaults.default_pose_sigma),
-    )
-    return values
-
-
-def filter_settings(parameters: Mapping[str, Any]) -> FilterSettings:
-    """Settings from ekf_node's parameter values by name (a missing one takes its default).
-
-    Raises ValueError for values the settings refuse, alone or together (kidnap counts, sigma length).
-    """
-    defaults = FilterSettings()
-    noise = ProcessNoise(
-        **{
-            name: float(parameters.get(parameter, getattr(defaults.process_noise, name)))
-            for name, parameter in PROCESS_NOISE_PARAMETERS.items()
-        }
-    )
-    config = LocaliserConfig(
-        **{f.name: parameters[f.name] for f in fields(LocaliserConfig) if f.name in parameters}
-    )
-    sigma = tuple(float(v) for v in parameters.get("default_pose_sigma", defaults.default_pose_sigma))
-    if len(sigma) != 3:
-        raise ValueError(f"default_pose_sigma needs 3 values (x, y, yaw), got {list(sigma)}")
-    errors = None
-    if parameters.get("odometry_error_states", defaults.odometry_errors is not None):
-        prior = defaults.odometry_errors or OdometryErrorStates()
-        errors = OdometryErrorStates(
-            **{
-                name: float(parameters.get(parameter, getattr(prior, name)))
-                for name, parameter in ODOMETRY_ERROR_PARAMETERS.items()
-            }
-        )
-    return FilterSettings(
-        noise,
-        errors,
-        float(parameters.get("gate_probability", defaults.gate_probability)),
-        config,
-        bool(parameters.get("use_total_pose", defaults.use_total_pose)),
-        sigma,
-    )
 
 
 def usable_covariance(covariance: np.ndarray, default: np.ndarray) -> np.ndarray:
@@ -230,65 +77,6 @@ class _Slot:
     bearings: list[Bearing] = field(default_factory=list)
 
 
-class NisMonitor:
-    """Lost detection on the bearings' innovations: a consistent filter's normalised innovations squared
-    (NIS, r^2 / S) are independent chi-square (1 dof) draws, so the sum over the last n bearings is
-    chi-square with n dof; a sum beyond its quantile at `probability` says the estimate (or its
-    covariance) is wrong. Each NIS counts at most the gate's threshold (a gated-out bearing says "beyond
-    the gate", and one wild reflection must not make the filter lost on its own); the test runs on the
-    bearings so far until the window fills (a lost start is caught within a few bearings)."""
-
-    def __init__(self, window_bearings: int, probability: float, gate: float) -> None:
-        self._nis: deque[float] = deque(maxlen=max(window_bearings, 1))
-        self.enabled = window_bearings > 0
-        self._gate = gate
-        self._thresholds = [float("inf")] + [
-            float(chi2.ppf(probability, df=n)) for n in range(1, max(window_bearings, 1) + 1)
-        ]
-
-    def add(self, nis: float) -> bool:
-        """Record one new bearing's NIS (gated ones too); True when that makes the filter lost."""
-        was_lost = self.lost
-        self._nis.append(min(nis, self._gate) if isfinite(nis) else self._gate)
-        return self.lost and not was_lost
-
-    @property
-    def window_sum(self) -> float:
-        """The capped NIS summed over the window (a diagnostic)."""
-        return float(sum(self._nis))
-
-    @property
-    def lost(self) -> bool:
-        """True when the window's NIS sum exceeds the chi-square quantile for its length."""
-        return self.enabled and self.window_sum > self._thresholds[len(self._nis)]
-
-    def clear(self) -> None:
-        self._nis.clear()
-
-
-def _rejected(reason: str) -> BearingOutcome:
-    return BearingOutcome(False, float("nan"), float("nan"), reason)
-
-
-@dataclass
-class Estimate:
-    """The filter's output at its instant."""
-
-    stamp_s: float
-    pose: Pose2D
-    covariance: np.ndarray
-    # robot-frame velocity (v_x, v_y, omega) from the last two odometry samples
-    twist: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    # the odometry pose (odom frame) at stamp_s; None before any odometry
-    odom_pose: Pose2D | None = None
-
-    @property
-    def map_to_odom(self) -> Pose2D | None:
-        """The map -> odom transform (REP-105: the localisation's correction of the odometry's drift) that
-        puts the odometry pose on the estimate; None without odometry."""
-        return None if self.odom_pose is None else compose(self.pose, inverse(self.odom_pose))
-
-
 @dataclass
 class LocaliserCounters:
     """Counts for diagnostics (names are the diagnostic keys)."""
@@ -301,17 +89,30 @@ class Localiser:
     """Odometry history + a PoseFilter (BearingEkf by default) + initialisation, kidnap and time-jump
     logic."""
 
-    def __init__(self, ekf: PoseFilter, config: LocaliserConfig | None = None) -> None:
+    def __init__(
+        self,
+        ekf: PoseFilter,
+        config: LocaliserConfig | None = None,
+        motion_limits: MotionLimits | None = None,
+    ) -> None:
         self.ekf = ekf
         self.config = config or LocaliserConfig()
+        self.motion_limits = motion_limits or MotionLimits()
+        # why the last odometry jump was refused ('' before any)
+        self.last_odometry_jump = ""
         self.history = PoseBuffer(self.config.odometry_history_s, self.config.max_odometry_extrapolation_s)
         self.stats = LocaliserCounters()
-        # gated (True) or accepted (False), for the last new bearings: the kidnap evidence
-        self._recent_gated: deque[bool] = deque(maxlen=self.config.kidnap_window_bearings)
+        config = self.config
+        self.kidnap = KidnapEvidence(
+            config.kidnap_window_bearings,
+            config.kidnap_gated_bearings,
+            config.kidnap_probability,
+            config.kidnap_distance_m,
+            config.kidnap_heading_rad,
+        )
         self._time_jumps = TimeJumpDetector(
             self.config.time_jump_tolerance_s, self.config.time_jump_confirmations
         )
-        self._kidnap_threshold = float(chi2.ppf(self.config.kidnap_probability, df=3))
         self.nis_monitor = NisMonitor(
             self.config.lost_nis_window_bearings, self.config.lost_nis_probability, ekf.gate
         )
@@ -328,17 +129,18 @@ class Localiser:
         self,
         beacons_xy: Mapping[int, Sequence[float]],
         sensor_offset_m: tuple[float, float],
-        settings: "FilterSettings",
+        settings: FilterSettings,
     ) -> None:
         """New beacon geometry, process noise and bearing gate (a runtime parameter change, a calibration
-        reload); the estimate and the odometry history stay."""
+        reload) and motion limits; the estimate and the odometry history stay."""
+        self.motion_limits = settings.motion_limits
         self.ekf.configure(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability)
 
     def reset(self, reason: str = "reset") -> None:
         """Forget the estimate and the odometry; the filter waits for a pose."""
         self.ekf.reset()
         self.history.clear()
-        self._recent_gated.clear()
+        self.kidnap.clear()
         self.nis_monitor.clear()
         self._stamp_s = None
         self._pending.clear()
@@ -346,39 +148,65 @@ class Localiser:
         self.stats.counts[reason] += 1
 
     # -- odometry -------------------------------------------------------------------------------------
-    def on_odometry(self, stamp_s: float, odom_pose: Pose2D) -> str:
+    def on_odometry(self, stamp_s: float, odom_pose: Pose2D) -> OdometryOutcome:
         """Predict with the motion since the previous odometry pose. Returns what happened."""
-        if not (isfinite(stamp_s) and is_finite_pose(odom_pose)):
+        if odometry_problem(stamp_s, odom_pose):  # ekf_node reports the outcome
             self.stats.counts["odometry_invalid"] += 1
-            return "invalid"
+            return OdometryOutcome.INVALID
         latest = self.history.latest
         order = self._time_jumps.classify(stamp_s, None if latest is None else latest[0])
         if order in (StampOrder.STALE, StampOrder.HELD):
             # held: stamped far in the past, a stray message unless the next ones confirm a jump
             self.stats.counts["odometry_stale" if order is StampOrder.STALE else "odometry_back_in_time"] += 1
-            return order.value
+            return OdometryOutcome.STALE if order is StampOrder.STALE else OdometryOutcome.HELD
         if order is StampOrder.JUMP:
             self.reset("time_jump_resets")
             latest = None
         self.stats.counts["odometry"] += 1
+        jump = (
+            ""
+            if latest is None
+            else odometry_step_problem(stamp_s - latest[0], between(latest[1], odom_pose), self.motion_limits)
+        )
+        if jump:
+            self._rereference(stamp_s, odom_pose, stamp_s - latest[0], jump)
+            return OdometryOutcome.JUMPED
         if latest is None or not self.ekf.initialised:
             self.history.append(stamp_s, odom_pose, _Slot(self.ekf.state()) if self.ekf.initialised else None)
             self._stamp_s = stamp_s if self.ekf.initialised else None
-            return "reference"
+            return OdometryOutcome.REFERENCE
         if stamp_s - latest[0] > self.config.odometry_gap_s:
             self.stats.counts["odometry_gaps"] += 1
         self._advance(latest[0], latest[1], stamp_s, odom_pose)
         self.history.append(stamp_s, odom_pose, _Slot(self.ekf.state()))
         self._stamp_s = stamp_s
         self._apply_pending(stamp_s)
-        return "predicted"
+        return OdometryOutcome.PREDICTED
+
+    def _rereference(self, stamp_s: float, odom_pose: Pose2D, interval_s: float, reason: str) -> None:
+        """An odometry increment the robot cannot make (`plausibility.odometry_step_problem`): a reset or a
+        fault of the odometry source. The history (poses of the odometry's old frame, which would carry
+        a late bearing or a ToTal fix across the jump) is dropped, the sample becomes the reference, and
+        the covariance grows by the largest motion the robot could have made over the interval (its
+        motion there is unknown). The estimate never follows the jump."""
+        self.stats.counts["odometry_jumps"] += 1
+        self.last_odometry_jump = reason
+        self.history.clear()
+        if not self.ekf.initialised:
+            self.history.append(stamp_s, odom_pose, None)
+            return
+        max_translation_m, max_rotation_rad = self.motion_limits.max_step(interval_s)
+        self.ekf.add_time_noise(max_translation_m**2, max_rotation_rad**2)
+        self.history.append(stamp_s, odom_pose, _Slot(self.ekf.state()))
+        self._stamp_s = stamp_s
+        self._apply_pending(stamp_s)
 
     def _apply_pending(self, newest_s: float) -> None:
         """Apply the waiting bearings the odometry now covers."""
         ready = [b for b in self._pending if b.stamp_s <= newest_s]
         if ready:
             self._pending = [b for b in self._pending if b.stamp_s > newest_s]
-            self.on_bearings(ready)
+            self._apply_bearings(ready)  # taken in by on_intake or on_bearings already
 
     def _advance(self, from_s: float, from_pose: Pose2D, to_s: float, to_pose: Pose2D) -> None:
         """Predict over one odometry step; a long silence of odometry (the robot may have slipped)
@@ -401,28 +229,31 @@ class Localiser:
         then = self.history.pose_at(stamp_s)
         return None if then is None else between(then, latest[1])
 
+    def pose_at(self, stamp_s: float) -> Pose2D | None:
+        """The estimate carried back to stamp_s by the odometry since (map frame); None before the filter
+        is initialised or when the history does not cover stamp_s (without odometry: the estimate)."""
+        if not self.ekf.initialised:
+            return None
+        if self.history.latest is None:
+            return self.ekf.pose
+        motion = self._motion_since(stamp_s)
+        return None if motion is None else compose(self.ekf.pose, inverse(motion))
+
     # -- bearings -------------------------------------------------------------------------------------
-    def on_revolution(self, bearings: Sequence[Bearing]) -> str:
-        """One revolution's bearings (a beams/bearings message): refused whole beyond
-        MAX_BEARINGS_PER_REVOLUTION, then one sighting per beacon (`validation.one_sighting_per_beacon`,
-        the triangulation's rule), then `on_bearings`. A beacon seen again at another instant (a robot
-        turning against the turret) keeps the sighting nearest the revolution's middle, counted in
-        `bearings_repeated_beacon`; a beacon seen twice at one instant is not physical: its bearings are
-        refused. Returns the reason of a refusal ('' when none); every case is counted."""
-        problem = revolution_size_problem(len(bearings))
-        if problem:
+    def on_revolution(self, bearings: Sequence[Bearing]) -> RevolutionIntake:
+        """One revolution's bearings (a beams/bearings message) through the bearing intake
+        (`beams_common.bearing_intake.revolution_intake`, the triangulation's rules), then `on_intake`."""
+        return self.on_intake(revolution_intake(bearings, self.ekf.beacons_xy))
+
+    def on_intake(self, intake: RevolutionIntake) -> RevolutionIntake:
+        """A revolution the bearing intake sorted out: its refusals counted (`bearings_<refusal>`,
+        `revolutions_too_many_bearings`), the bearings kept applied (`on_bearings` without the intake's
+        rules again). Returns the intake, for the caller to report."""
+        if intake.too_many:
             self.stats.counts["revolutions_too_many_bearings"] += 1
-            return problem
-        sightings = one_sighting_per_beacon(bearings)
-        conflicting = set(sightings.conflicting_ids)
-        repeated = sum(b.beacon_id not in conflicting for b in sightings.dropped)
-        if repeated:
-            self.stats.counts["bearings_repeated_beacon"] += repeated
-        self.on_bearings([b for b in sightings.kept if b.beacon_id not in conflicting])
-        if not conflicting:
-            return ""
-        self.stats.counts["bearings_conflicting_beacon"] += sum(b.beacon_id in conflicting for b in bearings)
-        return f"beacon(s) {sorted(conflicting)} seen twice at one instant (not physical): bearings refused"
+        self.stats.counts.update(intake.counts())
+        self._apply_bearings(intake.kept)
+        return intake
 
     def on_bearing(
         self, stamp_s: float, beacon_id: int, bearing_rad: float, variance_rad2: float
@@ -431,7 +262,27 @@ class Localiser:
         return self.on_bearings([Bearing(stamp_s, beacon_id, bearing_rad, variance_rad2)])[0]
 
     def on_bearings(self, bearings: Sequence[Bearing]) -> list[BearingOutcome]:
-        """Apply bearings (typically one revolution's), each at its own stamp; outcomes in the given order.
+        """Apply bearings each at its own stamp, a bearing the intake's rule refuses
+        (`bearing_intake.bearing_refusal`: unknown beacon, invalid measurement) excepted; outcomes in the
+        given order. A revolution goes through `on_revolution` (one sighting per beacon too)."""
+        if not self.ekf.initialised:
+            return [self._count(rejected(BearingReason.UNINITIALISED)) for _ in bearings]
+        outcomes: dict[int, BearingOutcome] = {}
+        valid: list[tuple[int, Bearing]] = []
+        for n, bearing in enumerate(bearings):
+            # refused before scheduling: a bad bearing must not make the filter go back and re-filter
+            refusal = bearing_refusal(bearing, self.ekf.beacons_xy)
+            if refusal is None:
+                valid.append((n, bearing))
+            else:
+                outcomes[n] = self._count(rejected(BearingReason(refusal.refusal.value)))
+        applied = self._apply_bearings([b for _, b in valid])
+        outcomes.update((n, outcome) for (n, _), outcome in zip(valid, applied, strict=True))
+        return [outcomes[n] for n in range(len(bearings))]
+
+    def _apply_bearings(self, bearings: Sequence[Bearing]) -> list[BearingOutcome]:
+        """Apply valid bearings (typically one revolution's), each at its own stamp; outcomes in the given
+        order.
 
         The filter goes back to its state at the odometry sample before the earliest stamp, applies the
         bearings of each odometry interval in stamp order (those already applied there again, so any
@@ -441,16 +292,9 @@ class Localiser:
         it was measured: the filter would become overconfident.
         """
         if not self.ekf.initialised:
-            return [self._count(_rejected("uninitialised")) for _ in bearings]
+            return [self._count(rejected(BearingReason.UNINITIALISED)) for _ in bearings]
         outcomes: dict[int, BearingOutcome] = {}
-        valid: list[tuple[int, Bearing]] = []
-        for n, bearing in enumerate(bearings):
-            # refused before scheduling: a bad bearing must not make the filter go back and re-filter
-            problem = self._invalid_reason(bearing)
-            if problem:
-                outcomes[n] = self._count(_rejected(problem))
-            else:
-                valid.append((n, bearing))
+        valid = list(enumerate(bearings))
         if len(self.history) == 0:  # no odometry: the robot is taken as still
             outcomes.update((n, self._count(self._apply(b, (0.0, 0.0, 0.0)))) for n, b in valid)
             return [outcomes[n] for n in range(len(bearings))]
@@ -461,26 +305,12 @@ class Localiser:
             if index is None and self._ahead_of_odometry(bearing.stamp_s):
                 outcomes[n] = self._defer(bearing)
             elif index is None:
-                outcomes[n] = self._count(_rejected("outside_history"))
+                outcomes[n] = self._count(rejected(BearingReason.OUTSIDE_HISTORY))
             else:
                 scheduled.setdefault(index, []).append((bearing, n))
         if scheduled:
             self._replay(scheduled, outcomes)
         return [outcomes[n] for n in range(len(bearings))]
-
-    def _invalid_reason(self, bearing: Bearing) -> str:
-        """Why the filter can never use a bearing (`validation.bearing_problem`, the triangulation's rule
-        too), as a counter name, or an empty string."""
-        problem = bearing_problem(
-            bearing.beacon_id,
-            bearing.bearing_rad,
-            bearing.variance_rad2,
-            bearing.stamp_s,
-            self.ekf.beacons_xy,
-        )
-        if not problem:
-            return ""
-        return "unknown beacon" if bearing.beacon_id not in self.ekf.beacons_xy else "invalid measurement"
 
     def _ahead_of_odometry(self, stamp_s: float) -> bool:
         """True for a stamp after the newest odometry (past extrapolation) but within the history span."""
@@ -493,7 +323,7 @@ class Localiser:
         if len(self._pending) > MAX_PENDING_BEARINGS:
             self._pending.pop(0)
             self.stats.counts["bearings_dropped_pending"] += 1
-        return self._count(_rejected("deferred"))
+        return self._count(rejected(BearingReason.DEFERRED))
 
     def _replay_index(self, stamp_s: float, first_valid: int) -> int | None:
         """History index (negative, from the newest) to apply a bearing at stamp_s, or None."""
@@ -546,28 +376,27 @@ class Localiser:
         """Record whether a new bearing was gated (kidnap evidence) and the last accepted one."""
         if outcome.accepted:
             self.stats.last_bearing_stamp_s = bearing.stamp_s
-        if outcome.accepted or outcome.reason == "gated":
-            self._recent_gated.append(not outcome.accepted)
+        if outcome.accepted or outcome.reason is BearingReason.GATED:
+            self.kidnap.add(not outcome.accepted)
             if self.nis_monitor.add(outcome.nis):
                 self.stats.counts["lost_detections"] += 1
 
     def _count(self, outcome: BearingOutcome) -> BearingOutcome:
-        self.stats.counts["bearings_accepted" if outcome.accepted else f"bearings_{outcome.reason}"] += 1
+        self.stats.counts[f"bearings_{outcome.reason}"] += 1
         return outcome
 
     @property
     def recent_gated_bearings(self) -> int:
         """Gated bearings among the last kidnap_window_bearings new ones (a diagnostic)."""
-        return sum(self._recent_gated)
+        return self.kidnap.recent_gated_bearings
 
     @property
     def kidnap_suspected(self) -> bool:
-        """True when at least kidnap_gated_bearings of the last kidnap_window_bearings were gated out
-        (a filter initialised a little wrong, and overconfident, still accepts some bearings in between)."""
-        return self.recent_gated_bearings >= self.config.kidnap_gated_bearings
+        """True when at least kidnap_gated_bearings of the last kidnap_window_bearings were gated out."""
+        return self.kidnap.suspected
 
     # -- poses ----------------------------------------------------------------------------------------
-    def on_pose(self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, *, operator: bool) -> str:
+    def on_pose(self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, *, operator: bool) -> PoseOutcome:
         """A pose from ToTal (operator=False) or an operator (True). Returns what it did.
 
         An operator's pose always (re)initialises (one older than the odometry history is taken as
@@ -578,20 +407,22 @@ class Localiser:
         """
         if not (isfinite(stamp_s) and is_finite_pose(pose)):
             self.stats.counts["poses_invalid"] += 1
-            return "invalid"
+            return PoseOutcome.INVALID
         motion = self._motion_since(stamp_s)
         if motion is None and not operator:
             # the robot moved since the fix by an unknown amount (0.1 m in 0.2 s at 0.5 m/s)
             self.stats.counts["poses_outside_history"] += 1
-            return "outside_history"
+            return PoseOutcome.OUTSIDE_HISTORY
         pose_now = pose if motion is None else compose(pose, motion)
         if operator or not self.ekf.initialised:
-            return self._initialise(stamp_s, pose_now, covariance, "initialisations")
-        if self.kidnap_suspected and self._far_from_estimate(pose_now, covariance):
-            return self._initialise(stamp_s, pose_now, covariance, "kidnap_reinitialisations")
+            return self._initialise(stamp_s, pose_now, covariance, PoseOutcome.INITIALISED)
+        if self.kidnap.suspected and self.kidnap.elsewhere(
+            pose_now, covariance, self.ekf.pose, self.ekf.covariance
+        ):
+            return self._initialise(stamp_s, pose_now, covariance, PoseOutcome.KIDNAP_REINITIALISED)
         if self.nis_monitor.lost:
-            return self._initialise(stamp_s, pose_now, covariance, "lost_reinitialisations")
-        return "ignored"
+            return self._initialise(stamp_s, pose_now, covariance, PoseOutcome.LOST_REINITIALISED)
+        return PoseOutcome.IGNORED
 
     def offer_pose(
         self,
@@ -601,7 +432,7 @@ class Localiser:
         default_covariance: np.ndarray,
         *,
         operator: bool,
-    ) -> str:
+    ) -> PoseOutcome:
         """`on_pose` for a pose from a message: an unusable covariance replaced by the default
         (`usable_covariance`), an operator's stamp by "now" (`operator_pose_stamp_s`)."""
         if operator:
@@ -610,30 +441,15 @@ class Localiser:
         usable = usable_covariance(covariance, default_covariance)
         return self.on_pose(stamp_s, pose, usable, operator=operator)
 
-    def _far_from_estimate(self, pose: Pose2D, covariance: np.ndarray) -> bool:
-        """True when `pose` (of `covariance`) is inconsistent with the estimate or beyond the absolute
-        thresholds: the squared Mahalanobis distance of the difference, under the sum of the two
-        covariances, above the chi-square (3 dof) quantile at kidnap_probability."""
-        x, y, theta = self.ekf.pose
-        difference = np.array([pose[0] - x, pose[1] - y, wrap_to_pi(pose[2] - theta)])
-        combined = self.ekf.covariance + np.asarray(covariance, dtype=float).reshape(3, 3)
-        try:
-            distance2 = float(difference @ np.linalg.solve(combined, difference))
-        except np.linalg.LinAlgError:
-            distance2 = float("inf")
-        return (
-            not distance2 <= self._kidnap_threshold
-            or hypot(difference[0], difference[1]) > self.config.kidnap_distance_m
-            or abs(difference[2]) > self.config.kidnap_heading_rad
-        )
-
-    def _initialise(self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, counter: str) -> str:
+    def _initialise(
+        self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, outcome: PoseOutcome
+    ) -> PoseOutcome:
         try:
             self.ekf.initialise(pose, covariance)
         except ValueError:
             self.stats.counts["poses_invalid"] += 1
-            return "invalid"
-        self._recent_gated.clear()
+            return PoseOutcome.INVALID
+        self.kidnap.clear()
         self.nis_monitor.clear()
         # the states kept for late bearings belong to the old estimate
         for index in range(len(self.history)):
@@ -642,8 +458,8 @@ class Localiser:
         if latest is not None:
             self.history.set_payload(-1, _Slot(self.ekf.state()))
         self._stamp_s = latest[0] if latest is not None else stamp_s
-        self.stats.counts[counter] += 1
-        return counter
+        self.stats.counts[outcome.value] += 1
+        return outcome
 
     # -- output ---------------------------------------------------------------------------------------
     def estimate(self) -> Estimate | None:
@@ -675,4 +491,4 @@ def build_localiser(
         settings.gate_probability,
         settings.odometry_errors,
     )
-    return Localiser(ekf, settings.localiser)
+    return Localiser(ekf, settings.localiser, settings.motion_limits)

@@ -11,6 +11,7 @@ implementation; test_ekf_pose_filter_plugin.py runs the Localiser with a second 
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Any, Protocol
 
 import numpy as np
@@ -18,15 +19,37 @@ import numpy as np
 from beams_common.pose2d import Pose2D
 
 
+class BearingReason(StrEnum):
+    """What became of one bearing (the value is the counter's suffix: `bearings_<value>`): the filter's
+    answers (update_bearing) and the Localiser's (when it applies a bearing)."""
+
+    ACCEPTED = "accepted"
+    GATED = "gated"
+    UNINITIALISED = "uninitialised"
+    UNKNOWN_BEACON = "unknown_beacon"
+    INVALID_MEASUREMENT = "invalid_measurement"
+    SENSOR_ON_BEACON = "sensor_on_beacon"
+    # a filter that does not use bearings (a dead-reckoning plugin)
+    NOT_USED = "not_used"
+    # the Localiser's: stamped after the newest odometry (waits for it), or before the odometry history
+    DEFERRED = "deferred"
+    OUTSIDE_HISTORY = "outside_history"
+
+
 @dataclass(frozen=True)
 class BearingOutcome:
-    """What one bearing did to the filter: accepted, or why not ('gated', 'unknown beacon', ...)."""
+    """What one bearing did to the filter: accepted, or why not."""
 
     accepted: bool
     # squared Mahalanobis distance of the innovation (chi-square, 1 dof, under the model)
     nis: float
     residual_rad: float
-    reason: str = ""
+    reason: BearingReason = BearingReason.ACCEPTED
+
+
+def rejected(reason: BearingReason) -> BearingOutcome:
+    """A bearing not used, for `reason` (no innovation)."""
+    return BearingOutcome(False, float("nan"), float("nan"), reason)
 
 
 class PoseFilter(Protocol):

@@ -119,10 +119,10 @@ def test_gate_threshold_is_the_chi_square_quantile():
 @pytest.mark.parametrize(
     ("beacon_id", "bearing", "variance", "reason"),
     [
-        (9, 0.0, 1e-6, "unknown beacon"),
-        (1, float("nan"), 1e-6, "invalid measurement"),
-        (1, 0.0, 0.0, "invalid measurement"),
-        (1, 0.0, float("inf"), "invalid measurement"),
+        (9, 0.0, 1e-6, "unknown_beacon"),
+        (1, float("nan"), 1e-6, "invalid_measurement"),
+        (1, 0.0, 0.0, "invalid_measurement"),
+        (1, 0.0, float("inf"), "invalid_measurement"),
     ],
 )
 def test_invalid_bearings_are_refused_without_touching_the_state(beacon_id, bearing, variance, reason):

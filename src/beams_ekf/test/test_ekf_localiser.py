@@ -15,6 +15,7 @@ from beams_common.bearing import Bearing
 from beams_common.pose2d import compose
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Localiser, LocaliserConfig
+from beams_ekf.pose_filter import BearingReason
 from beams_ekf.replay import accuracy, replay
 from beams_ekf.synthetic import SyntheticMatch, synthetic_match
 
@@ -232,7 +233,7 @@ def test_non_finite_inputs_never_reach_the_state(match, bad):
     before = localiser.estimate().pose
     assert localiser.on_odometry(1.5, bad) == "invalid"
     assert localiser.on_pose(1.5, bad, np.eye(3), operator=True) == "invalid"
-    assert localiser.on_bearing(0.95, 1, float("nan"), 1e-6).reason == "invalid measurement"
+    assert localiser.on_bearing(0.95, 1, float("nan"), 1e-6).reason == BearingReason.INVALID_MEASUREMENT
     assert localiser.estimate().pose == before
 
 

@@ -19,11 +19,10 @@ from beams_ekf.localiser import (
     Localiser,
     LocaliserConfig,
     build_localiser,
-    filter_parameter_defaults,
-    filter_settings,
     operator_pose_stamp_s,
     usable_covariance,
 )
+from beams_ekf.parameters import EKF_PARAMETERS, FILTER_SPECS, filter_settings
 from beams_ekf.synthetic import SyntheticMatch, synthetic_match
 
 EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
@@ -83,8 +82,8 @@ def test_bad_bearings_change_nothing_bit_for_bit(match):
     assert spoilt_trace == clean_trace
     revolutions = len(clean_trace)
     counts = spoilt.stats.counts
-    assert counts["bearings_unknown beacon"] == len(range(1, revolutions, 3))
-    assert counts["bearings_invalid measurement"] == 3 * len(range(1, revolutions, 3))
+    assert counts["bearings_unknown_beacon"] == len(range(1, revolutions, 3))
+    assert counts["bearings_invalid_measurement"] == 3 * len(range(1, revolutions, 3))
     assert counts["bearings_accepted"] == clean.stats.counts["bearings_accepted"] > 0
 
 
@@ -158,10 +157,11 @@ def test_settings_from_the_node_parameter_file():
 
 
 def test_declared_defaults_are_the_settings_and_the_documented_ones():
-    """ekf_node declares its parameters with filter_parameter_defaults: they map back to the default
-    settings, and the documented YAML file gives the same values."""
-    defaults = filter_parameter_defaults()
+    """ekf_node declares its parameters with the specs' defaults: they map back to the default settings,
+    and the documented YAML file gives the same values."""
+    defaults = {spec.name: spec.default for spec in FILTER_SPECS}
     assert filter_settings(defaults) == FilterSettings()
+    assert {name: EKF_PARAMETERS[name].default for name in defaults} == defaults
     documented = node_section(yaml.safe_load(CONFIG.read_text()), "ekf_node")
     shared = set(defaults) & set(documented)
     assert len(shared) == 24

@@ -10,7 +10,7 @@ from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.pose2d import Pose2D, compose
 from beams_ekf.bearing_ekf import BearingEkf, gate_threshold
 from beams_ekf.localiser import Localiser
-from beams_ekf.pose_filter import BearingOutcome, PoseFilter
+from beams_ekf.pose_filter import BearingOutcome, BearingReason, PoseFilter, rejected
 from beams_ekf.replay import accuracy, replay
 from beams_ekf.synthetic import synthetic_match
 
@@ -66,7 +66,7 @@ class DeadReckoning:
         self._covariance = self._covariance + np.diag([position_variance_m2] * 2 + [heading_variance_rad2])
 
     def update_bearing(self, beacon_id, bearing_rad, variance_rad2, lever=None) -> BearingOutcome:
-        return BearingOutcome(False, float("nan"), float("nan"), "not used")
+        return rejected(BearingReason.NOT_USED)
 
 
 def test_a_second_pose_filter_runs_in_the_unchanged_localiser():

@@ -22,7 +22,7 @@ from rclpy.time import Time
 from tf2_msgs.msg import TFMessage
 
 from beams_common import topics
-from beams_common.rate_monitor import RateMonitor
+from beams_common.health import RATE_WINDOW_S, RateMonitor
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.messages import planar_tf_message, ros_covariance, set_pose2d
 from beams_common.ros.node_support import TF_QOS, Diagnostics, run_node
@@ -71,7 +71,12 @@ class SimWorldNode(GuardedCallbacks, Node):
         self.odometry_rate = RateStatus(
             self.diagnostics,
             "odometry",
-            RateMonitor(rate_hz, rate_hz, tolerance=ODOMETRY_RATE_TOLERANCE, what="odometry"),
+            RateMonitor(
+                "odometry",
+                RATE_WINDOW_S,
+                rate_hz * (1.0 - ODOMETRY_RATE_TOLERANCE),
+                rate_hz * (1.0 + ODOMETRY_RATE_TOLERANCE),
+            ),
         )
         self.create_timer(1.0 / rate_hz, self._tick)
         self.get_logger().info(

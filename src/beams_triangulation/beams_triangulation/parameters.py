@@ -4,7 +4,9 @@ from collections.abc import Mapping
 from typing import Any
 
 from beams_common.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SPECS
+from beams_common.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, rates_check
 from beams_common.parameters import ParameterSpec, ParameterTable
+from beams_common.plausibility import MOTION_SPECS, STAMP_SPECS, motion_limits_of
 from beams_triangulation.gating import GateConfig
 from beams_triangulation.pipeline import TriangulationSettings
 
@@ -52,8 +54,12 @@ TRIANGULATION_PARAMETERS = ParameterTable(
         ),
         ParameterSpec("map_frame", "map", "Frame of the published poses.", runtime=True),
         ParameterSpec("publish_markers", True, "Publish RViz markers.", runtime=True),
+        *MOTION_SPECS,
+        *STAMP_SPECS,
+        *BEARING_RATE_SPECS,
+        ODOMETRY_RATE_SPEC,
     ),
-    GEOMETRY_CHECKS,
+    (*GEOMETRY_CHECKS, rates_check),
 )
 
 
@@ -66,4 +72,5 @@ def triangulation_settings(parameters: Mapping[str, Any]) -> TriangulationSettin
         use_odometry=bool(values["use_odometry"]),
         odometry_history_s=float(values["odometry_history_s"]),
         max_odometry_extrapolation_s=float(values["max_odometry_extrapolation_s"]),
+        motion_limits=motion_limits_of(values),
     )

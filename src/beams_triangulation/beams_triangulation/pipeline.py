@@ -1,22 +1,25 @@
-"""The per-revolution pipeline triangulation_node runs (and the offline replay): each revolution through a
-`RevolutionEstimator` (gating.estimate_revolution with the motion seen between revolutions), odometry
-into an odometry buffer, a revolution the odometry does not cover yet waiting for it
-(`TriangulationPipeline`). parameters.triangulation_settings maps the node's parameters to its settings."""
+"""The per-revolution pipeline triangulation_node runs (and the offline replay): each revolution, sorted out
+by the bearing intake, through a `revolution.RevolutionEstimator` (with the motion seen between
+revolutions), odometry into an odometry buffer, a revolution the odometry does not cover yet waiting for
+it (`TriangulationPipeline`). parameters.triangulation_settings maps the node's parameters to its
+settings."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 from beams_common.beacon_map import BeaconMap
 from beams_common.bearing import Bearing
-from beams_common.pose_buffer import twist_between
-from beams_triangulation.gating import GateConfig, PoseEstimate, RevolutionPose, estimate_revolution
-from beams_triangulation.motion_compensation import (
-    odometry_buffer,
-)
+from beams_common.bearing_intake import RevolutionIntake, revolution_intake
+from beams_common.plausibility import MotionLimits, odometry_step_problem
+from beams_common.pose2d import between
+from beams_common.validation import odometry_problem
+from beams_triangulation.gating import GateConfig
+from beams_triangulation.motion_compensation import odometry_buffer
+from beams_triangulation.revolution import RevolutionEstimator, RevolutionPose
 
 
 @dataclass(frozen=True)
@@ -28,40 +31,8 @@ class TriangulationSettings:
     use_odometry: bool = True
     odometry_history_s: float = 2.0
     max_odometry_extrapolation_s: float = 0.05
-
-
-class RevolutionEstimator:
-    """`estimate_revolution` for a stream of revolutions, remembering the last pose so that, without
-    odometry, the motion seen between revolutions inflates the variances (what the node runs)."""
-
-    def __init__(
-        self,
-        beacon_map: BeaconMap,
-        config: GateConfig | None = None,
-        turret_offset_m: Sequence[float] = (0.0, 0.0),
-    ) -> None:
-        self.beacon_map = beacon_map
-        self.config = config or GateConfig()
-        self.turret_offset_m = (float(turret_offset_m[0]), float(turret_offset_m[1]))
-        self._last: tuple[tuple[float, float, float], float] | None = None
-
-    def update(
-        self,
-        bearings: Sequence[Bearing],
-        odometry_at: Callable[[float], Sequence[float] | None] | None = None,
-    ) -> RevolutionPose:
-        """The gated pose of one revolution (see `estimate_revolution`)."""
-        settings = (self.beacon_map, self.config, self.turret_offset_m)
-        outcome = estimate_revolution(bearings, *settings, odometry_at)
-        estimate = outcome.result
-        if isinstance(estimate, PoseEstimate) and not outcome.compensated and self._last is not None:
-            motion = twist_between(*self._last, (estimate.x, estimate.y, estimate.heading), outcome.stamp_s)
-            if motion is not None:  # same bearings again, now with the motion in their variances
-                outcome = estimate_revolution(bearings, *settings, odometry_at, motion)
-                estimate = outcome.result
-        if isinstance(estimate, PoseEstimate):
-            self._last = ((estimate.x, estimate.y, estimate.heading), outcome.stamp_s)
-        return outcome
+    # the robot's maximum speed and yaw rate: an odometry increment beyond them is a jump (issue 18)
+    motion_limits: MotionLimits = field(default_factory=MotionLimits)
 
 
 Tag = Any  # what the caller attaches to a revolution (its number live, its due instant offline)
@@ -88,51 +59,90 @@ class TriangulationPipeline:
         self.estimator = RevolutionEstimator(beacon_map, settings.gates, turret_offset_m)
         self.odometry = odometry_buffer(settings.odometry_history_s, settings.max_odometry_extrapolation_s)
         self.rejected_odometry = 0  # non-finite samples dropped
-        self._pending: tuple[Tag, list[Bearing]] | None = None
+        # odometry increments beyond the motion limits, and the reason of the last sample's ('' when none)
+        self.odometry_jumps = 0
+        self.last_odometry_jump = ""
+        self._pending: tuple[Tag, RevolutionIntake] | None = None
 
-    def configure(self, beacon_map: BeaconMap, gates: GateConfig, turret_offset_m: Sequence[float]) -> None:
-        """New beacon geometry or gates (a runtime parameter change, a calibration reload); the odometry
-        and the waiting revolution stay."""
-        self.settings = replace(self.settings, gates=gates)
+    def configure(
+        self,
+        beacon_map: BeaconMap,
+        gates: GateConfig,
+        turret_offset_m: Sequence[float],
+        motion_limits: MotionLimits | None = None,
+    ) -> None:
+        """New beacon geometry, gates or motion limits (a runtime parameter change, a calibration
+        reload); the odometry and the waiting revolution stay."""
+        limits = motion_limits or self.settings.motion_limits
+        self.settings = replace(self.settings, gates=gates, motion_limits=limits)
         self.estimator = RevolutionEstimator(beacon_map, gates, turret_offset_m)
 
     def on_odometry(
         self, stamp_s: float, pose: Sequence[float], twist: tuple[float, float]
     ) -> list[tuple[Tag, RevolutionPose]]:
-        """An odometry sample (odom frame; speed m/s, yaw rate rad/s); ignored without use_odometry."""
+        """`take_odometry` for a caller that only wants the revolutions it completed."""
+        return self.take_odometry(stamp_s, pose, twist)[1]
+
+    def take_odometry(
+        self, stamp_s: float, pose: Sequence[float], twist: tuple[float, float]
+    ) -> tuple[str, list[tuple[Tag, RevolutionPose]]]:
+        """An odometry sample (odom frame; speed m/s, yaw rate rad/s): (why it was refused, '' when taken
+        (`validation.odometry_problem`, counted in rejected_odometry); the revolutions it completed).
+        Ignored without use_odometry. A sample that jumped (`plausibility.odometry_step_problem`: beyond
+        the robot's speed or yaw rate from the previous one) starts the odometry over, so that no
+        revolution is compensated across the jump; `last_odometry_jump` says why (counted in
+        odometry_jumps)."""
+        self.last_odometry_jump = ""
         if not self.settings.use_odometry:
-            return []
-        if not self.odometry.add(stamp_s, tuple(pose), twist):
+            return "", []
+        problem = odometry_problem(stamp_s, pose, twist)
+        if problem:
             self.rejected_odometry += 1
-            return []
+            return problem, []
+        latest = self.odometry.latest
+        if latest is not None and stamp_s > latest[0]:
+            step = between(latest[1], tuple(pose))
+            self.last_odometry_jump = odometry_step_problem(
+                stamp_s - latest[0], step, self.settings.motion_limits
+            )
+            if self.last_odometry_jump:
+                self.odometry_jumps += 1
+                self.odometry.clear()
+        self.odometry.add(stamp_s, tuple(pose), twist)
         if self._pending is not None and self._covered(self._pending[1]):
-            return self.flush()
-        return []
+            return "", self.flush()
+        return "", []
 
     def on_revolution(self, tag: Tag, bearings: Sequence[Bearing]) -> list[tuple[Tag, RevolutionPose]]:
-        """A revolution's bearings: the waiting revolution goes first, with the odometry there is."""
+        """A revolution's bearings through the bearing intake, then `on_intake`."""
+        return self.on_intake(tag, revolution_intake(bearings, self.estimator.known_ids))
+
+    def on_intake(self, tag: Tag, intake: RevolutionIntake) -> list[tuple[Tag, RevolutionPose]]:
+        """A revolution the bearing intake sorted out: the waiting revolution goes first, with the
+        odometry there is."""
         completed = self.flush()
-        if self.settings.use_odometry and not self._covered(bearings):
-            self._pending = (tag, list(bearings))
+        if self.settings.use_odometry and not self._covered(intake):
+            self._pending = (tag, intake)
             return completed
-        return [*completed, (tag, self._estimate(bearings))]
+        return [*completed, (tag, self._estimate(intake))]
 
     def flush(self) -> list[tuple[Tag, RevolutionPose]]:
         """The waiting revolution (if any), estimated now (when the streams stop or time jumps)."""
         if self._pending is None:
             return []
-        tag, bearings = self._pending
+        tag, intake = self._pending
         self._pending = None
-        return [(tag, self._estimate(bearings))]
+        return [(tag, self._estimate(intake))]
 
-    def _covered(self, bearings: Sequence[Bearing]) -> bool:
-        """True when no odometry can still help: the newest odometry is at or after every bearing, or
-        the stamps are not usable (bad input is reported at once)."""
-        stamps = [b.stamp_s for b in bearings]
+    def _covered(self, intake: RevolutionIntake) -> bool:
+        """True when no odometry can still help: the newest odometry is at or after every bearing of the
+        revolution, or the stamps are not usable (bad input is reported at once)."""
+        stamps = [b.stamp_s for b in (*intake.kept, *(r.bearing for r in intake.refused))]
         if not (stamps and all(map(math.isfinite, stamps))):
             return True
         newest_s = self.odometry.newest_stamp_s
         return newest_s is not None and newest_s >= max(stamps)
 
-    def _estimate(self, bearings: Sequence[Bearing]) -> RevolutionPose:
-        return self.estimator.update(bearings, self.odometry.pose_at if self.settings.use_odometry else None)
+    def _estimate(self, intake: RevolutionIntake) -> RevolutionPose:
+        odometry_at = self.odometry.pose_at if self.settings.use_odometry else None
+        return self.estimator.update_intake(intake, odometry_at)

@@ -9,8 +9,16 @@ stamped with the bearings' mean instant in the map frame; `beams/markers` (visua
 MarkerArray: beacons, pose arrow, 2-sigma covariance ellipse) and `/diagnostics`. A revolution the
 odometry does not cover yet waits for it, at most until the next revolution
 (`pipeline.TriangulationPipeline`).
-Bad input (unknown beacon id, NaN bearing, duplicated beacon, fewer than three beacons) gives a log line
-and no pose. The beacon map and turret offset come from the calibration file when one is given.
+Bad input (NaN bearing, duplicated beacon, fewer than three beacons) gives a log line and no pose; a
+bearing of a beacon not on the map (another team's) is counted and left out, the others still count.
+The beacon map and turret offset come from the calibration file when one is given.
+
+Plausibility (issue 18, `beams_common.plausibility`): a revolution whose newest bearing, or an odometry
+message, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s` ahead of the node's clock
+is refused with the reason; an odometry increment beyond `max_speed_m_per_s` or
+`max_yaw_rate_rad_per_s` restarts the odometry history (no revolution compensated across it). The
+status on /diagnostics (`triangulation_health`: waiting, tracking, degraded or lost, with the reasons;
+the `status` value); each pose message carries its own verdict (accepted, reason).
 """
 
 from __future__ import annotations
@@ -27,9 +35,10 @@ from rclpy.qos import qos_profile_sensor_data
 from visualization_msgs.msg import Marker, MarkerArray
 
 from beams_common import topics
-from beams_common.bearing import bearings_of_message
+from beams_common.bearing_intake import bearings_message_intake
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import geometry_of_calibration, runtime_geometry
+from beams_common.plausibility import StampCheck, stamp_tolerance_of
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
@@ -40,16 +49,14 @@ from beams_common.ros.node_support import (
     serve_calibration_reload,
     startup_geometry,
 )
-from beams_common.ros.parameters import apply_runtime_changes, declare_table
-from beams_common.validation import (
-    bounded,
-    one_sighting_per_beacon,
-    planar_estimate_problem,
-)
+from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
+from beams_common.validation import bounded, planar_estimate_problem
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
-from beams_triangulation.gating import NoPose, PoseEstimate, RevolutionPose
+from beams_triangulation.gating import NoPose, PoseEstimate
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
 from beams_triangulation.pipeline import TriangulationPipeline
+from beams_triangulation.revolution import RevolutionPose
+from beams_triangulation.triangulation_health import WAITING_FOR_BEARINGS, TriangulationHealth
 
 
 def estimate_pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
@@ -69,10 +76,14 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         self.use_odometry = settings.use_odometry
         self.publish_markers = self.parameters["publish_markers"]
         self.pipeline = TriangulationPipeline(geometry.beacon_map, settings, geometry.turret_offset_m)
-        apply_runtime_changes(self, TRIANGULATION_PARAMETERS, self.parameters, self._apply_parameters)
+        apply_runtime_changes(self, TRIANGULATION_PARAMETERS, self.parameters, self._prepare_parameters)
         serve_calibration_reload(self, self._apply_calibration)
         self.diagnostics = Diagnostics(self, "triangulation")
-        self.diagnostics.set_level("warn", "waiting for bearings")
+        self.diagnostics.set_level("warn", WAITING_FOR_BEARINGS)
+        self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
+        self.health = TriangulationHealth(self.parameters, self._now_s(), use_odometry=self.use_odometry)
+        # the status follows the clock even when no pose comes (lost after a second without one)
+        self.create_timer(1.0, self._update_status)
 
         self.pose_publisher = self.create_publisher(TriangulatedPose, topics.POSE, 10)
         self.pose_cov_publisher = self.create_publisher(PoseWithCovarianceStamped, topics.POSE_COV, 10)
@@ -94,40 +105,81 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         return "pipeline reset: the waiting revolution and the odometry history dropped"
 
     # -- parameters -----------------------------------------------------------------------------------
-    def _apply_parameters(self, values: dict, changed: set[str]) -> None:
-        """A runtime change (validated by the table): the gates, the beacon geometry, the frame, markers."""
-        self.geometry = geometry = runtime_geometry(values, changed, self.geometry)
-        self.pipeline.configure(
-            geometry.beacon_map, triangulation_settings(values).gates, geometry.turret_offset_m
-        )
-        self.map_frame = values["map_frame"]
-        self.publish_markers = values["publish_markers"]
+    def _prepare_parameters(self, values: dict, changed: set[str]) -> ApplyChange:
+        """A runtime change (validated by the table): the beacon geometry (a calibration file read) and
+        the gates built now (ValueError, OSError: refused), applied with the frame and the markers by the
+        returned step."""
+        geometry = runtime_geometry(values, changed, self.geometry)
+        settings = triangulation_settings(values)
+        tolerance = stamp_tolerance_of(values)
+
+        def apply() -> None:
+            self.geometry, self.stamp_check.tolerance = geometry, tolerance
+            offset, limits = geometry.turret_offset_m, settings.motion_limits
+            self.pipeline.configure(geometry.beacon_map, settings.gates, offset, limits)
+            self.health.configure(values, self._now_s())
+            self.map_frame = values["map_frame"]
+            self.publish_markers = values["publish_markers"]
+
+        return apply
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
-        self.geometry = geometry = geometry_of_calibration(calibration)
+        self.geometry = geometry = geometry_of_calibration(calibration, self.parameters)
         offset = geometry.turret_offset_m
         self.pipeline.configure(geometry.beacon_map, self.pipeline.settings.gates, offset)
         return f"beacons {list(calibration.beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
 
     # -- inputs ---------------------------------------------------------------------------------------
+    def _now_s(self) -> float:
+        """The receiving clock (ROS time: /clock under use_sim_time), s."""
+        return self.get_clock().now().nanoseconds * 1e-9
+
+    def _implausible_stamp(self, kind: str, what: str, stamp_s: float, now_s: float) -> bool:
+        """True, the input refused with the reason, when its stamp is beyond the tolerance against the
+        receiving clock (`plausibility.StampCheck`); the status degraded once the refusals are confirmed
+        (two in a row)."""
+        problem, confirmed = self.stamp_check.check(kind, what, stamp_s, now_s)
+        if problem:
+            self.diagnostics.refuse(f"{kind}_stamp_refused", problem)
+        if confirmed:  # not one hiccup: the status shows it
+            self.health.fault(f"{kind}_stamp", now_s, problem)
+        return bool(problem)
+
     def _on_odometry(self, msg: Odometry) -> None:
+        now_s = self._now_s()
+        self.health.on_odometry(now_s)
         twist = (msg.twist.twist.linear.x, msg.twist.twist.angular.z)
-        rejected = self.pipeline.rejected_odometry
-        self._handle(
-            self.pipeline.on_odometry(stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose), twist)
-        )
-        if self.pipeline.rejected_odometry > rejected:
-            self.diagnostics.refuse("odometry_rejected_non_finite", "odometry with a non-finite value")
+        stamp_s, pose = stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose)
+        if self._implausible_stamp("odometry", f"odometry at {stamp_s:.3f} s", stamp_s, now_s):
+            return
+        refused, completed = self.pipeline.take_odometry(stamp_s, pose, twist)
+        if refused:
+            self.diagnostics.refuse("odometry_rejected_non_finite", refused)
+        jump = self.pipeline.last_odometry_jump
+        if jump:  # the odometry starts over: no revolution is compensated across the jump
+            self.diagnostics.refuse("odometry_jumps", f"{jump}: odometry history restarted")
+            self.health.fault("odometry_jump", now_s, jump)
+        self._handle(completed)
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
+        now_s = self._now_s()
+        self.health.on_bearings(now_s)
         self.diagnostics.increment("revolutions")
-        if self.diagnostics.oversized_revolution(msg):  # refused before any per-bearing work
+        intake = bearings_message_intake(msg, stamp_to_seconds, self.pipeline.estimator.known_ids)
+        stamps = [b.stamp_s for b in (*intake.kept, *(r.bearing for r in intake.refused))]
+        newest_s = max((t for t in stamps if math.isfinite(t)), default=math.nan)
+        if self._implausible_stamp("bearings", f"revolution {msg.revolution}", newest_s, now_s):
             return
-        bearings = bearings_of_message(msg, stamp_to_seconds)
-        dropped = one_sighting_per_beacon(bearings).dropped
-        if dropped:  # the pipeline keeps one sighting per beacon (gating.drop_repeated_beacons)
-            self.diagnostics.increment("repeated_beacon_sightings", len(dropped))
-        self._handle(self.pipeline.on_revolution(msg.revolution, bearings))
+        if intake.too_many:  # refused before any per-bearing work
+            self.diagnostics.refuse(
+                "revolutions_too_many_bearings", f"revolution {msg.revolution}: {intake.too_many}"
+            )
+            return
+        # counted; a conflicting or invalid bearing makes the revolution bad input (no pose), a repeated
+        # sighting or an unknown beacon (another team's) is only left out
+        for key, count in intake.counts().items():
+            self.diagnostics.increment(key, count)
+        self._handle(self.pipeline.on_intake(msg.revolution, intake))
 
     def _handle(self, completed: list[tuple[int, RevolutionPose]]) -> None:
         """Publish the revolutions the pipeline completed (or say why they gave no pose)."""
@@ -173,10 +225,19 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         self.diagnostics.increment("motion_compensated" if compensated else "not_compensated")
         self.diagnostics.set("last_inverse_abs_d", float(estimate.inverse_abs_d))
         self.diagnostics.set("last_position_std_m", float(estimate.position_std_m))
-        if estimate.accepted:
-            self.diagnostics.set_level("ok", "pose accepted")
-        else:
-            self.diagnostics.set_level("warn", f"pose rejected: {estimate.reason}")
+        if not estimate.accepted:
+            self.diagnostics.set("last_rejection", estimate.reason)
+        self.health.on_pose(self._now_s(), bool(estimate.accepted))
+        self._update_status()
+
+    def _update_status(self) -> None:
+        """The status (`triangulation_health`): its level and message, and `status` (waiting, tracking,
+        degraded or lost) as a value of its own; each pose carries its own verdict (accepted, reason)."""
+        now_s = self._now_s()
+        verdict = self.health.verdict(now_s)
+        self.diagnostics.set("status", str(verdict.status))
+        self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
+        self.diagnostics.set_level(verdict.level, verdict.message)
 
     def _markers(self, estimate: PoseEstimate, header) -> MarkerArray:
         """Beacons (spheres), the pose (arrow) and its 2-sigma position ellipse (flat cylinder)."""

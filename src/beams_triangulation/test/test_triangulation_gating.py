@@ -8,17 +8,10 @@ import pytest
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_common.bearing import Bearing
-from beams_triangulation.gating import (
-    GateConfig,
-    NoPose,
-    PoseEstimate,
-    best_triplet,
-    drop_repeated_beacons,
-    estimate_pose,
-    estimate_revolution,
-    gate,
-)
+from beams_common.bearing_intake import revolution_intake
+from beams_triangulation.gating import GateConfig, NoPose, PoseEstimate, best_triplet, gate
 from beams_triangulation.pose_covariance import pose_covariance
+from beams_triangulation.revolution import estimate_pose, estimate_revolution
 from beams_triangulation.total import expected_bearings, triangulate
 
 SIGMA_RAD = np.deg2rad(0.1)
@@ -54,7 +47,7 @@ def test_beacon_order_of_the_revolution_does_not_matter():
     [
         ([1, 2], [0.1, 0.2], [1e-6] * 2, "ToTal needs three"),
         ([], [], [], "ToTal needs three"),
-        ([1, 2, 9], [0.1, 0.2, 0.3], [1e-6] * 3, "unknown beacon id"),
+        ([1, 2, 9], [0.1, 0.2, 0.3], [1e-6] * 3, "ToTal needs three"),  # 9 is not on the map: left out
         ([1, 2, 2], [0.1, 0.2, 0.3], [1e-6] * 3, "duplicated beacon id"),  # same instant: not physical
         ([1, 2, 3], [0.1, math.nan, 0.3], [1e-6] * 3, "non-finite bearing"),
         ([1, 2, 3], [0.1, 0.2, 0.3], [1e-6, -1.0, 1e-6], "invalid bearing variance"),
@@ -67,6 +60,15 @@ def test_bad_input_gives_no_pose_with_a_reason(ids, bearings, variances, expecte
     assert expected in result.reason
     # Too few beacons is normal operation (a beacon hidden); the others are faulty messages.
     assert result.bad_input == (expected != "ToTal needs three")
+
+
+def test_a_beacon_not_on_the_map_is_left_out_and_the_others_still_fix_the_robot():
+    # issue 18: another team's beacon in view made the whole revolution bad input (1 pose in 8 s)
+    pose = (2.1, 1.3, 2.2)
+    bearings = [*_bearings(EUROBOT_BEACON_MAP, pose, [3, 1, 2]), 0.7]
+    estimate = estimate_pose([3, 1, 2, 9], bearings, [*VARIANCES, 1e-6], EUROBOT_BEACON_MAP)
+    assert (estimate.x, estimate.y, estimate.heading) == pytest.approx(pose, abs=1e-9)
+    assert estimate.beacon_ids == (3, 1, 2)
 
 
 def test_robot_on_the_critical_circle_gives_no_pose():
@@ -167,12 +169,12 @@ def test_a_beacon_seen_twice_keeps_the_sighting_closest_in_time():
         Bearing(0.06, 1, bearings[2], 1e-6),
         Bearing(0.098, 3, bearings[0], 1e-6),
     ]
-    kept = drop_repeated_beacons(revolution)
+    kept = revolution_intake(revolution, EUROBOT_BEACON_MAP.ids).kept
     assert [b.beacon_id for b in kept] == [3, 2, 1]
     # Median instant 0.045 s: the sighting at 0.001 s (0.044 s away) is closer than the one at 0.098 s.
     assert kept[0].stamp_s == 0.001
     revolution[0] = Bearing(-0.02, 3, 0.9, 1e-6)
-    assert drop_repeated_beacons(revolution)[0].stamp_s == 0.098
+    assert revolution_intake(revolution, EUROBOT_BEACON_MAP.ids).kept[0].stamp_s == 0.098
     outcome = estimate_revolution(revolution, EUROBOT_BEACON_MAP)
     assert (outcome.result.x, outcome.result.y) == pytest.approx(pose[:2], abs=1e-9)
 

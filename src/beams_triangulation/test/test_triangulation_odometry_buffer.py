@@ -14,10 +14,11 @@ from beams_common.bearing import Bearing
 from beams_common.parameters import node_section
 from beams_common.pose2d import between
 from beams_common.pose_buffer import PoseBuffer
-from beams_triangulation.gating import REASON_NOT_COMPENSATED, GateConfig, PoseEstimate, estimate_revolution
+from beams_triangulation.gating import REASON_NOT_COMPENSATED, GateConfig, PoseEstimate
 from beams_triangulation.motion_compensation import odometry_buffer
 from beams_triangulation.parameters import triangulation_settings
 from beams_triangulation.pipeline import RevolutionEstimator, TriangulationPipeline, TriangulationSettings
+from beams_triangulation.revolution import estimate_revolution
 from beams_triangulation.total import expected_bearings
 
 ODOM_IN_MAP = (0.5, 0.2, 0.4)  # where the odometry frame stands in the map

@@ -2,8 +2,9 @@
 
 A parameter whose spec says `runtime=False` is declared read-only: `ros2 param set` is refused by rclpy
 with "parameter is read-only". A runtime one goes through the table's validation (alone and together with
-the others) and then the node's `apply`; a refusal from either is the reply `ros2 param set` prints.
-Nothing is accepted and ignored (ros2/demos set_parameters_callback.py is the model).
+the others) and the node's `prepare` in the on-set callback, a refusal from either being the reply
+`ros2 param set` prints; the prepared change is applied in the post-set callback, a step that cannot
+fail. Nothing is accepted and ignored (ros2/demos set_parameters_callback.py is the model).
 """
 
 import array
@@ -65,31 +66,48 @@ def declare_table(node: Node, table: ParameterTable) -> dict[str, Any]:
         raise ParameterValidationError(str(error)) from None
 
 
+# The apply step of a runtime change: puts values already validated and prepared to work; cannot fail.
+ApplyChange = Callable[[], None]
+
+
 def apply_runtime_changes(
     node: Node,
     table: ParameterTable,
     current: dict[str, Any],
-    apply: Callable[[dict[str, Any], set[str]], None],
+    prepare: Callable[[dict[str, Any], set[str]], ApplyChange],
 ) -> None:
-    """Validate every runtime change of the table's parameters and hand the new values to `apply`.
+    """Validate every runtime change of the table's parameters in the on-set callback, apply it in the
+    post-set callback (the ros2/demos set_parameters_callback.py pattern).
 
-    `current` holds the values in use and is updated when a change is accepted. `apply(values, changed)`
-    puts the validated values to work, or raises ValueError (or OSError) with the reason to refuse them
-    (the values in use then stay). Register after every parameter is declared.
+    `prepare(values, changed)` gets the validated values (every parameter, the changed names) and does
+    whatever may fail (build the new settings, read a calibration file): it raises ValueError (or
+    OSError) with the reason to refuse the change, the values and the behaviour in use then stay, or
+    returns the apply step, run once rclpy has set the parameters. `current` holds the values in use and
+    is updated when a change is applied. Register after every parameter is declared.
     """
+    prepared: list[tuple[dict[str, Any], set[str], ApplyChange]] = []  # on-set's, for post-set
 
     def on_set(parameters: list) -> SetParametersResult:
+        prepared.clear()
         changes = {p.name: python_value(p.value) for p in parameters if p.name in table.names}
         if not changes:
             return SetParametersResult(successful=True)
         try:
             validated = table.validate({**current, **changes})
-            apply(validated, set(changes))
+            apply = prepare(validated, set(changes))
         except (ValueError, OSError) as error:  # OSError: a file the change names cannot be read
             node.get_logger().warning(f"parameter change refused: {error}")
             return SetParametersResult(successful=False, reason=str(error))
-        current.update(validated)
-        node.get_logger().info(f"parameters changed at runtime: {sorted(changes)}")
+        prepared.append((validated, set(changes), apply))
         return SetParametersResult(successful=True)
 
+    def post_set(parameters: list) -> None:
+        if not prepared or not {p.name for p in parameters} & set(table.names):
+            return
+        validated, changed, apply = prepared.pop()
+        apply()
+        current.update(validated)
+        node.get_logger().info(f"parameters changed at runtime: {sorted(changed)}")
+
     node.add_on_set_parameters_callback(on_set)
+    node.add_post_set_parameters_callback(post_set)

@@ -1,12 +1,14 @@
-"""A RateMonitor shown on a node's /diagnostics: the rate as a value, a verdict other than ok as a
-condition (Diagnostics.set_condition) that holds the status at its level with the reason."""
+"""An input's or output's rate (beams_common.health.RateMonitor, diagnostic_updater's FrequencyStatus)
+shown on a node's /diagnostics: the rate as a value, a rate out of range as a condition
+(Diagnostics.set_condition) that holds the status with the reason: ERROR when nothing came in the
+window, WARN otherwise."""
 
-from beams_common.rate_monitor import RateMonitor
+from beams_common.health import RateMonitor
 from beams_common.ros.node_support import Diagnostics
 
 
 class RateStatus:
-    """`monitor`'s rate under the key `<name>_rate_hz`, its verdict as the condition `<name> rate`."""
+    """`monitor`'s rate under the key `<name>_rate_hz`, its problem as the condition `<name> rate`."""
 
     def __init__(self, diagnostics: Diagnostics, name: str, monitor: RateMonitor) -> None:
         self.diagnostics = diagnostics
@@ -18,15 +20,18 @@ class RateStatus:
         self.update(now_s)
 
     def tick(self, now_s: float, count: int = 1) -> None:
-        self.monitor.tick(now_s, count)
+        for _ in range(count):
+            self.monitor.tick(now_s)
 
     def update(self, now_s: float) -> None:
-        level, message = self.monitor.check(now_s)
-        self.diagnostics.set(f"{self.name}_rate_hz", self.monitor.rate_hz(now_s))
-        if level == "ok":
+        problem = self.monitor.problem(now_s)
+        rate_hz = self.monitor.rate_hz(now_s)
+        self.diagnostics.set(f"{self.name}_rate_hz", rate_hz)
+        if not problem:
             self.diagnostics.clear_condition(f"{self.name} rate")
         else:
-            self.diagnostics.set_condition(f"{self.name} rate", level, message)
+            level = "error" if rate_hz == 0.0 else "warn"  # nothing at all: the source is gone
+            self.diagnostics.set_condition(f"{self.name} rate", level, problem)
 
     def stop(self) -> None:
         """Nothing expected any more (a deactivated driver): no verdict until the next start."""

@@ -1,0 +1,72 @@
+"""The fault campaign of issue 18 over its full length: a seeded schedule of faults from every class
+against the whole running suite, the driver on a simulated serial sensor (beams_tools.campaign_command;
+docs/fault_campaign.md), 20 minutes by
+default (`make bench`), in ROS_DOMAIN_ID 66 unless the environment sets one.
+
+Usage: python bench/bench_fault_campaign.py [--duration S] [--seed N] [--output DIR]
+"""
+
+import argparse
+import os
+import pathlib
+import sys
+
+from beams_tools.campaign_command import CampaignConfig, CampaignResult, run_campaign
+
+BENCH_DURATION_S = 1200.0
+BENCH_SEED = 18
+
+
+def result_rows(result: CampaignResult) -> list[tuple[str, float, str, str]]:
+    """The campaign's figures as bench rows (figure, value, unit, compared with)."""
+    f = result.figures
+    minutes = f"{f.span_s / 60:.0f}-min campaign"
+    rows = [
+        (f"{minutes}: hazardously misleading time", f.misleading_s, "s", "0 (issue 18's goal)"),
+        (f"{minutes}: misleading time outside the fault windows", f.misleading_outside_s, "s", "0"),
+        (f"{minutes}: largest misleading EKF error", f.max_misleading_error_m, "m", "none (0)"),
+        (f"{minutes}: availability outside the fault windows", 100 * f.availability_outside, "%", ">= 95"),
+        (f"{minutes}: availability over the whole campaign", 100 * f.availability, "%", "-"),
+        (f"{minutes}: nodes dead", len(result.deaths), "count", "0"),
+        (f"{minutes}: service calls unanswered", len(result.unanswered), f"of {len(result.calls)}", "0"),
+        (f"{minutes}: answers against expectation", len(result.unexpected_answers), "count", "0"),
+    ]
+    for kind, figures in f.per_class.items():
+        rows.append((f"{minutes}: {kind} misleading time", figures.misleading_s, "s", "0"))
+        rows.append((f"{minutes}: {kind} availability", 100 * figures.availability, "%", "-"))
+    for node, growth_mb in result.rss_growth_mb.items():
+        rows.append((f"{minutes}: RSS growth of {node} (last incarnation)", growth_mb, "MB", "~0"))
+    return rows
+
+
+def rows(
+    duration_s: float = BENCH_DURATION_S, seed: int = BENCH_SEED, output: pathlib.Path | None = None
+) -> list[tuple[str, float, str, str]]:
+    domain_id = int(os.environ.get("ROS_DOMAIN_ID", "66"))
+    config = CampaignConfig(
+        seed=seed, duration_s=duration_s, output_dir=output, domain_id=domain_id, serial=True
+    )
+    result = run_campaign(config)
+    print(result.report(), file=sys.stderr)
+    return result_rows(result)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--duration", type=float, default=BENCH_DURATION_S, help="campaign length (s)")
+    parser.add_argument("--seed", type=int, default=BENCH_SEED)
+    parser.add_argument(
+        "--output", type=pathlib.Path, help="logs, series and report (default: a temporary directory)"
+    )
+    options = parser.parse_args()
+    print("| figure | value | unit | compared with |\n|---|---|---|---|")
+    for figure, value, unit, compared_with in rows(options.duration, options.seed, options.output):
+        shown = f"{value:.4g}" if isinstance(value, float) else str(value)
+        print(f"| {figure} | {shown} | {unit} | {compared_with} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

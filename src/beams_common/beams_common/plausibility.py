@@ -1,0 +1,221 @@
+"""Semantic plausibility of the inputs (issue 18): well-formed values that cannot be true.
+
+`validation` checks each input's syntax (finite, shaped, bounded); this module checks what a
+well-formed input claims against what is physically possible, each check returning a reason ('' when
+plausible), in the style of `validation`:
+
+- `stamp_problem`: a message's stamp against the receiving clock. A BeAMS revolution lasts ~0.1 s and
+  its bearings are stamped at their instants within it, published when it ends and received a few
+  milliseconds later, so the newest bearing of a revolution is at most one revolution plus the transport
+  old; odometry is a few milliseconds old. Beyond `StampTolerance.max_age_s` the stamp is late (a relay
+  restamping, a host whose clock lags), beyond `max_lead_s` in the future it is early: the node refuses
+  the message with the reason (a bearing applied at the wrong instant put the EKF 0.3-0.45 m off while
+  its covariance said 2 mm).
+- `odometry_step_problem`: one odometry increment against the robot's maximum speed and yaw rate
+  (`MotionLimits`): a +100 m jump is a reset or a fault of the odometry source, not motion.
+- `pose_covariance_problem`: an operator's pose covariance against the table: a standard deviation
+  beyond `MAX_POSE_SIGMA_M` (or `MAX_POSE_SIGMA_RAD`) says nothing a filter can use, and 1e300 made every
+  later estimate non-symmetric in floating point.
+"""
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from beams_common.parameters import ParameterSpec
+from beams_common.pose2d import Pose2D
+
+# One BeAMS revolution (thesis ch. 2: the turret turns at ~10 Hz): the newest bearing of a revolution is
+# at most this old when the revolution is published.
+REVOLUTION_PERIOD_S = 0.1
+# Default tolerance on a stamp's age at reception: one revolution, plus 0.15 s of transport and
+# scheduling on a loaded computer; a revolution restamped 0.3 s late is beyond it.
+DEFAULT_MAX_STAMP_AGE_S = 0.25
+# Default tolerance on a stamp ahead of the receiving clock: hosts synchronised by NTP/PTP agree within
+# milliseconds; 0.1 s leaves room for a coarse synchronisation, a stamp 0.5 s early is beyond it.
+DEFAULT_MAX_STAMP_LEAD_S = 0.1
+# A Eurobot robot (rules: perimeter <= 1.2 m unfolded) drives below ~1.5 m/s and turns below ~2 turns/s;
+# the defaults leave room above both.
+DEFAULT_MAX_SPEED_M_PER_S = 2.0
+DEFAULT_MAX_YAW_RATE_RAD_PER_S = 4.0 * math.pi
+# Stamps are quantised and jittered: an increment may exceed speed x interval by this much (m, rad).
+ODOMETRY_STEP_SLACK_M = 0.02
+ODOMETRY_STEP_SLACK_RAD = 0.05
+# An operator's pose: a standard deviation up to the size of a Eurobot table's diagonal (3.6 m) and a
+# full turn of heading still means "roughly here"; beyond it the pose is no information at all.
+MAX_POSE_SIGMA_M = 4.0
+MAX_POSE_SIGMA_RAD = 2.0 * math.pi
+
+
+@dataclass(frozen=True)
+class StampTolerance:
+    """How far a stamp may lie behind (`max_age_s`) or ahead of (`max_lead_s`) the receiving clock (s);
+    0 switches that side of the check off (a replay whose stamps are not on the node's clock)."""
+
+    max_age_s: float = DEFAULT_MAX_STAMP_AGE_S
+    max_lead_s: float = DEFAULT_MAX_STAMP_LEAD_S
+
+    def __post_init__(self) -> None:
+        if not (self.max_age_s >= 0.0 and self.max_lead_s >= 0.0):
+            raise ValueError(f"stamp tolerances must be >= 0, got {self.max_age_s}, {self.max_lead_s}")
+
+
+def stamp_problem(what: str, stamp_s: float, received_s: float, tolerance: StampTolerance) -> str:
+    """Why `what` stamped `stamp_s` cannot have been measured when received at `received_s` (the node's
+    clock, s), or ''. For a revolution pass its newest bearing's stamp (the others are older by up to one
+    revolution, legitimately)."""
+    if not (math.isfinite(stamp_s) and math.isfinite(received_s)):
+        return ""  # non-finite stamps are validation's refusal, not this one
+    age_s = received_s - stamp_s
+    if tolerance.max_age_s > 0.0 and age_s > tolerance.max_age_s:
+        return (
+            f"{what} stamped {age_s:.3f} s behind the receiving clock (tolerance "
+            f"{tolerance.max_age_s:g} s): a late stamp, refused"
+        )
+    if tolerance.max_lead_s > 0.0 and -age_s > tolerance.max_lead_s:
+        return (
+            f"{what} stamped {-age_s:.3f} s ahead of the receiving clock (tolerance "
+            f"{tolerance.max_lead_s:g} s): a stamp from the future, refused"
+        )
+    return ""
+
+
+# A single revolution or odometry message late by a scheduling hiccup of a loaded computer is refused
+# but does not degrade a node's status; this many in a row of one input do (1 s late stamps: 0.1 s).
+STAMP_FAULT_CONFIRMATIONS = 2
+
+
+class StampCheck:
+    """`stamp_problem` for a node's inputs, by kind (bearings, odometry), with the run of consecutive
+    refusals of each: `check` says whether the input is refused and whether its fault is confirmed
+    (STAMP_FAULT_CONFIRMATIONS in a row), which is what a status should show."""
+
+    def __init__(self, tolerance: StampTolerance) -> None:
+        self.tolerance = tolerance
+        self._runs: dict[str, int] = {}
+
+    def check(self, kind: str, what: str, stamp_s: float, received_s: float) -> tuple[str, bool]:
+        """(why the input is refused or '', whether the refusals of this kind are confirmed)."""
+        problem = stamp_problem(what, stamp_s, received_s, self.tolerance)
+        self._runs[kind] = self._runs.get(kind, 0) + 1 if problem else 0
+        return problem, self._runs[kind] >= STAMP_FAULT_CONFIRMATIONS
+
+
+@dataclass(frozen=True)
+class MotionLimits:
+    """What the robot can do: its maximum speed (m/s) and yaw rate (rad/s)."""
+
+    max_speed_m_per_s: float = DEFAULT_MAX_SPEED_M_PER_S
+    max_yaw_rate_rad_per_s: float = DEFAULT_MAX_YAW_RATE_RAD_PER_S
+
+    def __post_init__(self) -> None:
+        if not (self.max_speed_m_per_s > 0.0 and self.max_yaw_rate_rad_per_s > 0.0):
+            raise ValueError(
+                f"motion limits must be > 0, got {self.max_speed_m_per_s} m/s, "
+                f"{self.max_yaw_rate_rad_per_s} rad/s"
+            )
+
+    def max_step(self, interval_s: float) -> tuple[float, float]:
+        """The largest plausible translation (m) and rotation (rad) over `interval_s`, with the slack of
+        stamp quantisation; the rotation never exceeds pi (an increment is wrapped)."""
+        interval_s = max(interval_s, 0.0)
+        return (
+            self.max_speed_m_per_s * interval_s + ODOMETRY_STEP_SLACK_M,
+            min(self.max_yaw_rate_rad_per_s * interval_s + ODOMETRY_STEP_SLACK_RAD, math.pi),
+        )
+
+
+def odometry_step_problem(interval_s: float, step: Pose2D, limits: MotionLimits) -> str:
+    """Why an odometry increment `step` (robot frame at its start: dx, dy m, dtheta rad, wrapped) over
+    `interval_s` is not motion the robot can make, or ''."""
+    translation_m = math.hypot(step[0], step[1])
+    rotation_rad = abs(step[2])
+    max_translation_m, max_rotation_rad = limits.max_step(interval_s)
+    if translation_m > max_translation_m:
+        return (
+            f"odometry moved {translation_m:.3f} m in {interval_s:.3f} s, more than the robot's "
+            f"{limits.max_speed_m_per_s:g} m/s allows ({max_translation_m:.3f} m): a jump, not motion"
+        )
+    if rotation_rad > max_rotation_rad:
+        return (
+            f"odometry turned {rotation_rad:.3f} rad in {interval_s:.3f} s, more than the robot's "
+            f"{limits.max_yaw_rate_rad_per_s:g} rad/s allows ({max_rotation_rad:.3f} rad): a jump, not motion"
+        )
+    return ""
+
+
+def pose_covariance_problem(covariance_3x3: Sequence[Sequence[float]] | np.ndarray) -> str:
+    """Why a planar pose covariance (x, y, theta) of an operator's pose must be refused, or ''.
+
+    Its standard deviations must stay within MAX_POSE_SIGMA_M and MAX_POSE_SIGMA_RAD: beyond them the
+    pose carries no information, and a variance of 1e12 next to the bearings' 1e-6 rad^2 wedged the
+    filter (every later estimate non-symmetric in floating point). A covariance that is merely not
+    positive definite (RViz's zeros) is the caller's to replace by its default (`usable_covariance`).
+    """
+    matrix = np.asarray(covariance_3x3, dtype=float)
+    if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
+        return "covariance is not three by three finite numbers"
+    sigma = np.sqrt(np.maximum(np.diag(matrix), 0.0))
+    if max(sigma[0], sigma[1]) > MAX_POSE_SIGMA_M or sigma[2] > MAX_POSE_SIGMA_RAD:
+        return (
+            f"covariance standard deviations ({sigma[0]:.3g} m, {sigma[1]:.3g} m, {sigma[2]:.3g} rad) beyond "
+            f"{MAX_POSE_SIGMA_M:g} m (the table) or {MAX_POSE_SIGMA_RAD:.3g} rad (a turn): no information"
+        )
+    return ""
+
+
+# The parameters of the checks, shared by triangulation_node and ekf_node (changeable at runtime: each
+# message is judged with the values in force).
+STAMP_SPECS = (
+    ParameterSpec(
+        "max_stamp_age_s",
+        DEFAULT_MAX_STAMP_AGE_S,
+        "Largest age (s) of an input's stamp at reception (a revolution's newest bearing, an odometry "
+        "message) on the node's clock; older inputs are refused as late. 0 switches the check off (a replay "
+        "whose stamps are not on the node's clock).",
+        minimum=0.0,
+        maximum=60.0,
+        runtime=True,
+    ),
+    ParameterSpec(
+        "max_stamp_lead_s",
+        DEFAULT_MAX_STAMP_LEAD_S,
+        "Largest lead (s) of an input's stamp ahead of the node's clock; inputs from further in the future "
+        "are refused. 0 switches the check off.",
+        minimum=0.0,
+        maximum=60.0,
+        runtime=True,
+    ),
+)
+MOTION_SPECS = (
+    ParameterSpec(
+        "max_speed_m_per_s",
+        DEFAULT_MAX_SPEED_M_PER_S,
+        "The robot's maximum speed (m/s): an odometry increment beyond it (plus 2 cm) is a jump, refused.",
+        minimum=0.01,
+        maximum=20.0,
+        runtime=True,
+    ),
+    ParameterSpec(
+        "max_yaw_rate_rad_per_s",
+        DEFAULT_MAX_YAW_RATE_RAD_PER_S,
+        "The robot's maximum yaw rate (rad/s): an odometry increment turning faster (plus 0.05 rad) is a "
+        "jump, refused.",
+        minimum=0.01,
+        maximum=100.0,
+        runtime=True,
+    ),
+)
+
+
+def stamp_tolerance_of(values: Mapping[str, Any]) -> StampTolerance:
+    """The StampTolerance of validated parameter values (STAMP_SPECS)."""
+    return StampTolerance(float(values["max_stamp_age_s"]), float(values["max_stamp_lead_s"]))
+
+
+def motion_limits_of(values: Mapping[str, Any]) -> MotionLimits:
+    """The MotionLimits of validated parameter values (MOTION_SPECS)."""
+    return MotionLimits(float(values["max_speed_m_per_s"]), float(values["max_yaw_rate_rad_per_s"]))

@@ -1,0 +1,115 @@
+"""The Localiser's consistency monitors: is the estimate still the robot's pose?
+
+- `KidnapEvidence`: the robot was carried elsewhere (kidnapped) when most of the recent bearings were
+  gated out and ToTal is confident of a pose inconsistent with the estimate (identified beacons make
+  this possible, thesis ch. 8 "System deployment").
+- `NisMonitor`: the filter is lost when the bearings' innovations, over a sliding window, are too large
+  for its covariance.
+Either lets the next ToTal fix re-initialise the filter (`Localiser.on_pose`).
+"""
+
+from collections import deque
+from math import hypot, isfinite
+
+import numpy as np
+from scipy.stats import chi2
+
+from beams_common.angles import wrap_to_pi
+from beams_common.pose2d import Pose2D
+
+
+class NisMonitor:
+    """Lost detection on the bearings' innovations: a consistent filter's normalised innovations squared
+    (NIS, r^2 / S) are independent chi-square (1 dof) draws, so the sum over the last n bearings is
+    chi-square with n dof; a sum beyond its quantile at `probability` says the estimate (or its
+    covariance) is wrong. Each NIS counts at most the gate's threshold (a gated-out bearing says "beyond
+    the gate", and one wild reflection must not make the filter lost on its own); the test runs on the
+    bearings so far until the window fills (a lost start is caught within a few bearings)."""
+
+    def __init__(self, window_bearings: int, probability: float, gate: float) -> None:
+        self._nis: deque[float] = deque(maxlen=max(window_bearings, 1))
+        self.enabled = window_bearings > 0
+        self._gate = gate
+        self._thresholds = [float("inf")] + [
+            float(chi2.ppf(probability, df=n)) for n in range(1, max(window_bearings, 1) + 1)
+        ]
+
+    def add(self, nis: float) -> bool:
+        """Record one new bearing's NIS (gated ones too); True when that makes the filter lost."""
+        was_lost = self.lost
+        self._nis.append(min(nis, self._gate) if isfinite(nis) else self._gate)
+        return self.lost and not was_lost
+
+    @property
+    def window_sum(self) -> float:
+        """The capped NIS summed over the window (a diagnostic)."""
+        return float(sum(self._nis))
+
+    @property
+    def lost(self) -> bool:
+        """True when the window's NIS sum exceeds the chi-square quantile for its length."""
+        return self.enabled and self.window_sum > self._thresholds[len(self._nis)]
+
+    def clear(self) -> None:
+        self._nis.clear()
+
+
+class KidnapEvidence:
+    """Gated (True) or accepted (False) for the last `window_bearings` new bearings, and the test of a
+    ToTal pose against the estimate.
+
+    The filter is suspected kidnapped when at least `gated_bearings` of them were gated out (a filter
+    initialised a little wrong, and overconfident, still accepts some bearings in between); a ToTal pose
+    is then taken when it is elsewhere: inconsistent with the estimate (chi-square, 3 dof, at
+    `probability`, the two covariances summed) or farther than `distance_m` / `heading_rad`.
+    """
+
+    def __init__(
+        self,
+        window_bearings: int,
+        gated_bearings: int,
+        probability: float,
+        distance_m: float,
+        heading_rad: float,
+    ) -> None:
+        self._recent_gated: deque[bool] = deque(maxlen=window_bearings)
+        self._gated_bearings = gated_bearings
+        self._threshold = float(chi2.ppf(probability, df=3))
+        self._distance_m = distance_m
+        self._heading_rad = heading_rad
+
+    def add(self, gated: bool) -> None:
+        """Record one new bearing: gated out (True) or accepted (False)."""
+        self._recent_gated.append(gated)
+
+    @property
+    def recent_gated_bearings(self) -> int:
+        """Gated bearings among the last window_bearings new ones (a diagnostic)."""
+        return sum(self._recent_gated)
+
+    @property
+    def suspected(self) -> bool:
+        """True when at least gated_bearings of the last window_bearings were gated out."""
+        return self.recent_gated_bearings >= self._gated_bearings
+
+    def elsewhere(
+        self, pose: Pose2D, covariance: np.ndarray, estimate: Pose2D, estimate_covariance: np.ndarray
+    ) -> bool:
+        """True when `pose` (of `covariance`) is inconsistent with the estimate or beyond the absolute
+        thresholds: the squared Mahalanobis distance of the difference, under the sum of the two
+        covariances, above the chi-square (3 dof) quantile at the kidnap probability."""
+        x, y, theta = estimate
+        difference = np.array([pose[0] - x, pose[1] - y, wrap_to_pi(pose[2] - theta)])
+        combined = estimate_covariance + np.asarray(covariance, dtype=float).reshape(3, 3)
+        try:
+            distance2 = float(difference @ np.linalg.solve(combined, difference))
+        except np.linalg.LinAlgError:
+            distance2 = float("inf")
+        return (
+            not distance2 <= self._threshold
+            or hypot(difference[0], difference[1]) > self._distance_m
+            or abs(difference[2]) > self._heading_rad
+        )
+
+    def clear(self) -> None:
+        self._recent_gated.clear()

@@ -1,0 +1,102 @@
+"""ekf_node's status (issue 18, `beams_common.health`): tracking only while its consistency checks pass.
+
+- waiting: no pose has initialised the filter (or it was reset).
+- lost: the bearings' innovations contradict the estimate (`NisMonitor`'s chi-square test over its
+  window), most recent bearings are gated out (kidnapped), or odometry stopped for longer than
+  MAX_ODOMETRY_SILENCE_S (the estimate no longer follows the robot). The next ToTal fix re-initialises.
+- degraded: an input rate out of its range (bearings ~10 Hz, odometry at its rate, like
+  diagnostic_updater's frequency status), inputs refused as implausible within the last FAULT_HOLD_S
+  (stamps late or early against the receiving clock, odometry jumps, a calibration that made the
+  bearings worse), or no bearing accepted for more than MAX_BEARING_SILENCE_S of data time (odometry
+  alone: the covariance grows).
+- tracking: none of the above.
+
+The receiving clock is the node's (ROS time: /clock under use_sim_time); pure, times passed in.
+"""
+
+from collections.abc import Mapping
+from typing import Any
+
+from beams_common.health import (
+    FAULT_HOLD_S,
+    RecentFaults,
+    Verdict,
+    bearing_rate_monitor,
+    judge,
+    odometry_rate_monitor,
+)
+
+# Odometry silent this long (s, receiving clock) leaves the estimate behind a moving robot: lost
+# (0.5 s is 25 samples of 50 Hz odometry, 0.25 m at 0.5 m/s).
+MAX_ODOMETRY_SILENCE_S = 0.5
+# No bearing accepted for this long (s, data time): odometry alone carries the estimate.
+MAX_BEARING_SILENCE_S = 1.0
+WAITING_FOR_POSE = "waiting for an initial pose (beams/pose, /initialpose or the set_pose service)"
+
+
+class EkfHealth:
+    """The inputs' rates and the recent refusals of ekf_node, judged with the filter's own tests."""
+
+    def __init__(self, values: Mapping[str, Any], now_s: float) -> None:
+        self.faults = RecentFaults(FAULT_HOLD_S)
+        self._last_odometry_s: float | None = None
+        self.configure(values, now_s)
+
+    def configure(self, values: Mapping[str, Any], now_s: float) -> None:
+        """New rate ranges (a runtime change): the rates are measured again from now."""
+        self.bearing_rate = bearing_rate_monitor(values)
+        self.odometry_rate = odometry_rate_monitor(values)
+        self.bearing_rate.start(now_s)
+        if self._last_odometry_s is not None:
+            self.odometry_rate.start(now_s)
+
+    def on_bearings(self, now_s: float) -> None:
+        """A beams/bearings message received (refused or not: the rate is the publisher's)."""
+        self.bearing_rate.tick(now_s)
+
+    def on_odometry(self, now_s: float) -> None:
+        """An odometry message received; the odometry checks start with the first one (the filter also
+        runs without odometry, the robot then taken as still)."""
+        if self._last_odometry_s is None:
+            self.odometry_rate.start(now_s)
+        self._last_odometry_s = now_s
+        self.odometry_rate.tick(now_s)
+
+    def fault(self, kind: str, now_s: float, reason: str, hold_s: float = FAULT_HOLD_S) -> None:
+        """An input refused as implausible (or a calibration flagged): the status is degraded for
+        hold_s."""
+        self.faults.note(kind, now_s, reason, hold_s)
+
+    def reset(self) -> None:
+        """The filter was reset: the odometry checks wait for odometry again."""
+        self._last_odometry_s = None
+        self.faults.clear()
+
+    def verdict(
+        self,
+        now_s: float,
+        *,
+        initialised: bool,
+        nis_lost: bool,
+        kidnap_suspected: bool,
+        bearing_silence_s: float,
+    ) -> Verdict:
+        """The status now, from the filter's tests (NIS, kidnap), the time since the last accepted bearing
+        (data time) and this monitor's rates and faults."""
+        if not initialised:
+            return judge(WAITING_FOR_POSE)
+        lost = []
+        if nis_lost:
+            lost.append("innovations too large for the covariance (NIS test): waiting for a ToTal pose")
+        if kidnap_suspected:
+            lost.append("most recent bearings gated out (robot moved?): waiting for a ToTal pose")
+        if self._last_odometry_s is not None and now_s - self._last_odometry_s > MAX_ODOMETRY_SILENCE_S:
+            lost.append(f"no odometry for {now_s - self._last_odometry_s:.1f} s: the estimate stands still")
+        degraded = [p for p in (self.bearing_rate.problem(now_s), self._odometry_rate_problem(now_s)) if p]
+        degraded += self.faults.active(now_s)
+        if bearing_silence_s > MAX_BEARING_SILENCE_S:
+            degraded.append(f"no accepted bearing for {min(bearing_silence_s, 1e6):.1f} s: odometry only")
+        return judge("", lost, degraded)
+
+    def _odometry_rate_problem(self, now_s: float) -> str:
+        return self.odometry_rate.problem(now_s) if self._last_odometry_s is not None else ""

@@ -1,0 +1,74 @@
+"""ekf_node's status model (issue 18): tracking only while the filter's tests, the input rates and the
+plausibility checks pass; a sequence of inputs drives it through every status."""
+
+from beams_common.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
+from beams_ekf.ekf_health import EkfHealth
+
+VALUES = {spec.name: spec.default for spec in (*BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC)}
+HEALTHY = {"initialised": True, "nis_lost": False, "kidnap_suspected": False, "bearing_silence_s": 0.05}
+
+
+def _run(health: EkfHealth, start_s: float, end_s: float, *, bearings=True, odometry=True) -> None:
+    """10 Hz revolutions and 50 Hz odometry received from start_s to end_s."""
+    for k in range(round((end_s - start_s) * 50)):
+        now = start_s + k * 0.02
+        if odometry:
+            health.on_odometry(now)
+        if bearings and k % 5 == 0:
+            health.on_bearings(now)
+
+
+def test_a_match_goes_waiting_tracking_degraded_lost_and_back():
+    health = EkfHealth(VALUES, 0.0)
+    assert health.verdict(0.0, **{**HEALTHY, "initialised": False}).status is Status.WAITING
+    _run(health, 0.0, 3.0)
+    assert health.verdict(3.0, **HEALTHY).status is Status.TRACKING
+    # bearings restamped 1 s late: refused, the status degraded with the reason while it lasts
+    health.fault("bearings_late", 3.1, "revolution 31 stamped 1.000 s behind the receiving clock")
+    verdict = health.verdict(3.2, **HEALTHY)
+    assert verdict.status is Status.DEGRADED and "1.000 s behind" in verdict.message
+    _run(health, 3.0, 6.0)
+    assert health.verdict(6.0, **HEALTHY).status is Status.TRACKING  # the fault held 2 s, then cleared
+    # the filter's NIS test fails: lost whatever the rest says
+    assert health.verdict(6.0, **{**HEALTHY, "nis_lost": True}).status is Status.LOST
+    assert health.verdict(6.0, **{**HEALTHY, "kidnap_suspected": True}).level == "error"
+    # the odometry stops: lost within MAX_ODOMETRY_SILENCE_S
+    _run(health, 6.0, 7.0, odometry=False)
+    verdict = health.verdict(7.0, **HEALTHY)
+    assert verdict.status is Status.LOST and "no odometry for 1.0 s" in verdict.message
+    _run(health, 7.0, 10.0)
+    assert health.verdict(10.0, **HEALTHY).status is Status.TRACKING
+
+
+def test_slow_doubled_or_silent_bearings_degrade_the_status():
+    health = EkfHealth(VALUES, 0.0)
+    _run(health, 0.0, 3.0, bearings=False)
+    verdict = health.verdict(3.0, **HEALTHY)
+    assert verdict.status is Status.DEGRADED and "bearings at 0.0 Hz" in verdict.message
+    _run(health, 3.0, 6.0)
+    for k in range(20):  # a second driver in the namespace: 20 Hz
+        health.on_bearings(6.0 + 0.1 * k)
+        health.on_bearings(6.0 + 0.1 * k + 0.05)
+    _run(health, 6.0, 8.0, bearings=False)  # odometry as usual
+    assert "above 15 Hz" in health.verdict(8.0, **HEALTHY).message
+    assert "odometry only" in health.verdict(20.0, **{**HEALTHY, "bearing_silence_s": 1.5}).message
+
+
+def test_without_odometry_the_odometry_checks_stay_off_until_it_comes():
+    health = EkfHealth(VALUES, 0.0)
+    _run(health, 0.0, 3.0, odometry=False)
+    assert health.verdict(3.0, **HEALTHY).status is Status.TRACKING
+    health.on_odometry(3.0)
+    assert "no odometry" in health.verdict(3.6, **HEALTHY).message
+    health.reset()
+    assert "odometry" not in health.verdict(3.6, **HEALTHY).message
+
+
+def test_a_flagged_calibration_degrades_for_its_own_hold():
+    health = EkfHealth(VALUES, 0.0)
+    _run(health, 0.0, 3.0)
+    health.fault("calibration_worse", 3.0, "the new calibration makes the recent bearings worse", 10.0)
+    _run(health, 3.0, 12.0)
+    assert "worse" in health.verdict(12.0, **HEALTHY).message
+    _run(health, 12.0, 14.0)
+    assert health.verdict(14.0, **HEALTHY).status is Status.TRACKING

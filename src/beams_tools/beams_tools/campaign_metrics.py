@@ -1,0 +1,230 @@
+"""The fault campaign's figures from recorded series (issue 18): pure, so they are tested on synthetic data.
+
+Every time is a ROS stamp in seconds (the nodes' clocks: system time, one machine). The series:
+- the EKF's published estimates: rows (stamp, x, y, var_xx, cov_xy, var_yy), position and its covariance;
+- the truth: rows (stamp, x, y) from the simulator that drives the robot;
+- the EKF's status reports: rows (report stamp, tracking 1/0): tracking is /diagnostics level OK with the
+  message "tracking".
+
+Hazardously misleading: an estimate whose position error (against the truth interpolated at its stamp)
+exceeds max(5 cm, 5 sigma), sigma being the standard deviation of its own covariance along the error's
+direction, while the status says tracking. The status of an estimate is the EKF's first report stamped
+after it (the node's next word on that estimate: diagnostics come once a second, and a node that finds
+the fault within that second is not blamed for the report it had not yet made). Each estimate stands for
+the time to the next one, at most MAX_SAMPLE_SPAN_S (an outage is not misleading time).
+
+Availability: the fraction of a span's time in which the newest estimate is at most FRESH_S old and the
+status a user sees then (the EKF's last report at or before that time) says tracking.
+"""
+
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+MISLEADING_FLOOR_M = 0.05
+MISLEADING_SIGMAS = 5.0
+# an estimate stands for at most this long (s): the EKF publishes at the odometry's 50 Hz
+MAX_SAMPLE_SPAN_S = 0.1
+# the truth is interpolated only between samples at most this far apart (s): a restarted simulator's
+# robot starts elsewhere, and across the silence the truth is unknown
+MAX_TRUTH_GAP_S = 0.2
+# an estimate older than this (s) does not make the time available
+FRESH_S = 0.25
+GRID_STEP_S = 0.02
+
+
+def truth_at(stamps: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(positions (n, 2), known mask) of the truth at the stamps, interpolated between truth samples at
+    most MAX_TRUTH_GAP_S apart; unknown elsewhere."""
+    truth = np.asarray(truth, dtype=float).reshape(-1, 3)
+    stamps = np.asarray(stamps, dtype=float)
+    if len(truth) < 2:
+        return np.full((len(stamps), 2), np.nan), np.zeros(len(stamps), dtype=bool)
+    truth = truth[np.argsort(truth[:, 0], kind="stable")]
+    after = np.clip(np.searchsorted(truth[:, 0], stamps, side="left"), 1, len(truth) - 1)
+    before = after - 1
+    inside = (stamps >= truth[0, 0]) & (stamps <= truth[-1, 0])
+    known = inside & (truth[after, 0] - truth[before, 0] <= MAX_TRUTH_GAP_S)
+    span = np.maximum(truth[after, 0] - truth[before, 0], 1e-12)
+    weight = np.clip((stamps - truth[before, 0]) / span, 0.0, 1.0)[:, None]
+    positions = truth[before, 1:3] * (1.0 - weight) + truth[after, 1:3] * weight
+    return positions, known
+
+
+def sigma_along(error_xy: np.ndarray, covariance_rows: np.ndarray) -> np.ndarray:
+    """Standard deviation (m) of each 2x2 position covariance (var_xx, cov_xy, var_yy) along its error
+    vector; along x where the error is zero."""
+    error_xy = np.asarray(error_xy, dtype=float).reshape(-1, 2)
+    var_xx, cov_xy, var_yy = (np.asarray(covariance_rows, dtype=float).reshape(-1, 3)[:, k] for k in range(3))
+    norm = np.hypot(error_xy[:, 0], error_xy[:, 1])
+    safe = np.where(norm > 0.0, norm, 1.0)
+    ux = np.where(norm > 0.0, error_xy[:, 0] / safe, 1.0)
+    uy = np.where(norm > 0.0, error_xy[:, 1] / safe, 0.0)
+    variance = ux * ux * var_xx + 2.0 * ux * uy * cov_xy + uy * uy * var_yy
+    return np.sqrt(np.maximum(variance, 0.0))
+
+
+def status_of(stamps: np.ndarray, status: np.ndarray, report: str = "next") -> np.ndarray:
+    """Tracking (bool) at each stamp: by the first report stamped at or after it (report="next"; False
+    after the last report), or by the last report stamped at or before it (report="last"; False before
+    the first)."""
+    status = np.asarray(status, dtype=float).reshape(-1, 2)
+    stamps = np.asarray(stamps, dtype=float)
+    if len(status) == 0:
+        return np.zeros(len(stamps), dtype=bool)
+    status = status[np.argsort(status[:, 0], kind="stable")]
+    tracking = status[:, 1] > 0.5
+    if report == "next":
+        return np.append(tracking, False)[np.searchsorted(status[:, 0], stamps, side="left")]
+    if report == "last":
+        return np.insert(tracking, 0, False)[np.searchsorted(status[:, 0], stamps, side="right")]
+    raise ValueError(f"report must be 'next' or 'last', got {report!r}")
+
+
+def sample_spans(stamps: np.ndarray) -> np.ndarray:
+    """The time (s) each estimate stands for: to the next one (the last: as long as the one before), at
+    most MAX_SAMPLE_SPAN_S."""
+    stamps = np.asarray(stamps, dtype=float)
+    if len(stamps) == 0:
+        return np.empty(0)
+    gaps = np.diff(stamps)
+    spans = np.append(gaps, gaps[-1] if len(gaps) else MAX_SAMPLE_SPAN_S)
+    return np.clip(spans, 0.0, MAX_SAMPLE_SPAN_S)
+
+
+@dataclass(frozen=True)
+class Judged:
+    """Each estimate judged against the truth and the status: stamps, error (m), threshold (m), whether
+    the truth was known, tracking, misleading, and the time each stands for (s)."""
+
+    stamps: np.ndarray
+    error_m: np.ndarray
+    threshold_m: np.ndarray
+    known: np.ndarray
+    tracking: np.ndarray
+    misleading: np.ndarray
+    spans_s: np.ndarray
+
+
+def judge(ekf: np.ndarray, truth: np.ndarray, status: np.ndarray) -> Judged:
+    """Every estimate against the truth at its stamp and the EKF's status (see the module docstring)."""
+    ekf = np.asarray(ekf, dtype=float).reshape(-1, 6)
+    ekf = ekf[np.argsort(ekf[:, 0], kind="stable")]
+    stamps = ekf[:, 0]
+    true_xy, known = truth_at(stamps, truth)
+    error_xy = ekf[:, 1:3] - true_xy
+    error_m = np.hypot(error_xy[:, 0], error_xy[:, 1])
+    threshold_m = np.maximum(MISLEADING_FLOOR_M, MISLEADING_SIGMAS * sigma_along(error_xy, ekf[:, 3:6]))
+    tracking = status_of(stamps, status)
+    with np.errstate(invalid="ignore"):
+        wrong = known & ~(error_m <= threshold_m)  # a non-finite estimate is wrong too
+    return Judged(stamps, error_m, threshold_m, known, tracking, wrong & tracking, sample_spans(stamps))
+
+
+def in_windows(times: np.ndarray, windows: Iterable[tuple[float, float]]) -> np.ndarray:
+    """Mask of the times inside any [start, end) window."""
+    times = np.asarray(times, dtype=float)
+    inside = np.zeros(len(times), dtype=bool)
+    for start, end in windows:
+        inside |= (times >= start) & (times < end)
+    return inside
+
+
+def misleading_time_s(judged: Judged, mask: np.ndarray | None = None) -> float:
+    """Hazardously misleading time (s) over the estimates selected by mask (all by default)."""
+    selected = judged.misleading if mask is None else judged.misleading & mask
+    return float(np.sum(judged.spans_s[selected]))
+
+
+def availability_grid(
+    judged: Judged, status: np.ndarray, start_s: float, end_s: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """(grid times, available mask) over [start, end): a fresh estimate and a tracking status (the last
+    report)."""
+    grid = np.arange(start_s, end_s, GRID_STEP_S)
+    if len(judged.stamps) == 0:
+        return grid, np.zeros(len(grid), dtype=bool)
+    newest = np.searchsorted(judged.stamps, grid, side="right") - 1
+    fresh = (newest >= 0) & (grid - judged.stamps[np.maximum(newest, 0)] <= FRESH_S)
+    return grid, fresh & status_of(grid, status, report="last")
+
+
+def fraction(mask: np.ndarray) -> float:
+    return float(np.mean(mask)) if len(mask) else float("nan")
+
+
+@dataclass
+class ClassFigures:
+    """One fault class's figures over its faults' windows."""
+
+    kind: str
+    faults: int = 0
+    window_s: float = 0.0
+    misleading_s: float = 0.0
+    availability: float = float("nan")
+    max_misleading_error_m: float = 0.0
+
+
+@dataclass
+class CampaignFigures:
+    """A campaign's figures: over its measured span (from the warm-up's end), outside every fault's
+    window, and per fault class."""
+
+    span_s: float
+    misleading_s: float
+    misleading_outside_s: float
+    availability: float
+    availability_outside: float
+    outside_s: float
+    max_misleading_error_m: float
+    per_class: dict[str, ClassFigures] = field(default_factory=dict)
+
+
+def campaign_figures(
+    ekf: np.ndarray,
+    truth: np.ndarray,
+    status: np.ndarray,
+    windows: Sequence[tuple[str, float, float]],
+    start_s: float,
+    end_s: float,
+) -> CampaignFigures:
+    """The figures of one run over [start_s, end_s) (stamps); windows: (fault class, start, end)."""
+    judged = judge(ekf, truth, status)
+    measured = (judged.stamps >= start_s) & (judged.stamps < end_s)
+    spans = [(start, end) for _, start, end in windows]
+    inside = in_windows(judged.stamps, spans)
+    grid, available = availability_grid(judged, status, start_s, end_s)
+    grid_outside = ~in_windows(grid, spans)
+
+    def max_error(mask: np.ndarray) -> float:
+        errors = judged.error_m[judged.misleading & mask]
+        return float(np.max(errors)) if len(errors) else 0.0
+
+    figures = CampaignFigures(
+        span_s=end_s - start_s,
+        misleading_s=misleading_time_s(judged, measured),
+        misleading_outside_s=misleading_time_s(judged, measured & ~inside),
+        availability=fraction(available),
+        availability_outside=fraction(available[grid_outside]),
+        outside_s=float(np.sum(grid_outside) * GRID_STEP_S),
+        max_misleading_error_m=max_error(measured),
+    )
+    for kind in dict.fromkeys(kind for kind, _, _ in windows):
+        own = [(start, end) for other, start, end in windows if other == kind]
+        mask = in_windows(judged.stamps, own)
+        grid_mask = in_windows(grid, own)
+        figures.per_class[kind] = ClassFigures(
+            kind=kind,
+            faults=len(own),
+            window_s=float(np.sum(grid_mask) * GRID_STEP_S),
+            misleading_s=misleading_time_s(judged, mask),
+            availability=fraction(available[grid_mask]),
+            max_misleading_error_m=max_error(mask),
+        )
+    return figures
+
+
+def rss_growth_mb(samples: Sequence[tuple[float, float]]) -> float:
+    """Growth (MB) of a process's resident set from its first to its last (time, RSS MB) sample."""
+    return samples[-1][1] - samples[0][1] if len(samples) >= 2 else 0.0

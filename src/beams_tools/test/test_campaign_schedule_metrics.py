@@ -1,0 +1,171 @@
+"""The fault campaign's pure parts (issue 18): the seeded schedule and the figures on synthetic series."""
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+
+from beams_tools.campaign_metrics import (
+    FRESH_S,
+    MAX_SAMPLE_SPAN_S,
+    campaign_figures,
+    judge,
+    sigma_along,
+    status_of,
+    truth_at,
+)
+from beams_tools.fault_schedule import (
+    FAULT_CLASSES,
+    SERIAL_CLASS,
+    ScheduleSettings,
+    draw_schedule,
+    fixed_schedule,
+)
+
+RATE_HZ = 50.0
+
+
+def test_the_same_seed_draws_the_same_schedule_and_another_seed_another():
+    assert draw_schedule(18) == draw_schedule(18)
+    assert draw_schedule(18) != draw_schedule(19)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_a_two_minute_campaign_draws_every_class_without_overlap(seed):
+    settings = ScheduleSettings()
+    faults = draw_schedule(seed, settings)
+    assert {fault.kind for fault in faults} == set(FAULT_CLASSES)
+    assert faults[0].start_s >= settings.warmup_s
+    assert faults[-1].window[1] <= settings.duration_s - settings.tail_s
+    for earlier, later in itertools.pairwise(faults):
+        assert later.start_s > earlier.window[1], (earlier.describe(), later.describe())
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_with_the_serial_line_every_class_still_fits_two_minutes(seed):
+    classes = (*FAULT_CLASSES, SERIAL_CLASS)
+    assert {fault.kind for fault in draw_schedule(seed, ScheduleSettings(), classes)} == set(classes)
+
+
+def test_a_longer_campaign_repeats_the_classes_in_passes():
+    faults = draw_schedule(3, ScheduleSettings(duration_s=1200.0))
+    counts = {kind: sum(f.kind == kind for f in faults) for kind in FAULT_CLASSES}
+    # each pass draws every class once: the counts differ by at most one
+    assert max(counts.values()) - min(counts.values()) <= 1
+    assert min(counts.values()) >= 8
+
+
+def test_a_campaign_too_short_for_every_class_is_refused():
+    with pytest.raises(ValueError, match="no room for every fault class"):
+        draw_schedule(18, ScheduleSettings(duration_s=50.0))
+
+
+def test_a_hand_written_schedule_with_overlapping_faults_is_refused():
+    rows = [
+        {"kind": "odometry_jump", "variant": "offset_x", "start_s": 10.0, "duration_s": 2.0},
+        {"kind": "node_kill", "variant": "ekf", "start_s": 13.0, "duration_s": 1.0},
+    ]
+    with pytest.raises(ValueError, match="overlap"):
+        fixed_schedule(rows)
+
+
+def _straight_truth(start_s: float, end_s: float) -> np.ndarray:
+    """The robot driving along x at 0.5 m/s, sampled at 50 Hz: rows (t, x, y)."""
+    t = np.arange(start_s, end_s, 1.0 / RATE_HZ)
+    return np.column_stack([t, 0.5 * t, np.ones_like(t)])
+
+
+def _estimates(
+    truth: np.ndarray, error_x_m: float, sigma_m: float, start_s: float, end_s: float
+) -> np.ndarray:
+    """EKF rows (t, x, y, var_xx, cov_xy, var_yy) offset along x by error_x_m, isotropic sigma."""
+    rows = truth[(truth[:, 0] >= start_s) & (truth[:, 0] < end_s)]
+    variance = sigma_m**2
+    return np.column_stack(
+        [
+            rows[:, 0],
+            rows[:, 1] + error_x_m,
+            rows[:, 2],
+            np.full(len(rows), variance),
+            np.zeros(len(rows)),
+            np.full(len(rows), variance),
+        ]
+    )
+
+
+def _status(reports: list[tuple[float, bool]]) -> np.ndarray:
+    return np.array([(t, 1.0 if tracking else 0.0) for t, tracking in reports])
+
+
+def test_an_error_of_6_cm_with_1_cm_sigma_is_misleading_while_tracking_and_not_while_lost():
+    truth = _straight_truth(0.0, 10.0)
+    ekf = _estimates(truth, 0.06, 0.01, 2.0, 4.0)
+    tracking = judge(ekf, truth, _status([(t, True) for t in range(11)]))
+    assert np.all(tracking.misleading)
+    assert np.sum(tracking.spans_s[tracking.misleading]) == pytest.approx(2.0, abs=1.5 / RATE_HZ)
+    lost = judge(ekf, truth, _status([(t, False) for t in range(11)]))
+    assert not np.any(lost.misleading)
+
+
+@pytest.mark.parametrize(
+    ("error_m", "sigma_m", "misleading"),
+    [(0.04, 0.001, False), (0.06, 0.02, False), (0.11, 0.02, True), (math.nan, 0.01, True)],
+)
+def test_the_threshold_is_the_larger_of_5_cm_and_5_sigma(error_m, sigma_m, misleading):
+    truth = _straight_truth(0.0, 3.0)
+    judged = judge(_estimates(truth, error_m, sigma_m, 1.0, 2.0), truth, _status([(3.0, True)]))
+    assert np.all(judged.misleading == misleading)
+
+
+def test_sigma_is_taken_along_the_error():
+    covariance = np.array([[1e-4, 0.0, 1e-6], [1e-4, 0.0, 1e-6]])
+    sigma = sigma_along(np.array([[0.1, 0.0], [0.0, 0.1]]), covariance)
+    assert sigma == pytest.approx([0.01, 0.001])
+
+
+def test_an_estimate_takes_the_status_of_the_next_report_and_availability_the_last():
+    status = _status([(1.0, True), (2.0, False), (3.0, True)])
+    stamps = np.array([0.5, 1.0, 1.5, 2.5, 3.5])
+    assert list(status_of(stamps, status)) == [True, True, False, True, False]
+    assert list(status_of(stamps, status, report="last")) == [False, True, True, False, True]
+
+
+def test_the_truth_is_unknown_across_a_silence_and_such_estimates_are_not_judged():
+    truth = _straight_truth(0.0, 10.0)
+    truth = truth[(truth[:, 0] < 4.0) | (truth[:, 0] > 5.0)]  # a restarted simulator: one second of silence
+    _, known = truth_at(np.array([3.0, 4.5, 6.0, 11.0]), truth)
+    assert list(known) == [True, False, True, False]
+    ekf = _estimates(_straight_truth(0.0, 10.0), 1.0, 0.01, 4.2, 4.8)
+    judged = judge(ekf, truth, _status([(t, True) for t in range(11)]))
+    assert not np.any(judged.misleading)
+
+
+def test_an_outage_is_not_misleading_time():
+    truth = _straight_truth(0.0, 10.0)
+    ekf = np.vstack([_estimates(truth, 0.5, 0.01, 1.0, 1.1), _estimates(truth, 0.5, 0.01, 5.0, 5.1)])
+    judged = judge(ekf, truth, _status([(t, True) for t in range(11)]))
+    # 10 estimates, each standing for at most MAX_SAMPLE_SPAN_S: never the 3.9 s silence between them
+    assert np.sum(judged.spans_s[judged.misleading]) <= 10 * MAX_SAMPLE_SPAN_S
+
+
+def test_figures_attribute_misleading_time_and_availability_to_the_fault_windows():
+    truth = _straight_truth(0.0, 40.0)
+    good = _estimates(truth, 0.0, 0.01, 0.0, 40.0)
+    wrong = (good[:, 0] >= 12.0) & (good[:, 0] < 13.0)
+    good[wrong, 1] += 1.0  # one second 1 m off, inside the odometry jump's window
+    silent = (good[:, 0] >= 25.0) & (good[:, 0] < 27.0)  # two seconds without an estimate (a kill)
+    ekf = good[~silent]
+    status = _status([(t + 0.5, True) for t in range(40)])
+    windows = [("odometry_jump", 11.0, 15.0), ("node_kill", 24.0, 30.0)]
+    figures = campaign_figures(ekf, truth, status, windows, 5.0, 39.0)
+    assert figures.misleading_s == pytest.approx(1.0, abs=0.05)
+    assert figures.misleading_outside_s == 0.0
+    assert figures.per_class["odometry_jump"].misleading_s == pytest.approx(1.0, abs=0.05)
+    assert figures.per_class["odometry_jump"].max_misleading_error_m == pytest.approx(1.0, abs=0.01)
+    assert figures.per_class["node_kill"].misleading_s == 0.0
+    # the kill's window: 2 s - FRESH_S of its 6 s without a fresh estimate
+    kill_availability = figures.per_class["node_kill"].availability
+    assert kill_availability == pytest.approx(1.0 - (2.0 - FRESH_S) / 6.0, abs=0.02)
+    assert figures.availability_outside == pytest.approx(1.0)
+    assert figures.outside_s == pytest.approx(34.0 - 4.0 - 6.0, abs=0.05)

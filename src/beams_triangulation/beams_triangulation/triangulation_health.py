@@ -1,0 +1,79 @@
+"""triangulation_node's status (issue 18, `beams_common.health`): tracking only while its checks pass.
+
+Each pose already carries its own verdict (beams/pose: `accepted` and `reason`, the 1/|D| and standard
+deviation gates); the node's status says whether ToTal is fixing the robot at all:
+
+- waiting: no revolution received yet.
+- lost: no pose accepted for more than MAX_SILENCE_S (receiving clock): every revolution refused,
+  rejected by the gates, or none coming.
+- degraded: the bearing rate out of its range (~10 Hz), the odometry rate below its minimum (with
+  use_odometry), or inputs refused as implausible within the last FAULT_HOLD_S (stamps late or early
+  against the receiving clock, odometry jumps).
+- tracking: none of the above.
+"""
+
+from collections.abc import Mapping
+from typing import Any
+
+from beams_common.health import (
+    FAULT_HOLD_S,
+    RecentFaults,
+    Verdict,
+    bearing_rate_monitor,
+    judge,
+    odometry_rate_monitor,
+)
+
+# Ten revolutions without an accepted pose: ToTal has not fixed the robot for a second.
+MAX_SILENCE_S = 1.0
+WAITING_FOR_BEARINGS = "waiting for bearings (beams/bearings)"
+
+
+class TriangulationHealth:
+    """The rates, recent refusals and accepted poses of triangulation_node."""
+
+    def __init__(self, values: Mapping[str, Any], now_s: float, *, use_odometry: bool) -> None:
+        self.faults = RecentFaults(FAULT_HOLD_S)
+        self.use_odometry = use_odometry
+        self._first_revolution_s: float | None = None
+        self._last_accepted_s: float | None = None
+        self.configure(values, now_s)
+
+    def configure(self, values: Mapping[str, Any], now_s: float) -> None:
+        """New rate ranges (a runtime change): the rates are measured again from now."""
+        self.bearing_rate = bearing_rate_monitor(values)
+        self.odometry_rate = odometry_rate_monitor(values)
+        self.bearing_rate.start(now_s)
+        self.odometry_rate.start(now_s)
+
+    def on_bearings(self, now_s: float) -> None:
+        if self._first_revolution_s is None:
+            self._first_revolution_s = now_s
+        self.bearing_rate.tick(now_s)
+
+    def on_odometry(self, now_s: float) -> None:
+        self.odometry_rate.tick(now_s)
+
+    def on_pose(self, now_s: float, accepted: bool) -> None:
+        if accepted:
+            self._last_accepted_s = now_s
+
+    def fault(self, kind: str, now_s: float, reason: str) -> None:
+        """An input refused as implausible: the status is degraded for FAULT_HOLD_S."""
+        self.faults.note(kind, now_s, reason)
+
+    def verdict(self, now_s: float) -> Verdict:
+        """The status now."""
+        if self._first_revolution_s is None:
+            return judge(WAITING_FOR_BEARINGS)
+        since_s = now_s - (
+            self._last_accepted_s if self._last_accepted_s is not None else self._first_revolution_s
+        )
+        lost = []
+        if since_s > MAX_SILENCE_S:
+            lost.append(f"no accepted pose for {since_s:.1f} s")
+        degraded = [self.bearing_rate.problem(now_s)]
+        if self.use_odometry:
+            degraded.append(self.odometry_rate.problem(now_s))
+        degraded = [p for p in degraded if p] + self.faults.active(now_s)
+        return judge("", lost, degraded)

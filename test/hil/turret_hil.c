@@ -1,0 +1,237 @@
+/*
+ * Hardware-in-the-loop harness for the turret firmware: runs firmware/build/turret.elf in simavr (an
+ * ATmega328P at 16 MHz), drives its pins from a schedule of levels at exact CPU cycles, and copies what
+ * its UART sends to a file descriptor (a pseudo-terminal's master side, or a pipe).
+ *
+ *   turret_hil FIRMWARE.elf SCHEDULE END_CYCLE [--out-fd N] [--byte-log FILE] [--step-log FILE] [--realtime]
+ *
+ * SCHEDULE: binary records of 16 bytes, little-endian, in cycle order: uint64 cycle, uint8 pin
+ * (0: PB0 = ICP1, the receiver; 1: PD2 = INT0, the zero reference), uint8 level, 6 bytes of padding.
+ * Each level is raised on its pin at the first instruction boundary at or after its cycle (the AVR's
+ * instructions take 1 to 4 cycles; a Timer1 tick is 8). --byte-log writes one record per UART byte:
+ * uint64 cycle at which the firmware wrote it to UDR0, uint8 byte. --step-log writes the uint64 cycle of
+ * every level change of the stepper's STEP pin (PB3, OC2A). --realtime holds the emulation to the
+ * wall clock (a 16 MHz AVR runs faster than real time in simavr otherwise). Without --out-fd the bytes
+ * go to stdout; simavr's own messages always go to stderr. The run ends at END_CYCLE;
+ * a summary line goes to stderr: "turret_hil: cycles C wall_s W bytes B".
+ */
+#include <errno.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+#include <unistd.h>
+
+#include <avr_ioport.h>
+#include <avr_uart.h>
+#include <sim_avr.h>
+#include <sim_cycle_timers.h>
+#include <sim_elf.h>
+#include <sim_irq.h>
+
+#define CPU_HZ 16000000ULL
+
+struct level_change {
+    uint64_t cycle;
+    uint8_t pin;
+    uint8_t level;
+};
+
+static struct level_change *schedule;
+static size_t schedule_length, schedule_next;
+static avr_irq_t *pins[2];
+static int out_fd = 1;
+static FILE *byte_log;
+static FILE *step_log;
+static uint8_t out_buffer[4096];
+static size_t out_length;
+static uint64_t bytes_out;
+static avr_t *avr;
+
+static void flush_out(void)
+{
+    size_t done = 0;
+    while (done < out_length) {
+        ssize_t n = write(out_fd, out_buffer + done, out_length - done);
+        if (n < 0) {
+            if (errno == EINTR || errno == EAGAIN)
+                continue;
+            perror("turret_hil: write");
+            exit(1);
+        }
+        done += (size_t)n;
+    }
+    out_length = 0;
+}
+
+static void on_uart_byte(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)irq;
+    (void)param;
+    uint8_t byte = (uint8_t)value;
+    out_buffer[out_length++] = byte;
+    bytes_out++;
+    if (out_length == sizeof out_buffer)
+        flush_out();
+    if (byte_log) {
+        uint64_t cycle = avr->cycle;
+        fwrite(&cycle, sizeof cycle, 1, byte_log);
+        fwrite(&byte, 1, 1, byte_log);
+    }
+}
+
+static void on_step_pin(struct avr_irq_t *irq, uint32_t value, void *param)
+{
+    (void)param;
+    if (irq->value == value)
+        return; /* a write that does not change the level */
+    uint64_t cycle = avr->cycle;
+    fwrite(&cycle, sizeof cycle, 1, step_log);
+}
+
+static avr_cycle_count_t inject(struct avr_t *core, avr_cycle_count_t when, void *param)
+{
+    (void)core;
+    (void)param;
+    while (schedule_next < schedule_length && schedule[schedule_next].cycle <= when) {
+        struct level_change *change = &schedule[schedule_next++];
+        avr_raise_irq(pins[change->pin], change->level);
+    }
+    return schedule_next < schedule_length ? schedule[schedule_next].cycle : 0;
+}
+
+/* Emulated sleep costs no wall time (the default sleeps in real time). */
+static void sleep_none(avr_t *core, avr_cycle_count_t how_long)
+{
+    (void)core;
+    (void)how_long;
+}
+
+static double wall_s(void)
+{
+    struct timespec now;
+    clock_gettime(CLOCK_MONOTONIC, &now);
+    return (double)now.tv_sec + (double)now.tv_nsec * 1e-9;
+}
+
+static void load_schedule(const char *path)
+{
+    FILE *file = fopen(path, "rb");
+    if (!file) {
+        fprintf(stderr, "turret_hil: cannot open schedule %s: %s\n", path, strerror(errno));
+        exit(2);
+    }
+    size_t capacity = 1024;
+    schedule = malloc(capacity * sizeof *schedule);
+    uint8_t record[16];
+    while (fread(record, sizeof record, 1, file) == 1) {
+        if (schedule_length == capacity) {
+            capacity *= 2;
+            schedule = realloc(schedule, capacity * sizeof *schedule);
+        }
+        struct level_change *change = &schedule[schedule_length++];
+        memcpy(&change->cycle, record, 8);
+        change->pin = record[8];
+        change->level = record[9];
+        if (change->pin > 1) {
+            fprintf(stderr, "turret_hil: schedule record %zu: pin %u is not 0 or 1\n", schedule_length,
+                    change->pin);
+            exit(2);
+        }
+    }
+    fclose(file);
+}
+
+int main(int argc, char *argv[])
+{
+    if (argc < 4) {
+        fprintf(stderr, "usage: %s FIRMWARE.elf SCHEDULE END_CYCLE [--out-fd N] [--byte-log FILE] "
+                        "[--step-log FILE] [--realtime]\n", argv[0]);
+        return 2;
+    }
+    uint64_t end_cycle = strtoull(argv[3], NULL, 10);
+    int realtime = 0;
+    for (int i = 4; i < argc; i++) {
+        if (!strcmp(argv[i], "--out-fd") && i + 1 < argc)
+            out_fd = atoi(argv[++i]);
+        else if (!strcmp(argv[i], "--byte-log") && i + 1 < argc)
+            byte_log = fopen(argv[++i], "wb");
+        else if (!strcmp(argv[i], "--step-log") && i + 1 < argc)
+            step_log = fopen(argv[++i], "wb");
+        else if (!strcmp(argv[i], "--realtime"))
+            realtime = 1;
+        else {
+            fprintf(stderr, "turret_hil: unknown argument %s\n", argv[i]);
+            return 2;
+        }
+    }
+    load_schedule(argv[2]);
+    if (out_fd == 1) /* the bytes keep the original stdout */
+        out_fd = dup(1);
+    dup2(2, 1); /* simavr prints its own messages on stdout: they go to stderr */
+
+    elf_firmware_t firmware;
+    memset(&firmware, 0, sizeof firmware);
+    if (elf_read_firmware(argv[1], &firmware) != 0) {
+        fprintf(stderr, "turret_hil: cannot read %s\n", argv[1]);
+        return 2;
+    }
+    avr = avr_make_mcu_by_name("atmega328p");
+    if (!avr) {
+        fprintf(stderr, "turret_hil: simavr has no atmega328p\n");
+        return 2;
+    }
+    avr_init(avr);
+    firmware.frequency = CPU_HZ;
+    avr_load_firmware(avr, &firmware);
+    avr->frequency = CPU_HZ;
+    avr->log = LOG_ERROR;
+    if (!realtime)
+        avr->sleep = sleep_none;
+
+    uint32_t flags = 0;
+    avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
+    flags &= ~(uint32_t)AVR_UART_FLAG_STDIO; /* the bytes are binary frames, not console lines */
+    avr_ioctl(avr, AVR_IOCTL_UART_SET_FLAGS('0'), &flags);
+    avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_UART_GETIRQ('0'), UART_IRQ_OUTPUT), on_uart_byte,
+                            NULL);
+    if (step_log)
+        avr_irq_register_notify(avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 3), on_step_pin, NULL);
+    pins[0] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('B'), 0);
+    pins[1] = avr_io_getirq(avr, AVR_IOCTL_IOPORT_GETIRQ('D'), 2);
+    /* no level before the firmware's set-up: at reset INT0 is low-level triggered, and simavr would
+     * keep raising it while the pin stays low (the schedule sets both pins low once the firmware runs) */
+    if (schedule_length)
+        avr_cycle_timer_register(avr, schedule[0].cycle > avr->cycle ? schedule[0].cycle - avr->cycle : 1,
+                                 inject, NULL);
+
+    double started = wall_s();
+    uint64_t next_flush = 0;
+    while (avr->cycle < end_cycle) {
+        int state = avr_run(avr);
+        if (state == cpu_Done || state == cpu_Crashed) {
+            fprintf(stderr, "turret_hil: the firmware stopped (state %d) at cycle %llu\n", state,
+                    (unsigned long long)avr->cycle);
+            flush_out();
+            return 1;
+        }
+        if (avr->cycle >= next_flush) {
+            next_flush = avr->cycle + CPU_HZ / 1000; /* every emulated millisecond */
+            flush_out();
+            if (realtime) {
+                double ahead = (double)avr->cycle / (double)CPU_HZ - (wall_s() - started);
+                if (ahead > 0.0)
+                    usleep((useconds_t)(ahead * 1e6));
+            }
+        }
+    }
+    flush_out();
+    if (byte_log)
+        fclose(byte_log);
+    if (step_log)
+        fclose(step_log);
+    fprintf(stderr, "turret_hil: cycles %llu wall_s %.3f bytes %llu\n", (unsigned long long)avr->cycle, wall_s() - started,
+            (unsigned long long)bytes_out);
+    return 0;
+}
