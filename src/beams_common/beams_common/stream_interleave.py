@@ -14,7 +14,7 @@ Pure (no ROS).
 from collections import deque
 from dataclasses import dataclass
 
-SWITCHES_FOR_INTERLEAVE = 2
+SWITCHES_FOR_INTERLEAVE = 4
 
 
 @dataclass

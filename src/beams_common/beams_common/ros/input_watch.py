@@ -26,7 +26,7 @@ from rclpy.clock import Clock, ClockType
 from beams_common.stream_interleave import InterleaveDetector
 
 GRAPH_CHECK_PERIOD_S = 0.5
-INTERLEAVE_HOLD_S = 2.0  # the message check's ERROR outlives the last switch by this long
+INTERLEAVE_HOLD_S = 1.0  # the message check's ERROR outlives the last switch by this long
 
 
 @dataclass(frozen=True)
