@@ -246,3 +246,67 @@ def test_ros2_lifecycle_drives_the_driver_launched_for_a_lifecycle_manager(rclpy
     for bad in ("Traceback", "process has died", "deprecated", "UserWarning"):
         assert bad not in output, f"{bad!r} in the launch output:\n{output}"
     assert output.count("process has finished cleanly") == len(LAUNCHED_NODES), output
+
+
+def descendants(pid: int) -> dict[int, str]:
+    """Every process under `pid` (children, grandchildren...) with its command line, from /proc."""
+    parents: dict[int, int] = {}
+    commands: dict[int, str] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as stat:
+                # the command name is in parentheses and may hold spaces: the parent id follows it
+                parents[int(entry)] = int(stat.read().rsplit(")", 1)[1].split()[1])
+            with open(f"/proc/{entry}/cmdline", "rb") as cmdline:
+                commands[int(entry)] = cmdline.read().replace(b"\0", b" ").decode(errors="replace")
+        except (OSError, IndexError, ValueError):  # a process that ended meanwhile
+            continue
+    found: dict[int, str] = {}
+    frontier = [pid]
+    while frontier:
+        parent = frontier.pop()
+        for child, its_parent in parents.items():
+            if its_parent == parent and child not in found:
+                found[child] = commands.get(child, "")
+                frontier.append(child)
+    return found
+
+
+def test_ros2_launch_respawns_each_killed_node_and_the_ekf_comes_back(rclpy_node, group):
+    """Issue 18: each node launched with respawn; kill -9 each in turn, the EKF's output is back within
+    2 s (the EKF itself: RESPAWN_DELAY_S plus its start-up, see test_respawn.py), the launch log says
+    the process died, and Ctrl-C still stops everything."""
+    from nav_msgs.msg import Odometry
+
+    from beams_bringup.system import RESPAWN_DELAY_S
+
+    ekf_start_s = 4.0  # ekf_node's start-up and first fix on a loaded 2-core machine (test_respawn.py)
+    arrivals: list[float] = []
+    rclpy_node.node.create_subscription(
+        Odometry, "/robot1/beams/ekf/odometry", lambda _msg: arrivals.append(time.monotonic()), 10
+    )
+    launch = group("ros2", "launch", "beams_bringup", "beams.launch.py", "namespace:=robot1")
+    assert rclpy_node.spin_until(lambda: len(arrivals) > 5, UP_TIMEOUT_S), launch.log()
+    for node in LAUNCHED_NODES:
+        pids = [
+            pid for pid, command in descendants(launch.process.pid).items() if f"/{node} " in command + " "
+        ]
+        assert len(pids) == 1, (node, descendants(launch.process.pid))
+        killed_at = time.monotonic()
+        os.kill(pids[0], signal.SIGKILL)
+        bound_s = RESPAWN_DELAY_S + ekf_start_s if node == "ekf_node" else 2.0
+        assert rclpy_node.spin_until(
+            lambda since=killed_at: any(t > since + 0.2 for t in arrivals), bound_s
+        ), f"no EKF output within {bound_s} s of killing {node}:\n{launch.log()}"
+
+        def respawned(name: str = node) -> bool:
+            return any(f"/{name} " in command + " " for command in descendants(launch.process.pid).values())
+
+        assert rclpy_node.spin_until(respawned, UP_TIMEOUT_S), f"{node} not respawned:\n{launch.log()}"
+    output = launch.log()
+    assert output.count("process has died") == len(LAUNCHED_NODES), output
+    status = launch.ctrl_c()
+    assert status == 0, launch.log()
+    assert "Traceback" not in launch.log(), launch.log()

@@ -20,8 +20,6 @@ import argparse
 import datetime
 import os
 import pathlib
-import signal
-import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
@@ -41,6 +39,7 @@ from visualization_msgs.msg import MarkerArray
 
 from beams_bringup.bag_events import stamp_ns
 from beams_bringup.bag_io import BagRecorder, beams_typestore, fully_qualified
+from beams_bringup.supervisor import NodeSupervisor
 from beams_bringup.system import PARAMS_FILE, ROBOT_NODES, installed_params_file
 from beams_bringup.trajectory_metrics import (
     RunTracks,
@@ -177,13 +176,12 @@ def sensor_setup(sensor_model: str, output: pathlib.Path, calibrated: bool) -> S
     return SensorSetup(sensor_model, tuple(arguments), description)
 
 
-def start_nodes(
-    output: pathlib.Path, duration_s: float, env: dict[str, str], sensor: SensorSetup
-) -> list[subprocess.Popen]:
-    processes = []
+def node_commands(duration_s: float, sensor: SensorSetup) -> dict[str, list[str]]:
+    """The command of each robot node (installed executable, beams_params.yaml, the demo's overrides)."""
     params_file = installed_params_file()
     if params_file is None:
         raise FileNotFoundError(f"{PARAMS_FILE} of beams_bringup is not installed: run `make build`")
+    commands = {}
     for node in ROBOT_NODES:
         package, executable = node.package, node.executable
         command = [
@@ -196,23 +194,8 @@ def start_nodes(
             command += ["-p", f"duration_s:={duration_s}"]
         if executable == "driver_node":
             command += list(sensor.driver_arguments)
-        log = open(output / f"{executable}.log", "w")  # noqa: SIM115 (kept open while the node runs)
-        processes.append(subprocess.Popen(command, env=env, stdout=log, stderr=subprocess.STDOUT))
-    return processes
-
-
-def stop_nodes(processes: list[subprocess.Popen]) -> list[int]:
-    for process in processes:
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
-    statuses = []
-    for process in processes:
-        try:
-            statuses.append(process.wait(timeout=15))
-        except subprocess.TimeoutExpired:
-            process.kill()
-            statuses.append(process.wait(timeout=15))
-    return statuses
+        commands[executable] = command
+    return commands
 
 
 def progress_line(record: MatchRecord, elapsed_s: float, bearings_per_s: float) -> str:
@@ -315,8 +298,10 @@ def main() -> int:
     executor.add_node(node)
     record = MatchRecord()
     typestore = beams_typestore()
-    processes = start_nodes(output, options.duration, env, sensor)
-    statuses: list[int] = []
+    # every node restarted when it dies, as `ros2 launch` does with respawn (beams.launch.py)
+    supervisor = NodeSupervisor(node_commands(options.duration, sensor), env, output)
+    supervisor.start()
+    statuses: dict[str, int] = {}
     interrupted = False
     try:
         with BagRecorder(output / "bag", typestore) as recorder:
@@ -347,13 +332,15 @@ def main() -> int:
                 if not record.truth.rows and time.monotonic() - started > START_TIMEOUT_S:
                     print("demo: no ground truth after 30 s; see the node logs in", output, file=sys.stderr)
                     break
-                if any(p.poll() is not None for p in processes):
-                    print("demo: a node stopped early; see the node logs in", output, file=sys.stderr)
+                for event in supervisor.poll():
+                    print(f"demo: {event}; its log: {output}", file=sys.stderr, flush=True)
+                if any(node.gave_up for node in supervisor.nodes.values()):
+                    print("demo: a node cannot run; see the node logs in", output, file=sys.stderr)
                     break
     except KeyboardInterrupt:
         interrupted = True
     finally:
-        statuses = stop_nodes(processes)
+        statuses = supervisor.stop()
         executor.shutdown()
         node.destroy_node()
         rclpy.try_shutdown()
@@ -367,8 +354,10 @@ def main() -> int:
     print(table)
     print(f"\nbag: {output / 'bag'} ({recorder.messages_written} messages, MCAP)")
     print(f"plot: {output / 'trajectory.png'}; node logs: {output}/*.log")
-    names = [node.executable for node in ROBOT_NODES]
-    bad = [f"{name} exited {status}" for name, status in zip(names, statuses, strict=True) if status != 0]
+    restarts = {name: node.restarts for name, node in supervisor.nodes.items() if node.restarts}
+    if restarts:
+        print(f"demo: nodes restarted after dying: {restarts}", file=sys.stderr)
+    bad = [f"{name} exited {status}" for name, status in statuses.items() if status != 0]
     if bad:
         print("demo: " + ", ".join(bad), file=sys.stderr)
         return 1

@@ -6,6 +6,10 @@ from dataclasses import dataclass
 
 PARAMS_FILE = "beams_params.yaml"
 DISCOVERY_PROFILE = "fastdds_fast_discovery.xml"
+# A node that dies is started again this long after (s): `ros2 launch` (respawn_delay) and the demo's
+# supervisor alike. Short, so the EKF is back within about 2 s of a kill; long enough that a node dying
+# at once at every start does not spin the CPU.
+RESPAWN_DELAY_S = 1.0
 
 
 @dataclass(frozen=True)

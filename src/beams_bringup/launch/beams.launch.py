@@ -12,6 +12,9 @@ Each node reads its section of beams_bringup's config/beams_params.yaml; the cal
 overrides the beacon coordinates and carries the turret offset and the bearing corrections. The nodes run
 with the package's Fast DDS profile (config/fastdds_fast_discovery.xml: a node restarted after a kill -9
 is back within 0.5 s) unless FASTRTPS_DEFAULT_PROFILES_FILE is already set.
+A node that dies is started again RESPAWN_DELAY_S (1 s) later (respawn), the driver too: with
+driver_autostart:=false it comes back unconfigured, which is what a lifecycle manager that reconnects
+to respawned nodes (nav2's attempt_respawn_reconnection) expects; a dead driver would need one anyway.
 """
 
 from launch import LaunchDescription
@@ -26,7 +29,7 @@ from launch.substitutions import (
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
-from beams_bringup.system import DISCOVERY_PROFILE, PARAMS_FILE, ROBOT_NODES, RobotNode
+from beams_bringup.system import DISCOVERY_PROFILE, PARAMS_FILE, RESPAWN_DELAY_S, ROBOT_NODES, RobotNode
 
 ARGUMENTS = (
     ("namespace", "", "namespace of this robot's nodes"),
@@ -64,6 +67,9 @@ def node_action(node: RobotNode) -> Node:
         namespace=LaunchConfiguration("namespace"),
         parameters=parameters,
         output="screen",
+        # issue 18: whatever kills a node (a fault past its callback guard, the OOM killer, kill -9)
+        respawn=True,
+        respawn_delay=RESPAWN_DELAY_S,
         # the simulated robot only runs with the simulated sensor
         # (IfCondition(EqualsSubstitution): LaunchConfigurationEquals is deprecated since Jazzy.)
         condition=(

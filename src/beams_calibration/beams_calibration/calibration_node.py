@@ -53,6 +53,8 @@ from beams_calibration.parameters import CALIBRATION_PARAMETERS, coverage_requir
 from beams_common import topics
 from beams_common.beacon_map import BeaconMap
 from beams_common.geometry_parameters import beacon_map_of
+from beams_common.ros.callback_guard import GuardedCallbacks
+from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.node_support import (
     BEARINGS_QOS,
     Diagnostics,
@@ -79,7 +81,7 @@ class _Capture:
     revolutions: list[dict[int, tuple[float, float]]] = field(default_factory=list)
 
 
-class CalibrationNode(Node):
+class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
     def __init__(self) -> None:
         super().__init__("calibration_node")
         self.parameters = declare_table(self, CALIBRATION_PARAMETERS)

@@ -32,7 +32,10 @@ from beams_common.angles import wrap_to_pi
 from beams_common.bearing_correction import BearingCorrection
 from beams_common.bearing_messages import BearingFields, nanoseconds
 from beams_common.calibration_file import SensorCalibration, load_calibration
+from beams_common.health import RATE_WINDOW_S, RateMonitor
 from beams_common.parameters import ParameterTable
+from beams_common.ros.callback_guard import GuardedCallbacks
+from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import bearing_array, pose2d_of, stamp_to_seconds
 from beams_common.ros.node_support import BEARINGS_QOS, Diagnostics, run_node, serve_calibration_reload
 from beams_common.ros.parameters import (
@@ -41,9 +44,10 @@ from beams_common.ros.parameters import (
     apply_runtime_changes,
     declare_table,
 )
+from beams_common.ros.rate_status import RateStatus
 from beams_driver.decoder import BearingDecoder, DecodedRevolution
 from beams_driver.edge_source import EdgeSource, PoseCallback, source_kind
-from beams_driver.edges import RevolutionEdges
+from beams_driver.edges import TURRET_PERIOD_S, RevolutionEdges
 from beams_driver.parameters import (
     DRIVER_PARAMETERS,
     LIFECYCLE_PARAMETERS,
@@ -64,6 +68,9 @@ RCLError = _rclpy.RCLError
 UNCALIBRATED = (
     "uncalibrated: no calibration_file, the bearings carry the power bias (within 0.23 deg, thesis 5.7)"
 )
+# the published revolutions' rate is OK within +-50 % of the turret's (5-15 Hz): none for 2 s is ERROR,
+# double (two sources) WARN; a wide band, as a real turret's speed and a loaded machine's polling vary
+REVOLUTION_RATE_TOLERANCE = 0.5
 
 
 class RosSourceHost:
@@ -153,11 +160,22 @@ def _refuse_unavailable_transitions(node: LifecycleNode) -> None:
     service.callback = guarded
 
 
-class DriverNode(LifecycleNode):
+class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
     def __init__(self) -> None:
         super().__init__("driver_node")
         _refuse_unavailable_transitions(self)
         self.diagnostics = Diagnostics(self, "driver")
+        turret_hz = 1.0 / TURRET_PERIOD_S
+        self.revolution_rate = RateStatus(
+            self.diagnostics,
+            "revolution",
+            RateMonitor(
+                "revolutions",
+                RATE_WINDOW_S,
+                turret_hz * (1.0 - REVOLUTION_RATE_TOLERANCE),
+                turret_hz * (1.0 + REVOLUTION_RATE_TOLERANCE),
+            ),
+        )
         self.host = RosSourceHost(self)
         self.failure = ""  # the last failed transition's reason
         self.unexpected: Exception | None = None
@@ -205,6 +223,13 @@ class DriverNode(LifecycleNode):
                 raise self.unexpected
             raise ParameterValidationError(self.failure)
 
+    def recover_from_callback_exception(self, site: str) -> str:
+        """A callback failed halfway (GuardedCallbacks): no decoding window joins across it."""
+        if self.decoder is None:
+            return ""
+        self.decoder.reset()
+        return "decoder reset"
+
     # ---- the lifecycle transitions ----
 
     def _configure(self) -> None:
@@ -243,6 +268,7 @@ class DriverNode(LifecycleNode):
             self.decoder.reset()
             self._stale_before_s = self.host.now_s()
         self._poll_timer = self.create_timer(self.kind.poll_period_s, self._poll)
+        self.revolution_rate.start(self.host.now_s())
         self._show_state("active")
         self.get_logger().info(
             f"{self.kind.name} source, codes {[str(c) for c in self.codes]}, variance mode "
@@ -277,6 +303,7 @@ class DriverNode(LifecycleNode):
     on_error = _transition(_error, LifecycleNode.on_error)
 
     def _stop_polling(self) -> None:
+        self.revolution_rate.stop()
         if self._poll_timer is not None:
             self.destroy_timer(self._poll_timer)
             self._poll_timer = None
@@ -351,8 +378,11 @@ class DriverNode(LifecycleNode):
         poll = self.source.poll(now_s)
         if poll.continuity_broken:
             self.decoder.reset()  # no window is joined across a gap in the stream
-        for edges in self._fresh(poll.revolutions, now_s):
+        fresh = self._fresh(poll.revolutions, now_s)
+        for edges in fresh:
             self._publish(self.decoder.decode(edges))
+        self.revolution_rate.tick(now_s, len(fresh))
+        self.revolution_rate.update(now_s)
         health = self.source.health()
         for key, value in health.values.items():
             self.diagnostics.set(key, value)

@@ -41,6 +41,8 @@ from beams_common.calibration_checks import BearingSample, RecentBearings
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import BeaconGeometry, geometry_of_calibration, runtime_geometry
 from beams_common.plausibility import StampCheck, pose_covariance_problem, stamp_tolerance_of
+from beams_common.ros.callback_guard import GuardedCallbacks
+from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import (
     planar_covariance,
     planar_tf_message,
@@ -77,7 +79,7 @@ from beams_msgs.srv import SetPose
 CALIBRATION_FLAG_HOLD_S = 10.0
 
 
-class EkfNode(Node):
+class EkfNode(WatchedInputs, GuardedCallbacks, Node):
     """ROS wiring of `Localiser` (see the module docstring)."""
 
     def __init__(self) -> None:
@@ -120,6 +122,12 @@ class EkfNode(Node):
             f"ekf_node ready: {len(self.localiser.ekf.beacons_xy)} beacons, turret offset "
             f"{self.localiser.ekf.sensor_offset_m} m, gate {self.localiser.ekf.gate:.2f}"
         )
+
+    def recover_from_callback_exception(self, site: str) -> str:
+        """A callback failed halfway (GuardedCallbacks): the filter may be half-updated, so it starts over."""
+        self.localiser.reset("resets_after_callback_exception")
+        self._published_stamp_s = None
+        return "filter reset: it re-initialises from the next fix"
 
     # -- parameters -----------------------------------------------------------------------------------
     def _prepare_parameters(self, values: dict, changed: set[str]) -> ApplyChange:

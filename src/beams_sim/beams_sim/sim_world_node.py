@@ -22,9 +22,12 @@ from rclpy.time import Time
 from tf2_msgs.msg import TFMessage
 
 from beams_common import topics
+from beams_common.health import RATE_WINDOW_S, RateMonitor
+from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.messages import planar_tf_message, ros_covariance, set_pose2d
 from beams_common.ros.node_support import TF_QOS, Diagnostics, run_node
 from beams_common.ros.parameters import ParameterValidationError, declare_table
+from beams_common.ros.rate_status import RateStatus
 from beams_sim.parameters import SIM_WORLD_PARAMETERS, drift_of, trajectory_of
 from beams_sim.world import OdometrySimulator, Pose2D
 
@@ -32,9 +35,12 @@ QUEUE_DEPTH = 10
 # Rough 1-sigma growth of odometry errors, for the covariance fields only (the EKF has its own model).
 POSITION_SIGMA_PER_M = 0.01
 HEADING_SIGMA_PER_RAD = 0.01
+# the odometry published is OK within +-50 % of rate_hz (a loaded machine delays timers); none for 2 s
+# (odometry_dropout_s, a rehearsed fault) is ERROR
+ODOMETRY_RATE_TOLERANCE = 0.5
 
 
-class SimWorldNode(Node):
+class SimWorldNode(GuardedCallbacks, Node):
     def __init__(self) -> None:
         super().__init__("sim_world_node")
         self.diagnostics = Diagnostics(self, "sim_world")
@@ -62,6 +68,16 @@ class SimWorldNode(Node):
         self.last_s = -math.inf
         self.finished = False
         self.odometry = self._new_odometry()
+        self.odometry_rate = RateStatus(
+            self.diagnostics,
+            "odometry",
+            RateMonitor(
+                "odometry",
+                RATE_WINDOW_S,
+                rate_hz * (1.0 - ODOMETRY_RATE_TOLERANCE),
+                rate_hz * (1.0 + ODOMETRY_RATE_TOLERANCE),
+            ),
+        )
         self.create_timer(1.0 / rate_hz, self._tick)
         self.get_logger().info(
             f"{self.trajectory.duration_s:.0f} s trajectory starting at {self.trajectory.pose_at(0.0)}, "
@@ -93,6 +109,7 @@ class SimWorldNode(Node):
         match_s = now_s - self.start_s
         self._publish_truth(now, match_s)
         self._publish_odometry(now, match_s)
+        self.odometry_rate.update(now_s)
         self.diagnostics.increment("samples")
         self.diagnostics.set("match_time_s", round(match_s, 3))
         if match_s >= self.trajectory.duration_s and not self.finished:
@@ -129,6 +146,7 @@ class SimWorldNode(Node):
             self.diagnostics.increment("odometry_dropped")  # a rehearsed fault: the encoders' link is down
             return
         self.odom_publisher.publish(msg)
+        self.odometry_rate.tick(now.nanoseconds * 1e-9)
         if self.tf_publisher is not None:
             self.tf_publisher.publish(planar_tf_message(msg.header, msg.child_frame_id, pose))
 

@@ -346,9 +346,14 @@ class Probe:
         node.create_subscription(Odometry, topics.GROUND_TRUTH + "_raw", self._on_truth, 100)
         node.create_subscription(Odometry, topics.EKF_ODOMETRY, self._on_ekf, 100)
         node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, 100)
+        # bearings and odom have one publisher by design (a second is said at ERROR, input_watch): the
+        # probe's exist only while a bad-message fault uses them (open_publisher, close_publisher)
+        self._publisher_kinds = {
+            "bearings": (BeaconBearingArray, topics.BEARINGS, BEARINGS_QOS),
+            "odom": (Odometry, topics.ODOMETRY, 10),
+        }
+        self._publisher_users: dict[str, int] = {}
         self.publishers = {
-            "bearings": node.create_publisher(BeaconBearingArray, topics.BEARINGS, BEARINGS_QOS),
-            "odom": node.create_publisher(Odometry, topics.ODOMETRY, 10),
             "initialpose": node.create_publisher(PoseWithCovarianceStamped, topics.INITIAL_POSE, 10),
         }
         self._clients: dict[str, Any] = {}
@@ -357,6 +362,21 @@ class Probe:
 
     def now_s(self) -> float:
         return self.node.get_clock().now().nanoseconds * 1e-9
+
+    def open_publisher(self, name: str) -> None:
+        """The probe's publisher on a single-publisher topic for a fault's window (counted: they overlap)."""
+        if name not in self._publisher_kinds:
+            return
+        self._publisher_users[name] = self._publisher_users.get(name, 0) + 1
+        if name not in self.publishers:
+            self.publishers[name] = self.node.create_publisher(*self._publisher_kinds[name])
+
+    def close_publisher(self, name: str) -> None:
+        if name not in self._publisher_kinds or name not in self.publishers:
+            return
+        self._publisher_users[name] -= 1
+        if self._publisher_users[name] == 0:
+            self.node.destroy_publisher(self.publishers.pop(name))
 
     def spin(self, timeout_s: float) -> None:
         self.executor.spin_once(timeout_sec=timeout_s)
@@ -522,6 +542,13 @@ def operator_pose(stamp_s: float, xy: tuple[float, float], variance: float, fram
     return msg
 
 
+def bad_message_topic(variant: str) -> str:
+    """The probe's publisher a bad message goes through (bad_message's first element)."""
+    if variant.startswith("initialpose"):
+        return "initialpose"
+    return "odom" if variant == "nan_odometry" else "bearings"
+
+
 def bad_message(variant: str, probe: Probe) -> tuple[str, Any]:
     """(publisher, message) of one bad message, stamped now."""
     from nav_msgs.msg import Odometry
@@ -617,8 +644,12 @@ class Campaign:
                 if fault.variant.startswith("initialpose")
                 else max(1, int(fault.duration_s / BAD_MESSAGE_PERIOD_S))
             )
+            topic = bad_message_topic(fault.variant)
+            # opened a moment before the first message (discovery), closed after the window
+            self.at(max(start - 0.5, 0.0), label, lambda: probe.open_publisher(topic))
             for k in range(repeats):
                 self.at(start + k * BAD_MESSAGE_PERIOD_S, label, lambda: self._publish_bad(fault.variant))
+            self.at(end, label, lambda: probe.close_publisher(topic))
         elif fault.kind == "bad_service_call":
             self._plan_service_call(fault, label)
         elif fault.kind == "parameter_change":

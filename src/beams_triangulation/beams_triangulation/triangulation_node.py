@@ -39,6 +39,8 @@ from beams_common.bearing_intake import bearings_message_intake
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import geometry_of_calibration, runtime_geometry
 from beams_common.plausibility import StampCheck, stamp_tolerance_of
+from beams_common.ros.callback_guard import GuardedCallbacks
+from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
 from beams_common.ros.node_support import (
     BEARINGS_QOS,
@@ -62,7 +64,7 @@ def estimate_pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
     return pose_with_covariance((estimate.x, estimate.y, estimate.heading), estimate.covariance)
 
 
-class TriangulationNode(Node):
+class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
     """ROS wiring of `pipeline.TriangulationPipeline` (see the module docstring)."""
 
     def __init__(self) -> None:
@@ -95,6 +97,12 @@ class TriangulationNode(Node):
             f"{geometry.turret_offset_m} m, gates 1/|D| < {config.max_inverse_abs_d:g} m^-2 and std < "
             f"{config.max_position_std_m:g} m, odometry {'on' if self.use_odometry else 'off'}"
         )
+
+    def recover_from_callback_exception(self, site: str) -> str:
+        """A callback failed halfway (GuardedCallbacks): a new pipeline, without the waiting revolution."""
+        settings, geometry = self.pipeline.settings, self.geometry
+        self.pipeline = TriangulationPipeline(geometry.beacon_map, settings, geometry.turret_offset_m)
+        return "pipeline reset: the waiting revolution and the odometry history dropped"
 
     # -- parameters -----------------------------------------------------------------------------------
     def _prepare_parameters(self, values: dict, changed: set[str]) -> ApplyChange:

@@ -6,6 +6,7 @@ Parameters are declared from their specs by beams_common.ros.parameters.
 import os
 import signal
 import sys
+import time
 import traceback
 from collections.abc import Callable
 from typing import Any
@@ -25,6 +26,7 @@ from std_srvs.srv import Trigger
 from beams_common import topics
 from beams_common.calibration_file import SensorCalibration, load_calibration
 from beams_common.geometry_parameters import BeaconGeometry, geometry_of
+from beams_common.ros.node_logging import ThrottledLog
 from beams_common.ros.parameters import ParameterValidationError
 from beams_common.validation import bounded, revolution_size_problem
 
@@ -189,14 +191,20 @@ def serve_calibration_reload(node: Node, apply: Callable[[SensorCalibration], st
 class Diagnostics:
     """Counters and a status published on /diagnostics once a second (diagnostic_msgs).
 
-    A refusal (`refuse`) is counted, logged (throttled) and shown: the next publication is at least WARN
-    with its reason, whatever the node's status became meanwhile. Every text is bounded in length
-    (`validation.bounded`). Under use_sim_time, while no /clock has come, a status "waiting for /clock"
-    is published on the steady (wall) clock, with a log line every WAITING_LOG_PERIOD publications.
+    A refusal (`refuse`) is counted, logged (each key at most once a second) and shown: the next
+    publication is at least WARN with its reason, whatever the node's status became meanwhile. A
+    condition (`set_condition`: a second publisher on an input, say) holds the status at least at its
+    level, with its reason, until it is cleared or its hold time ends; `callback_failed` is one such
+    (ERROR for CALLBACK_FAULT_HOLD_S after the last exception a callback let out). Every text is bounded
+    in length (`validation.bounded`). Under use_sim_time, while no /clock has come, a status "waiting for
+    /clock" is published on the steady (wall) clock, with a log line every WAITING_LOG_PERIOD
+    publications.
     """
 
     WAITING_FOR_CLOCK = "waiting for /clock (use_sim_time is true): no time, nothing processed"
     WAITING_LOG_PERIOD = 5
+    # how long /diagnostics stays ERROR after a callback let an exception out (s, steady clock)
+    CALLBACK_FAULT_HOLD_S = 10.0
 
     def __init__(self, node: Node, name: str, period_s: float = 1.0) -> None:
         self._node = node
@@ -205,6 +213,9 @@ class Diagnostics:
         self._level = "ok"
         self._message = "running"
         self._refusal: tuple[str, str] | None = None  # (level, reason) not yet published
+        # name -> (level, reason, steady time it ends or None: until cleared)
+        self._conditions: dict[str, tuple[str, str, float | None]] = {}
+        self._log = ThrottledLog(node.get_logger())
         self._publisher = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self._timer = node.create_timer(period_s, self.publish)
         self._clock_waits = 0
@@ -239,8 +250,48 @@ class Diagnostics:
         self._values["last_refusal"] = f"{key}: {reason}"
         if self._refusal is None or _LEVELS[level] >= _LEVELS[self._refusal[0]]:
             self._refusal = (level, f"{key}: {reason}")
-        log = self._node.get_logger().error if level == "error" else self._node.get_logger().warning
-        log(f"refused ({key}, {self._values[key]} so far): {reason}", throttle_duration_sec=1.0)
+        # one rclpy call site per severity (node_logging.log_at): rclpy raises when a site changes it
+        self._log.log(level, key, f"refused ({key}, {self._values[key]} so far): {reason}")
+
+    def set_condition(self, name: str, level: str, reason: str, hold_s: float | None = None) -> None:
+        """Hold the status at least at `level` with `reason` until `clear_condition(name)` or, with
+        `hold_s`, that many seconds (steady clock) from now."""
+        if level not in _LEVELS:
+            raise ValueError(f"diagnostic level must be one of {sorted(_LEVELS)}, got {level!r}")
+        until_s = None if hold_s is None else time.monotonic() + hold_s
+        known = self._conditions.get(name)
+        self._conditions[name] = (level, bounded(reason), until_s)
+        if level == "error" and (known is None or known[0] != level):
+            self.publish()  # an ERROR is said at once, not at the next tick (up to period_s later)
+
+    def clear_condition(self, name: str) -> None:
+        self._conditions.pop(name, None)
+
+    def active_conditions(self) -> dict[str, tuple[str, str]]:
+        """The conditions in force now: name -> (level, reason); expired ones are dropped."""
+        now_s = time.monotonic()
+        expired = [
+            name
+            for name, (_, _, until_s) in self._conditions.items()
+            if until_s is not None and now_s >= until_s
+        ]
+        for name in expired:
+            del self._conditions[name]
+        return {name: (level, reason) for name, (level, reason, _) in self._conditions.items()}
+
+    def _held(self, name: str) -> bool:
+        """True when the condition ends by itself (a hold time), False when it lasts until cleared."""
+        return self._conditions[name][2] is not None
+
+    def callback_failed(self, site: str, summary: str) -> None:
+        """A callback let an exception out (the guard caught it): counted in `callback_exceptions`, kept
+        in `last_callback_exception`, and the status ERROR for CALLBACK_FAULT_HOLD_S."""
+        self.increment("callback_exceptions")
+        reason = f"{site}: {summary}"
+        self._values["last_callback_exception"] = bounded(reason)
+        self.set_condition(
+            "callback_exception", "error", f"a callback failed ({reason})", hold_s=self.CALLBACK_FAULT_HOLD_S
+        )
 
     def oversized_revolution(self, message: Any) -> bool:
         """True, the message refused and counted, when a beams/bearings message holds more bearings than a
@@ -257,6 +308,16 @@ class Diagnostics:
             self._refusal = None
             level = refusal_level if _LEVELS[refusal_level] > _LEVELS[level] else level
             message = bounded(f"{message}; refused {reason}")
+        conditions = self.active_conditions()
+        if conditions:
+            # the worst first, and among equals the ones held until cleared (the graph's, which name
+            # the publishers): the text is bounded, the end may be cut
+            ordered = sorted(
+                conditions, key=lambda name: (-ord(_LEVELS[conditions[name][0]]), self._held(name))
+            )
+            worst = conditions[ordered[0]][0]
+            level = worst if _LEVELS[worst] > _LEVELS[level] else level
+            message = bounded("; ".join([*(conditions[name][1] for name in ordered), message]))
         self._send(level, message, self._node.get_clock().now().to_msg())
 
     def _send(self, level: str, message: str, stamp: Any) -> None:

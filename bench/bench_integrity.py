@@ -1,0 +1,199 @@
+"""Node-level integrity (issue 18): how fast the EKF is back after a node dies, and how fast a second
+publisher is said.
+
+The robot's four nodes run under the demo's supervisor (beams_bringup.supervisor, respawn after
+RESPAWN_DELAY_S, as beams.launch.py does); each node in turn is killed with SIGKILL, KILL_ROUNDS times,
+and the delay from the kill to the EKF's next beams/ekf/odometry message is timed (the EKF goes on
+predicting on odometry while another node is down; killed itself, it is back after the delay, its
+start-up and its first fix), and the longest EKF silence in the SILENCE_WINDOW_S
+after it. Then a second driver_node is started in the namespace, ROUNDS times: the
+delay from the second publisher showing in this probe's graph to ERROR on ekf_node's and
+triangulation_node's /diagnostics naming both.
+
+Usage: python bench/bench_integrity.py   (in ROS_DOMAIN_ID 69 unless the environment sets one; needs
+`make build`; `rows()` is what bench/run_all.py collects.)
+"""
+
+import itertools
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+DEFAULT_DOMAIN_ID = "69"  # 61-69 are the developers' (test/conftest.py); the tests never use it
+KILL_ROUNDS = 3
+SECOND_DRIVER_ROUNDS = 3
+UP_TIMEOUT_S = 60.0
+BACK_TIMEOUT_S = 20.0
+SETTLE_S = 2.0
+SILENCE_WINDOW_S = 8.0
+Row = tuple[str, float, str, str]
+
+
+class Probe:
+    """An rclpy node timing the EKF's output and the watchers' /diagnostics."""
+
+    def __init__(self) -> None:
+        import rclpy
+        from diagnostic_msgs.msg import DiagnosticArray
+        from nav_msgs.msg import Odometry
+        from rclpy.executors import SingleThreadedExecutor
+
+        rclpy.init()
+        self.node = rclpy.create_node("integrity_bench_probe")
+        self.executor = SingleThreadedExecutor()
+        self.executor.add_node(self.node)
+        self.ekf_outputs: list[float] = []
+        self.statuses: dict[str, list] = {"ekf_node": [], "triangulation_node": []}
+        self.node.create_subscription(Odometry, "/beams/ekf/odometry", self._on_ekf, 10)
+        self.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 50)
+
+    def _on_ekf(self, _msg) -> None:
+        self.ekf_outputs.append(time.monotonic())
+
+    def _on_diagnostics(self, msg) -> None:
+        for status in msg.status:
+            for name, seen in self.statuses.items():
+                if f"/{name}:" in status.name:
+                    seen.append((time.monotonic(), status))
+
+    def spin_until(self, predicate, timeout_s: float, during=lambda: None) -> bool:
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            during()
+            if predicate():
+                return True
+            self.executor.spin_once(timeout_sec=0.01)
+        return predicate()
+
+    def close(self) -> None:
+        import rclpy
+
+        self.executor.shutdown()
+        self.node.destroy_node()
+        rclpy.try_shutdown()
+
+
+def longest_silence(arrivals: list[float], start: float, end: float) -> float:
+    """The longest interval without an arrival within [start, end] (s)."""
+    inside = [start, *sorted(t for t in arrivals if start < t < end), end]
+    return max(later - earlier for earlier, later in itertools.pairwise(inside))
+
+
+def kill_delays(probe: Probe, supervisor, node_names: list[str]) -> tuple[dict, dict]:
+    """For each node, KILL_ROUNDS times: SIGKILL, then the delay to the EKF's next output and the
+    longest EKF silence in the SILENCE_WINDOW_S after the kill (s)."""
+    delays: dict[str, list[float]] = {name: [] for name in node_names}
+    silences: dict[str, list[float]] = {name: [] for name in node_names}
+    for _ in range(KILL_ROUNDS):
+        for name in node_names:
+            probe.spin_until(lambda: False, SETTLE_S, supervisor.poll)
+            pid = supervisor.pid(name)
+            if pid is None:
+                raise RuntimeError(f"{name} is not running")
+            killed_at = time.monotonic()
+            os.kill(pid, signal.SIGKILL)
+            # messages already in flight at the kill do not count
+            if not probe.spin_until(
+                lambda since=killed_at + 0.2: any(t > since for t in probe.ekf_outputs),
+                BACK_TIMEOUT_S,
+                supervisor.poll,
+            ):
+                raise RuntimeError(f"no EKF output within {BACK_TIMEOUT_S} s of killing {name}")
+            delays[name].append(min(t for t in probe.ekf_outputs if t > killed_at + 0.2) - killed_at)
+            # the killed node must be running again before the next kill
+            probe.spin_until(lambda n=name: supervisor.pid(n) is not None, BACK_TIMEOUT_S, supervisor.poll)
+            end = killed_at + SILENCE_WINDOW_S
+            probe.spin_until(lambda end=end: time.monotonic() > end, 60.0, supervisor.poll)
+            silences[name].append(longest_silence(probe.ekf_outputs, killed_at, end))
+    return delays, silences
+
+
+def second_driver_delays(probe: Probe, supervisor, command: list[str], env: dict[str, str]) -> list[float]:
+    """Start a second driver, time ERROR naming both on each watcher's /diagnostics, stop it."""
+    from diagnostic_msgs.msg import DiagnosticStatus
+
+    def says_two(status) -> bool:
+        return status.level == DiagnosticStatus.ERROR and "/driver_node (x2)" in status.message
+
+    delays = []
+    for _ in range(SECOND_DRIVER_ROUNDS):
+        # the previous round's ERROR gone (its hold, its graph entry)
+        probe.spin_until(
+            lambda: all(s and not says_two(s[-1][1]) for s in probe.statuses.values()), 15.0, supervisor.poll
+        )
+        second = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        try:
+            if not probe.spin_until(
+                lambda: probe.node.count_publishers("/beams/bearings") == 2, UP_TIMEOUT_S, supervisor.poll
+            ):
+                raise RuntimeError("the second driver never showed in the graph")
+            appeared = time.monotonic()
+
+            def said_after(name: str, since: float = appeared) -> float | None:
+                return next((t for t, s in probe.statuses[name] if t >= since and says_two(s)), None)
+
+            if not probe.spin_until(
+                lambda: all(said_after(n) is not None for n in probe.statuses), 10.0, supervisor.poll
+            ):
+                raise RuntimeError("the second driver was not said at ERROR within 10 s")
+            delays += [said_after(n) - appeared for n in probe.statuses]
+        finally:
+            second.send_signal(signal.SIGINT)
+            second.wait(timeout=15)
+    return delays
+
+
+def rows() -> list[Row]:
+    os.environ.setdefault("ROS_DOMAIN_ID", DEFAULT_DOMAIN_ID)
+    os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    from beams_bringup.demo import node_commands, sensor_setup
+    from beams_bringup.supervisor import NodeSupervisor
+    from beams_bringup.system import RESPAWN_DELAY_S
+    from beams_sim.simulated_match import SENSOR_MODELS
+
+    env = dict(os.environ)
+    with tempfile.TemporaryDirectory() as directory:
+        output = pathlib.Path(directory)
+        commands = node_commands(600.0, sensor_setup(SENSOR_MODELS[0], output))
+        supervisor = NodeSupervisor(commands, env, output)
+        probe = Probe()
+        supervisor.start()
+        try:
+            if not probe.spin_until(lambda: bool(probe.ekf_outputs), UP_TIMEOUT_S, supervisor.poll):
+                logs = "\n".join(n.log_path.read_text()[-2000:] for n in supervisor.nodes.values())
+                raise RuntimeError(f"no EKF output within {UP_TIMEOUT_S} s:\n{logs}")
+            kills, silences = kill_delays(probe, supervisor, list(commands))
+            second = second_driver_delays(probe, supervisor, commands["driver_node"], env)
+        finally:
+            supervisor.stop()
+            probe.close()
+    print(f"EKF back after each kill (s): {kills}; longest EKF silence (s): {silences}", file=sys.stderr)
+    print(f"second driver said after (s): {second}", file=sys.stderr)
+    result: list[Row] = []
+    for name, delays in kills.items():
+        goal = f"issue 18 goal 2 s ({RESPAWN_DELAY_S:g} s respawn delay + start-up)"
+        result.append(
+            (f"EKF output again after kill -9 of {name}, worst of {KILL_ROUNDS}", max(delays), "s", goal)
+        )
+        window = f"{SILENCE_WINDOW_S:g} s"
+        figure = f"longest EKF silence in the {window} after kill -9 of {name}, worst of {KILL_ROUNDS}"
+        result.append((figure, max(silences[name]), "s", "0.05 s (publish_rate_hz 20) when nothing stops"))
+    result.append(
+        (
+            f"second driver_node said ERROR (ekf and triangulation), worst of {len(second)}",
+            max(second),
+            "s",
+            "issue 18 goal 1 s",
+        )
+    )
+    return result
+
+
+if __name__ == "__main__":
+    for figure, value, unit, compared in rows():
+        print(f"{figure} | {value:.3g} | {unit} | {compared}")

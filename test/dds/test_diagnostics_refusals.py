@@ -1,0 +1,129 @@
+"""Refusals at every severity in every order keep the node alive (issue 18: rclpy's "Logger severity
+cannot be changed between calls" killed ekf_node after an ERROR refusal then a WARN one, or the reverse).
+
+In-process: a real rclpy node with Diagnostics, in the test's own domain; and one DDS test that plays the
+issue's reproduction against the installed ekf_node (reload with an empty calibration_file, then
+set_pose with x = NaN: every call answered, the node keeps serving).
+"""
+
+import itertools
+import math
+
+import pytest
+
+pytestmark = pytest.mark.dds
+
+LEVELS = ("warn", "error")
+WAIT_S = 20.0
+
+
+@pytest.fixture
+def diagnostics_node(ros_env):
+    rclpy = pytest.importorskip("rclpy", reason="rclpy missing: run the tests through `make test`")
+    from beams_common.ros.node_support import Diagnostics
+
+    context = rclpy.Context()
+    rclpy.init(context=context)
+    node = rclpy.create_node("refusal_probe", context=context)
+    diagnostics = Diagnostics(node, "probe")
+    published: list = []
+    diagnostics._publisher.publish = published.append  # what /diagnostics would carry, in order
+    try:
+        yield diagnostics, published
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+
+
+@pytest.mark.parametrize("levels", list(itertools.product(LEVELS, repeat=3)), ids="-".join)
+@pytest.mark.parametrize("same_key", [True, False], ids=["one key", "keys differ"])
+def test_refusals_at_any_severity_in_any_order_are_counted_and_shown(diagnostics_node, levels, same_key):
+    diagnostics, published = diagnostics_node
+    keys = ["refused_x"] * 3 if same_key else ["refused_a", "refused_b", "refused_c"]
+    for round_index in range(2):  # a second round: every site has logged before, at every severity
+        for key, level in zip(keys, levels, strict=True):
+            diagnostics.refuse(key, f"{level} refusal in round {round_index}", level=level)
+        diagnostics.publish()
+        status = published[-1].status[0]
+        assert status.level == (b"\x02" if "error" in levels else b"\x01")
+        assert "refusal" in status.message
+    for key in set(keys):
+        assert diagnostics.get(key) == 2 * keys.count(key)
+
+
+def test_a_refusal_of_an_unknown_severity_is_a_programming_error(diagnostics_node):
+    diagnostics, _ = diagnostics_node
+    with pytest.raises(ValueError, match="'warn' or 'error'"):
+        diagnostics.refuse("refused_x", "reason", level="fatal")
+
+
+def test_a_condition_holds_the_status_until_cleared_whatever_the_node_sets(diagnostics_node):
+    diagnostics, published = diagnostics_node
+    diagnostics.set_condition("second_publisher", "error", "two publishers on /beams/bearings")
+    diagnostics.set_level("ok", "tracking")
+    diagnostics.publish()
+    assert published[-1].status[0].level == b"\x02"
+    assert published[-1].status[0].message.startswith("two publishers on /beams/bearings")
+    diagnostics.clear_condition("second_publisher")
+    diagnostics.publish()
+    assert published[-1].status[0].level == b"\x00" and published[-1].status[0].message == "tracking"
+
+
+def test_a_held_condition_ends_by_itself(diagnostics_node):
+    diagnostics, published = diagnostics_node
+    diagnostics.set_condition("brief", "warn", "for a moment", hold_s=0.0)
+    diagnostics.publish()
+    assert published[-1].status[0].level == b"\x00"
+
+
+def test_ekf_node_answers_a_refused_reload_then_a_nan_set_pose_and_keeps_serving(start_node, rclpy_node):
+    """The issue's reproduction: an ERROR refusal (reload with no calibration_file) then a WARN one
+    (set_pose x = NaN) killed ekf_node before the second answer; now both are answered, then a good
+    set_pose is taken and the EKF publishes."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from nav_msgs.msg import Odometry
+    from std_srvs.srv import Trigger
+
+    from beams_msgs.srv import SetPose
+
+    node = start_node("beams_ekf", "ekf_node")
+    diagnostics = rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
+    outputs = rclpy_node.subscribe(Odometry, "/beams/ekf/odometry")
+    for attempt in range(2):  # both orders of the two severities, and again after each
+        reload = rclpy_node.call(Trigger, "/ekf_node/reload_calibration", Trigger.Request(), WAIT_S)
+        assert not reload.success and "calibration_file parameter is empty" in reload.message
+        request = SetPose.Request()
+        request.pose.header.frame_id = "map"
+        request.pose.pose.pose.position.x = math.nan
+        request.pose.pose.pose.orientation.w = 1.0
+        answer = rclpy_node.call(SetPose, "/ekf_node/set_pose", request, WAIT_S)
+        assert not answer.success and "refused" in answer.message, attempt
+        assert node.process.poll() is None, node.log()
+    good = SetPose.Request()
+    good.pose.header.frame_id = "map"
+    good.pose.header.stamp = rclpy_node.node.get_clock().now().to_msg()
+    good.pose.pose.pose.position.x, good.pose.pose.pose.position.y = 1.0, 1.0
+    good.pose.pose.pose.orientation.w = 1.0
+    for index in (0, 7, 35):
+        good.pose.pose.covariance[index] = 0.01
+    answer = rclpy_node.call(SetPose, "/ekf_node/set_pose", good, WAIT_S)
+    assert answer.success, answer.message
+    assert rclpy_node.spin_until(lambda: len(outputs) > 0, WAIT_S), node.log()
+    assert rclpy_node.spin_until(
+        lambda: int(rclpy_node.diagnostic_values("ekf_node").get("calibration_reloads_refused", 0)) == 2,
+        WAIT_S,
+    ), rclpy_node.diagnostic_values("ekf_node")
+    assert "Traceback" not in node.log()
+    assert diagnostics
+
+
+def test_conditions_are_listed_worst_first_and_lasting_before_held(diagnostics_node):
+    diagnostics, published = diagnostics_node
+    diagnostics.set_condition("slow", "warn", "input slow")
+    diagnostics.set_condition("interleaved", "error", "sources interleave", hold_s=60.0)
+    diagnostics.set_condition("graph", "error", "2 publishers: /a, /b")
+    diagnostics.set_level("ok", "tracking")
+    diagnostics.publish()
+    status = published[-1].status[0]
+    assert status.level == b"\x02"
+    assert status.message == "2 publishers: /a, /b; sources interleave; input slow; tracking"

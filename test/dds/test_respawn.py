@@ -1,0 +1,152 @@
+"""A node that dies comes back (issue 18): the demo's supervisor restarts it after RESPAWN_DELAY_S, as
+`ros2 launch` does with respawn (beams.launch.py; its real-tool check is in test_ros2_cli.py).
+
+The whole robot runs under the supervisor the demo uses; each node in turn is killed with SIGKILL (no
+chance to clean up); the killed node's own output is seen again (its process started again), and the
+longest silence of the EKF's output (beams/ekf/odometry) in the SILENCE_WINDOW_S after the kill is
+bounded:
+- the driver or the triangulation killed: the EKF goes on (predicting on odometry), silent at most
+  EKF_BACK_S (measured <= 0.17 s, bench/bench_integrity.py);
+- the odometry source (sim_world_node) or the EKF itself killed: the EKF's output needs that node back,
+  RESPAWN_DELAY_S plus a Python node's start-up: 2.2-2.7 s for ekf_node on the 2-core machine under a
+  load of 15 (scipy.stats, imported by filterpy.kalman and the localiser, is 2 s of it), 1 s unloaded;
+  measured silences 2.1-4.6 s. Bounded by RESPAWN_DELAY_S + NODE_START_S.
+"""
+
+import itertools
+import os
+import signal
+import time
+
+import pytest
+
+pytestmark = pytest.mark.dds
+
+UP_TIMEOUT_S = 60.0
+EKF_BACK_S = 2.0
+# a Python node's start-up under load (ekf_node measured 2.2-2.7 s), then the EKF's first output
+NODE_START_S = 5.0
+SILENCE_WINDOW_S = 8.0
+# nodes the EKF's output needs: the odometry source and the EKF itself
+EKF_NEEDS = ("sim_world_node", "ekf_node")
+# the killed node's own output: the respawn delay, a Python node's start-up on a loaded machine, the
+# EKF's first fix from a ToTal pose
+NODE_BACK_S = 15.0
+
+
+@pytest.fixture
+def supervised_robot(ros_env, tmp_path):
+    from beams_bringup.demo import node_commands, sensor_setup
+    from beams_bringup.supervisor import NodeSupervisor
+    from beams_sim.simulated_match import SENSOR_MODELS
+
+    sensor = sensor_setup(SENSOR_MODELS[0], tmp_path)
+    supervisor = NodeSupervisor(node_commands(600.0, sensor), ros_env, tmp_path)
+    supervisor.start()
+    try:
+        yield supervisor
+    finally:
+        statuses = supervisor.stop()
+        logs = {name: node.log_path.read_text(errors="replace") for name, node in supervisor.nodes.items()}
+        assert all(status == 0 for status in statuses.values()), (statuses, logs)
+        assert not any("Traceback" in log for log in logs.values()), logs
+
+
+def test_each_node_killed_in_turn_comes_back_and_the_ekf_output_within_2_s(rclpy_node, supervised_robot):
+    from nav_msgs.msg import Odometry
+
+    from beams_bringup.system import RESPAWN_DELAY_S
+    from beams_common.ros.node_support import BEARINGS_QOS
+    from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
+
+    supervisor = supervised_robot
+    arrivals: dict[str, list[float]] = {}
+
+    def record(topic: str, msg_type, qos=10) -> None:
+        times = arrivals.setdefault(topic, [])
+        rclpy_node.node.create_subscription(msg_type, topic, lambda _msg: times.append(time.monotonic()), qos)
+
+    ekf_topic = "/beams/ekf/odometry"
+    record(ekf_topic, Odometry)
+    record("/beams/sim/ground_truth", Odometry)
+    record("/beams/bearings", BeaconBearingArray, BEARINGS_QOS)
+    record("/beams/pose", TriangulatedPose)
+    outputs = {
+        "sim_world_node": "/beams/sim/ground_truth",
+        "driver_node": "/beams/bearings",
+        "triangulation_node": "/beams/pose",
+        "ekf_node": "/beams/ekf/odometry",
+    }
+    events: list[str] = []
+
+    def supervised(predicate):
+        def check() -> bool:
+            events.extend(supervisor.poll())
+            return predicate()
+
+        return check
+
+    def logs() -> str:
+        return "\n".join(
+            f"{n.name}:\n{n.log_path.read_text(errors='replace')}" for n in supervisor.nodes.values()
+        )
+
+    def seen_after(topic: str, since: float) -> bool:
+        return any(t > since for t in arrivals[topic])
+
+    started = time.monotonic()
+    assert rclpy_node.spin_until(
+        supervised(lambda: all(seen_after(topic, started) for topic in outputs.values())), UP_TIMEOUT_S
+    ), logs()
+    for name, own_output in outputs.items():
+        rclpy_node.spin_until(supervised(lambda: False), 1.0)  # a second of normal running first
+        pid = supervisor.pid(name)
+        assert pid is not None, f"{name} is not running: {events}\n{logs()}"
+        killed_at = time.monotonic()
+        os.kill(pid, signal.SIGKILL)
+
+        def node_back(node=supervisor.nodes[name], topic=own_output, since=killed_at + 1.0) -> bool:
+            return node.restarts >= 1 and seen_after(topic, since)
+
+        assert rclpy_node.spin_until(supervised(node_back), NODE_BACK_S), (
+            f"{name} not back within {NODE_BACK_S} s: {events}\n{logs()}"
+        )
+        rclpy_node.spin_until(
+            supervised(lambda end=killed_at + SILENCE_WINDOW_S: time.monotonic() > end), 60.0
+        )
+        silence_s = longest_silence(arrivals[ekf_topic], killed_at, killed_at + SILENCE_WINDOW_S)
+        bound_s = RESPAWN_DELAY_S + NODE_START_S if name in EKF_NEEDS else EKF_BACK_S
+        print(f"{name} killed: longest EKF silence {silence_s:.2f} s (bound {bound_s:g} s)")
+        assert silence_s <= bound_s, f"EKF silent {silence_s:.2f} s after killing {name}: {events}\n{logs()}"
+    assert [node.restarts for node in supervisor.nodes.values()] == [1, 1, 1, 1], events
+    assert all(
+        exit_status == -signal.SIGKILL for node in supervisor.nodes.values() for exit_status in node.exits
+    )
+
+
+def longest_silence(arrivals: list[float], start: float, end: float) -> float:
+    """The longest interval without an arrival within [start, end] (s)."""
+    inside = [start, *sorted(t for t in arrivals if start < t < end), end]
+    return max(later - earlier for earlier, later in itertools.pairwise(inside))
+
+
+def test_a_node_refusing_its_parameters_is_not_restarted(ros_env, tmp_path):
+    """Exit status 2 (run_node's start-up refusal) would come again at every start: given up, said."""
+    from beams_bringup.supervisor import NodeSupervisor
+
+    script = ["python", "-c", "import sys; sys.exit(2)"]
+    crash = ["python", "-c", "import os; os.kill(os.getpid(), 9)"]
+    supervisor = NodeSupervisor({"refuses": script, "crashes": crash}, ros_env, tmp_path, respawn_delay_s=0.1)
+    supervisor.start()
+    deadline = time.monotonic() + 20.0
+    events: list[str] = []
+    while time.monotonic() < deadline and supervisor.nodes["crashes"].restarts < 2:
+        events += supervisor.poll()
+        time.sleep(0.02)
+    supervisor.stop()
+    assert (
+        "not restarted" in supervisor.nodes["refuses"].gave_up and supervisor.nodes["refuses"].restarts == 0
+    )
+    assert supervisor.nodes["crashes"].restarts >= 2, events
+    assert any("SIGKILL" in event for event in events), events
+    assert supervisor.nodes["crashes"].log_path.read_text().count("--- restart") >= 2
