@@ -56,7 +56,7 @@ hil-if-possible:
 ## static), then the DDS tier with DDS_WORKERS pytest-xdist workers side by side (its tests mostly wait;
 ## each claims a ROS_DOMAIN_ID of its own); exit 0 only when all pass. A part with no test in one of the
 ## two runs (exit status 5) is not an error: PYTEST_ARGS="src/beams_ekf -x"
-DDS_WORKERS ?= 3
+DDS_WORKERS ?= 2
 DDS_PARALLEL := $(if $(filter-out 0 1,$(DDS_WORKERS)),-n $(DDS_WORKERS) --dist loadfile)
 test: build lint hil-if-possible
 	$(ROS_ENV) python -m pytest -m "not dds" $(PYTEST_ARGS) || [ $$? -eq 5 ]

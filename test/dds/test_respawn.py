@@ -40,7 +40,7 @@ def supervised_robot(ros_env, tmp_path):
     from beams_bringup.supervisor import NodeSupervisor
     from beams_sim.simulated_match import SENSOR_MODELS
 
-    sensor = sensor_setup(SENSOR_MODELS[0], tmp_path)
+    sensor = sensor_setup(SENSOR_MODELS[0], tmp_path, calibrated=True)
     supervisor = NodeSupervisor(node_commands(600.0, sensor), ros_env, tmp_path)
     supervisor.start()
     try:

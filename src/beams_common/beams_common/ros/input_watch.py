@@ -12,7 +12,7 @@ odometry, ground truth, ToTal poses; not /initialpose, where any operator may pu
   which also catches two sources behind one publisher (a relay) and says so the same way.
 
 The conditions go through `Diagnostics.set_condition`: the node's status is ERROR with the reason first,
-whatever else it says. A node killed with SIGKILL stays in the graph until its DDS lease ends (2 s in
+whatever else it says. A node killed with SIGKILL stays in the graph until its DDS lease ends (5 s in
 the package's Fast DDS profile): a node respawned meanwhile is counted twice for those seconds.
 """
 
