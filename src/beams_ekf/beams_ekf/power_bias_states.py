@@ -6,10 +6,11 @@ cubic). Treated as white noise it makes the filter overconfident (mean NEES ~40 
 same bias comes back bearing after bearing. Here f is written on the Chebyshev polynomials of the window
 mapped onto [-1, 1] over `window_range_rad` (clamped outside it, as the chapter-7 correction clamps):
 
-    f(w) = sum_k beta_k T_k(x(w)),  k = 1..3,  x(w) = (2 w - lo - hi) / (hi - lo)
+    f(w) = sum_k beta_k T_k(x(w)),  k = 0..3,  x(w) = (2 w - lo - hi) / (hi - lo)
 
-which spans the same cubics as eq. 7.19 less its constant term (a constant bias turns every bearing alike:
-the heading absorbs it, section 7.3.2 and docs/self_calibration.md). Each |T_k| <= 1 on the range, so a
+which spans the same cubics as eq. 7.19. The constant beta_0 is kept although a constant bias turns every
+bearing alike and the heading largely absorbs it (section 7.3.2): without it the filter was overconfident
+(NEES 25), and the odometry observes it in part (docs/self_calibration.md). Each |T_k| <= 1 on the range, so a
 prior standard deviation of half the thesis's 0.23 deg on each beta_k keeps the prior curve within the
 measured fluctuation. The coefficients are filter states: `estimate` learns them from the bearings and the
 odometry (self-calibration), `consider` keeps them at their prior (Schmidt-Kalman "consider" parameters:
@@ -37,7 +38,7 @@ BASIS_SIZE = 4
 
 @dataclass(frozen=True)
 class PowerBiasStates:
-    """The power bias's Chebyshev coefficients (beta_1, beta_2, beta_3) (rad) as EKF states.
+    """The power bias's Chebyshev coefficients (beta_0 .. beta_3) (rad) as EKF states.
 
     estimate: False makes them Schmidt-Kalman consider parameters (never updated).
     """
@@ -132,7 +133,7 @@ POWER_BIAS_PARAMETERS = (
     ParameterSpec(
         "power_bias_states",
         "estimate",
-        "The power bias (thesis eq. 7.19, less its constant) of bearings no calibration corrected "
+        "The power bias (thesis eq. 7.19) of bearings no calibration corrected "
         "(beams/bearings 'calibrated' false): 'estimate' learns it while driving (self-calibration), "
         "'consider' keeps it at its prior and carries its uncertainty (Schmidt-Kalman), 'off' treats "
         "it as white noise (overconfident).",
