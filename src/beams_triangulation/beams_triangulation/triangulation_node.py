@@ -45,6 +45,8 @@ from beams_common.ros.messages import pose2d_of, pose_with_covariance, seconds_t
 from beams_common.ros.node_support import (
     BEARINGS_QOS,
     Diagnostics,
+    refuse_implausible_stamp,
+    ros_now_s,
     run_node,
     serve_calibration_reload,
     startup_geometry,
@@ -131,19 +133,11 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
 
     # -- inputs ---------------------------------------------------------------------------------------
     def _now_s(self) -> float:
-        """The receiving clock (ROS time: /clock under use_sim_time), s."""
-        return self.get_clock().now().nanoseconds * 1e-9
+        return ros_now_s(self)
 
     def _implausible_stamp(self, kind: str, what: str, stamp_s: float, now_s: float) -> bool:
-        """True, the input refused with the reason, when its stamp is beyond the tolerance against the
-        receiving clock (`plausibility.StampCheck`); the status degraded once the refusals are confirmed
-        (two in a row)."""
-        problem, confirmed = self.stamp_check.check(kind, what, stamp_s, now_s)
-        if problem:
-            self.diagnostics.refuse(f"{kind}_stamp_refused", problem)
-        if confirmed:  # not one hiccup: the status shows it
-            self.health.fault(f"{kind}_stamp", now_s, problem)
-        return bool(problem)
+        checks = (self.stamp_check, self.diagnostics, self.health)
+        return refuse_implausible_stamp(*checks, kind, what, stamp_s, now_s)
 
     def _on_odometry(self, msg: Odometry) -> None:
         now_s = self._now_s()
