@@ -16,6 +16,17 @@ ALLOWED = {
     "beams_triangulation": {"beams_common", "beams_msgs"},
     "beams_ekf": {"beams_common", "beams_msgs"},
     "beams_calibration": {"beams_common", "beams_driver", "beams_triangulation", "beams_msgs"},
+    # the thesis's reproductions and the offline evaluations: stand on the robot's packages, nothing of
+    # the running robot stands on them
+    "beams_thesis": {
+        "beams_common",
+        "beams_driver",
+        "beams_sim",
+        "beams_triangulation",
+        "beams_ekf",
+        "beams_calibration",
+        "beams_msgs",
+    },
     # the tools (issue 18's fault campaign, the offline bag replay and its bag and trajectory tooling, the
     # node reference's generator): stand on the robot's packages
     "beams_tools": {
