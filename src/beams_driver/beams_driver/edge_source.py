@@ -19,7 +19,7 @@ from beams_common.parameters import ParameterSpec
 from beams_common.pose2d import Pose2D
 from beams_driver.codes import BeaconCode
 from beams_driver.edges import RevolutionEdges
-from beams_driver.sensor_sim import SensorSimConfig
+from beams_driver.receiver import ReceiverModel
 
 # A pose stream sample: (stamp s, pose (x, y, theta) m/rad, twist (speed m/s, yaw rate rad/s)).
 PoseCallback = Callable[[float, Pose2D, tuple[float, float]], None]
@@ -98,8 +98,8 @@ class EdgeSourceKind:
     poll_period_s: float = 0.01
     # the receiver the edges come through (its minimum burst shapes the window correction and the
     # variance): the thesis hardware's unless the source says otherwise (a simulation of another one)
-    receiver: Callable[[Mapping[str, Any], Sequence[BeaconCode]], SensorSimConfig] = lambda _values, codes: (
-        SensorSimConfig.thesis_hardware(codes=tuple(codes))
+    receiver: Callable[[Mapping[str, Any], Sequence[BeaconCode]], ReceiverModel] = lambda _values, _codes: (
+        ReceiverModel.thesis_hardware()
     )
 
 

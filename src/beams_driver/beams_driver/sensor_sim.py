@@ -33,6 +33,7 @@ from beams_driver.edges import TIMER_HZ, TURRET_PERIOD_S, RevolutionEdges
 from beams_driver.receiver import (
     EXPERIMENT_DISTANCES_M,
     THESIS_MIN_BURST_FRACTION,
+    THESIS_MIN_BURST_GAP_EXPONENT,
     THESIS_POWER_BIAS_RANGE_DEG,
     HardwareNoise,
     ReceiverModel,
@@ -96,7 +97,9 @@ class SensorSimConfig:
         shortening of modulated windows reproduces table 5.1's experiment column; the power bias is a
         cubic fluctuating over the 0.23 deg range of section 5.7 (`thesis_power_bias_coefficients`).
         """
-        base = cls(rising_noise_rad=0.0, falling_noise_rad=0.0, min_burst_gap_exponent=-0.5)
+        base = cls(
+            rising_noise_rad=0.0, falling_noise_rad=0.0, min_burst_gap_exponent=THESIS_MIN_BURST_GAP_EXPONENT
+        )
         base = replace(base, **{k: v for k, v in overrides.items() if k != "hardware"})
         window_range = (
             float(base.window_rad(EXPERIMENT_DISTANCES_M[0])),
@@ -112,7 +115,8 @@ class SensorSimConfig:
 
     @property
     def receiver(self) -> ReceiverModel:
-        """The receiver's systematic behaviour, as the decoder and the variance model must know it."""
+        """The simulated receiver's systematic behaviour, as the decoder and the variance model must know
+        it (`ReceiverModel.thesis_hardware()` for `thesis_hardware()`)."""
         shortening = (
             self.hardware.modulation_shortening_rad / self.turret_speed_rad_s if self.hardware else 0.0
         )
