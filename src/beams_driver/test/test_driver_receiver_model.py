@@ -8,7 +8,6 @@ from beams_driver.codes import code_family, codes_from_strings
 from beams_driver.edge_source import source_kind
 from beams_driver.receiver import THESIS_MIN_BURST_FRACTION, ReceiverModel
 from beams_driver.sensor_sim import SensorSimConfig
-from beams_driver.sim_source import PARAMETERS as SIM_PARAMETERS
 
 
 def test_the_thesis_receiver_is_the_one_the_simulator_emulates():
@@ -27,8 +26,9 @@ def test_a_real_sensor_is_described_by_the_thesis_receiver():
 @pytest.mark.parametrize("noise_model", ["thesis_hardware", "ideal"])
 def test_the_simulated_source_describes_its_own_receiver(noise_model):
     codes = tuple(codes_from_strings(["111110111110", "11111001111100"]))
-    values = {spec.name: spec.default for spec in SIM_PARAMETERS} | {"sim_noise_model": noise_model}
-    receiver = source_kind("sim").receiver(values, codes)
+    kind = source_kind("sim")
+    values = {spec.name: spec.default for spec in kind.parameters} | {"sim_noise_model": noise_model}
+    receiver = kind.receiver(values, codes)
     config = SensorSimConfig.thesis_hardware() if noise_model == "thesis_hardware" else SensorSimConfig()
     assert isinstance(receiver, ReceiverModel)
     assert receiver == config.receiver

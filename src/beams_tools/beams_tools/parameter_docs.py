@@ -15,9 +15,10 @@ import sys
 
 from beams_calibration.parameters import CALIBRATION_PARAMETERS
 from beams_common.parameters import ParameterSpec
-from beams_driver import serial_source, sim_source
+from beams_driver import serial_source
 from beams_driver.parameters import DRIVER_PARAMETERS
 from beams_ekf.parameters import EKF_PARAMETERS
+from beams_sim import sim_source
 from beams_sim.parameters import SIM_WORLD_PARAMETERS
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 
