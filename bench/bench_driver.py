@@ -19,9 +19,9 @@ from beams_driver.sensor_sim import (
     SensorSimulator,
     SimulatedBeacon,
     fixed_window_bearing_errors,
-    window_experiment,
 )
 from beams_driver.variance import VarianceModel
+from beams_thesis.receiver_experiment import window_experiment
 
 REVOLUTIONS = 200
 # Section 5.2's test codes (None: the unmodulated C_k) and table 5.1's experiment column.

@@ -20,7 +20,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from beams_bringup.match_replay import bearing_events
 from beams_common.angles import wrap_to_pi
 from beams_common.bearing import Bearing
 from beams_common.pose2d import compose
@@ -28,7 +27,6 @@ from beams_driver.sensor_sim import SensorSimConfig
 from beams_driver.variance import VarianceModel
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
-from beams_ekf.replay import Accuracy, ReplayResult, accuracy, replay
 from beams_sim.simulated_match import (
     SENSOR_MODELS,
     SimulatedMatch,
@@ -37,6 +35,8 @@ from beams_sim.simulated_match import (
     simulate_match,
     table_natural_variance_rad2,
 )
+from beams_thesis.match_replay import bearing_events
+from beams_thesis.replay import Accuracy, ReplayResult, accuracy, replay
 
 DEFAULT_SEED = 1
 DEFAULT_DURATION_S = 90.0

@@ -1,7 +1,7 @@
 """Plausibility benchmark (issue 18): the EKF's worst position error on a simulated match under the
 issue's well-formed-but-wrong inputs, with the checks and without them, and what the checks cost.
 
-The localiser runs the synthetic match (beams_ekf.synthetic) with its bearings' arrival instants as the
+The localiser runs the synthetic match (beams_thesis.synthetic) with its bearings' arrival instants as the
 receiving clock, as ekf_node does:
 - bearings restamped late or early (`bearing_offset_s`) from 3 s to 6 s: with the check, refused (the
   node's `plausibility.stamp_problem` on the revolution's newest bearing); without, applied at their
@@ -25,7 +25,7 @@ from beams_common.bearing import Bearing
 from beams_common.plausibility import MotionLimits, StampTolerance, odometry_step_problem, stamp_problem
 from beams_ekf.localiser import build_localiser
 from beams_ekf.settings import FilterSettings
-from beams_ekf.synthetic import synthetic_match
+from beams_thesis.synthetic import synthetic_match
 
 Row = tuple[str, float, str, str]
 FAULT_S = (3.0, 6.0)

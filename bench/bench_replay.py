@@ -14,11 +14,11 @@ import pathlib
 import sys
 import tempfile
 
-from beams_bringup.bag_io import beams_typestore
-from beams_bringup.bag_messages import simulated_messages, write_bag
-from beams_bringup.bag_replay import replay_bag
-from beams_bringup.replay_pipelines import ReplayResult
 from beams_sim.simulated_match import simulate_match
+from beams_tools.bag_io import beams_typestore
+from beams_tools.bag_messages import simulated_messages, write_bag
+from beams_tools.bag_replay import replay_bag
+from beams_tools.replay_pipelines import ReplayResult
 
 DEFAULT_DURATION_S = 90.0
 DEFAULT_SEED = 3

@@ -30,12 +30,12 @@ from dataclasses import dataclass, replace
 import numpy as np
 from bench_ekf_consistency import START_SIGMA, match_bound
 
-from beams_bringup.match_replay import match_fixes, replay_match
 from beams_driver.parameters import SENSOR_PARAMETERS, variance_model_of
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
 from beams_ekf.power_bias_states import PowerBiasStates
-from beams_ekf.replay import ReplayResult
 from beams_sim.simulated_match import SimulatedMatch, calibration_of, sensor_config_of, simulate_match
+from beams_thesis.match_replay import match_fixes, replay_match
+from beams_thesis.replay import ReplayResult
 
 DEFAULT_SEEDS = 10
 DEFAULT_DURATION_S = 180.0

@@ -18,12 +18,7 @@ setup(
     zip_safe=True,
     maintainer="BeAMS ROS maintainers",
     maintainer_email="maintainers@beams-ros.org",
-    description=(
-        "Launch file, Fast DDS profile, parameter files, the demo and the offline bag replay of the "
-        "BeAMS suite."
-    ),
+    description="Launch file, Fast DDS profile, parameter files and the demo of the BeAMS suite.",
     license="Apache-2.0",
-    entry_points={
-        "console_scripts": ["replay_bag = beams_bringup.bag_replay:main", "demo = beams_bringup.demo:main"]
-    },
+    entry_points={"console_scripts": ["demo = beams_bringup.demo:main"]},
 )

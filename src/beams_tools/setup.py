@@ -14,12 +14,16 @@ setup(
     zip_safe=True,
     maintainer="BeAMS ROS maintainers",
     maintainer_email="maintainers@beams-ros.org",
-    description="The fault campaign of the BeAMS suite (issue 18): seeded faults against the running system.",
+    description=(
+        "The tools of the BeAMS suite: the offline bag replay, bag and trajectory tooling, the node "
+        "reference's generator and the fault campaign (issue 18)."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "fault_campaign = beams_tools.campaign_command:main",
             "fault_relay_node = beams_tools.fault_relay_node:main",
+            "replay_bag = beams_tools.bag_replay:main",
         ]
     },
 )

@@ -53,9 +53,9 @@ def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
     from rosbags.interfaces import QosDurability, QosReliability
     from rosbags.rosbag2 import Reader
 
-    from beams_bringup.bag_io import beams_typestore, read_messages
-    from beams_bringup.bag_replay import live_tracks, replay_bag
-    from beams_bringup.trajectory_metrics import errors_against_truth, rms
+    from beams_tools.bag_io import beams_typestore, read_messages
+    from beams_tools.bag_replay import live_tracks, replay_bag
+    from beams_tools.trajectory_metrics import errors_against_truth, rms
 
     env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     run(
@@ -130,7 +130,7 @@ def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
     assert position.max() < 0.03
 
     # The command as a user runs it: summary, plot, a new MCAP bag with the outputs and the inputs.
-    replay_bag_command = INSTALL_BASE / "beams_bringup" / "lib" / "beams_bringup" / "replay_bag"
+    replay_bag_command = INSTALL_BASE / "beams_tools" / "lib" / "beams_tools" / "replay_bag"
     stdout = run(
         [str(replay_bag_command), str(bag), str(tmp_path / "replay"), "--plot", str(tmp_path / "replay.png")]
     )

@@ -32,10 +32,10 @@ def _poses(dataset) -> list[tuple[float, float, float]]:
 def test_a_guided_session_captures_the_plan_resumes_and_calibrates(
     start_node, installed_executable, ros_env, tmp_path
 ):
-    from beams_calibration import thesis_setup
     from beams_calibration.dataset import load_dataset
     from beams_calibration.session import THESIS_AREA, poses_match, reference_plan
     from beams_common.calibration_file import load_calibration
+    from beams_thesis import thesis_setup
 
     truth, prior = thesis_setup.TRUE_BEACONS, thesis_setup.PRIOR_BEACONS
     driver = {

@@ -12,7 +12,7 @@ TIMEOUT_S = 30.0
 
 
 def _setup():
-    from beams_calibration import thesis_setup
+    from beams_thesis import thesis_setup
 
     return thesis_setup
 

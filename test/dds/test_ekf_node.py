@@ -13,7 +13,7 @@ T0_S = 1000.0
 
 @pytest.fixture(scope="module")
 def match():
-    from beams_ekf.synthetic import synthetic_match
+    from beams_thesis.synthetic import synthetic_match
 
     return synthetic_match(4.0, seed=11, sensor_offset_m=OFFSET)
 

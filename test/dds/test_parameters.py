@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
-from beams_bringup.replay_settings import load_node_parameters
 from beams_common.parameters import ParameterError
+from beams_tools.replay_settings import load_node_parameters
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 
 WAIT_S = 20.0

@@ -366,9 +366,9 @@ def _files(directory: Path) -> dict[str, bytes]:
 def test_calibration_services_answer_success_only_when_they_did_it(start_node, rclpy_node, tmp_path):
     from std_srvs.srv import Trigger
 
-    from beams_calibration import thesis_setup
     from beams_calibration.dataset import save_dataset
     from beams_msgs.srv import Calibrate, CaptureReference
+    from beams_thesis import thesis_setup
 
     prior = thesis_setup.PRIOR_BEACONS
     work = tmp_path / "work"

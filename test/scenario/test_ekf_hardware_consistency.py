@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from beams_bringup.match_replay import match_fixes, replay_match
 from beams_common.angles import wrap_to_pi
 from beams_ekf.localiser import FilterSettings, build_localiser
 from beams_sim.simulated_match import SimulatedMatch, calibrated_match, sensor_config_of, simulate_match
+from beams_thesis.match_replay import match_fixes, replay_match
 
 SEEDS, DURATION_S, SETTLE_S = (0, 1, 2), 30.0, 1.0
 START_SIGMA = (0.01, 0.01, math.radians(1.0))

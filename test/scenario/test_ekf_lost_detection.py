@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from beams_bringup.match_replay import match_fixes, replay_match
 from beams_ekf.consistency import NisMonitor
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
 from beams_sim.simulated_match import simulate_match
+from beams_thesis.match_replay import match_fixes, replay_match
 
 GATE = float(chi2.ppf(0.999, df=1))
 CONFIDENT = np.diag([1e-6, 1e-6, 1e-6])  # 1 mm, 0.06 deg: a fix believed far better than it is

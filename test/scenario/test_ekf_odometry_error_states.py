@@ -7,16 +7,16 @@ import math
 import numpy as np
 import pytest
 
-from beams_bringup.match_replay import replay_match
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise
 from beams_ekf.localiser import Localiser, build_localiser
 from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.parameters import filter_settings
-from beams_ekf.replay import accuracy
 from beams_ekf.settings import WHEEL_BASE_M, WHEEL_VARIANCE_M2_PER_M, FilterSettings
 from beams_sim.simulated_match import simulate_match
 from beams_sim.world import OdometryDrift
+from beams_thesis.match_replay import replay_match
+from beams_thesis.replay import accuracy
 
 START_SIGMA = (0.01, 0.01, math.radians(1.0))
 HIDDEN_FROM_S, HIDDEN_S = 15.0, 10.0

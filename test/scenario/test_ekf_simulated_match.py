@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from beams_bringup.match_replay import bearing_events
 from beams_common.pose2d import compose
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Localiser
-from beams_ekf.replay import Accuracy, ReplayResult, accuracy, replay
 from beams_sim.simulated_match import SimulatedMatch, simulate_match
+from beams_thesis.match_replay import bearing_events
+from beams_thesis.replay import Accuracy, ReplayResult, accuracy, replay
 
 
 @pytest.fixture(scope="module")

@@ -8,14 +8,14 @@ import subprocess
 
 import pytest
 
-from beams_bringup.bag_io import beams_typestore
-from beams_bringup.bag_messages import simulated_messages, write_bag
 from beams_common.parameters import ParameterTable, load_parameter_file
 from beams_driver.parameters import DRIVER_PARAMETERS
 from beams_driver.sensor_sim import SensorSimConfig
-from beams_driver.sim_source import PARAMETERS as SIM_PARAMETERS
+from beams_sim.sim_source import PARAMETERS as SIM_PARAMETERS
 from beams_sim.simulated_match import simulate_match
 from beams_sim.world import EurobotTrajectory
+from beams_tools.bag_io import beams_typestore
+from beams_tools.bag_messages import simulated_messages, write_bag
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))

@@ -133,10 +133,10 @@ def test_the_turret_offset_is_learnt_while_driving(tmp_path):
     without them it is overconfident by orders of magnitude. The calibration file carries it."""
     from dataclasses import replace
 
-    from beams_bringup.match_replay import replay_match
     from beams_driver.parameters import SENSOR_PARAMETERS, variance_model_of
     from beams_ekf.localiser import FilterSettings, build_localiser
     from beams_ekf.turret_offset_states import TurretOffsetStates
+    from beams_thesis.match_replay import replay_match
 
     config = sensor_config_of("thesis_hardware")
     model = variance_model_of(SENSOR_PARAMETERS.defaults(), config.codes, config)

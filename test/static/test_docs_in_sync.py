@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 from beams_bringup.architecture_docs import picture_in
-from beams_bringup.parameter_docs import TABLES, markdown_table, tables_in
+from beams_tools.parameter_docs import TABLES, markdown_table, tables_in
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 NODES_DOC = ROOT / "docs" / "nodes.md"
@@ -21,7 +21,7 @@ def test_every_parameter_table_in_the_node_reference_is_the_nodes_spec():
     for name, specs in TABLES.items():
         assert documented[name] == markdown_table(specs), (
             f"docs/nodes.md's {name} table differs from the spec: "
-            "run `python -m beams_bringup.parameter_docs "
+            "run `python -m beams_tools.parameter_docs "
             "--write docs/nodes.md`"
         )
 

@@ -16,7 +16,9 @@ ALLOWED = {
     "beams_triangulation": {"beams_common", "beams_msgs"},
     "beams_ekf": {"beams_common", "beams_msgs"},
     "beams_calibration": {"beams_common", "beams_driver", "beams_triangulation", "beams_msgs"},
-    "beams_bringup": {
+    # the thesis's reproductions and the offline evaluations: stand on the robot's packages, nothing of
+    # the running robot stands on them
+    "beams_thesis": {
         "beams_common",
         "beams_driver",
         "beams_sim",
@@ -25,13 +27,26 @@ ALLOWED = {
         "beams_calibration",
         "beams_msgs",
     },
-    # the fault campaign (issue 18): stands on the robot's packages, nothing stands on it
+    # the tools (issue 18's fault campaign, the offline bag replay and its bag and trajectory tooling, the
+    # node reference's generator): stand on the robot's packages
     "beams_tools": {
         "beams_common",
         "beams_driver",
         "beams_sim",
         "beams_triangulation",
         "beams_ekf",
+        "beams_calibration",
+        "beams_msgs",
+    },
+    # launch, parameters and the demo's wiring (the demo records its bag with the tools): the top
+    "beams_bringup": {
+        "beams_common",
+        "beams_driver",
+        "beams_sim",
+        "beams_triangulation",
+        "beams_ekf",
+        "beams_calibration",
+        "beams_tools",
         "beams_msgs",
     },
 }

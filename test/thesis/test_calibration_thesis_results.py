@@ -14,7 +14,6 @@ import numpy as np
 import pytest
 from scipy.stats import spearmanr
 
-from beams_calibration import thesis_figures, thesis_setup
 from beams_calibration.calibrate import (
     PARAMETER_COUNT,
     Model,
@@ -27,6 +26,7 @@ from beams_calibration.calibrate import (
 from beams_calibration.dataset import to_arrays
 from beams_common.angles import wrap_to_pi
 from beams_common.bearing_correction import THESIS_ROTATION_BIAS_COEFFICIENTS, BearingCorrection
+from beams_thesis import thesis_figures, thesis_setup
 from beams_triangulation.error_map import grid, monte_carlo_maps
 from beams_triangulation.total import expected_bearings, triangulate_many
 

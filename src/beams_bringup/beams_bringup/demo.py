@@ -37,17 +37,8 @@ from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, Qo
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
-from beams_bringup.bag_events import stamp_ns
-from beams_bringup.bag_io import BagRecorder, beams_typestore, fully_qualified
 from beams_bringup.supervisor import NodeSupervisor
-from beams_bringup.system import PARAMS_FILE, ROBOT_NODES, installed_params_file
-from beams_bringup.trajectory_metrics import (
-    RunTracks,
-    errors_against_truth,
-    plot_trajectories,
-    rms,
-    rms_table,
-)
+from beams_bringup.system import PARAMS_FILE, ROBOT_NODES
 from beams_common import topics
 from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
@@ -56,6 +47,16 @@ from beams_common.ros.messages import planar_covariance, pose2d_of
 from beams_common.ros.node_support import BEARINGS_QOS
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_sim.simulated_match import SENSOR_MODELS, calibration_of, sensor_config_of
+from beams_tools.bag_events import stamp_ns
+from beams_tools.bag_io import BagRecorder, beams_typestore, fully_qualified
+from beams_tools.replay_settings import installed_params_file
+from beams_tools.trajectory_metrics import (
+    RunTracks,
+    errors_against_truth,
+    plot_trajectories,
+    rms,
+    rms_table,
+)
 
 ROOT = pathlib.Path.cwd()
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))

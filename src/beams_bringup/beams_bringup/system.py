@@ -1,7 +1,6 @@
-"""The robot's nodes and where their parameters live: one list for the launch file and the demo."""
+"""The robot's nodes and where their parameters live: one list for the launch file and the demo (the
+installed parameter file is found by beams_tools.replay_settings.installed_params_file)."""
 
-import os
-import pathlib
 from dataclasses import dataclass
 
 PARAMS_FILE = "beams_params.yaml"
@@ -30,20 +29,3 @@ ROBOT_NODES = (
     RobotNode("beams_triangulation", "triangulation_node"),
     RobotNode("beams_ekf", "ekf_node"),
 )
-
-
-def installed_params_file() -> pathlib.Path | None:
-    """beams_bringup's installed parameter file (ament index, or BEAMS_INSTALL_BASE), None when absent."""
-    candidates = []
-    try:
-        from ament_index_python.packages import get_package_share_directory
-
-        candidates.append(pathlib.Path(get_package_share_directory("beams_bringup")) / "config" / PARAMS_FILE)
-    except Exception:  # no ament index (a plain checkout): try the workspace's install tree
-        pass
-    install_base = os.environ.get("BEAMS_INSTALL_BASE")
-    if install_base:
-        candidates.append(
-            pathlib.Path(install_base) / "beams_bringup" / "share" / "beams_bringup" / "config" / PARAMS_FILE
-        )
-    return next((path for path in candidates if path.exists()), None)

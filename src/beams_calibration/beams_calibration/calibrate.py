@@ -411,6 +411,22 @@ TABLE_7_5_SUBSETS: tuple[tuple[str, tuple[str, ...]], ...] = (
 )
 
 
+# Table 7.5: position RMS (mm) and orientation RMS (deg) of lines 1-11 in the thesis's experiment.
+THESIS_TABLE_7_5 = (
+    (8.75, 0.4297),
+    (6.67, 0.3316),
+    (6.21, 0.3157),
+    (6.27, 0.3175),
+    (6.78, 0.3984),
+    (6.40, 0.3345),
+    (2.95, 0.1741),
+    (2.79, 0.2715),
+    (2.49, 0.1788),
+    (2.34, 0.1756),
+    (2.16, 0.1806),
+)
+
+
 def table_7_5(
     problem: Problem,
     stages: Sequence[RmsFigures],

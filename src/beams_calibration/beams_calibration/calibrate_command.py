@@ -1,7 +1,6 @@
 """`calibrate`: Algorithm 7.1 on a dataset file, offline (the same computation as the Calibrate service).
 
     calibrate DATASET.yaml -o calibration.yaml [--plots DIR] [--eta 1.0] [--threshold 0.1] [--dry-run]
-    calibrate --simulate-thesis DATASET.yaml ...   # first record the thesis's setup with the simulator
 
 Prints progress lines while it runs, then the RMS errors after each stage (table 7.5 for this dataset),
 the leave-one-position-out error, the parameters and any plausibility warning. Exit status 0 on
@@ -16,15 +15,15 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from beams_calibration import thesis_setup
 from beams_calibration.calibrate import (
     DEFAULT_ETA_M_PER_RAD,
     DEFAULT_THRESHOLD,
+    THESIS_TABLE_7_5,
     CalibrationRefusedError,
     CalibrationResult,
     calibrate,
 )
-from beams_calibration.dataset import DatasetError, load_dataset, save_dataset
+from beams_calibration.dataset import DatasetError, load_dataset
 from beams_calibration.outputs import rms_regression, write_outputs
 
 EXIT_REFUSED = 2
@@ -49,19 +48,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--dry-run", action="store_true", help="do not write the calibration file")
     parser.add_argument("--force", action="store_true", help="write a calibration that makes the RMS worse")
-    parser.add_argument(
-        "--simulate-thesis",
-        action="store_true",
-        help="first write DATASET from the simulated sensor on the thesis's setup (tables 7.1-7.3)",
-    )
-    parser.add_argument("--seed", type=int, default=1, help="random seed of --simulate-thesis")
     return parser
-
-
-def simulate_thesis_dataset(path: Path, seed: int) -> None:
-    """The 48 configurations of section 7.3.1 as the thesis's prototype would record them
-    (`thesis_setup.thesis_dataset`: the thesis-hardware receiver with chapter 7's biases)."""
-    save_dataset(thesis_setup.thesis_dataset(seed), path)
 
 
 def format_report(result: CalibrationResult) -> str:
@@ -77,9 +64,7 @@ def format_report(result: CalibrationResult) -> str:
         lines.append(
             f"{'table 7.5 for this dataset':<60} {'position (mm)':>14} {'orientation (deg)':>18}  thesis"
         )
-        for row, (position_mm, orientation_deg) in zip(
-            result.table_7_5, thesis_setup.THESIS_TABLE_7_5, strict=True
-        ):
+        for row, (position_mm, orientation_deg) in zip(result.table_7_5, THESIS_TABLE_7_5, strict=True):
             position, orientation = row.position_rms_m * 1e3, math.degrees(row.orientation_rms_rad)
             lines.append(
                 f"{row.stage:<60} {position:>14.3f} {orientation:>18.4f}  "
@@ -111,9 +96,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"[{time.monotonic() - start:6.1f} s] {line}", flush=True)
 
     try:
-        if args.simulate_thesis:
-            progress(f"simulating the thesis's 48 configurations into {args.dataset}")
-            simulate_thesis_dataset(args.dataset, args.seed)
         dataset = load_dataset(args.dataset)
         progress(f"{len(dataset.configurations)} configurations read from {args.dataset}")
         result = calibrate(

@@ -19,9 +19,9 @@ from typing import Protocol, TextIO
 
 import numpy as np
 
-from beams_calibration import thesis_setup
 from beams_calibration.calibrate import CoverageRequirements
 from beams_calibration.dataset import capture_pose_problem, pose_of_summary
+from beams_calibration.reference_layout import PRIOR_BEACONS, REFERENCE_POSITIONS
 from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import BeaconMap
 
@@ -93,7 +93,7 @@ class TableArea:
 
 
 # The thesis's grid as seen from its beacons (table 7.1): the frame table 7.2 is scaled from.
-THESIS_AREA = TableArea.of_beacons(thesis_setup.PRIOR_BEACONS)
+THESIS_AREA = TableArea.of_beacons(PRIOR_BEACONS)
 
 
 @dataclass(frozen=True)
@@ -156,7 +156,7 @@ def reference_orientations(count: int) -> tuple[float, ...]:
 
 def scaled_positions(area: TableArea) -> np.ndarray:
     """Table 7.2's twelve positions, scaled from the thesis's beacons' box to `area` (m)."""
-    return area.place(THESIS_AREA.fractions(thesis_setup.REFERENCE_POSITIONS))
+    return area.place(THESIS_AREA.fractions(REFERENCE_POSITIONS))
 
 
 def critical_distance(point: np.ndarray, beacon_map: BeaconMap) -> float:

@@ -15,7 +15,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from beams_calibration import thesis_setup
 from beams_calibration.calibrate import (
     PARAMETER_COUNT,
     CalibrationRefusedError,
@@ -30,6 +29,7 @@ from beams_calibration.calibrate import (
 from beams_calibration.dataset import Dataset, to_arrays
 from beams_common.bearing_correction import BearingCorrection
 from beams_common.calibration_file import load_calibration, save_calibration
+from beams_thesis import thesis_setup
 
 INJECTED = BearingCorrection((-89.93, 36.64, -4.93, 0.22), (8.79e-4, -1.01e-3, -1.03e-3, -1.74e-3))
 MM = 1e-3

@@ -6,10 +6,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from beams_calibration import calibrate_command, thesis_setup
+from beams_calibration import calibrate_command
 from beams_calibration.dataset import save_dataset
 from beams_common.beacon_map import BeaconMap
 from beams_common.calibration_file import load_calibration
+from beams_thesis import thesis_setup
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # A 3 mm beacon error and a turret offset, no angle bias: the fit must find both.

@@ -17,7 +17,6 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from beams_calibration import thesis_setup
 from beams_calibration.dataset import Dataset, DatasetError, dataset_from_dict, dataset_to_dict, load_dataset
 from beams_common.beacon_map import BeaconMap
 from beams_common.bearing_correction import THESIS_CORRECTION, BearingCorrection
@@ -31,6 +30,7 @@ from beams_common.calibration_file import (
     save_calibration,
 )
 from beams_common.file_schema import schema_problem
+from beams_thesis import thesis_setup
 
 SEARCH = settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 

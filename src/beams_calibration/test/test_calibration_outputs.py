@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_calibration import calibrate_command, thesis_setup
+from beams_calibration import calibrate_command
 from beams_calibration.calibrate import CalibrationResult, calibrate
 from beams_calibration.dataset import (
     CAPTURE_POSE_MARGIN_M,
@@ -21,6 +21,7 @@ from beams_calibration.outputs import rms_regression, write_outputs
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.bearing_correction import THESIS_CORRECTION
 from beams_common.calibration_file import load_calibration
+from beams_thesis import thesis_setup
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

@@ -10,7 +10,6 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_calibration import thesis_setup
 from beams_calibration.dataset import BeaconObservation, Configuration, capture_pose_problem, pose_of_summary
 from beams_calibration.session import (
     THESIS_AREA,
@@ -34,6 +33,7 @@ from beams_calibration.session import (
     split_plan,
 )
 from beams_common.beacon_map import BeaconMap
+from beams_thesis import thesis_setup
 
 EUROBOT = BeaconMap.from_lists((1, 2, 3), (-0.062, -0.062, 3.062), (-0.062, 2.062, 1.0))
 

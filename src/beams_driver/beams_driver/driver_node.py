@@ -248,7 +248,7 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
             self.codes,
             variance_model_of(self.parameters, self.codes, self.receiver),
             min_codes_seen=self.parameters["min_complete_codes"],
-            receiver=self.receiver.receiver,
+            receiver=self.receiver,
         )
         self.frame_id = self.parameters["frame_id"]
         self.publisher = self.create_lifecycle_publisher(BeaconBearingArray, topics.BEARINGS, BEARINGS_QOS)

@@ -4,7 +4,8 @@ Every source delivers RevolutionEdges (edges.py), one per turret revolution, to 
 variance model. A source is a kind (`EdgeSourceKind`): its parameters (ParameterSpecs, declared by the
 driver only when that source is chosen) and a factory building the source from their validated values,
 the code list and a `SourceHost` (what the source may ask of the node: subscribe to a pose stream, a
-topic name, a log, the clock). The built-in kinds are `sim` (sim_source.py) and `serial`
+topic name, a log, the clock). The built-in kinds are `sim` (beams_sim.sim_source: the simulated sensor
+is the simulated world's, found by name at run time since beams_sim stands on this package) and `serial`
 (serial_source.py); a new source is a new module with an EDGE_SOURCE kind, chosen with
 `source:=package.module:EDGE_SOURCE`, with no edit to the driver (test/dds/test_edge_source_plugin.py
 plugs in a replay of recorded edges that way).
@@ -19,7 +20,7 @@ from beams_common.parameters import ParameterSpec
 from beams_common.pose2d import Pose2D
 from beams_driver.codes import BeaconCode
 from beams_driver.edges import RevolutionEdges
-from beams_driver.sensor_sim import SensorSimConfig
+from beams_driver.receiver import ReceiverModel
 
 # A pose stream sample: (stamp s, pose (x, y, theta) m/rad, twist (speed m/s, yaw rate rad/s)).
 PoseCallback = Callable[[float, Pose2D, tuple[float, float]], None]
@@ -98,13 +99,13 @@ class EdgeSourceKind:
     poll_period_s: float = 0.01
     # the receiver the edges come through (its minimum burst shapes the window correction and the
     # variance): the thesis hardware's unless the source says otherwise (a simulation of another one)
-    receiver: Callable[[Mapping[str, Any], Sequence[BeaconCode]], SensorSimConfig] = lambda _values, codes: (
-        SensorSimConfig.thesis_hardware(codes=tuple(codes))
+    receiver: Callable[[Mapping[str, Any], Sequence[BeaconCode]], ReceiverModel] = lambda _values, _codes: (
+        ReceiverModel.thesis_hardware()
     )
 
 
 BUILT_IN_SOURCES = {
-    "sim": "beams_driver.sim_source:EDGE_SOURCE",
+    "sim": "beams_sim.sim_source:EDGE_SOURCE",
     "serial": "beams_driver.serial_source:EDGE_SOURCE",
 }
 

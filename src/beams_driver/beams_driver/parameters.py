@@ -14,6 +14,7 @@ from beams_common.geometry_parameters import CALIBRATION_FILE
 from beams_common.parameters import ParameterSpec, ParameterTable
 from beams_driver.codes import BIT_TIME_S, BeaconCode, code_family, codes_from_strings, validate_codes
 from beams_driver.decoder import MIN_CODES_SEEN
+from beams_driver.receiver import ReceiverModel
 from beams_driver.sensor_sim import SensorSimConfig
 from beams_driver.variance import VARIANCE_MODES, VarianceModel
 
@@ -70,7 +71,7 @@ VARIANCE_PARAMETERS = frozenset(
 
 
 def variance_model_of(
-    values: Mapping[str, Any], codes: tuple[BeaconCode, ...], receiver: SensorSimConfig
+    values: Mapping[str, Any], codes: tuple[BeaconCode, ...], receiver: ReceiverModel
 ) -> VarianceModel:
     """The bearing variance model of the parameters (ch. 4 exact, theorem 3.1's bound, or a constant),
     for the receiver the edges come through (its minimum burst, section 5.6)."""

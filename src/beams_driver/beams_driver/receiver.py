@@ -2,7 +2,9 @@
 
 - `ReceiverModel`: the systematic part the decoder and the variance model must know: the minimum burst
   that triggers the receiver (the "AND hypothesis", section 5.6) and the mean window shortening it
-  causes (eq. 5.2 generalised), plus any inward shift of the window's outer edges.
+  causes (eq. 5.2 generalised), plus any inward shift of the window's outer edges. The driver describes
+  the receiver its edges come through with it (`ReceiverModel.thesis_hardware()`: the receiver the thesis
+  measured, the real one's default); the simulator's `SensorSimConfig.receiver` derives it from its noise.
 - `HardwareNoise`: the thesis hardware's receiver noise as chapter 5 measured it: asymmetric edge noise
   growing with the window (fig. 5.3), a natural noise growing with the code's OFF periods (the AGC,
   section 5.6), a small extra window shortening of modulated signals (table 5.1), and a power bias of
@@ -18,9 +20,15 @@ from numpy.typing import ArrayLike
 
 from beams_common.bearing_correction import BearingCorrection
 from beams_driver.codes import BeaconCode
+from beams_driver.edges import TURRET_PERIOD_S
 
 # The AND hypothesis: bursts shorter than 56% of T0 do not trigger the receiver (section 5.6).
 THESIS_MIN_BURST_FRACTION = 0.56
+# ... for the family codes; a longer OFF period G lowers it as sqrt(T_b / G) (the AGC's gain recovering,
+# section 5.6), which with the modulated windows' extra shortening reproduces table 5.1's experiments.
+THESIS_MIN_BURST_GAP_EXPONENT = -0.5
+# Table 5.1: the AGC shortens a modulated window by about 3.5e-3 deg more than the AND alone.
+THESIS_MODULATION_SHORTENING_RAD = math.radians(3.5e-3)
 # Fig. 5.3, code C_k: variance of the first rising and last falling edge (deg^2) over the windows
 # of the experiment, smallest to largest (section 5.6).
 THESIS_RISING_VARIANCE_DEG2 = (0.0018, 0.0137)
@@ -49,6 +57,19 @@ class ReceiverModel:
     def __post_init__(self) -> None:
         if self.min_burst_fraction < 0.0 or self.outer_shortening_s < 0.0:
             raise ValueError("receiver: min_burst_fraction and outer_shortening_s must be >= 0")
+
+    @classmethod
+    def thesis_hardware(cls, period_s: float = TURRET_PERIOD_S) -> "ReceiverModel":
+        """The receiver the thesis measured (sections 5.5-5.7), on a turret of this period (s): the minimum
+        burst of 56% of T0 falling as sqrt(T_b / G), and table 5.1's extra shortening of modulated
+        windows as turret time. What the driver assumes of real hardware (serial sources) and what
+        `SensorSimConfig.thesis_hardware()` simulates."""
+        turret_speed_rad_s = 2.0 * np.pi / period_s
+        return cls(
+            THESIS_MIN_BURST_FRACTION,
+            THESIS_MIN_BURST_GAP_EXPONENT,
+            THESIS_MODULATION_SHORTENING_RAD / turret_speed_rad_s,
+        )
 
     def min_burst_s(self, code: BeaconCode) -> float:
         """Shortest clipped burst (s) that still triggers the receiver for this code."""
@@ -97,7 +118,7 @@ class HardwareNoise:
     rising_variance_deg2: tuple[float, float] = THESIS_RISING_VARIANCE_DEG2
     falling_variance_deg2: tuple[float, float] = THESIS_FALLING_VARIANCE_DEG2
     off_noise_gain: float = 0.7
-    modulation_shortening_rad: float = math.radians(3.5e-3)
+    modulation_shortening_rad: float = THESIS_MODULATION_SHORTENING_RAD
     power_bias_range_rad: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:

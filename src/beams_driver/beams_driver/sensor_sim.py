@@ -33,6 +33,7 @@ from beams_driver.edges import TIMER_HZ, TURRET_PERIOD_S, RevolutionEdges
 from beams_driver.receiver import (
     EXPERIMENT_DISTANCES_M,
     THESIS_MIN_BURST_FRACTION,
+    THESIS_MIN_BURST_GAP_EXPONENT,
     THESIS_POWER_BIAS_RANGE_DEG,
     HardwareNoise,
     ReceiverModel,
@@ -96,7 +97,9 @@ class SensorSimConfig:
         shortening of modulated windows reproduces table 5.1's experiment column; the power bias is a
         cubic fluctuating over the 0.23 deg range of section 5.7 (`thesis_power_bias_coefficients`).
         """
-        base = cls(rising_noise_rad=0.0, falling_noise_rad=0.0, min_burst_gap_exponent=-0.5)
+        base = cls(
+            rising_noise_rad=0.0, falling_noise_rad=0.0, min_burst_gap_exponent=THESIS_MIN_BURST_GAP_EXPONENT
+        )
         base = replace(base, **{k: v for k, v in overrides.items() if k != "hardware"})
         window_range = (
             float(base.window_rad(EXPERIMENT_DISTANCES_M[0])),
@@ -112,7 +115,8 @@ class SensorSimConfig:
 
     @property
     def receiver(self) -> ReceiverModel:
-        """The receiver's systematic behaviour, as the decoder and the variance model must know it."""
+        """The simulated receiver's systematic behaviour, as the decoder and the variance model must know
+        it (`ReceiverModel.thesis_hardware()` for `thesis_hardware()`)."""
         shortening = (
             self.hardware.modulation_shortening_rad / self.turret_speed_rad_s if self.hardware else 0.0
         )
@@ -436,50 +440,3 @@ def fixed_window_bearing_errors(
     rising, falling, detected = first_last_edges(code, starts, ends, min_burst_s)
     error = 0.5 * ((rising - starts) + (falling - ends))
     return np.where(detected, error, 0.0), detected
-
-
-def window_experiment(
-    config: SensorSimConfig,
-    code: BeaconCode | None,
-    windows_rad: ArrayLike,
-    n_turns: int,
-    rng: np.random.Generator,
-) -> tuple[np.ndarray, np.ndarray]:
-    """The measurements of section 5.3 on the simulated receiver: one beacon, fixed true windows.
-
-    For each window (rad) and turn: (Phi_r - phi_R, Phi_f - phi_F) in rad, the first rising and last
-    falling edge against the true window's boundaries, arrays (windows, turns); code None is the
-    unmodulated carrier C_k. The beacon runs free (a uniform code phase per turn); edges carry the
-    config's hardware noise (when set, else its constant outer-edge noise, here before the AND), its
-    minimum burst and outer shift, and the capture tick, as `SensorSimulator` applies them to a pass
-    (the inner edges' small jitter is left out). The windows must be long enough for every turn to be
-    detected.
-    """
-    windows = np.asarray(windows_rad, dtype=float).reshape(-1, 1)
-    omega = config.turret_speed_rad_s
-    shape = (windows.size, n_turns)
-    opens, closes = np.zeros(shape), np.broadcast_to(windows, shape).copy()
-    if config.hardware is not None:
-        rising_std, falling_std = config.hardware.edge_std_rad(windows, code)
-        opens = opens + rng.normal(0.0, 1.0, shape) * rising_std
-        closes = closes + rng.normal(0.0, 1.0, shape) * falling_std
-    else:
-        # The constant noise on the outer edges (SensorSimulator adds it after the AND).
-        opens = opens + rng.normal(0.0, config.rising_noise_rad, shape)
-        closes = closes + rng.normal(0.0, config.falling_noise_rad, shape)
-    if code is None:
-        rising, falling = opens, closes
-    else:
-        phase_s = rng.uniform(0.0, code.duration_s, shape)
-        min_burst_s = config.receiver.min_burst_s(code)
-        first, last, detected = first_last_edges(
-            code, phase_s + opens / omega, phase_s + closes / omega, min_burst_s
-        )
-        if not np.all(detected):
-            raise ValueError("window_experiment: a window too short for the code left turns undetected")
-        shift_rad = 0.5 * config.hardware.modulation_shortening_rad if config.hardware is not None else 0.0
-        rising = (first - phase_s) * omega + shift_rad
-        falling = (last - phase_s) * omega - shift_rad
-    tick_rad = config.tick_s * omega
-    captured = np.round(rising / tick_rad) * tick_rad, np.round(falling / tick_rad) * tick_rad
-    return captured[0], captured[1] - windows

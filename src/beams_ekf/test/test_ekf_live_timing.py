@@ -17,7 +17,7 @@ from beams_common.bearing import Bearing
 from beams_common.pose2d import Pose2D
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Localiser, LocaliserConfig
-from beams_ekf.synthetic import SyntheticMatch, synthetic_match
+from beams_thesis.synthetic import SyntheticMatch, synthetic_match
 
 EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
 

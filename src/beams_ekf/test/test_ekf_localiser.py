@@ -16,8 +16,8 @@ from beams_common.pose2d import compose
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Localiser, LocaliserConfig
 from beams_ekf.pose_filter import BearingReason
-from beams_ekf.replay import accuracy, replay
-from beams_ekf.synthetic import SyntheticMatch, synthetic_match
+from beams_thesis.replay import accuracy, replay
+from beams_thesis.synthetic import SyntheticMatch, synthetic_match
 
 EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
 

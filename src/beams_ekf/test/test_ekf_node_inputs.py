@@ -23,7 +23,7 @@ from beams_ekf.localiser import (
     usable_covariance,
 )
 from beams_ekf.parameters import EKF_PARAMETERS, FILTER_SPECS, filter_settings
-from beams_ekf.synthetic import SyntheticMatch, synthetic_match
+from beams_thesis.synthetic import SyntheticMatch, synthetic_match
 
 EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
 

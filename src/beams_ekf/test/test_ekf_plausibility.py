@@ -16,7 +16,7 @@ from beams_common.validation import planar_estimate_problem
 from beams_ekf.localiser import Localiser, build_localiser
 from beams_ekf.outcomes import OdometryOutcome
 from beams_ekf.settings import FilterSettings
-from beams_ekf.synthetic import SyntheticMatch, synthetic_match
+from beams_thesis.synthetic import SyntheticMatch, synthetic_match
 
 JUMP_AT_S = 3.0
 

@@ -11,8 +11,8 @@ from beams_common.pose2d import Pose2D, compose
 from beams_ekf.bearing_ekf import BearingEkf, gate_threshold
 from beams_ekf.localiser import Localiser
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, PoseFilter, rejected
-from beams_ekf.replay import accuracy, replay
-from beams_ekf.synthetic import synthetic_match
+from beams_thesis.replay import accuracy, replay
+from beams_thesis.synthetic import synthetic_match
 
 EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
 

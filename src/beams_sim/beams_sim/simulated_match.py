@@ -39,8 +39,8 @@ from beams_driver.sensor_sim import (
     SimulatedBeacon,
     beacons_from_map,
 )
-from beams_driver.sim_source import SIM_NOISE_MODELS
 from beams_driver.variance import VarianceModel
+from beams_sim.sim_source import SIM_NOISE_MODELS
 from beams_sim.world import (
     MATCH_DURATION_S,
     TABLE_LENGTH_M,

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from beams_common.angles import wrap_to_pi
-from beams_driver.occlusion import (
+from beams_driver.sensor_sim import SensorSimConfig, SimulatedBeacon
+from beams_sim.occlusion import (
     TRUTH_LEAD_S,
     TRUTH_MAX_EXTRAPOLATION_S,
     OtherRobots,
@@ -14,7 +15,6 @@ from beams_driver.occlusion import (
     truth_buffer,
     truth_covers,
 )
-from beams_driver.sensor_sim import SensorSimConfig, SimulatedBeacon
 from beams_sim.simulated_match import SimulatedMatch, simulate_match
 from beams_sim.world import (
     TABLE_LENGTH_M,

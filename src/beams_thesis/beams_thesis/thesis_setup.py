@@ -10,13 +10,18 @@ rotation experiment (figure 7.7).
 real recordings.
 """
 
+import argparse
 import math
+import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
-from beams_calibration.dataset import Configuration, Dataset, average_capture, now_utc
+from beams_calibration.calibrate import THESIS_TABLE_7_5  # noqa: F401 (the thesis's table, with its setup)
+from beams_calibration.dataset import Configuration, Dataset, average_capture, now_utc, save_dataset
+from beams_calibration.reference_layout import PRIOR_BEACONS, REFERENCE_ORIENTATIONS, REFERENCE_POSITIONS
 from beams_common.beacon_map import BeaconMap
 from beams_common.bearing_correction import (
     IDENTITY_CORRECTION,
@@ -29,29 +34,8 @@ from beams_driver.decoder import BearingDecoder
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_triangulation.total import expected_bearings
 
-# Table 7.1: a-priori beacon coordinates (m).
-PRIOR_BEACONS = BeaconMap.from_lists((1, 2, 3), (1.151, 0.600, 0.049), (0.049, 0.907, 0.049))
 # Table 7.3 (after calibration): where the beacons really were (m).
 TRUE_BEACONS = BeaconMap.from_lists((1, 2, 3), (1.1504, 0.6045, 0.0452), (0.0449, 0.9068, 0.0515))
-# Table 7.2: reference positions (m).
-REFERENCE_POSITIONS = np.array(
-    [
-        (0.12, 0.84),
-        (1.08, 0.84),
-        (0.36, 0.76),
-        (0.84, 0.76),
-        (0.20, 0.52),
-        (0.44, 0.52),
-        (0.76, 0.52),
-        (1.00, 0.52),
-        (0.60, 0.36),
-        (0.28, 0.20),
-        (0.92, 0.20),
-        (0.60, 0.12),
-    ]
-)
-# Eq. 7.3: reference orientations (rad).
-REFERENCE_ORIENTATIONS = (0.0, np.pi / 2, np.pi, -np.pi / 2)
 # Eq. 7.23: the rotation experiment turns the robot at P_9 through 24 orientations (figure 7.7).
 ROTATION_POSITION = REFERENCE_POSITIONS[8]
 ROTATION_ORIENTATIONS = tuple(k * np.pi / 12 for k in range(24))
@@ -60,21 +44,6 @@ ROTATION_ORIENTATIONS = tuple(k * np.pi / 12 for k in range(24))
 THESIS_ROTATION_EXPERIMENT_RMS_MM = (1.8, 1.0)
 # Section 7.3.3: the turret centre found about (-1, -1.1) mm from the structure's centre.
 THESIS_TURRET_OFFSET_M = (-0.0010, -0.0011)
-
-# Table 7.5: position RMS (mm) and orientation RMS (deg) of lines 1-11 in the thesis's experiment.
-THESIS_TABLE_7_5 = (
-    (8.75, 0.4297),
-    (6.67, 0.3316),
-    (6.21, 0.3157),
-    (6.27, 0.3175),
-    (6.78, 0.3984),
-    (6.40, 0.3345),
-    (2.95, 0.1741),
-    (2.79, 0.2715),
-    (2.49, 0.1788),
-    (2.34, 0.1756),
-    (2.16, 0.1806),
-)
 
 # Operator placement error of the robot on the grid (m, rad), per axis: section 7.3.1 expects the grid and
 # the placement within about 2 mm in all; the square sensor aligns with the grid lines to a tenth of a degree.
@@ -262,3 +231,25 @@ def thesis_dataset(
         placement_sigma=placement_sigma,
         rng=np.random.default_rng(seed + 1),
     )
+
+
+def simulate_thesis_dataset(path: Path, seed: int) -> None:
+    """The 48 configurations of section 7.3.1 as the thesis's prototype would record them
+    (`thesis_dataset`: the thesis-hardware receiver with chapter 7's biases), written to `path`."""
+    save_dataset(thesis_dataset(seed), path)
+
+
+def entry_point(argv: Sequence[str] | None = None) -> int:
+    """`simulate_thesis_dataset DATASET.yaml [--seed 1]`: the thesis's recordings for `calibrate`
+    (what `calibrate --simulate-thesis` did before the thesis's code had a package of its own)."""
+    parser = argparse.ArgumentParser(prog="simulate_thesis_dataset", description=entry_point.__doc__)
+    parser.add_argument("dataset", type=Path, help="dataset file to write (YAML, as calibration_node writes)")
+    parser.add_argument("--seed", type=int, default=1, help="random seed of the simulated sensor")
+    args = parser.parse_args(argv)
+    try:
+        simulate_thesis_dataset(args.dataset, args.seed)
+    except OSError as error:
+        print(f"simulate_thesis_dataset: {error}", file=sys.stderr)
+        return 2
+    print(f"simulate_thesis_dataset: the thesis's 48 configurations written to {args.dataset}")
+    return 0

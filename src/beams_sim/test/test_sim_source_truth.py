@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from beams_driver.edges import TURRET_PERIOD_S
 from beams_driver.parameters import DRIVER_PARAMETERS, codes_of
-from beams_driver.sim_source import PARAMETERS, SimulatedSource
+from beams_sim.sim_source import PARAMETERS, SimulatedSource
 
 
 class Host:

@@ -1,6 +1,6 @@
 """The EKF and ToTal on a simulated match (beams_sim.simulated_match), offline: the decoded revolutions'
 bearings and ToTal's gated fixes as the nodes would receive them, replayed through a Localiser
-(beams_ekf.replay). System-level, so it lives above the three packages it joins."""
+(beams_thesis.replay). System-level, so it lives above the three packages it joins."""
 
 from collections.abc import Callable, Iterable, Sequence
 
@@ -9,8 +9,8 @@ import numpy as np
 from beams_common.beacon_map import BeaconMap
 from beams_common.pose2d import Pose2D, interpolate
 from beams_ekf.localiser import Localiser
-from beams_ekf.replay import PoseEvent, ReplayResult, replay
-from beams_ekf.synthetic import BearingEvent
+from beams_thesis.replay import PoseEvent, ReplayResult, replay
+from beams_thesis.synthetic import BearingEvent
 from beams_triangulation.revolution import estimate_revolution
 
 

@@ -14,9 +14,9 @@ from typing import Any
 
 from rosbags.rosbag2 import Reader
 
-from beams_bringup.bag_io import fully_qualified, offered_qos
 from beams_common import topics
 from beams_common.time_jumps import StampOrder, TimeJumpDetector
+from beams_tools.bag_io import fully_qualified, offered_qos
 from beams_triangulation.motion_compensation import ODOMETRY_TIME_JUMP_S
 
 BEARINGS_TOPIC = topics.BEARINGS

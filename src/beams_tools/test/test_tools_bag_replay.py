@@ -9,16 +9,16 @@ import numpy as np
 import pytest
 import yaml
 
-from beams_bringup.bag_events import BEARINGS_TYPE, ODOMETRY_TYPE
-from beams_bringup.bag_io import BagRecorder, beams_typestore, read_messages
-from beams_bringup.bag_messages import MessageBuilder, simulated_messages, write_bag
-from beams_bringup.bag_replay import main, replay_bag
-from beams_bringup.replay_pipelines import ReplayResult
-from beams_bringup.replay_settings import load_node_parameters, settings_from_parameters
-from beams_bringup.trajectory_metrics import errors_against_truth, odometry_in_map, rms
 from beams_common.parameters import ParameterError
 from beams_ekf.parameters import EKF_PARAMETERS
 from beams_sim.simulated_match import SimulatedMatch, simulate_match
+from beams_tools.bag_events import BEARINGS_TYPE, ODOMETRY_TYPE
+from beams_tools.bag_io import BagRecorder, beams_typestore, read_messages
+from beams_tools.bag_messages import MessageBuilder, simulated_messages, write_bag
+from beams_tools.bag_replay import main, replay_bag
+from beams_tools.replay_pipelines import ReplayResult
+from beams_tools.replay_settings import load_node_parameters, settings_from_parameters
+from beams_tools.trajectory_metrics import errors_against_truth, odometry_in_map, rms
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 
 BEAMS_MSGS = pathlib.Path(__file__).resolve().parents[2] / "beams_msgs"
@@ -172,7 +172,7 @@ def test_command_line(tmp_path, messages, typestore, capsys, monkeypatch):
     """replay_bag INPUT OUTPUT --plot PNG: exit 0, a plot, a summary with the RMS table; a second run into
     the same output is refused with exit status 2, not a traceback."""
     bag = write_bag(tmp_path / "input", messages[: len(messages) // 3], typestore)
-    monkeypatch.setattr("beams_bringup.bag_replay.beams_typestore", lambda: typestore)
+    monkeypatch.setattr("beams_tools.bag_replay.beams_typestore", lambda: typestore)
     assert main([str(bag), str(tmp_path / "output"), "--plot", str(tmp_path / "plot.png")]) == 0
     out = capsys.readouterr().out
     assert "| EKF |" in out and "x real time" in out
@@ -183,7 +183,9 @@ def test_command_line(tmp_path, messages, typestore, capsys, monkeypatch):
 def test_settings_come_from_the_nodes_parameter_files():
     """The replay reads the nodes' sections of the shipped parameter file: every value there reaches the
     pipelines."""
-    params_file = pathlib.Path(__file__).resolve().parents[1] / "config" / "beams_params.yaml"
+    params_file = (
+        pathlib.Path(__file__).resolve().parents[2] / "beams_bringup" / "config" / "beams_params.yaml"
+    )
     triangulation = load_node_parameters(params_file, TRIANGULATION_PARAMETERS)
     ekf = load_node_parameters(params_file, EKF_PARAMETERS)
     settings = settings_from_parameters(
@@ -229,7 +231,7 @@ def test_bags_named_either_way_in_either_storage_replay_alike(tmp_path, messages
     from rosbags.interfaces import QosReliability
     from rosbags.rosbag2 import Reader
 
-    from beams_bringup.bag_io import offered_qos
+    from beams_tools.bag_io import offered_qos
 
     reference, _ = replayed
     relative = [(t, topic.lstrip("/"), msgtype, message) for t, topic, msgtype, message in messages]

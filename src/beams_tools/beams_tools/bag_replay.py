@@ -34,7 +34,14 @@ from typing import Any
 import numpy as np
 from rosbags.rosbag2 import Reader, ReaderError, WriterError
 
-from beams_bringup.bag_events import (
+from beams_common import topics
+from beams_common.angles import wrap_to_pi
+from beams_common.ros.messages import (
+    pose2d_of,
+)
+from beams_ekf.outcomes import Estimate
+from beams_ekf.parameters import EKF_PARAMETERS
+from beams_tools.bag_events import (
     LIVE_EKF_TOPIC,
     LIVE_POSE_TOPIC,
     NODES_QOS,
@@ -53,19 +60,16 @@ from beams_bringup.bag_events import (
     relative_topic,
     stamp_ns,
 )
-from beams_bringup.bag_io import BagRecorder, beams_typestore
-from beams_bringup.bag_messages import MessageBuilder
-from beams_bringup.replay_pipelines import ReplayPipelines, ReplayResult, live_estimates
-from beams_bringup.replay_settings import ReplaySettings, load_node_parameters, settings_from_parameters
-from beams_bringup.system import installed_params_file
-from beams_bringup.trajectory_metrics import Track, plot_trajectories, rms, rms_table
-from beams_common import topics
-from beams_common.angles import wrap_to_pi
-from beams_common.ros.messages import (
-    pose2d_of,
+from beams_tools.bag_io import BagRecorder, beams_typestore
+from beams_tools.bag_messages import MessageBuilder
+from beams_tools.replay_pipelines import ReplayPipelines, ReplayResult, live_estimates
+from beams_tools.replay_settings import (
+    ReplaySettings,
+    installed_params_file,
+    load_node_parameters,
+    settings_from_parameters,
 )
-from beams_ekf.outcomes import Estimate
-from beams_ekf.parameters import EKF_PARAMETERS
+from beams_tools.trajectory_metrics import Track, plot_trajectories, rms, rms_table
 from beams_triangulation.gating import PoseEstimate
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 from beams_triangulation.revolution import RevolutionPose

@@ -1,8 +1,8 @@
 """The node reference's parameter tables (docs/nodes.md), written from the nodes' ParameterTables (one
 spec per parameter, so the documentation cannot drift from what the nodes declare).
 
-    python -m beams_bringup.parameter_docs                          # print every node's table
-    python -m beams_bringup.parameter_docs --write docs/nodes.md    # replace the tables between the markers
+    python -m beams_tools.parameter_docs                          # print every node's table
+    python -m beams_tools.parameter_docs --write docs/nodes.md    # replace the tables between the markers
 
 Each table sits in docs/nodes.md between `<!-- parameters: NAME -->` and `<!-- /parameters -->`;
 test/static/test_docs_in_sync.py fails when one differs from what this module writes.
@@ -15,9 +15,10 @@ import sys
 
 from beams_calibration.parameters import CALIBRATION_PARAMETERS
 from beams_common.parameters import ParameterSpec
-from beams_driver import serial_source, sim_source
+from beams_driver import serial_source
 from beams_driver.parameters import DRIVER_PARAMETERS
 from beams_ekf.parameters import EKF_PARAMETERS
+from beams_sim import sim_source
 from beams_sim.parameters import SIM_WORLD_PARAMETERS
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 

@@ -10,7 +10,14 @@ from typing import Any
 
 import numpy as np
 
-from beams_bringup.bag_events import (
+from beams_common import topics
+from beams_common.bearing_messages import BearingFields, bearing_array_message
+from beams_common.pose2d import Pose2D
+from beams_common.ros.messages import (
+    ros_covariance,
+)
+from beams_ekf.localiser import Estimate
+from beams_tools.bag_events import (
     BEARINGS_TOPIC,
     BEARINGS_TYPE,
     NODES_QOS,
@@ -21,14 +28,7 @@ from beams_bringup.bag_events import (
     POSE_TYPE,
     TRUTH_TOPIC,
 )
-from beams_bringup.bag_io import BagRecorder, fully_qualified
-from beams_common import topics
-from beams_common.bearing_messages import BearingFields, bearing_array_message
-from beams_common.pose2d import Pose2D
-from beams_common.ros.messages import (
-    ros_covariance,
-)
-from beams_ekf.localiser import Estimate
+from beams_tools.bag_io import BagRecorder, fully_qualified
 from beams_triangulation.gating import PoseEstimate
 
 

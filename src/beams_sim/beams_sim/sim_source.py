@@ -18,8 +18,9 @@ from beams_common.pose2d import Pose2D
 from beams_driver.codes import BeaconCode
 from beams_driver.edge_source import EdgeSourceKind, SourceHealth, SourceHost, SourcePoll
 from beams_driver.edges import TURRET_PERIOD_S
-from beams_driver.occlusion import TRUTH_MAX_EXTRAPOLATION_S, OtherRobots, truth_buffer, truth_covers
+from beams_driver.receiver import ReceiverModel
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
+from beams_sim.occlusion import TRUTH_MAX_EXTRAPOLATION_S, OtherRobots, truth_buffer, truth_covers
 
 GROUND_TRUTH_TOPIC = topics.GROUND_TRUTH
 # A clock that jumped this far ahead (s) restarts the simulation from now instead of catching up.
@@ -83,9 +84,14 @@ def _topics_check(value: list[str]) -> str | None:
 SIM_NOISE_MODELS = {"thesis_hardware": SensorSimConfig.thesis_hardware, "ideal": SensorSimConfig}
 
 
-def simulated_receiver(values: Mapping[str, Any], codes: Sequence[BeaconCode]) -> SensorSimConfig:
-    """The simulated receiver of sim_noise_model, the one the decoder then expects."""
+def simulated_sensor(values: Mapping[str, Any], codes: Sequence[BeaconCode]) -> SensorSimConfig:
+    """The simulated sensor of sim_noise_model."""
     return SIM_NOISE_MODELS[values["sim_noise_model"]](codes=tuple(codes))
+
+
+def simulated_receiver(values: Mapping[str, Any], codes: Sequence[BeaconCode]) -> ReceiverModel:
+    """The simulated sensor's receiver, the one the decoder then expects."""
+    return simulated_sensor(values, codes).receiver
 
 
 PARAMETERS = (
@@ -177,7 +183,7 @@ class SimulatedSource:
         )
         offset = values["sim_turret_offset_m"]
         self.simulator = SensorSimulator(
-            replace(simulated_receiver(values, codes), spurious_rate_hz=values["sim_stray_ir_rate_hz"]),
+            replace(simulated_sensor(values, codes), spurious_rate_hz=values["sim_stray_ir_rate_hz"]),
             beacons_from_map(simulated_map),
             np.random.default_rng(values["sim_sensor_seed"]),
             power_bias_rad=injected.power_bias if injected else None,

@@ -13,7 +13,7 @@ from beams_common.angles import wrap_to_pi
 from beams_common.bearing import Bearing
 from beams_common.pose2d import Pose2D
 from beams_ekf.localiser import Localiser
-from beams_ekf.synthetic import BearingEvent
+from beams_thesis.synthetic import BearingEvent
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,7 @@ node would refuse is refused here with the same reason), mapped by the functions
 
 from __future__ import annotations
 
+import os
 import pathlib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -15,6 +16,27 @@ from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
 from beams_ekf.settings import FilterSettings
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
 from beams_triangulation.pipeline import TriangulationSettings
+
+# beams_bringup's parameter file (beams_bringup.system.PARAMS_FILE), the replay's default; found by its
+# install location, not imported: beams_bringup stands on this package
+PARAMS_FILE = "beams_params.yaml"
+
+
+def installed_params_file() -> pathlib.Path | None:
+    """beams_bringup's installed parameter file (ament index, or BEAMS_INSTALL_BASE), None when absent."""
+    candidates = []
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        candidates.append(pathlib.Path(get_package_share_directory("beams_bringup")) / "config" / PARAMS_FILE)
+    except Exception:  # no ament index (a plain checkout): try the workspace's install tree
+        pass
+    install_base = os.environ.get("BEAMS_INSTALL_BASE")
+    if install_base:
+        candidates.append(
+            pathlib.Path(install_base) / "beams_bringup" / "share" / "beams_bringup" / "config" / PARAMS_FILE
+        )
+    return next((path for path in candidates if path.exists()), None)
 
 
 # -- settings -----------------------------------------------------------------------------------------

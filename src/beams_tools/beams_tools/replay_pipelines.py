@@ -12,9 +12,6 @@ from typing import Any
 import numpy as np
 from rosbags.rosbag2 import Reader
 
-from beams_bringup.bag_events import LIVE_EKF_TOPIC, relative_topic, stamp_ns
-from beams_bringup.replay_settings import ReplaySettings
-from beams_bringup.trajectory_metrics import RunTracks
 from beams_common.bearing_intake import bearings_message_intake
 from beams_common.pose2d import Pose2D, is_finite_pose
 from beams_common.ros.messages import (
@@ -25,6 +22,9 @@ from beams_common.ros.messages import (
 )
 from beams_ekf.localiser import build_localiser
 from beams_ekf.outcomes import Estimate
+from beams_tools.bag_events import LIVE_EKF_TOPIC, relative_topic, stamp_ns
+from beams_tools.replay_settings import ReplaySettings
+from beams_tools.trajectory_metrics import RunTracks
 from beams_triangulation.gating import NoPose, PoseEstimate
 from beams_triangulation.pipeline import TriangulationPipeline
 from beams_triangulation.revolution import RevolutionPose
