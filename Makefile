@@ -53,22 +53,27 @@ hil-if-possible:
 
 ## test: the linters (ruff check, ruff format --check), the firmware and its harness (when the AVR tools
 ## are installed), then every test: the tiers without DDS (unit, scenario with the firmware HIL, thesis,
-## static), then the DDS tier with DDS_WORKERS pytest-xdist workers side by side (its tests mostly wait;
-## each claims a ROS_DOMAIN_ID of its own); exit 0 only when all pass. A part with no test in one of the
+## static) on FAST_WORKERS pytest-xdist workers, then the DDS tier with DDS_WORKERS workers side by side
+## (its tests mostly wait; each claims a ROS_DOMAIN_ID of its own); exit 0 only when all pass. A part with no test in one of the
 ## two runs (exit status 5) is not an error: PYTEST_ARGS="src/beams_ekf -x"
+# Whole files per worker, in collection order: conftest.py puts the longest files first (FILE_SECONDS), so
+# the workers finish together (xdist's own reordering, by number of tests, is turned off)
+FAST_WORKERS ?= 2
+FAST_PARALLEL := $(if $(filter-out 0 1,$(FAST_WORKERS)),-n $(FAST_WORKERS) --dist loadfile --no-loadscope-reorder)
 DDS_WORKERS ?= 2
-DDS_PARALLEL := $(if $(filter-out 0 1,$(DDS_WORKERS)),-n $(DDS_WORKERS) --dist loadfile)
+DDS_PARALLEL := $(if $(filter-out 0 1,$(DDS_WORKERS)),-n $(DDS_WORKERS) --dist loadfile --no-loadscope-reorder)
 # a DDS test that fails runs once more (separate processes timed on 2 shared cores: the guided session's
 # fit and the campaign's availability each failed once beside another worker and passed alone); pytest
 # lists every rerun in its summary, and a test that fails twice fails the run
 DDS_RERUNS ?= 1
 test: build lint hil-if-possible
-	$(ROS_ENV) python -m pytest -m "not dds" $(PYTEST_ARGS) || [ $$? -eq 5 ]
+	$(ROS_ENV) python -m pytest -m "not dds" $(FAST_PARALLEL) $(PYTEST_ARGS) || [ $$? -eq 5 ]
 	$(ROS_ENV) python -m pytest -m dds $(DDS_PARALLEL) --reruns $(DDS_RERUNS) $(PYTEST_ARGS) || [ $$? -eq 5 ]
 
-## test-fast: the linters, the firmware harness (when possible) and every test but the DDS tier
+## test-fast: the linters, the firmware harness (when possible) and every test but the DDS tier, on
+## FAST_WORKERS workers (FAST_WORKERS=1: one process)
 test-fast: build lint hil-if-possible
-	$(ROS_ENV) python -m pytest -m "not dds" $(PYTEST_ARGS)
+	$(ROS_ENV) python -m pytest -m "not dds" $(FAST_PARALLEL) $(PYTEST_ARGS)
 
 ## demo: the simulated robot, the BeAMS sensor, ToTal and the EKF on a Eurobot match
 DEMO_ARGS ?=

@@ -8,14 +8,76 @@
     test/static/             static    (the source and the docs: layering, generated docs in sync)
 
 `make test-fast` is `-m "not dds"`; test/static/test_test_tiers.py fails on a test file outside a tier.
+
+The longest files run first (FILE_SECONDS): `make test` hands whole files to its pytest-xdist workers in
+collection order (`--dist loadfile --no-loadscope-reorder`), so the minutes-long files start at once and
+the short ones fill in at the end, and the workers finish together. The files over SLOW_S are marked
+`slow` as well: `-m "dds and not slow"` leaves them out while working on the nodes.
+
+numpy's OpenBLAS runs one thread per process (unless the environment says otherwise): with two pytest
+workers or node processes on 2 cores its own threads only competed with them (the tiers without DDS took
+twice as long on 2 workers with one thread per core each).
 """
 
+import os
 import pathlib
 
 import pytest
 
+# before any test module (or node process, which inherits it) loads numpy
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 ROOT = pathlib.Path(__file__).resolve().parent
 TIERS = ("unit", "scenario", "dds", "thesis", "static")
+# Seconds each long test file took in one process (2026-11-24, 2 shared cores at load average 4 to 7;
+# `--junitxml`, its test times summed by file), by file name so that a file moved between packages keeps
+# its figure. A file not listed runs after these in collection order: add it when it takes 8 s or more.
+FILE_SECONDS = {
+    "test_fault_campaign.py": 165,
+    "test_calibration_guided_session.py": 103,
+    "test_system_faults.py": 95,
+    "test_plain_defaults.py": 81,
+    "test_system_bad_inputs.py": 60,
+    "test_system_multi_robot.py": 51,
+    "test_executables.py": 43,
+    "test_respawn.py": 41,
+    "test_calibration_outputs.py": 41,
+    "test_calibration_node.py": 37,
+    "test_sim_time.py": 37,
+    "test_plausibility_nodes.py": 35,
+    "test_calibration_file_schemas.py": 33,
+    "test_system_hosts.py": 31,
+    "test_system_plausibility.py": 31,
+    "test_second_publisher.py": 30,
+    "test_driver_lifecycle.py": 29,
+    "test_ekf_node.py": 28,
+    "test_ekf_message_validation.py": 27,
+    "test_common_validation.py": 25,
+    "test_driver_node.py": 24,
+    "test_firmware_hil.py": 23,
+    "test_driver_noise_estimation.py": 22,
+    "test_bag_replay.py": 19,
+    "test_parameters.py": 18,
+    "test_driver_serial_integrity.py": 17,
+    "test_self_calibration.py": 15,
+    "test_ekf_lost_detection.py": 15,
+    "test_driver_decoder.py": 13,
+    "test_triangulation_node.py": 12,
+    "test_driver_serial_replug.py": 11,
+    "test_rate_status.py": 11,
+    "test_calibration_algorithm.py": 11,
+    "test_estimate_noise_cli.py": 10,
+    "test_driver_serial_source.py": 10,
+    "test_edge_source_plugin.py": 8,
+    "test_driver_serial_versions.py": 8,
+    "test_calibration_thesis_results.py": 8,
+    "test_bringup_bag_replay.py": 8,
+}
+# A file of this or more (its tests together) is `slow`: the DDS files that run real-time matches or
+# sessions of a minute or more (the fault campaign, the guided session, the faults, the plain defaults,
+# the bad inputs).
+SLOW_S = 60.0
 
 
 def tier_of(path: pathlib.Path) -> str | None:
@@ -36,3 +98,7 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
         tier = tier_of(item.path)
         if tier is not None:
             item.add_marker(tier)
+        if FILE_SECONDS.get(item.path.name, 0.0) >= SLOW_S:
+            item.add_marker("slow")
+    # longest file first; a stable sort: a file's tests, and the unlisted files, keep their order
+    items.sort(key=lambda item: -FILE_SECONDS.get(item.path.name, 0.0))

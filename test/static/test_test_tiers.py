@@ -40,3 +40,13 @@ def test_pytest_ini_declares_every_tier_marker():
         line.split(":")[0].strip() for line in config["pytest"]["markers"].splitlines() if line.strip()
     }
     assert set(_tiers_module().TIERS) <= declared
+
+
+def test_the_declared_file_times_name_test_files_and_mark_the_slow_ones():
+    """conftest.py's FILE_SECONDS orders the runs: a renamed or deleted file would silently lose its
+    place (it would run last), so every name there is a test file of a tier."""
+    tiers = _tiers_module()
+    names = {path.name for path in [*ROOT.glob("test/**/test_*.py"), *ROOT.glob("src/*/test/**/test_*.py")]}
+    assert not set(tiers.FILE_SECONDS) - names, sorted(set(tiers.FILE_SECONDS) - names)
+    slow = {name for name, seconds in tiers.FILE_SECONDS.items() if seconds >= tiers.SLOW_S}
+    assert "test_fault_campaign.py" in slow and "test_ekf_node.py" not in slow
