@@ -12,6 +12,7 @@ import yaml
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.parameters import node_section
+from beams_common.pose_intake import PoseSource, planar_pose_intake
 from beams_ekf.bearing_ekf import ProcessNoise
 from beams_ekf.localiser import (
     Bearing,
@@ -20,7 +21,6 @@ from beams_ekf.localiser import (
     LocaliserConfig,
     build_localiser,
     operator_pose_stamp_s,
-    usable_covariance,
 )
 from beams_ekf.parameters import EKF_PARAMETERS, FILTER_SPECS, filter_settings
 from beams_ekf.synthetic import SyntheticMatch, synthetic_match
@@ -87,19 +87,6 @@ def test_bad_bearings_change_nothing_bit_for_bit(match):
     assert counts["bearings_accepted"] == clean.stats.counts["bearings_accepted"] > 0
 
 
-def test_usable_covariance_falls_back_on_the_default():
-    good = np.diag([1e-4, 2e-4, 1e-3])
-    assert usable_covariance(good, DEFAULT) is not DEFAULT
-    np.testing.assert_array_equal(usable_covariance(good, DEFAULT), good)
-    for bad in (
-        np.zeros((3, 3)),
-        np.diag([1e-4, math.nan, 1e-3]),
-        np.diag([1e-4, -1e-4, 1e-3]),
-        np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
-    ):  # eigenvalues 3, -1, 1
-        assert usable_covariance(bad, DEFAULT) is DEFAULT
-
-
 @pytest.mark.parametrize(
     ("stamp_s", "newest_s", "expected"),
     [
@@ -113,17 +100,17 @@ def test_operator_pose_stamp_rule(stamp_s, newest_s, expected):
     assert operator_pose_stamp_s(stamp_s, newest_s) == expected
 
 
-def test_offer_pose_applies_both_rules():
+def test_take_pose_applies_both_rules():
     """An unstamped operator pose with a zero covariance initialises at the newest odometry instant with
     the default covariance; ToTal's pose keeps its stamp (refused here: older than the history)."""
     localiser = build_localiser(EUROBOT_BEACONS, OFFSET, FilterSettings())
     for k in range(10):
         localiser.on_odometry(5.0 + 0.02 * k, (0.01 * k, 0.0, 0.0))
-    assert localiser.offer_pose(4.0, (1.0, 1.0, 0.0), np.eye(3), DEFAULT, operator=False) == "outside_history"
-    assert (
-        localiser.offer_pose(0.0, (1.0, 1.0, 0.0), np.zeros((3, 3)), DEFAULT, operator=True)
-        == "initialisations"
-    )
+    total = planar_pose_intake(PoseSource.TOTAL, 4.0, (1.0, 1.0, 0.0), np.eye(3))
+    assert localiser.take_pose(total, DEFAULT) == "outside_history"
+    operator = planar_pose_intake(PoseSource.OPERATOR, 0.0, (1.0, 1.0, 0.0), np.zeros((3, 3)))
+    assert operator.covariance is None  # no information: the default replaces it
+    assert localiser.take_pose(operator, DEFAULT) == "initialisations"
     estimate = localiser.estimate()
     assert estimate.stamp_s == 5.18
     np.testing.assert_array_equal(estimate.covariance, DEFAULT)
