@@ -152,8 +152,9 @@ STAMP_SPECS = (
         "max_stamp_age_s",
         DEFAULT_MAX_STAMP_AGE_S,
         "Largest age (s) of an input's stamp at reception (a revolution's newest bearing, an odometry "
-        "message) on the node's clock; older inputs are refused as late. 0 switches the check off (a replay "
-        "whose stamps are not on the node's clock).",
+        "message, at ekf_node an accepted ToTal pose) on the node's clock; older inputs are refused as late, "
+        "with the reason on /diagnostics (<kind>_stamp_refused; two in a row degrade the status). 0 "
+        "switches the check off (a replay whose stamps are not on the node's clock).",
         minimum=0.0,
         maximum=60.0,
         runtime=True,
@@ -162,7 +163,7 @@ STAMP_SPECS = (
         "max_stamp_lead_s",
         DEFAULT_MAX_STAMP_LEAD_S,
         "Largest lead (s) of an input's stamp ahead of the node's clock; inputs from further in the future "
-        "are refused. 0 switches the check off.",
+        "are refused, as for the age. 0 switches the check off.",
         minimum=0.0,
         maximum=60.0,
         runtime=True,

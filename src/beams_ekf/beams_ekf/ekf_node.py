@@ -13,11 +13,17 @@ Service `~/reset` (std_srvs/Trigger) forgets the estimate until the next pose; `
 (std_srvs/Trigger) writes the power bias learnt while driving to `self_calibration_file` (issue 19).
 All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
 
-Plausibility (issue 18, `beams_common.plausibility`): a revolution whose newest bearing, or an odometry
-message, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s` ahead of the node's clock
-is refused with the reason; an odometry increment beyond `max_speed_m_per_s` or
-`max_yaw_rate_rad_per_s` is never followed (the localiser re-references and grows the covariance); an
-operator's pose with a standard deviation beyond the table is refused; a calibration is checked against
+Every pose (ToTal's accepted fix, /initialpose, `~/set_pose`) goes through the one pose intake
+(`beams_common.pose_intake`, as the offline replay's): in another frame than `map_frame`, non-finite, or
+with a covariance asymmetric, not positive semi-definite or beyond 4 m / 2 pi rad, it is refused with
+the reason, counted `<total|operator>_poses_<kind>` on /diagnostics (`~/set_pose` answers it).
+
+Plausibility (issue 18, `beams_common.plausibility`): a revolution whose newest bearing, an odometry
+message, or an accepted ToTal pose, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s`
+ahead of the node's clock is refused with the reason (`<bearings|odometry|total_pose>_stamp_refused`,
+`last_refusal`; two in a row degrade the status); an odometry increment beyond `max_speed_m_per_s` or
+`max_yaw_rate_rad_per_s` is never followed (the localiser re-references and grows the covariance); a
+calibration is checked against
 chapter 7's ranges and the nominal geometry, and flagged when it makes the recent bearings worse.
 /diagnostics carries the status (`ekf_health`: waiting, tracking, degraded or lost, with the reasons; the
 `status` value); the pose messages cannot carry it.
