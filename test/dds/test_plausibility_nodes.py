@@ -197,23 +197,9 @@ def test_total_leaves_an_unknown_beacon_out_and_refuses_late_or_early_revolution
     assert node.process.poll() is None
 
 
-def _total_fix(stamp_s: float, pose, frame_id: str = "map"):
-    """An accepted ToTal pose (beams/pose) of `pose`, stamped stamp_s (wall clock, s)."""
-    from beams_msgs.msg import TriangulatedPose
-
-    msg = TriangulatedPose(accepted=True, beacon_ids=[1, 2, 3])
-    msg.header.stamp = _time(stamp_s)
-    msg.header.frame_id = frame_id
-    msg.pose.pose.position.x, msg.pose.pose.position.y = pose[0], pose[1]
-    msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(pose[2] / 2), math.cos(pose[2] / 2)
-    covariance = [0.0] * 36
-    covariance[0] = covariance[7] = 1e-4
-    covariance[35] = 3e-4
-    msg.pose.covariance = covariance
-    return msg
-
-
-def test_ekf_refuses_a_total_pose_stamped_late_or_early_and_fuses_the_correct_ones(start_node, rclpy_node):
+def test_ekf_refuses_a_total_pose_stamped_late_or_early_and_fuses_the_correct_ones(
+    start_node, rclpy_node, total_pose_message
+):
     """Issue 18's leftover, through the pose intake (issue 21): with odometry at 50 Hz covering the last
     2 s, a ToTal fix stamped 1 s late (which the history covers: taken as current it would initialise the
     filter a second in the past) or 0.5 s early is refused with its reason on /diagnostics and the filter
@@ -246,7 +232,7 @@ def test_ekf_refuses_a_total_pose_stamped_late_or_early_and_fuses_the_correct_on
             message.pose.pose.orientation.w = 1.0
             odometry.publish(message)
             if fix_offset_s is not None and time.monotonic() >= next_fix:
-                fixes.publish(_total_fix(now_s + fix_offset_s - 0.05, STATIC_POSE, frame_id))
+                fixes.publish(total_pose_message(now_s + fix_offset_s - 0.05, STATIC_POSE, frame_id))
                 next_fix += 0.1
             rclpy_node.executor.spin_once(timeout_sec=0.01)
 

@@ -197,9 +197,10 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         newest_s = _newest_stamp_s(intake)
         if self._implausible_stamp("bearings", f"revolution {msg.revolution}", newest_s, now_s):
             return  # a bearing applied at the wrong instant is confidently wrong (issue 18: 0.3-0.45 m)
-        for key, reason in intake.revolution_refusals():
-            self.diagnostics.refuse(key, f"revolution {msg.revolution}: {reason}")
-        self.localiser.on_intake(intake)  # counts the bearings refused, applies those kept
+        self.localiser.on_intake(intake)  # counts the bearings and revolutions refused, applies those kept
+        for key, reason in intake.revolution_refusals():  # the localiser's count, with the reason
+            counted = self.localiser.stats.counts[key]
+            self.diagnostics.refuse(key, f"revolution {msg.revolution}: {reason}", counted=counted)
         if intake.too_many:  # refused before any per-bearing work
             return
         self._remember_bearings(intake)

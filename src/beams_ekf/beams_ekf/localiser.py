@@ -237,11 +237,12 @@ class Localiser:
         return self.on_intake(revolution_intake(bearings, self.ekf.beacons_xy))
 
     def on_intake(self, intake: RevolutionIntake) -> RevolutionIntake:
-        """A revolution the bearing intake sorted out: its refusals counted (`bearings_<refusal>`,
-        `revolutions_too_many_bearings`), the bearings kept applied (`on_bearings` without the intake's
-        rules again). Returns the intake, for the caller to report."""
-        if intake.too_many:
-            self.stats.counts["revolutions_too_many_bearings"] += 1
+        """A revolution the bearing intake sorted out: its refusals counted (`bearings_<refusal>`, and the
+        revolution's: `revolutions_too_many_bearings`, `revolutions_conflicting_beacon`,
+        `revolutions_with_invalid_bearings`; ekf_node reports these counts with the reasons), the
+        bearings kept applied (`on_bearings` without the intake's rules again). Returns the intake, for
+        the caller to report."""
+        self.stats.counts.update(key for key, _ in intake.revolution_refusals())
         self.stats.counts.update(intake.counts())
         self._apply_bearings(intake.kept)
         return intake
