@@ -17,7 +17,7 @@ from beams_bringup.replay_settings import ReplaySettings
 from beams_bringup.trajectory_metrics import RunTracks
 from beams_common.bearing_intake import bearings_message_intake
 from beams_common.pose2d import Pose2D, is_finite_pose
-from beams_common.pose_intake import PoseSource, RefusedPose, planar_pose_intake
+from beams_common.pose_intake import PoseSource, planar_pose_intake
 from beams_common.ros.messages import (
     planar_covariance,
     pose2d_of,
@@ -140,10 +140,7 @@ class ReplayPipelines:
                 message_stamp_s = stamp_to_seconds(seconds_to_stamp(outcome.stamp_s))
                 pose = (result.x, result.y, result.heading)
                 intake = planar_pose_intake(PoseSource.TOTAL, message_stamp_s, pose, result.covariance)
-                if isinstance(intake, RefusedPose):
-                    self.counts[intake.counter_key] += 1
-                else:
-                    self.localiser.take_pose(intake, self.settings.ekf.default_pose_covariance)
+                self.localiser.offer_pose(intake, self.settings.ekf.default_pose_covariance)
         return [outcome for _, outcome in completed]
 
     def _count_total(self, result: PoseEstimate | NoPose) -> None:

@@ -216,7 +216,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         what = f"ToTal pose at {intake.stamp_s:.3f} s"
         if self._implausible_stamp("total_pose", what, intake.stamp_s, self._now_s()):
             return  # a fix taken at the wrong instant is brought to the filter's instant wrongly
-        self.localiser.take_pose(intake, self.settings.default_pose_covariance)
+        self.localiser.offer_pose(intake, self.settings.default_pose_covariance)
 
     def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
         self._operator_pose(msg)
@@ -226,11 +226,14 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         return response
 
     def _pose_intake(self, source: PoseSource, header, pose_with_covariance) -> PoseIntake:
-        """The pose intake (`beams_common.pose_intake`); a refusal counted with its reason."""
+        """The pose intake (`beams_common.pose_intake`); a refusal counted by the localiser (as in the
+        offline replay), shown with its reason."""
         stamp_s = stamp_to_seconds(header.stamp)
         intake = pose_message_intake(source, header.frame_id, self.map_frame, stamp_s, pose_with_covariance)
         if isinstance(intake, RefusedPose):
-            self.diagnostics.refuse(intake.counter_key, intake.reason)
+            self.localiser.offer_pose(intake, self.settings.default_pose_covariance)
+            counted = self.localiser.stats.counts[intake.counter_key]
+            self.diagnostics.refuse(intake.counter_key, intake.reason, counted=counted)
         return intake
 
     def _operator_pose(self, msg: PoseWithCovarianceStamped) -> tuple[bool, str]:
@@ -239,7 +242,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         intake = self._pose_intake(PoseSource.OPERATOR, msg.header, msg.pose)
         if isinstance(intake, RefusedPose):
             return False, f"operator pose refused: {intake.reason}"
-        what = self.localiser.take_pose(intake, self.settings.default_pose_covariance)
+        what = self.localiser.offer_pose(intake, self.settings.default_pose_covariance)
         if what is not PoseOutcome.INITIALISED:
             self.diagnostics.refuse("operator_poses_not_taken", f"the filter did not take it: {what}")
             return False, f"operator pose refused by the filter: {what}"

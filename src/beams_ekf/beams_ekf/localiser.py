@@ -23,7 +23,7 @@ This module is the timing and the replay of late bearings; the consistency monit
 `consistency` (NisMonitor, KidnapEvidence), the settings in `settings` (built from the parameters by
 `parameters.filter_settings`), the answers in `outcomes`. ekf_node and the offline replay (`bag_replay`)
 share what lies between their inputs and the filter: the bearing intake (`beams_common.bearing_intake`,
-`Localiser.on_intake`), the pose intake (`beams_common.pose_intake`, `Localiser.take_pose`: an operator's
+`Localiser.on_intake`), the pose intake (`beams_common.pose_intake`, `Localiser.offer_pose`: an operator's
 stamp by `operator_pose_stamp_s`, a covariance without information by the default) and `build_localiser`.
 """
 
@@ -38,7 +38,7 @@ from beams_common.bearing_intake import RevolutionIntake, bearing_refusal, revol
 from beams_common.plausibility import MotionLimits, odometry_step_problem
 from beams_common.pose2d import Pose2D, between, compose, inverse
 from beams_common.pose_buffer import PoseBuffer
-from beams_common.pose_intake import KeptPose, planar_pose_problem
+from beams_common.pose_intake import KeptPose, PoseIntake, RefusedPose, planar_pose_problem
 from beams_common.time_jumps import StampOrder, TimeJumpDetector
 from beams_common.validation import odometry_problem
 from beams_ekf.bearing_ekf import BearingEkf, turret_pose
@@ -432,6 +432,15 @@ class Localiser:
         if self.nis_monitor.lost:
             return self._initialise(stamp_s, pose_now, covariance, PoseOutcome.LOST_REINITIALISED)
         return PoseOutcome.IGNORED
+
+    def offer_pose(self, intake: PoseIntake, default_covariance: np.ndarray) -> PoseOutcome:
+        """A pose through the pose intake (`beams_common.pose_intake`), for ekf_node and the offline
+        replays alike: a refusal counted under its key (`<source>_poses_<kind>`, INVALID), a kept pose
+        taken (`take_pose`)."""
+        if isinstance(intake, RefusedPose):
+            self.stats.counts[intake.counter_key] += 1
+            return PoseOutcome.INVALID
+        return self.take_pose(intake, default_covariance)
 
     def take_pose(self, kept: KeptPose, default_covariance: np.ndarray) -> PoseOutcome:
         """`on_pose` for a pose the intake kept (`beams_common.pose_intake`: finite, its covariance
