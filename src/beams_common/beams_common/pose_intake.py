@@ -152,7 +152,7 @@ def pose_intake(
         return RefusedPose(source, PoseRefusal.WRONG_FRAME, bounded(reason))
     values = [float(v) for v in (*position, *quaternion)]
     if not all(math.isfinite(v) for v in values):
-        reason = f"{source} pose: non-finite position {tuple(position)} or orientation {tuple(quaternion)}"
+        reason = f"{source} pose: position {tuple(position)} or orientation {tuple(quaternion)} not finite"
         return RefusedPose(source, PoseRefusal.INVALID, bounded(reason))
     if math.hypot(*values[3:]) < MIN_QUATERNION_NORM:  # hypot: no overflow on huge entries
         return RefusedPose(source, PoseRefusal.INVALID, f"{source} pose: orientation quaternion of zero norm")

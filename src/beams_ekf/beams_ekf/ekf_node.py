@@ -241,7 +241,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         only when the filter was initialised from it."""
         intake = self._pose_intake(PoseSource.OPERATOR, msg.header, msg.pose)
         if isinstance(intake, RefusedPose):
-            return False, f"operator pose refused: {intake.reason}"
+            return False, f"refused: {intake.reason}"
         what = self.localiser.offer_pose(intake, self.settings.default_pose_covariance)
         if what is not PoseOutcome.INITIALISED:
             self.diagnostics.refuse("operator_poses_not_taken", f"the filter did not take it: {what}")
