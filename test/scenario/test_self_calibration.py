@@ -156,7 +156,7 @@ def test_the_turret_offset_is_learnt_while_driving(tmp_path):
     rms, mean_nees = _pooled([learnt], 30.0, 90.0)
     assert rms < 1.5e-3 and NEES_BAND[0] <= mean_nees <= NEES_BAND[1]
     # without them: a mean NEES an order of magnitude beyond 3 (the figure swings with the stream: 1362
-    # while the decoder reported 20 beacons twice in one revolution, 79 since it reports each once)
+    # while the decoder reported 20 beacons twice in one revolution, 82 since it reports each once)
     assert _pooled([results[None][0]], 30.0, 90.0)[1] > 30.0
     path = tmp_path / "offset.yaml"
     save_self_calibration(localiser.ekf, EUROBOT_BEACON_MAP, (0.0, 0.0), path)

@@ -360,8 +360,10 @@ def test_a_pass_split_across_the_zero_reference_is_reported_once():
     simulator = SensorSimulator(config, EUROBOT_BEACONS, np.random.default_rng(7))
     pose_at = lambda t: (1.5, 1.0, 0.5 * t)  # noqa: E731
     revolutions = _run(simulator, _decoder(config), pose_at, 30)
-    straddling = revolutions[1].bearing_of(3)
-    assert straddling is not None
+    # the pass kept is the revolution's own (its instant inside it), not the one carried from before
+    kept = revolutions[1].bearing_of(3)
+    start_s = revolutions[1].start_time_s
+    assert kept is not None and start_s <= kept.stamp_s < start_s + config.period_s
     per_revolution = _sightings_per_revolution(revolutions)
     assert all(max(c.values()) == 1 for c in per_revolution), [
         (k, dict(c)) for k, c in enumerate(per_revolution) if max(c.values()) > 1
