@@ -12,6 +12,7 @@ import time
 import timeit
 
 import numpy as np
+from rows_table import print_rows
 from scipy.stats import spearmanr
 
 from beams_calibration.calibrate import PARAMETER_COUNT, Problem, calibrate, optimise_groups
@@ -216,11 +217,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seed", type=int, default=DEFAULT_SEED)
     options = parser.parse_args()
-    table = rows(options.seed)
-    width = max(len(row[0]) for row in table)
-    print(f"{'figure':<{width}} | {'value':>10} | {'unit':<14} | compared with")
-    for figure, value, unit, compared in table:
-        print(f"{figure:<{width}} | {value:>10.4g} | {unit:<14} | {compared}")
+    print_rows(rows(options.seed), unit_width=14)
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ from beams_sim.world import EurobotTrajectory
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "test" / "hil"))
 import turret_hil
+from rows_table import print_rows
 
 SPEED_TURRET_S = 21.0
 LATENCY_TURRET_S = 5.0
@@ -174,11 +175,7 @@ def rows() -> list[tuple[str, float, str, str]]:
 
 
 def main() -> int:
-    table = rows()
-    width = max(len(figure) for figure, *_ in table)
-    print(f"{'figure':<{width}} | {'value':>10} | unit          | compared with")
-    for figure, value, unit, compared in table:
-        print(f"{figure:<{width}} | {value:>10.4g} | {unit:<13} | {compared}")
+    print_rows(rows())
     return 0
 
 

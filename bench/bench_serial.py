@@ -11,6 +11,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+from rows_table import print_rows
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.decoder import BearingDecoder
@@ -294,11 +295,7 @@ def rows() -> list[tuple[str, float, str, str]]:
 
 
 def main() -> int:
-    table = rows()
-    width = max(len(figure) for figure, *_ in table)
-    print(f"{'figure':<{width}} | {'value':>10} | unit          | compared with")
-    for figure, value, unit, compared in table:
-        print(f"{figure:<{width}} | {value:>10.4g} | {unit:<13} | {compared}")
+    print_rows(rows())
     return 0
 
 

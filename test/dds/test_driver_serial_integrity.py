@@ -4,8 +4,6 @@ device: the optical switch unplugged (edges and heartbeats arrive, no zero refer
 only the revolutions it touches (or only the beacon windows, lost_frames_cost "window"), is no baud-rate
 problem, and never a wrong bearing."""
 
-import contextlib
-import os
 import threading
 from collections.abc import Callable, Iterator
 
@@ -24,33 +22,6 @@ POSE = (1.2, 0.8, 0.3)
 
 def driver_statuses(diagnostics) -> list:
     return [status for message in diagnostics for status in message.status if "driver_node" in status.name]
-
-
-@contextlib.contextmanager
-def streaming_pty(chunks: Iterator[bytes]) -> Iterator[str]:
-    """A pty whose device writes one chunk per turret period from a thread until the test ends."""
-    master, slave = os.openpty()
-    os.set_blocking(master, False)  # nobody reading must not hang the writer
-    stop = threading.Event()
-    period_s = SensorSimConfig().period_s
-
-    def run() -> None:
-        for chunk in chunks:
-            if stop.is_set():
-                return
-            with contextlib.suppress(BlockingIOError):
-                os.write(master, chunk)
-            stop.wait(period_s)
-
-    writer = threading.Thread(target=run, daemon=True)
-    writer.start()
-    try:
-        yield os.ttyname(slave)
-    finally:
-        stop.set()
-        writer.join(timeout=10)
-        os.close(master)
-        os.close(slave)
 
 
 def sensor_stream(
@@ -79,7 +50,7 @@ def sensor_stream(
         yield data
 
 
-def test_no_zero_reference_is_an_error_and_bearings_return_with_it(rclpy_node, start_node):
+def test_no_zero_reference_is_an_error_and_bearings_return_with_it(rclpy_node, start_node, streaming_pty):
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
     from beams_msgs.msg import BeaconBearingArray
@@ -130,7 +101,9 @@ def test_no_zero_reference_is_an_error_and_bearings_return_with_it(rclpy_node, s
 
 
 @pytest.mark.parametrize("cost", ["revolution", "window"])
-def test_line_noise_costs_only_the_revolutions_or_windows_it_touches(rclpy_node, start_node, cost):
+def test_line_noise_costs_only_the_revolutions_or_windows_it_touches(
+    rclpy_node, start_node, cost, streaming_pty
+):
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
     from beams_msgs.msg import BeaconBearingArray

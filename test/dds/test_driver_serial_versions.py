@@ -2,10 +2,6 @@
 the old firmware's v1 stream is an ERROR naming the fix, frames the firmware lost are counted and warned
 on /diagnostics, and the bearings keep coming from the revolutions they spared."""
 
-import contextlib
-import os
-import threading
-
 import numpy as np
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
@@ -32,33 +28,7 @@ def driver_statuses(diagnostics, level: int, text: str) -> list:
     ]
 
 
-@contextlib.contextmanager
-def streaming_pty(chunks):
-    """A pty whose device writes one chunk per turret period from a thread until the test ends."""
-    master, slave = os.openpty()
-    os.set_blocking(master, False)  # nobody reading must not hang the writer
-    stop = threading.Event()
-
-    def run() -> None:
-        for chunk in chunks:
-            if stop.is_set():
-                return
-            with contextlib.suppress(BlockingIOError):
-                os.write(master, chunk)
-            stop.wait(0.1)
-
-    writer = threading.Thread(target=run, daemon=True)
-    writer.start()
-    try:
-        yield os.ttyname(slave)
-    finally:
-        stop.set()
-        writer.join(timeout=10)
-        os.close(master)
-        os.close(slave)
-
-
-def test_old_firmware_stream_is_an_error_naming_the_protocol(rclpy_node, start_node):
+def test_old_firmware_stream_is_an_error_naming_the_protocol(rclpy_node, start_node, streaming_pty):
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
     from beams_msgs.msg import BeaconBearingArray
@@ -85,7 +55,7 @@ def test_old_firmware_stream_is_an_error_naming_the_protocol(rclpy_node, start_n
     assert V1_STREAM_PROBLEM in node.log()
 
 
-def test_frames_the_firmware_lost_are_warned_and_counted(rclpy_node, start_node):
+def test_frames_the_firmware_lost_are_warned_and_counted(rclpy_node, start_node, streaming_pty):
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 
     from beams_msgs.msg import BeaconBearingArray

@@ -48,21 +48,6 @@ def _revolution(bearings):
     return bearing_array(nanoseconds(T0_S + bearings[0].arrival_s - 0.1), fields, period_s=0.1)
 
 
-def _total_pose(t: float, pose):
-    from beams_msgs.msg import TriangulatedPose
-
-    msg = TriangulatedPose(accepted=True)
-    msg.header.stamp = _time(T0_S + t)
-    msg.header.frame_id = "map"
-    msg.pose.pose.position.x, msg.pose.pose.position.y = pose[0] + 0.01, pose[1] - 0.01
-    msg.pose.pose.orientation.z, msg.pose.pose.orientation.w = math.sin(pose[2] / 2), math.cos(pose[2] / 2)
-    covariance = [0.0] * 36
-    covariance[0] = covariance[7] = 1e-4
-    covariance[35] = 3e-4
-    msg.pose.covariance = covariance
-    return msg
-
-
 class _Feeder:
     """Publishers of the node's inputs, connected before use."""
 
@@ -161,7 +146,7 @@ def _assert_map_to_odom_places_the_odometry_on_the_estimate(transforms, outputs,
     assert checked > 20, f"only {checked} of {len(transforms)} transforms matched an estimate"
 
 
-def test_ekf_node_tracks_and_resets(start_node, rclpy_node, match):
+def test_ekf_node_tracks_and_resets(start_node, rclpy_node, match, total_pose_message):
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
     from std_srvs.srv import Trigger
@@ -176,7 +161,8 @@ def test_ekf_node_tracks_and_resets(start_node, rclpy_node, match):
     feeder.play(match, until_s=0.3)
     assert outputs == [], "published before any pose initialised the filter"
     # stamped at its revolution, as ToTal's: the odometry since then brings it to the present
-    feeder.total.publish(_total_pose(0.25, match.truth_at(0.25)))
+    x, y, yaw = match.truth_at(0.25)
+    feeder.total.publish(total_pose_message(T0_S + 0.25, (x + 0.01, y - 0.01, yaw)))
     rclpy_node.spin_for(0.3)
     feeder.play(match, start_s=0.3, until_s=3.0)
     assert rclpy_node.spin_until(lambda: len(outputs) > 20, 10.0), "no estimate published"

@@ -195,3 +195,80 @@ def test_total_leaves_an_unknown_beacon_out_and_refuses_late_or_early_revolution
     assert poses[-1].accepted
     assert rclpy_node.spin_until(lambda: _status(rclpy_node, "triangulation_node") == "tracking", 3.0)
     assert node.process.poll() is None
+
+
+def test_ekf_refuses_a_total_pose_stamped_late_or_early_and_fuses_the_correct_ones(
+    start_node, rclpy_node, total_pose_message
+):
+    """Issue 18's leftover, through the pose intake (issue 21): with odometry at 50 Hz covering the last
+    2 s, a ToTal fix stamped 1 s late (which the history covers: taken as current it would initialise the
+    filter a second in the past) or 0.5 s early is refused with its reason on /diagnostics and the filter
+    stays uninitialised; a fix in another frame is refused as such; the correct fixes initialise it."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from nav_msgs.msg import Odometry
+    from std_srvs.srv import Trigger
+
+    from beams_msgs.msg import TriangulatedPose
+
+    node = start_node("beams_ekf", "ekf_node", {"odometry_history_s": 2.0})
+    odometry = rclpy_node.node.create_publisher(Odometry, "odom", 50)
+    fixes = rclpy_node.node.create_publisher(TriangulatedPose, "beams/pose", 10)
+    estimates = rclpy_node.subscribe(Odometry, "beams/ekf/odometry")
+    rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
+    connected = lambda: odometry.get_subscription_count() > 0 and fixes.get_subscription_count() > 0  # noqa: E731
+    assert rclpy_node.spin_until(connected, START_TIMEOUT_S), node.log()
+
+    def drive(duration_s: float, fix_offset_s: float | None = None, frame_id: str = "map") -> None:
+        """Odometry of the standing robot stamped now, as fast as the probe spins (~20-50 Hz); a fix
+        each 0.1 s stamped 0.05 s before now + fix_offset_s (a revolution's middle, as
+        triangulation_node stamps it)."""
+        end = time.monotonic() + duration_s
+        next_fix = time.monotonic() + 0.1
+        while time.monotonic() < end:
+            now_s = time.time()
+            message = Odometry()
+            message.header.stamp = _time(now_s)
+            message.header.frame_id, message.child_frame_id = "odom", "base_link"
+            message.pose.pose.orientation.w = 1.0
+            odometry.publish(message)
+            if fix_offset_s is not None and time.monotonic() >= next_fix:
+                fixes.publish(total_pose_message(now_s + fix_offset_s - 0.05, STATIC_POSE, frame_id))
+                next_fix += 0.1
+            rclpy_node.executor.spin_once(timeout_sec=0.01)
+
+    def counter(key: str) -> float:
+        return float(rclpy_node.diagnostic_values("ekf_node").get(key, 0.0))
+
+    drive(2.5)  # the history fills; no fix yet
+    assert counter("initialisations") == 0
+    for offset_s, key, words in (
+        (-1.0, "total_pose_stamp_refused", "behind the receiving clock"),
+        (0.5, "total_pose_stamp_refused", "ahead of the receiving clock"),
+        (0.0, "total_poses_wrong_frame", "in frame 'odom'"),
+    ):
+        before = counter(key)
+        drive(1.5, offset_s, "odom" if key == "total_poses_wrong_frame" else "map")
+        rclpy_node.spin_for(1.2)  # the next /diagnostics (1 Hz)
+        values = rclpy_node.diagnostic_values("ekf_node")
+        assert float(values.get("initialisations", 0)) == 0, values  # never taken
+        assert float(values.get(key, 0)) >= before + 8, (key, values)  # 15 fixes sent, a few may be lost
+        assert words in values.get("last_refusal", ""), values
+    assert not estimates, "the filter published an estimate from a refused fix"
+    drive(1.0, 0.0)  # the correct fixes: the first initialises, the next ones are ignored while tracking
+    rclpy_node.spin_for(1.2)
+    assert counter("initialisations") == 1, rclpy_node.diagnostic_values("ekf_node")
+    assert estimates, "no estimate after a correct fix"
+    pose = estimates[-1].pose.pose.position
+    assert (pose.x, pose.y) == (
+        pytest.approx(STATIC_POSE[0], abs=1e-3),
+        pytest.approx(STATIC_POSE[1], abs=1e-3),
+    )
+    # reset: a late fix again is refused, a correct one taken (a second initialisation)
+    rclpy_node.call(Trigger, "/ekf_node/reset", Trigger.Request(), WAIT_S)
+    refused = counter("total_pose_stamp_refused")
+    drive(1.0, -1.0)
+    drive(1.0, 0.0)
+    rclpy_node.spin_for(1.2)
+    assert counter("total_pose_stamp_refused") >= refused + 5
+    assert counter("initialisations") == 2
+    assert node.process.poll() is None and "Traceback" not in node.log()

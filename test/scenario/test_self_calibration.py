@@ -130,7 +130,7 @@ def test_the_learnt_curve_as_a_calibration_file_corrects_the_bias(replays, tmp_p
 def test_the_turret_offset_is_learnt_while_driving(tmp_path):
     """A turret 2.2 cm off its configured place (configured at the centre): with its states
     (turret_offset_sigma_m 3 cm) the filter learns it within 1 mm and stays consistent after 30 s;
-    without them it is overconfident by orders of magnitude. The calibration file carries it."""
+    without them it is overconfident by more than an order of magnitude. The calibration file carries it."""
     from dataclasses import replace
 
     from beams_driver.parameters import SENSOR_PARAMETERS, variance_model_of
@@ -155,7 +155,9 @@ def test_the_turret_offset_is_learnt_while_driving(tmp_path):
     assert np.all(np.sqrt(np.diag(offset_covariance)) < 1e-3)
     rms, mean_nees = _pooled([learnt], 30.0, 90.0)
     assert rms < 1.5e-3 and NEES_BAND[0] <= mean_nees <= NEES_BAND[1]
-    assert _pooled([results[None][0]], 30.0, 90.0)[1] > 100.0
+    # without them: a mean NEES an order of magnitude beyond 3 (the figure swings with the stream: 1362
+    # while the decoder reported 20 beacons twice in one revolution, 82 since it reports each once)
+    assert _pooled([results[None][0]], 30.0, 90.0)[1] > 30.0
     path = tmp_path / "offset.yaml"
     save_self_calibration(localiser.ekf, EUROBOT_BEACON_MAP, (0.0, 0.0), path)
     assert np.allclose(load_calibration(path).turret_offset_m, true_offset, atol=1e-3)

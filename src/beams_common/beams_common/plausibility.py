@@ -13,17 +13,15 @@ plausible), in the style of `validation`:
   its covariance said 2 mm).
 - `odometry_step_problem`: one odometry increment against the robot's maximum speed and yaw rate
   (`MotionLimits`): a +100 m jump is a reset or a fault of the odometry source, not motion.
-- `pose_covariance_problem`: an operator's pose covariance against the table: a standard deviation
-  beyond `MAX_POSE_SIGMA_M` (or `MAX_POSE_SIGMA_RAD`) says nothing a filter can use, and 1e300 made every
-  later estimate non-symmetric in floating point.
+- `MAX_POSE_SIGMA_M`, `MAX_POSE_SIGMA_RAD`: a pose covariance's bound (applied by
+  `pose_intake.pose_covariance_problem`): a standard deviation beyond it says nothing a filter can use,
+  and 1e300 made every later estimate non-symmetric in floating point.
 """
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
-
-import numpy as np
 
 from beams_common.parameters import ParameterSpec
 from beams_common.pose2d import Pose2D
@@ -147,26 +145,6 @@ def odometry_step_problem(interval_s: float, step: Pose2D, limits: MotionLimits)
     return ""
 
 
-def pose_covariance_problem(covariance_3x3: Sequence[Sequence[float]] | np.ndarray) -> str:
-    """Why a planar pose covariance (x, y, theta) of an operator's pose must be refused, or ''.
-
-    Its standard deviations must stay within MAX_POSE_SIGMA_M and MAX_POSE_SIGMA_RAD: beyond them the
-    pose carries no information, and a variance of 1e12 next to the bearings' 1e-6 rad^2 wedged the
-    filter (every later estimate non-symmetric in floating point). A covariance that is merely not
-    positive definite (RViz's zeros) is the caller's to replace by its default (`usable_covariance`).
-    """
-    matrix = np.asarray(covariance_3x3, dtype=float)
-    if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
-        return "covariance is not three by three finite numbers"
-    sigma = np.sqrt(np.maximum(np.diag(matrix), 0.0))
-    if max(sigma[0], sigma[1]) > MAX_POSE_SIGMA_M or sigma[2] > MAX_POSE_SIGMA_RAD:
-        return (
-            f"covariance standard deviations ({sigma[0]:.3g} m, {sigma[1]:.3g} m, {sigma[2]:.3g} rad) beyond "
-            f"{MAX_POSE_SIGMA_M:g} m (the table) or {MAX_POSE_SIGMA_RAD:.3g} rad (a turn): no information"
-        )
-    return ""
-
-
 # The parameters of the checks, shared by triangulation_node and ekf_node (changeable at runtime: each
 # message is judged with the values in force).
 STAMP_SPECS = (
@@ -174,8 +152,9 @@ STAMP_SPECS = (
         "max_stamp_age_s",
         DEFAULT_MAX_STAMP_AGE_S,
         "Largest age (s) of an input's stamp at reception (a revolution's newest bearing, an odometry "
-        "message) on the node's clock; older inputs are refused as late. 0 switches the check off (a replay "
-        "whose stamps are not on the node's clock).",
+        "message, at ekf_node an accepted ToTal pose) on the node's clock; older inputs are refused as late, "
+        "with the reason on /diagnostics (<kind>_stamp_refused; two in a row degrade the status). 0 "
+        "switches the check off (a replay whose stamps are not on the node's clock).",
         minimum=0.0,
         maximum=60.0,
         runtime=True,
@@ -184,7 +163,7 @@ STAMP_SPECS = (
         "max_stamp_lead_s",
         DEFAULT_MAX_STAMP_LEAD_S,
         "Largest lead (s) of an input's stamp ahead of the node's clock; inputs from further in the future "
-        "are refused. 0 switches the check off.",
+        "are refused, as for the age. 0 switches the check off.",
         minimum=0.0,
         maximum=60.0,
         runtime=True,

@@ -10,8 +10,10 @@ stamped a little after the last odometry message when the two streams race).
 
 Streams are fed in one of two ways:
 - `append`: strictly increasing stamps, the caller decides what a stamp in the past means (the EKF);
-- `add`: a validating feed for raw message streams: non-finite samples are refused, a stamp in the past
-  is dropped or, once a `TimeJumpDetector` confirms it, starts the buffer over (a bag played in a loop).
+- `add`: a validating feed for raw message streams: non-finite samples are refused (the odometry rule,
+  `validation.odometry_problem`), a stamp in the past is dropped or, once a `TimeJumpDetector` confirms
+  it, starts the buffer over (a bag played in a loop); `add_valid` is the same feed for a caller whose
+  intake already ran the rule (the triangulation's `take_odometry`: the rule runs once).
 
 Poses are (x, y, theta) tuples: x, y in metres, theta in radians, REP-103.
 """
@@ -22,8 +24,9 @@ from collections import deque
 from collections.abc import Sequence
 
 from beams_common.angles import wrap_to_pi
-from beams_common.pose2d import Pose2D, between, compose, interpolate, is_finite_pose
+from beams_common.pose2d import Pose2D, between, compose, interpolate
 from beams_common.time_jumps import StampOrder, TimeJumpDetector
+from beams_common.validation import odometry_problem
 
 Twist = tuple[float, float]
 
@@ -99,21 +102,22 @@ class PoseBuffer:
         return self._times[0] if self._times else None
 
     def add(self, stamp_s: float, pose: Pose2D, twist: Twist | None = None) -> bool:
-        """Feed one raw sample: False (nothing stored) for a non-finite one; a stamp in the past is
-        dropped (True), or starts the buffer over once `time_jumps` confirms the jump."""
-        if not (
-            math.isfinite(stamp_s)
-            and is_finite_pose(pose)
-            and (twist is None or all(map(math.isfinite, twist)))
-        ):
+        """Feed one raw sample through the odometry rule (`validation.odometry_problem`, its one home):
+        False (nothing stored) for a non-finite one; else `add_valid`, True."""
+        if odometry_problem(stamp_s, pose, twist):
             return False
+        self.add_valid(stamp_s, pose, twist)
+        return True
+
+    def add_valid(self, stamp_s: float, pose: Pose2D, twist: Twist | None = None) -> None:
+        """Feed one sample the caller's intake already found finite (`validation.odometry_problem`): a
+        stamp in the past is dropped, or starts the buffer over once `time_jumps` confirms the jump."""
         order = self.time_jumps.classify(stamp_s, self.newest_stamp_s)
         if order in (StampOrder.STALE, StampOrder.HELD):
-            return True
+            return
         if order is StampOrder.JUMP:
             self.clear()
         self.append(stamp_s, pose, twist=twist)
-        return True
 
     def append(
         self, stamp_s: float, pose: Pose2D, payload: object = None, *, twist: Twist | None = None

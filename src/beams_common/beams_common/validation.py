@@ -10,7 +10,7 @@ anything else is the reason, bounded in length, that a service reply, a log line
   (`planar_estimate_problem`).
 - Odometry: a sample finite in stamp, pose and twist (`odometry_problem`, the triangulation's and the
   EKF's rule).
-- Requests: an operator's pose (`operator_pose_problem`).
+- Requests: an operator's pose (`pose_intake`, with ToTal's).
 """
 
 import math
@@ -153,19 +153,3 @@ def planar_estimate_problem(pose: Sequence[float], covariance: Any) -> str:
         return bounded(f"pose {tuple(pose)} is not three finite numbers")
     problem = covariance_problem(covariance)
     return f"pose ({pose[0]:.3f}, {pose[1]:.3f}, {pose[2]:.3f}): {problem}" if problem else ""
-
-
-def operator_pose_problem(
-    position: Sequence[float], quaternion: Sequence[float], covariance_6x6: Sequence[float]
-) -> str:
-    """Why an operator's pose (set_pose, /initialpose) is refused: non-finite position, orientation or
-    covariance, or a quaternion of zero norm; ''. An all-zero covariance is allowed (the default is used)."""
-    if not all(math.isfinite(float(v)) for v in position):
-        return bounded(f"position {tuple(position)} is not finite")
-    if not all(math.isfinite(float(v)) for v in quaternion):
-        return bounded(f"orientation {tuple(quaternion)} is not finite")
-    if math.hypot(*(float(v) for v in quaternion)) < 1e-6:  # hypot: no overflow on huge entries
-        return "orientation quaternion has zero norm"
-    if not all(math.isfinite(float(v)) for v in covariance_6x6):
-        return "covariance has a non-finite entry"
-    return ""

@@ -3,19 +3,16 @@ robot's limits, an operator's covariance against the table."""
 
 import math
 
-import numpy as np
 from hypothesis import given
 from hypothesis import strategies as st
 
 from beams_common.plausibility import (
     DEFAULT_MAX_SPEED_M_PER_S,
     DEFAULT_MAX_YAW_RATE_RAD_PER_S,
-    MAX_POSE_SIGMA_M,
     MotionLimits,
     StampCheck,
     StampTolerance,
     odometry_step_problem,
-    pose_covariance_problem,
     stamp_problem,
 )
 
@@ -87,17 +84,6 @@ def test_an_increment_is_refused_exactly_when_speed_or_yaw_rate_is_exceeded(
     max_m, max_rad = limits.max_step(interval_s)
     expected = math.hypot(step[0], step[1]) > max_m or abs(turn) > max_rad
     assert bool(odometry_step_problem(interval_s, step, limits)) == expected
-
-
-def test_an_operator_covariance_is_refused_beyond_the_table():
-    assert pose_covariance_problem(np.zeros((3, 3))) == ""  # RViz's zeros: the default replaces them
-    assert pose_covariance_problem(np.diag([0.25, 0.25, 0.07])) == ""  # RViz's own initial pose
-    assert pose_covariance_problem(np.diag([MAX_POSE_SIGMA_M**2] * 2 + [1.0])) == ""
-    for huge in (1e12, 1e300):
-        problem = pose_covariance_problem(np.diag([huge, huge, 0.01]))
-        assert "beyond 4 m" in problem, problem
-    assert "beyond" in pose_covariance_problem(np.diag([0.01, 0.01, 100.0]))
-    assert "finite" in pose_covariance_problem(np.diag([math.inf, 0.01, 0.01]))
 
 
 def test_one_late_input_is_refused_and_a_run_of_them_confirmed_per_kind():

@@ -1,9 +1,15 @@
 """The stamped pose buffer (interpolation, extrapolation, trimming, ordering, time jumps)."""
 
+import math
+
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from beams_common.angles import wrap_to_pi
+from beams_common.pose2d import is_finite_pose
 from beams_common.pose_buffer import PoseBuffer
+from beams_common.validation import odometry_problem
 
 
 def _close(a, b, tolerance=1e-9) -> bool:
@@ -68,3 +74,34 @@ def test_last_step_and_index():
 def test_invalid_history_parameters(span_s, extrapolation_s):
     with pytest.raises(ValueError):
         PoseBuffer(span_s, extrapolation_s)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    st.lists(
+        st.tuples(
+            st.sampled_from([0.02, -0.5, math.nan, math.inf]),  # stamp step (s) from the previous sample
+            st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=3, max_size=3),
+            st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=2, max_size=2),
+        ),
+        max_size=20,
+    )
+)
+def test_add_stores_exactly_what_the_odometry_rule_lets_through(samples):
+    """A raw stream with NaN, inf and stamps going back anywhere: `add` refuses a sample exactly when
+    `validation.odometry_problem` (the one rule) does, and the buffer then holds only finite poses."""
+    checked = PoseBuffer(span_s=10.0, max_extrapolation_s=0.05)
+    trusted = PoseBuffer(span_s=10.0, max_extrapolation_s=0.05)
+    stamp_s = 100.0
+    for step_s, pose, twist in samples:
+        stamp_s += step_s
+        refused = bool(odometry_problem(stamp_s, pose, twist))
+        assert checked.add(stamp_s, tuple(pose), tuple(twist)) is not refused
+        if not refused:  # the intake ran: the trusted feed takes it the same way
+            trusted.add_valid(stamp_s, tuple(pose), tuple(twist))
+        if not math.isfinite(stamp_s):
+            stamp_s = 100.0
+    assert [checked.sample(k)[:2] for k in range(len(checked))] == [
+        trusted.sample(k)[:2] for k in range(len(trusted))
+    ]
+    assert all(is_finite_pose(checked.sample(k)[1]) for k in range(len(checked)))

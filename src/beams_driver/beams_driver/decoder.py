@@ -8,7 +8,10 @@ a reason. An accepted window gives the bearing (phi_r + phi_f) / 2 (eq. 2.5) wra
 window phi_f - phi_r plus its mean shortening (eq. 5.2, p0 phi0 for the ideal receiver; with the minimum
 burst m of the AND hypothesis, sum over gaps of (phi_G + m)^2 / code period: `receiver.ReceiverModel`),
 its variance from the variance model at that window, and its own instant. Section 2.5.2 asks to see
-the code at least twice in the window: `min_codes_seen` complete codes (default 2).
+the code at least twice in the window: `min_codes_seen` complete codes (default 2). A window belongs to
+the revolution in which it closes (one straddling the zero reference is carried into the next, its
+angle wrapped); a revolution reports each beacon at most once (`repeated`: a robot turning against the
+turret brings a beacon round twice in one turn, the pass nearest the revolution's middle is kept).
 """
 
 from collections.abc import Sequence
@@ -67,7 +70,7 @@ class Rejection:
     @property
     def kind(self) -> str:
         """Category: malformed, truncated, undecodable, compound, inconsistent, ambiguous, too_few_codes,
-        lost_frames."""
+        lost_frames, repeated."""
         return self.reason.split(":", 1)[0]
 
 
@@ -197,6 +200,7 @@ class BearingDecoder:
                 code, codes_seen = outcome
                 bearing = self._bearing(code, codes_seen, window_angles, edges.start_time_s, omega)
                 result.bearings.append(bearing)
+        _one_pass_per_beacon(result)
         return result
 
     def reset(self) -> None:
@@ -291,6 +295,42 @@ class BearingDecoder:
             codes_seen=int(codes_seen),
             stamp_s=float(start_time_s + middle / omega),
         )
+
+
+def _one_pass_per_beacon(result: DecodedRevolution) -> None:
+    """At most one bearing per beacon in a revolution: the pass whose instant is nearest the
+    revolution's middle is kept, any other is rejected as `repeated` (in place). A pass carried over the
+    zero reference whose bearing lies before it belonged to the revolution before: any pass of the
+    revolution's own turn is nearer its middle and wins (not the median instant of
+    `validation.one_sighting_per_beacon`, which can keep the older pass: a static sensor whose pose
+    changed between two revolutions then reported the previous pose's bearing, 13 deg off).
+
+    A window is decoded with the revolution in which it closes (a pass straddling the zero reference,
+    or closing within the timeout before it, is carried into the next revolution, its angle wrapped).
+    While the robot turns against the turret the beacon comes round in less than a turret period, so
+    that revolution may also close its own pass of the beacon (0.05 rad earlier at 0.5 rad/s): one turn
+    of the turret then holds two passes. The bearing is one pass's (first rising and last falling edge,
+    eq. 2.5); a revolution reports one per beacon, as `validation.one_sighting_per_beacon` keeps
+    downstream.
+    """
+    middle_s = result.start_time_s + 0.5 * result.period_s
+    kept: dict[int, DecodedBearing] = {}
+    for bearing in result.bearings:
+        other = kept.get(bearing.beacon_id)
+        if other is None or abs(bearing.stamp_s - middle_s) < abs(other.stamp_s - middle_s):
+            kept[bearing.beacon_id] = bearing
+    if len(kept) == len(result.bearings):
+        return
+    for bearing in result.bearings:
+        if kept[bearing.beacon_id] is not bearing:
+            result.rejections.append(
+                Rejection(
+                    f"repeated: beacon {bearing.beacon_id} passed twice in one revolution (the robot "
+                    f"turning against the turret), the pass nearest the revolution's middle kept",
+                    bearing.bearing,
+                )
+            )
+    result.bearings[:] = [b for b in result.bearings if kept[b.beacon_id] is b]
 
 
 def _touches(intervals: np.ndarray, low: float, high: float) -> bool:

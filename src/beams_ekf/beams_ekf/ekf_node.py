@@ -13,11 +13,17 @@ Service `~/reset` (std_srvs/Trigger) forgets the estimate until the next pose; `
 (std_srvs/Trigger) writes the power bias learnt while driving to `self_calibration_file` (issue 19).
 All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
 
-Plausibility (issue 18, `beams_common.plausibility`): a revolution whose newest bearing, or an odometry
-message, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s` ahead of the node's clock
-is refused with the reason; an odometry increment beyond `max_speed_m_per_s` or
-`max_yaw_rate_rad_per_s` is never followed (the localiser re-references and grows the covariance); an
-operator's pose with a standard deviation beyond the table is refused; a calibration is checked against
+Every pose (ToTal's accepted fix, /initialpose, `~/set_pose`) goes through the one pose intake
+(`beams_common.pose_intake`, as the offline replay's): in another frame than `map_frame`, non-finite, or
+with a covariance asymmetric, not positive semi-definite or beyond 4 m / 2 pi rad, it is refused with
+the reason, counted `<total|operator>_poses_<kind>` on /diagnostics (`~/set_pose` answers it).
+
+Plausibility (issue 18, `beams_common.plausibility`): a revolution whose newest bearing, an odometry
+message, or an accepted ToTal pose, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s`
+ahead of the node's clock is refused with the reason (`<bearings|odometry|total_pose>_stamp_refused`,
+`last_refusal`; two in a row degrade the status); an odometry increment beyond `max_speed_m_per_s` or
+`max_yaw_rate_rad_per_s` is never followed (the localiser re-references and grows the covariance); a
+calibration is checked against
 chapter 7's ranges and the nominal geometry, and flagged when it makes the recent bearings worse.
 /diagnostics carries the status (`ekf_health`: waiting, tracking, degraded or lost, with the reasons; the
 `status` value); the pose messages cannot carry it.
@@ -40,11 +46,11 @@ from beams_common.bearing_intake import RevolutionIntake, bearings_message_intak
 from beams_common.calibration_checks import BearingSample, RecentBearings
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import BeaconGeometry, geometry_of_calibration, runtime_geometry
-from beams_common.plausibility import StampCheck, pose_covariance_problem, stamp_tolerance_of
+from beams_common.plausibility import StampCheck, stamp_tolerance_of
+from beams_common.pose_intake import PoseIntake, PoseSource, RefusedPose, pose_message_intake
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import (
-    planar_covariance,
     planar_tf_message,
     pose2d_of,
     ros_covariance,
@@ -63,11 +69,7 @@ from beams_common.ros.node_support import (
     startup_geometry,
 )
 from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
-from beams_common.validation import (
-    bounded,
-    operator_pose_problem,
-    planar_estimate_problem,
-)
+from beams_common.validation import bounded, planar_estimate_problem
 from beams_ekf.ekf_health import WAITING_FOR_POSE, EkfHealth
 from beams_ekf.localiser import build_localiser
 from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
@@ -195,9 +197,10 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         newest_s = _newest_stamp_s(intake)
         if self._implausible_stamp("bearings", f"revolution {msg.revolution}", newest_s, now_s):
             return  # a bearing applied at the wrong instant is confidently wrong (issue 18: 0.3-0.45 m)
-        for key, reason in intake.revolution_refusals():
-            self.diagnostics.refuse(key, f"revolution {msg.revolution}: {reason}")
-        self.localiser.on_intake(intake)  # counts the bearings refused, applies those kept
+        self.localiser.on_intake(intake)  # counts the bearings and revolutions refused, applies those kept
+        for key, reason in intake.revolution_refusals():  # the localiser's count, with the reason
+            counted = self.localiser.stats.counts[key]
+            self.diagnostics.refuse(key, f"revolution {msg.revolution}: {reason}", counted=counted)
         if intake.too_many:  # refused before any per-bearing work
             return
         self._remember_bearings(intake)
@@ -207,8 +210,13 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
     def _on_total_pose(self, msg: TriangulatedPose) -> None:
         if not (self.settings.use_total_pose and msg.accepted):
             return
-        if self._offer_pose(msg.header.stamp, msg.pose, operator=False) is PoseOutcome.INVALID:
-            self.diagnostics.refuse("total_poses_refused", "accepted ToTal pose with a non-finite value")
+        intake = self._pose_intake(PoseSource.TOTAL, msg.header, msg.pose)
+        if isinstance(intake, RefusedPose):
+            return
+        what = f"ToTal pose at {intake.stamp_s:.3f} s"
+        if self._implausible_stamp("total_pose", what, intake.stamp_s, self._now_s()):
+            return  # a fix taken at the wrong instant is brought to the filter's instant wrongly
+        self.localiser.offer_pose(intake, self.settings.default_pose_covariance)
 
     def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
         self._operator_pose(msg)
@@ -217,24 +225,26 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         response.success, response.message = self._operator_pose(request.pose)
         return response
 
+    def _pose_intake(self, source: PoseSource, header, pose_with_covariance) -> PoseIntake:
+        """The pose intake (`beams_common.pose_intake`); a refusal counted by the localiser (as in the
+        offline replay), shown with its reason."""
+        stamp_s = stamp_to_seconds(header.stamp)
+        intake = pose_message_intake(source, header.frame_id, self.map_frame, stamp_s, pose_with_covariance)
+        if isinstance(intake, RefusedPose):
+            self.localiser.offer_pose(intake, self.settings.default_pose_covariance)
+            counted = self.localiser.stats.counts[intake.counter_key]
+            self.diagnostics.refuse(intake.counter_key, intake.reason, counted=counted)
+        return intake
+
     def _operator_pose(self, msg: PoseWithCovarianceStamped) -> tuple[bool, str]:
         """An operator's pose (RViz /initialpose or the set_pose service): (taken, what happened); taken
         only when the filter was initialised from it."""
-        if msg.header.frame_id and msg.header.frame_id != self.map_frame:
-            message = f"pose in frame {msg.header.frame_id!r} ignored (expected {self.map_frame!r})"
-            self.diagnostics.refuse("poses_wrong_frame", message)
-            return False, bounded(message)
-        position, q = msg.pose.pose.position, msg.pose.pose.orientation
-        problem = operator_pose_problem(
-            (position.x, position.y, position.z), (q.x, q.y, q.z, q.w), msg.pose.covariance
-        )
-        problem = problem or pose_covariance_problem(planar_covariance(msg.pose.covariance))
-        if problem:
-            self.diagnostics.refuse("operator_poses_refused", problem)
-            return False, f"operator pose refused: {problem}"
-        what = self._offer_pose(msg.header.stamp, msg.pose, operator=True)
+        intake = self._pose_intake(PoseSource.OPERATOR, msg.header, msg.pose)
+        if isinstance(intake, RefusedPose):
+            return False, f"refused: {intake.reason}"
+        what = self.localiser.offer_pose(intake, self.settings.default_pose_covariance)
         if what is not PoseOutcome.INITIALISED:
-            self.diagnostics.refuse("operator_poses_refused", f"the filter did not take it: {what}")
+            self.diagnostics.refuse("operator_poses_not_taken", f"the filter did not take it: {what}")
             return False, f"operator pose refused by the filter: {what}"
         self.get_logger().info(f"operator pose: {what}")
         self._changed = True  # published even at the instant of the last publication
@@ -271,15 +281,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
             self.diagnostics.refuse("calibrations_flagged_worse", worse)
             self.health.fault("calibration_worse", self._now_s(), worse, CALIBRATION_FLAG_HOLD_S)
         return worse
-
-    def _offer_pose(self, stamp, pose_with_covariance, *, operator: bool) -> PoseOutcome:
-        return self.localiser.offer_pose(
-            stamp_to_seconds(stamp),
-            pose2d_of(pose_with_covariance.pose),
-            planar_covariance(pose_with_covariance.covariance),
-            self.settings.default_pose_covariance,
-            operator=operator,
-        )
 
     def _on_reset(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self.localiser.reset("manual_resets")

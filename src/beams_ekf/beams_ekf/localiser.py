@@ -23,22 +23,22 @@ This module is the timing and the replay of late bearings; the consistency monit
 `consistency` (NisMonitor, KidnapEvidence), the settings in `settings` (built from the parameters by
 `parameters.filter_settings`), the answers in `outcomes`. ekf_node and the offline replay (`bag_replay`)
 share what lies between their inputs and the filter: the bearing intake (`beams_common.bearing_intake`,
-`Localiser.on_intake`), `build_localiser`, and `Localiser.offer_pose` with its rules
-(`usable_covariance`, `operator_pose_stamp_s`).
+`Localiser.on_intake`), the pose intake (`beams_common.pose_intake`, `Localiser.offer_pose`: an operator's
+stamp by `operator_pose_stamp_s`, a covariance without information by the default) and `build_localiser`.
 """
 
 from collections import Counter
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from math import isfinite
 
 import numpy as np
 
 from beams_common.bearing import Bearing
 from beams_common.bearing_intake import RevolutionIntake, bearing_refusal, revolution_intake
 from beams_common.plausibility import MotionLimits, odometry_step_problem
-from beams_common.pose2d import Pose2D, between, compose, inverse, is_finite_pose
+from beams_common.pose2d import Pose2D, between, compose, inverse
 from beams_common.pose_buffer import PoseBuffer
+from beams_common.pose_intake import KeptPose, PoseIntake, RefusedPose, planar_pose_problem
 from beams_common.time_jumps import StampOrder, TimeJumpDetector
 from beams_common.validation import odometry_problem
 from beams_ekf.bearing_ekf import BearingEkf, turret_pose
@@ -49,15 +49,6 @@ from beams_ekf.settings import FilterSettings, LocaliserConfig
 
 # bearings waiting for odometry beyond this many are dropped, oldest first (a dead odometry source)
 MAX_PENDING_BEARINGS = 64
-
-
-def usable_covariance(covariance: np.ndarray, default: np.ndarray) -> np.ndarray:
-    """A pose's 3x3 covariance when finite and positive definite, else the default (RViz's /initialpose
-    and the set_pose service may send zeros)."""
-    covariance = np.asarray(covariance, dtype=float)
-    if np.all(np.isfinite(covariance)) and np.all(np.linalg.eigvalsh(covariance) > 0.0):
-        return covariance
-    return default
 
 
 def operator_pose_stamp_s(stamp_s: float, newest_odometry_s: float | None) -> float:
@@ -246,11 +237,12 @@ class Localiser:
         return self.on_intake(revolution_intake(bearings, self.ekf.beacons_xy))
 
     def on_intake(self, intake: RevolutionIntake) -> RevolutionIntake:
-        """A revolution the bearing intake sorted out: its refusals counted (`bearings_<refusal>`,
-        `revolutions_too_many_bearings`), the bearings kept applied (`on_bearings` without the intake's
-        rules again). Returns the intake, for the caller to report."""
-        if intake.too_many:
-            self.stats.counts["revolutions_too_many_bearings"] += 1
+        """A revolution the bearing intake sorted out: its refusals counted (`bearings_<refusal>`, and the
+        revolution's: `revolutions_too_many_bearings`, `revolutions_conflicting_beacon`,
+        `revolutions_with_invalid_bearings`; ekf_node reports these counts with the reasons), the
+        bearings kept applied (`on_bearings` without the intake's rules again). Returns the intake, for
+        the caller to report."""
+        self.stats.counts.update(key for key, _ in intake.revolution_refusals())
         self.stats.counts.update(intake.counts())
         self._apply_bearings(intake.kept)
         return intake
@@ -417,9 +409,14 @@ class Localiser:
         NisMonitor's test), provided the odometry
         history covers its stamp ("outside_history" otherwise: the next fix will be covered).
         """
-        if not (isfinite(stamp_s) and is_finite_pose(pose)):
+        if planar_pose_problem(stamp_s, pose):  # the intake's rule, for a caller without the intake
             self.stats.counts["poses_invalid"] += 1
             return PoseOutcome.INVALID
+        return self._on_pose(stamp_s, pose, covariance, operator=operator)
+
+    def _on_pose(
+        self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, *, operator: bool
+    ) -> PoseOutcome:
         motion = self._motion_since(stamp_s)
         if motion is None and not operator:
             # the robot moved since the fix by an unknown amount (0.1 m in 0.2 s at 0.5 m/s)
@@ -436,22 +433,25 @@ class Localiser:
             return self._initialise(stamp_s, pose_now, covariance, PoseOutcome.LOST_REINITIALISED)
         return PoseOutcome.IGNORED
 
-    def offer_pose(
-        self,
-        stamp_s: float,
-        pose: Pose2D,
-        covariance: np.ndarray,
-        default_covariance: np.ndarray,
-        *,
-        operator: bool,
-    ) -> PoseOutcome:
-        """`on_pose` for a pose from a message: an unusable covariance replaced by the default
-        (`usable_covariance`), an operator's stamp by "now" (`operator_pose_stamp_s`)."""
-        if operator:
+    def offer_pose(self, intake: PoseIntake, default_covariance: np.ndarray) -> PoseOutcome:
+        """A pose through the pose intake (`beams_common.pose_intake`), for ekf_node and the offline
+        replays alike: a refusal counted under its key (`<source>_poses_<kind>`, INVALID), a kept pose
+        taken (`take_pose`)."""
+        if isinstance(intake, RefusedPose):
+            self.stats.counts[intake.counter_key] += 1
+            return PoseOutcome.INVALID
+        return self.take_pose(intake, default_covariance)
+
+    def take_pose(self, kept: KeptPose, default_covariance: np.ndarray) -> PoseOutcome:
+        """`on_pose` for a pose the intake kept (`beams_common.pose_intake`: finite, its covariance
+        checked): a covariance without information (None) replaced by the default, an operator's stamp by
+        "now" (`operator_pose_stamp_s`)."""
+        stamp_s = kept.stamp_s
+        if kept.operator:
             latest = self.history.latest
             stamp_s = operator_pose_stamp_s(stamp_s, None if latest is None else latest[0])
-        usable = usable_covariance(covariance, default_covariance)
-        return self.on_pose(stamp_s, pose, usable, operator=operator)
+        covariance = default_covariance if kept.covariance is None else kept.covariance
+        return self._on_pose(stamp_s, kept.pose, covariance, operator=kept.operator)
 
     def _initialise(
         self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, outcome: PoseOutcome

@@ -190,3 +190,8 @@ def test_the_ekf_counts_a_beacon_seen_twice_and_uses_one_sighting():
     assert key == "revolutions_conflicting_beacon" and "beacon(s) [1] seen twice at one instant" in reason
     assert localiser.stats.counts["bearings_conflicting_beacon"] == 2
     assert localiser.stats.counts["bearings_accepted"] == 2
+    # the revolution's refusal counted once, by the localiser (ekf_node shows this count: one writer)
+    assert localiser.stats.counts["revolutions_conflicting_beacon"] == 1
+    localiser.on_revolution([*revolution, same_instant])
+    localiser.on_revolution(revolution)
+    assert localiser.stats.counts["revolutions_conflicting_beacon"] == 2

@@ -12,6 +12,7 @@ import yaml
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.parameters import node_section
+from beams_common.pose_intake import PoseSource, planar_pose_intake
 from beams_ekf.bearing_ekf import ProcessNoise
 from beams_ekf.localiser import (
     Bearing,
@@ -20,7 +21,6 @@ from beams_ekf.localiser import (
     LocaliserConfig,
     build_localiser,
     operator_pose_stamp_s,
-    usable_covariance,
 )
 from beams_ekf.parameters import EKF_PARAMETERS, FILTER_SPECS, filter_settings
 from beams_thesis.synthetic import SyntheticMatch, synthetic_match
@@ -87,19 +87,6 @@ def test_bad_bearings_change_nothing_bit_for_bit(match):
     assert counts["bearings_accepted"] == clean.stats.counts["bearings_accepted"] > 0
 
 
-def test_usable_covariance_falls_back_on_the_default():
-    good = np.diag([1e-4, 2e-4, 1e-3])
-    assert usable_covariance(good, DEFAULT) is not DEFAULT
-    np.testing.assert_array_equal(usable_covariance(good, DEFAULT), good)
-    for bad in (
-        np.zeros((3, 3)),
-        np.diag([1e-4, math.nan, 1e-3]),
-        np.diag([1e-4, -1e-4, 1e-3]),
-        np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 1.0]]),
-    ):  # eigenvalues 3, -1, 1
-        assert usable_covariance(bad, DEFAULT) is DEFAULT
-
-
 @pytest.mark.parametrize(
     ("stamp_s", "newest_s", "expected"),
     [
@@ -113,20 +100,34 @@ def test_operator_pose_stamp_rule(stamp_s, newest_s, expected):
     assert operator_pose_stamp_s(stamp_s, newest_s) == expected
 
 
-def test_offer_pose_applies_both_rules():
-    """An unstamped operator pose with a zero covariance initialises at the newest odometry instant with
-    the default covariance; ToTal's pose keeps its stamp (refused here: older than the history)."""
+def test_offer_pose_counts_the_intake_s_refusals_and_applies_both_rules():
+    """A sequence of poses through the pose intake: the refused ones counted under their keys and never
+    reaching the filter; an unstamped operator pose with a zero covariance initialises at the newest
+    odometry instant with the default covariance; ToTal's pose keeps its stamp (refused here: older than
+    the history)."""
     localiser = build_localiser(EUROBOT_BEACONS, OFFSET, FilterSettings())
     for k in range(10):
         localiser.on_odometry(5.0 + 0.02 * k, (0.01 * k, 0.0, 0.0))
-    assert localiser.offer_pose(4.0, (1.0, 1.0, 0.0), np.eye(3), DEFAULT, operator=False) == "outside_history"
-    assert (
-        localiser.offer_pose(0.0, (1.0, 1.0, 0.0), np.zeros((3, 3)), DEFAULT, operator=True)
-        == "initialisations"
-    )
+    refused = [
+        planar_pose_intake(PoseSource.TOTAL, 5.1, (1.0, math.nan, 0.0), np.eye(3) * 1e-4),
+        planar_pose_intake(PoseSource.TOTAL, 5.1, (1.0, 1.0, 0.0), np.diag([1e-4, -1e-4, 1e-4])),
+        planar_pose_intake(PoseSource.OPERATOR, 0.0, (1.0, 1.0, 0.0), np.diag([1e12, 1e12, 0.01])),
+        planar_pose_intake(PoseSource.TOTAL, 5.1, (1.0, 1.0, 0.0), np.diag([1e-4, 1e-4, 1e300])),
+    ]
+    assert [localiser.offer_pose(intake, DEFAULT) for intake in refused] == ["invalid"] * 4
+    assert not localiser.ekf.initialised
+    counts = localiser.stats.counts
+    assert (counts["total_poses_invalid"], counts["total_poses_covariance"]) == (1, 2)
+    assert counts["operator_poses_covariance"] == 1
+    total = planar_pose_intake(PoseSource.TOTAL, 4.0, (1.0, 1.0, 0.0), np.eye(3))
+    assert localiser.offer_pose(total, DEFAULT) == "outside_history"
+    operator = planar_pose_intake(PoseSource.OPERATOR, 0.0, (1.0, 1.0, 0.0), np.zeros((3, 3)))
+    assert operator.covariance is None  # no information: the default replaces it
+    assert localiser.offer_pose(operator, DEFAULT) == "initialisations"
     estimate = localiser.estimate()
     assert estimate.stamp_s == 5.18
     np.testing.assert_array_equal(estimate.covariance, DEFAULT)
+    assert sum(v for k, v in counts.items() if "_poses_" in k) == 4
 
 
 def test_settings_from_the_node_parameter_file():

@@ -11,7 +11,8 @@ from hypothesis import strategies as st
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.bearing import Bearing
-from beams_common.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD, pose_covariance_problem
+from beams_common.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD
+from beams_common.pose_intake import pose_covariance_problem
 from beams_common.validation import planar_estimate_problem
 from beams_ekf.localiser import Localiser, build_localiser
 from beams_ekf.outcomes import OdometryOutcome

@@ -12,6 +12,7 @@ from scipy.stats import chi2
 from beams_common.angles import wrap_to_pi
 from beams_common.bearing import Bearing
 from beams_common.pose2d import Pose2D
+from beams_common.pose_intake import PoseSource, planar_pose_intake
 from beams_ekf.localiser import Localiser
 from beams_thesis.synthetic import BearingEvent
 
@@ -79,8 +80,9 @@ def replay(
             localiser.on_odometry(float(odometry_times_s[k]), tuple(odometry_poses[k]))
             k += 1
         for event in arrived:
-            if isinstance(event, PoseEvent):
-                localiser.on_pose(event.stamp_s, event.pose, event.covariance, operator=False)
+            if isinstance(event, PoseEvent):  # through the pose intake, as ekf_node takes beams/pose
+                intake = planar_pose_intake(PoseSource.TOTAL, event.stamp_s, event.pose, event.covariance)
+                localiser.offer_pose(intake, initial_covariance)
             else:
                 localiser.on_bearings(
                     [

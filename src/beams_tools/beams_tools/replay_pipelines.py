@@ -14,6 +14,7 @@ from rosbags.rosbag2 import Reader
 
 from beams_common.bearing_intake import bearings_message_intake
 from beams_common.pose2d import Pose2D, is_finite_pose
+from beams_common.pose_intake import PoseSource, planar_pose_intake
 from beams_common.ros.messages import (
     planar_covariance,
     pose2d_of,
@@ -137,13 +138,9 @@ class ReplayPipelines:
             if offer and isinstance(result, PoseEstimate) and result.accepted:
                 # ekf_node reads the stamp from the message, rounded to nanoseconds
                 message_stamp_s = stamp_to_seconds(seconds_to_stamp(outcome.stamp_s))
-                self.localiser.offer_pose(
-                    message_stamp_s,
-                    (result.x, result.y, result.heading),
-                    result.covariance,
-                    self.settings.ekf.default_pose_covariance,
-                    operator=False,
-                )
+                pose = (result.x, result.y, result.heading)
+                intake = planar_pose_intake(PoseSource.TOTAL, message_stamp_s, pose, result.covariance)
+                self.localiser.offer_pose(intake, self.settings.ekf.default_pose_covariance)
         return [outcome for _, outcome in completed]
 
     def _count_total(self, result: PoseEstimate | NoPose) -> None:

@@ -108,7 +108,7 @@ class TriangulationPipeline:
             if self.last_odometry_jump:
                 self.odometry_jumps += 1
                 self.odometry.clear()
-        self.odometry.add(stamp_s, tuple(pose), twist)
+        self.odometry.add_valid(stamp_s, tuple(pose), twist)  # the odometry rule ran above
         if self._pending is not None and self._covered(self._pending[1]):
             return "", self.flush()
         return "", []

@@ -240,13 +240,18 @@ class Diagnostics:
         self._level = level
         self._message = bounded(message)
 
-    def refuse(self, key: str, reason: str, level: str = "warn") -> None:
+    def refuse(self, key: str, reason: str, level: str = "warn", *, counted: int | None = None) -> None:
         """Count a refused input under `key`, keep its reason in `last_refusal`, make the next status at
-        least `level` with it, and log it (at most once a second)."""
+        least `level` with it, and log it (at most once a second). `counted`: the refusals of this key
+        another object already counts (the Localiser, shared with the offline replay), shown as they
+        are: one writer of the count."""
         if level not in ("warn", "error"):
             raise ValueError(f"a refusal is 'warn' or 'error', got {level!r}")
         reason = bounded(reason)
-        self.increment(key)
+        if counted is None:
+            self.increment(key)
+        else:
+            self.set(key, counted)
         self._values["last_refusal"] = f"{key}: {reason}"
         if self._refusal is None or _LEVELS[level] >= _LEVELS[self._refusal[0]]:
             self._refusal = (level, f"{key}: {reason}")

@@ -1,0 +1,196 @@
+"""The one intake of a pose offered to the EKF: ToTal's accepted fix (beams/pose), an operator's
+(/initialpose, the `~/set_pose` service), shared by ekf_node and the offline replay.
+
+Each rule runs once, here, in this order; the answer is the pose kept (planar, with the covariance the
+filter may use) or the refusal with its kind, its reason and its counter key (`<source>_poses_<kind>`),
+for the node's /diagnostics and the replay's counts alike:
+
+1. the frame: a pose in another frame than the map's is refused (`wrong_frame`); an empty frame id is
+   taken as the map's (RViz and hand-written requests often leave it empty);
+2. finiteness: a non-finite stamp, position, orientation or covariance entry, or an orientation
+   quaternion of zero norm, is refused (`invalid`);
+3. the covariance (its x, y, yaw block, thesis eq. 6.30 for ToTal's): symmetric (to
+   `validation.SYMMETRY_TOLERANCE`, relative), positive semi-definite (a negative variance is refused)
+   and bounded (a standard deviation beyond `plausibility.MAX_POSE_SIGMA_M` = 4 m or
+   `MAX_POSE_SIGMA_RAD` = 2 pi rad carries no information, and 1e12 next to the bearings' 1e-6 rad^2
+   wedged the filter) (`covariance`). A covariance that is semi-definite but not definite (RViz's zeros)
+   is kept without it: `KeptPose.covariance` is None and the filter uses its default.
+
+The stamp against the receiving clock (`plausibility.stamp_problem`, issue 18) is the node's, as for the
+bearings and the odometry: the offline replay has no receiving clock. An operator's stamp is no rule
+here either: it is taken as "now" by the Localiser when zero or ahead of the odometry.
+"""
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Any
+
+import numpy as np
+
+from beams_common.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD
+from beams_common.pose2d import Pose2D, yaw_of_quaternion
+from beams_common.validation import SYMMETRY_TOLERANCE, bounded
+
+# The (x, y, yaw) rows and columns of a row-major 6x6 ROS covariance.
+PLANAR_INDICES = (0, 1, 5)
+# A normalised covariance (largest entry 1) whose smallest eigenvalue is below minus this is not
+# positive semi-definite: a negative variance, or a correlation beyond one (floating point leaves
+# ~1e-16 on a semi-definite one).
+PSD_TOLERANCE = 1e-9
+# An orientation quaternion shorter than this has no direction.
+MIN_QUATERNION_NORM = 1e-6
+
+
+class PoseSource(StrEnum):
+    """Where a pose comes from (the value is the counter's prefix: `<value>_poses_<kind>`)."""
+
+    TOTAL = "total"  # ToTal's accepted fix on beams/pose
+    OPERATOR = "operator"  # /initialpose or ~/set_pose
+
+
+class PoseRefusal(StrEnum):
+    """Why a pose was not kept (the value is the counter's suffix)."""
+
+    WRONG_FRAME = "wrong_frame"
+    INVALID = "invalid"
+    COVARIANCE = "covariance"
+
+
+@dataclass(frozen=True)
+class KeptPose:
+    """A pose the filter may take: finite, in the map frame, with its covariance (3x3 x, y, yaw:
+    symmetric, positive definite, bounded) or None when the filter's default replaces it."""
+
+    source: PoseSource
+    stamp_s: float
+    pose: Pose2D
+    covariance: np.ndarray | None
+
+    @property
+    def operator(self) -> bool:
+        return self.source is PoseSource.OPERATOR
+
+
+@dataclass(frozen=True)
+class RefusedPose:
+    """A pose not kept: its source, the kind of refusal and the reason in words."""
+
+    source: PoseSource
+    refusal: PoseRefusal
+    reason: str
+
+    @property
+    def counter_key(self) -> str:
+        """The diagnostic counter of this refusal (`<source>_poses_<kind>`)."""
+        return f"{self.source}_poses_{self.refusal}"
+
+
+PoseIntake = KeptPose | RefusedPose
+
+
+def planar_pose_problem(stamp_s: float, pose: Sequence[float]) -> str:
+    """Rule 2 on a planar pose (x, y, yaw) and its stamp: why it is not finite, or ''."""
+    if len(pose) != 3 or not all(math.isfinite(float(v)) for v in (stamp_s, *pose)):
+        return bounded(f"pose {tuple(pose)} at {float(stamp_s)} s is not finite")
+    return ""
+
+
+def pose_covariance_problem(covariance_3x3: Any) -> str:
+    """Rule 3 (with rule 2's finiteness of the entries) on a planar (x, y, yaw) covariance, or ''."""
+    matrix = np.asarray(covariance_3x3, dtype=float)
+    if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
+        return "covariance is not three by three finite numbers"
+    scale = float(np.max(np.abs(matrix)))
+    if scale == 0.0:
+        return ""  # no information given: the default replaces it
+    normalised = matrix / scale  # entries in [-1, 1]: no overflow whatever the magnitude
+    # asymmetry relative to the entries' own scale, sqrt(a_ii a_jj) (a 6 % asymmetry of a 1e-8 m^2 block
+    # next to a 1 rad^2 variance is not rounding)
+    root = np.sqrt(np.abs(np.diag(normalised)))
+    own_scale = np.maximum(np.outer(root, root), np.finfo(float).tiny)
+    if float(np.max(np.abs(normalised - normalised.T) / own_scale)) > SYMMETRY_TOLERANCE:
+        return "covariance is not symmetric"
+    smallest = float(np.linalg.eigvalsh(normalised)[0])
+    if np.any(np.diag(matrix) < 0.0) or smallest < -PSD_TOLERANCE:
+        return bounded(
+            f"covariance is not positive semi-definite (smallest eigenvalue {smallest * scale:.3g}): "
+            f"variances {np.diag(matrix).tolist()}"
+        )
+    sigma = np.sqrt(np.maximum(np.diag(matrix), 0.0))
+    if max(sigma[0], sigma[1]) > MAX_POSE_SIGMA_M or sigma[2] > MAX_POSE_SIGMA_RAD:
+        return (
+            f"covariance standard deviations ({sigma[0]:.3g} m, {sigma[1]:.3g} m, {sigma[2]:.3g} rad) beyond "
+            f"{MAX_POSE_SIGMA_M:g} m (the table) or {MAX_POSE_SIGMA_RAD:.3g} rad (a turn): no information"
+        )
+    return ""
+
+
+def informative_covariance(covariance_3x3: np.ndarray) -> np.ndarray | None:
+    """A covariance that passed rule 3 when positive definite (the filter can take it), else None."""
+    matrix = np.asarray(covariance_3x3, dtype=float)
+    scale = float(np.max(np.abs(matrix)))
+    if scale == 0.0 or not float(np.linalg.eigvalsh(matrix / scale)[0]) > 0.0:
+        return None
+    return matrix
+
+
+def pose_intake(
+    source: PoseSource,
+    frame_id: str,
+    map_frame: str,
+    stamp_s: float,
+    position: Sequence[float],
+    quaternion: Sequence[float],
+    covariance_6x6: Sequence[float],
+) -> PoseIntake:
+    """The three rules (see the module docstring) on a pose's fields: position (x, y, z, m), orientation
+    quaternion (x, y, z, w), row-major 6x6 covariance; what is kept or why it is refused."""
+    if frame_id and frame_id != map_frame:
+        reason = f"{source} pose in frame {frame_id!r} (expected {map_frame!r})"
+        return RefusedPose(source, PoseRefusal.WRONG_FRAME, bounded(reason))
+    values = [float(v) for v in (*position, *quaternion)]
+    if not all(math.isfinite(v) for v in values):
+        reason = f"{source} pose: position {tuple(position)} or orientation {tuple(quaternion)} not finite"
+        return RefusedPose(source, PoseRefusal.INVALID, bounded(reason))
+    if math.hypot(*values[3:]) < MIN_QUATERNION_NORM:  # hypot: no overflow on huge entries
+        return RefusedPose(source, PoseRefusal.INVALID, f"{source} pose: orientation quaternion of zero norm")
+    entries = np.asarray(covariance_6x6, dtype=float).ravel()
+    if entries.size != 36 or not np.all(np.isfinite(entries)):  # z, roll, pitch too: a corrupt message
+        return RefusedPose(source, PoseRefusal.INVALID, f"{source} pose: covariance has a non-finite entry")
+    planar = entries.reshape(6, 6)[np.ix_(PLANAR_INDICES, PLANAR_INDICES)]
+    pose = (values[0], values[1], yaw_of_quaternion(*values[3:]))
+    return planar_pose_intake(source, stamp_s, pose, planar)
+
+
+def pose_message_intake(
+    source: PoseSource, frame_id: str, map_frame: str, stamp_s: float, pose_with_covariance: Any
+) -> PoseIntake:
+    """`pose_intake` of a geometry_msgs/PoseWithCovariance (an rclpy or a rosbags message), its header's
+    frame id and stamp (s)."""
+    position, q = pose_with_covariance.pose.position, pose_with_covariance.pose.orientation
+    return pose_intake(
+        source,
+        frame_id,
+        map_frame,
+        stamp_s,
+        (position.x, position.y, position.z),
+        (q.x, q.y, q.z, q.w),
+        pose_with_covariance.covariance,
+    )
+
+
+def planar_pose_intake(source: PoseSource, stamp_s: float, pose: Pose2D, covariance_3x3: Any) -> PoseIntake:
+    """Rules 2 and 3 on a planar pose (x, y, yaw), its stamp and its 3x3 covariance (what `pose_intake`
+    reads from a message; ToTal's result before it is one, in the offline replay)."""
+    problem = planar_pose_problem(stamp_s, pose)
+    if problem:
+        return RefusedPose(source, PoseRefusal.INVALID, f"{source} {problem}")
+    matrix = np.asarray(covariance_3x3, dtype=float)
+    if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
+        return RefusedPose(source, PoseRefusal.INVALID, f"{source} pose: covariance has a non-finite entry")
+    problem = pose_covariance_problem(matrix)
+    if problem:
+        return RefusedPose(source, PoseRefusal.COVARIANCE, f"{source} pose: {problem}")
+    return KeptPose(source, float(stamp_s), tuple(float(v) for v in pose), informative_covariance(matrix))
