@@ -138,6 +138,9 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         by the returned step."""
         geometry = runtime_geometry(values, changed, self.geometry)
         settings = filter_settings(values)
+        problem = settings.beacon_states and settings.beacon_states.problem(geometry.beacon_map.ids)
+        if problem:
+            raise ValueError(problem)
         tolerance = stamp_tolerance_of(values)
 
         def apply() -> None:

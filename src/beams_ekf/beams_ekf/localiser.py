@@ -504,5 +504,6 @@ def build_localiser(
         settings.odometry_errors,
         settings.power_bias,
         settings.turret_offset,
+        settings.beacon_states,
     )
     return Localiser(ekf, settings.localiser, settings.motion_limits)
