@@ -1,5 +1,5 @@
-"""Issue 19: a fourth beacon's coordinates learnt while driving (`estimated_beacons`, beams_ekf.beacon_states),
-and what the filter learnt of the sensor kept across a re-initialisation.
+"""Issue 19: a fourth beacon's coordinates learnt while driving (`estimated_beacons`,
+beams_ekf.beacon_states), and what the filter learnt of the sensor kept across a re-initialisation.
 
 A 4-beacon simulated match of the thesis hardware (driver_node's default variances, uncalibrated: the
 power bias self-calibrating meanwhile) whose fourth beacon really stands at (1.5, -0.062) m while the map
