@@ -9,8 +9,10 @@ Publishes `beams/ekf/odometry` (nav_msgs/Odometry, map -> base_link, pose and tw
 and `beams/ekf/pose` (PoseWithCovarianceStamped) after each revolution's bearings and at
 `publish_rate_hz` as odometry moves it, the map -> odom transform on `/tf` (REP-105: the odometry's
 source publishes odom -> base_link), plus `/diagnostics`.
-Service `~/reset` (std_srvs/Trigger) forgets the estimate until the next pose; `~/save_calibration`
-(std_srvs/Trigger) writes the power bias learnt while driving to `self_calibration_file` (issue 19).
+Service `~/reset` (std_srvs/Trigger) forgets the pose estimate until the next pose (what the filter
+learnt of the sensor and the odometry is kept, as across every re-initialisation); `~/save_calibration`
+(std_srvs/Trigger) writes the power bias (and the turret offset and beacon coordinates, when estimated)
+learnt while driving to `self_calibration_file` (issue 19).
 All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
 
 Plausibility (issue 18, `beams_common.plausibility`): a revolution whose newest bearing, or an odometry
