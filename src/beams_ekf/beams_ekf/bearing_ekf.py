@@ -338,10 +338,14 @@ class BearingEkf:
         self._ekf.x = state[0].copy()
         self._ekf.P = state[1].copy()
 
-    def reset(self) -> None:
+    def reset(self, forget_learnt: bool = False) -> None:
         """Forget the pose estimate; the filter waits for `initialise`, which keeps what the states past
-        the pose learnt (the odometry and the sensor did not change)."""
+        the pose learnt (the odometry and the sensor did not change). `forget_learnt`: forget that too,
+        and the window fit (the data start again: a bag played in a loop)."""
         self._initialised = False
+        if forget_learnt:
+            self._learnt = False
+            self._window_fit = WindowFit()
 
     def predict(self, increment: Pose2D) -> None:
         """Move by a robot-frame odometry increment (dx, dy, dtheta); P <- F P F' + G M G' (first order)."""
