@@ -6,12 +6,12 @@ driver_node with its defaults) run at once, each node its own process:
 - the driver says it is uncalibrated: WARN "uncalibrated" on /diagnostics and `calibrated: false` on every
   beams/bearings message;
 - the still robot's bearings spread as the driver's published variances say, within 0.7-1.43 per beacon;
-- the EKF's mean NEES over its first 60 s of estimates (the power bias self-calibrating meanwhile) is
-  within 2.0-4.5 (3 for a consistent filter), and below 10 over the first 30 s alone (the power bias was
-  treated as white noise before issue 19: 37-42 over 30 s). One 30 s window is not held to the band: over
-  DDS on the loaded test machine the same match gave 2.5-5.8 over the first 30 s and 1.9-2.7 over the
-  next (one match's NEES samples are strongly correlated; offline, ten seeds gave 1.9-5.4 over the
-  first 30 s, pooled 3.3).
+- the EKF's mean NEES over 30 s of the match, 30-60 s after its first estimate, is within 2.0-4.5 (3 for
+  a consistent filter; the power bias treated as white noise before issue 19 gave 37-42 over 30 s);
+  six runs on the loaded machine gave 2.10, 2.48, 2.58, 1.91 (a CPU-heavy replay beside it), 3.33, 4.25.
+  The first 30 s (for 10 s the power bias is not modelled yet: those bearings update the pose alone)
+  vary more from run to run over DDS, 1.60, 2.03, 1.80, 14.64 (the same loaded run), 3.55, 5.27: held
+  to 1.0-10 only (docs/self_calibration.md).
 """
 
 import math
@@ -31,7 +31,7 @@ ROBOT_NODES = (
 SPREAD_BAND = (0.7, 1.43)
 NEES_BAND = (2.0, 4.5)
 NEES_WINDOW_S = 30.0
-FIRST_WINDOW_MAX_NEES = 10.0
+WARM_UP_NEES_BAND = (1.0, 10.0)
 # the EKF's first estimates need the nodes up and ToTal's first fix: bounded waits
 START_TIMEOUT_S = 60.0
 STILL_REVOLUTIONS = 200
@@ -101,17 +101,17 @@ def test_plain_defaults_are_honest(start_node, rclpy_node):
     print(f"still robot spread / published variance: {ratios}")
     assert all(SPREAD_BAND[0] <= r <= SPREAD_BAND[1] for r in ratios.values()), ratios
 
-    # the moving robot: the EKF's mean NEES over its first 30 s, then over the first 60 s
+    # the moving robot: the EKF's mean NEES over 0-30 s and 30-60 s from its first estimate
     rows = np.array(ekf)
     means = []
-    for window_s in (NEES_WINDOW_S, 2.0 * NEES_WINDOW_S):
-        keep = rows[:, 1] < first_s + window_s
+    for start_s in (0.0, NEES_WINDOW_S):
+        keep = (rows[:, 1] >= first_s + start_s) & (rows[:, 1] < first_s + start_s + NEES_WINDOW_S)
         chosen = [c for c, k in zip(covariances, keep, strict=True) if k]
         nees = nees_against_truth(rows[keep], chosen, np.array(truth))
         assert len(nees) > 100 and math.isfinite(nees.max())
         means.append(float(nees.mean()))
-    print(f"EKF mean NEES over the first {NEES_WINDOW_S:.0f} s: {means[0]:.2f}, over 60 s: {means[1]:.2f}")
-    assert means[0] < FIRST_WINDOW_MAX_NEES, means
+    print(f"EKF mean NEES over 0-30 s: {means[0]:.2f}, over 30-60 s: {means[1]:.2f}")
+    assert WARM_UP_NEES_BAND[0] <= means[0] <= WARM_UP_NEES_BAND[1], means
     assert NEES_BAND[0] <= means[1] <= NEES_BAND[1], means
 
 

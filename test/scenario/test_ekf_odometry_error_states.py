@@ -129,6 +129,9 @@ def test_reinitialisation_keeps_the_learnt_odometry_errors():
     kept, kept_covariance = ekf.odometry_error_estimate
     np.testing.assert_array_equal(kept, learnt)
     np.testing.assert_array_equal(kept_covariance, learnt_covariance)
-    ekf.reset()
+    ekf.reset()  # a reset (a callback exception, ~/reset) keeps them too (issue 19)
+    ekf.initialise((2.0, 1.0, 0.0), np.diag([1e-4, 1e-4, 1e-4]))
+    np.testing.assert_array_equal(ekf.odometry_error_estimate[0], learnt)
+    ekf.reset(forget_learnt=True)  # the data start again (a time jump)
     ekf.initialise((2.0, 1.0, 0.0), np.diag([1e-4, 1e-4, 1e-4]))
     assert ekf.odometry_error_estimate[0] == pytest.approx([1.0, 1.0, 0.0])

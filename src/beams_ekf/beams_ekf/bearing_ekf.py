@@ -23,6 +23,16 @@ Optionally (`power_bias`), the state also holds the power bias of uncalibrated b
 (`power_bias_states.PowerBiasStates`, eq. 7.19 on a Chebyshev basis of the angular window): a bearing the
 driver did not correct is predicted as h(x) + f(w), estimated (self-calibration) or, as Schmidt-Kalman
 consider parameters, only carried in the covariance (their gain rows zero, the Joseph update).
+
+Optionally (`turret_offset`, `beacons`), the correction of the configured turret offset and of some beacons'
+coordinates are states too (`turret_offset_states`, `beacon_states`).
+
+The states past the pose describe the sensor and the odometry, not where the robot is: a re-initialisation
+(ToTal's fix after a kidnapping or a lost filter, an operator's pose, a reset) keeps what they learnt, with
+their covariance. An uncalibrated bearing whose power bias cannot be modelled yet (the window fit not
+ready, `power_bias_states.WindowFit`) updates the pose alone: it carries an unknown bias, and letting it
+teach the constants (odometry errors, turret offset, beacons) baked that bias into them, overconfidently
+(mean NEES over the first 10 s up to 10.5 on one seed of ten, 4.0 at most without; issue 19).
 """
 
 from collections.abc import Mapping, Sequence
@@ -35,6 +45,7 @@ from scipy.stats import chi2
 
 from beams_common.angles import wrap_to_pi
 from beams_common.pose2d import Pose2D, compose
+from beams_ekf.beacon_states import COORDINATES, BeaconStates
 from beams_ekf.odometry_errors import OdometryErrorStates, corrected_increment
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, rejected
 from beams_ekf.power_bias_states import BASIS_SIZE, PowerBiasStates, WindowFit
@@ -174,23 +185,31 @@ class BearingEkf:
         odometry_errors: OdometryErrorStates | None = None,
         power_bias: PowerBiasStates | None = None,
         turret_offset: TurretOffsetStates | None = None,
+        beacons: BeaconStates | None = None,
     ) -> None:
+        self.beacon_states = beacons
         self.configure(beacons_xy, sensor_offset_m, process_noise or ProcessNoise(), gate_probability)
         self.odometry_errors = odometry_errors
         self.power_bias = power_bias
         self.turret_offset = turret_offset
         # state layout: pose (3), odometry errors (3), power bias (BASIS_SIZE), turret offset correction
-        # (OFFSET_SIZE), each but the pose optional
+        # (OFFSET_SIZE), beacon coordinate corrections (2 per beacon), each but the pose optional
         bias_start = 3 if odometry_errors is None else 6
         offset_start = bias_start + (0 if power_bias is None else BASIS_SIZE)
-        self.dim = offset_start + (0 if turret_offset is None else OFFSET_SIZE)
+        beacons_start = offset_start + (0 if turret_offset is None else OFFSET_SIZE)
+        self.dim = beacons_start + (0 if beacons is None else beacons.size)
         self._errors = slice(3, bias_start)
         self._bias = slice(bias_start, offset_start)
-        self._offset = slice(offset_start, self.dim)
+        self._offset = slice(offset_start, beacons_start)
+        self._beacons = slice(beacons_start, self.dim)
         self._ekf = _OdometryEkf(dim_x=self.dim, dim_z=1)
         self._window_fit = WindowFit()
         self._learn_bias = False  # whether the bearing being applied updates the power bias states
+        # whether the bearing being applied carries a power bias not modelled yet (it updates the pose alone)
+        self._pose_only = False
         self._initialised = False
+        # whether the states past the pose hold something learnt (kept across re-initialisations and resets)
+        self._learnt = False
 
     def configure(
         self,
@@ -199,11 +218,27 @@ class BearingEkf:
         process_noise: ProcessNoise,
         gate_probability: float,
     ) -> None:
-        """Beacon geometry, process noise and gate; the estimate stays (PoseFilter.configure)."""
+        """Beacon geometry, process noise and gate; the estimate stays (PoseFilter.configure). ValueError
+        when the estimated beacons (`beacon_states`) are not in the map or leave fewer than 3 fixed."""
+        states = getattr(self, "beacon_states", None)
+        problem = None if states is None else states.problem(int(k) for k in beacons_xy)
+        if problem:
+            raise ValueError(problem)
+        old = getattr(self, "beacons_xy", None)
         self.beacons_xy = {int(k): (float(v[0]), float(v[1])) for k, v in beacons_xy.items()}
         self.sensor_offset_m = (float(sensor_offset_m[0]), float(sensor_offset_m[1]))
         self.process_noise = process_noise
         self.gate = gate_threshold(gate_probability)
+        if states is not None and old is not None and self._learnt:
+            # a new map: the corrections learnt were relative to the old coordinates
+            moved = [i for i in states.beacon_ids if old.get(i) != self.beacons_xy[i]]
+            for beacon_id in moved:
+                start = self._beacons.start + states.offset_of(beacon_id)
+                block = slice(start, start + COORDINATES)
+                self._ekf.x[block, 0] = 0.0
+                self._ekf.P[block, :] = 0.0
+                self._ekf.P[:, block] = 0.0
+                self._ekf.P[block, block] = states.prior_sigma_m**2 * np.eye(COORDINATES)
 
     @property
     def initialised(self) -> bool:
@@ -237,6 +272,23 @@ class BearingEkf:
         return self._ekf.x[self._offset, 0].copy(), self._ekf.P[self._offset, self._offset].copy()
 
     @property
+    def beacon_estimate(self) -> dict[int, tuple[tuple[float, float], np.ndarray]]:
+        """{id: ((x, y) learnt (m), its 2x2 covariance)} of the estimated beacons ({} without states)."""
+        states = self.beacon_states
+        if states is None:
+            return {}
+        x, p, learnt = self._ekf.x, self._ekf.P, {}
+        for beacon_id in states.beacon_ids:
+            start = self._beacons.start + states.offset_of(beacon_id)
+            block = slice(start, start + COORDINATES)
+            configured = self.beacons_xy[beacon_id]
+            learnt[beacon_id] = (
+                (configured[0] + float(x[start, 0]), configured[1] + float(x[start + 1, 0])),
+                p[block, block].copy(),
+            )
+        return learnt
+
+    @property
     def power_bias_estimate(self) -> tuple[np.ndarray, np.ndarray] | None:
         """(beta_1, beta_2, beta_3) (rad) and their 3x3 covariance, or None without those states."""
         if self.power_bias is None:
@@ -246,9 +298,10 @@ class BearingEkf:
     def initialise(self, pose: Pose2D, covariance: np.ndarray) -> None:
         """Start (or restart) from a pose and its 3x3 covariance (ToTal's fix or an operator's pose).
 
-        Odometry error and power bias states start from their prior the first time; a restart keeps what
-        the bearings taught them (the odometry and the sensor did not change), uncorrelated with the new
-        pose.
+        The states past the pose (odometry errors, power bias, turret offset, beacons) start from their
+        prior the first time; afterwards, a restart (after a kidnapping, a lost filter, a reset, a callback
+        exception) keeps what the bearings taught them, with their joint covariance (the odometry and the
+        sensor did not change), uncorrelated with the new pose.
         """
         covariance = np.asarray(covariance, dtype=float).reshape(3, 3)
         if not (all(isfinite(v) for v in pose) and np.all(np.isfinite(covariance))):
@@ -258,17 +311,23 @@ class BearingEkf:
         x, p = np.zeros((self.dim, 1)), np.zeros((self.dim, self.dim))
         x[:3, 0] = (pose[0], pose[1], wrap_to_pi(pose[2]))
         p[:3, :3] = 0.5 * (covariance + covariance.T)
-        for states, block, known in (
-            (self.odometry_errors, self._errors, self.odometry_error_estimate),
-            (self.power_bias, self._bias, self.power_bias_estimate),
-            (self.turret_offset, self._offset, self.turret_offset_estimate),
-        ):
-            if states is not None:
-                learnt = known if self._initialised else None
-                x[block, 0] = learnt[0] if learnt else states.prior_mean
-                p[block, block] = learnt[1] if learnt else states.prior_covariance
+        kept = self._ekf.P[3:, 3:]
+        if self._learnt and np.all(np.isfinite(self._ekf.x[3:])) and np.all(np.isfinite(kept)):
+            x[3:, 0] = self._ekf.x[3:, 0]
+            p[3:, 3:] = self._ekf.P[3:, 3:]
+        else:
+            for states, block in (
+                (self.odometry_errors, self._errors),
+                (self.power_bias, self._bias),
+                (self.turret_offset, self._offset),
+                (self.beacon_states, self._beacons),
+            ):
+                if states is not None:
+                    x[block, 0] = states.prior_mean
+                    p[block, block] = states.prior_covariance
         self._ekf.x, self._ekf.P = x, p
         self._initialised = True
+        self._learnt = True
 
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """A copy of (x, P), to come back to with `restore`."""
@@ -279,9 +338,14 @@ class BearingEkf:
         self._ekf.x = state[0].copy()
         self._ekf.P = state[1].copy()
 
-    def reset(self) -> None:
-        """Forget the estimate (odometry error states included); the filter waits for `initialise`."""
+    def reset(self, forget_learnt: bool = False) -> None:
+        """Forget the pose estimate; the filter waits for `initialise`, which keeps what the states past
+        the pose learnt (the odometry and the sensor did not change). `forget_learnt`: forget that too,
+        and the window fit (the data start again: a bag played in a loop)."""
         self._initialised = False
+        if forget_learnt:
+            self._learnt = False
+            self._window_fit = WindowFit()
 
     def predict(self, increment: Pose2D) -> None:
         """Move by a robot-frame odometry increment (dx, dy, dtheta); P <- F P F' + G M G' (first order)."""
@@ -329,29 +393,36 @@ class BearingEkf:
             lc, ls = cos(lever[2]), sin(lever[2])
             dx, dy = float(x[self._offset][0, 0]), float(x[self._offset][1, 0])
             lever = (lever[0] + lc * dx - ls * dy, lever[1] + ls * dx + lc * dy, lever[2])
+        beacon_xy = self.beacons_xy[beacon_id]
+        in_block = None if self.beacon_states is None else self.beacon_states.offset_of(beacon_id)
+        if in_block is not None:
+            at = self._beacons.start + in_block
+            beacon_xy = (beacon_xy[0] + float(x[at, 0]), beacon_xy[1] + float(x[at + 1, 0]))
         try:
             expected, d_pose = bearing_measurement(
-                (float(x[0, 0]), float(x[1, 0]), float(x[2, 0])), self.beacons_xy[beacon_id], lever
+                (float(x[0, 0]), float(x[1, 0]), float(x[2, 0])), beacon_xy, lever
             )
         except ZeroDivisionError:
             raise ZeroDivisionError(f"the sensor is on beacon {beacon_id}") from None
         jacobian = np.zeros((1, self.dim))
         jacobian[0, :3] = d_pose
+        if in_block is not None:
+            # the bearing depends on the beacon minus the turret: dh/d(beacon) = -dh/d(robot position)
+            jacobian[0, at : at + COORDINATES] = -d_pose[:2]
         if self.turret_offset is not None:
             # dh/d(lever x, y) is dh/d(turret) = d_pose[:2] turned by the heading, then by the lever's angle
             c, s = cos(float(x[2, 0])), sin(float(x[2, 0]))
             d_lever = np.array([d_pose[0] * c + d_pose[1] * s, -d_pose[0] * s + d_pose[1] * c])
             lc, ls = cos(lever[2]), sin(lever[2])
             jacobian[0, self._offset] = d_lever @ np.array([[lc, -ls], [ls, lc]])
-        self._learn_bias = False
+        self._learn_bias = self._pose_only = False
         if self.power_bias is not None and uncorrected_window_rad > 0.0:
             turret = compose(self.pose, lever)
-            distance_m = hypot(
-                self.beacons_xy[beacon_id][0] - turret[0], self.beacons_xy[beacon_id][1] - turret[1]
-            )
+            distance_m = hypot(beacon_xy[0] - turret[0], beacon_xy[1] - turret[1])
             window = self._window_fit.window_rad(beacon_id, distance_m, uncorrected_window_rad)
             # until the window fit is ready, the noisy measured window only carries the bias's uncertainty
             self._learn_bias = window is not None and self.power_bias.estimate
+            self._pose_only = window is None
             basis = self.power_bias.basis(uncorrected_window_rad if window is None else window)
             jacobian[0, self._bias] = basis
             expected = wrap_to_pi(expected + float(basis @ x[self._bias, 0]))
@@ -394,12 +465,15 @@ class BearingEkf:
         self, jacobian: np.ndarray, variance_rad2: float, residual: float, innovation_variance: float
     ) -> None:
         """x += K r, P = (I - K H) P (I - K H)' + K R K' (filterpy's form), K = P H' / S; the gain rows
-        of consider parameters (and of the bias states for a bearing that cannot teach them) are zero
-        (Schmidt-Kalman): the Joseph form stays right for that gain."""
+        of consider parameters (and of the bias states for a bearing that cannot teach them; of every
+        state past the pose for a bearing whose bias is not modelled yet) are zero (Schmidt-Kalman): the
+        Joseph form stays right for that gain."""
         p = self._ekf.P
         gain = (p @ jacobian.T) / innovation_variance
         if self.power_bias is not None and not self._learn_bias:
             gain[self._bias] = 0.0
+        if self._pose_only:
+            gain[3:] = 0.0
         reduce = np.eye(self.dim) - gain @ jacobian
         self._ekf.x = self._ekf.x + gain * residual
         self._ekf.P = reduce @ p @ reduce.T + variance_rad2 * (gain @ gain.T)

@@ -9,8 +9,10 @@ Publishes `beams/ekf/odometry` (nav_msgs/Odometry, map -> base_link, pose and tw
 and `beams/ekf/pose` (PoseWithCovarianceStamped) after each revolution's bearings and at
 `publish_rate_hz` as odometry moves it, the map -> odom transform on `/tf` (REP-105: the odometry's
 source publishes odom -> base_link), plus `/diagnostics`.
-Service `~/reset` (std_srvs/Trigger) forgets the estimate until the next pose; `~/save_calibration`
-(std_srvs/Trigger) writes the power bias learnt while driving to `self_calibration_file` (issue 19).
+Service `~/reset` (std_srvs/Trigger) forgets the pose estimate until the next pose (what the filter
+learnt of the sensor and the odometry is kept, as across every re-initialisation); `~/save_calibration`
+(std_srvs/Trigger) writes the power bias (and the turret offset and beacon coordinates, when estimated)
+learnt while driving to `self_calibration_file` (issue 19).
 All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
 
 Every pose (ToTal's accepted fix, /initialpose, `~/set_pose`) goes through the one pose intake
@@ -140,6 +142,9 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         by the returned step."""
         geometry = runtime_geometry(values, changed, self.geometry)
         settings = filter_settings(values)
+        problem = settings.beacon_states and settings.beacon_states.problem(geometry.beacon_map.ids)
+        if problem:
+            raise ValueError(problem)
         tolerance = stamp_tolerance_of(values)
 
         def apply() -> None:

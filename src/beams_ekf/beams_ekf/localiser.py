@@ -14,10 +14,11 @@ out while ToTal is confident of a pose inconsistent with the estimate: identifie
 possible, thesis ch. 8 "System deployment") or the filter is lost (`NisMonitor`: the bearings'
 innovations, over a sliding window, too large for the covariance: the next ToTal fix restarts it).
 Time going backwards (a rosbag played in a loop: consecutive odometry messages in the past, not one
-stray; `beams_common.time_jumps`) resets everything; odometry gaps inflate the covariance instead of
-freezing the filter; an odometry increment beyond the robot's speed or yaw rate (a +100 m jump: issue
-18, `beams_common.plausibility`) is never predicted with: the sample becomes the new reference and the
-covariance grows by the most the robot could have moved (`Localiser._rereference`).
+stray; `beams_common.time_jumps`) resets everything, what the filter learnt of the sensor included
+(the data start again); odometry gaps inflate the covariance instead of freezing the filter; an odometry
+increment beyond the robot's speed or yaw rate (a +100 m jump: issue 18, `beams_common.plausibility`)
+is never predicted with: the sample becomes the new reference and the covariance grows by the most the
+robot could have moved (`Localiser._rereference`).
 
 This module is the timing and the replay of late bearings; the consistency monitors are in
 `consistency` (NisMonitor, KidnapEvidence), the settings in `settings` (built from the parameters by
@@ -127,9 +128,14 @@ class Localiser:
         self.motion_limits = settings.motion_limits
         self.ekf.configure(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability)
 
-    def reset(self, reason: str = "reset") -> None:
-        """Forget the estimate and the odometry; the filter waits for a pose."""
-        self.ekf.reset()
+    def reset(self, reason: str = "reset", forget_learnt: bool = False) -> None:
+        """Forget the estimate and the odometry; the filter waits for a pose. What a BearingEkf learnt of
+        the sensor and the odometry is kept (`BearingEkf.initialise`) unless `forget_learnt` (the data
+        start again: a time jump)."""
+        if forget_learnt and isinstance(self.ekf, BearingEkf):
+            self.ekf.reset(forget_learnt=True)
+        else:
+            self.ekf.reset()
         self.history.clear()
         self.kidnap.clear()
         self.nis_monitor.clear()
@@ -151,7 +157,7 @@ class Localiser:
             self.stats.counts["odometry_stale" if order is StampOrder.STALE else "odometry_back_in_time"] += 1
             return OdometryOutcome.STALE if order is StampOrder.STALE else OdometryOutcome.HELD
         if order is StampOrder.JUMP:
-            self.reset("time_jump_resets")
+            self.reset("time_jump_resets", forget_learnt=True)
             latest = None
         self.stats.counts["odometry"] += 1
         jump = (
@@ -504,5 +510,6 @@ def build_localiser(
         settings.odometry_errors,
         settings.power_bias,
         settings.turret_offset,
+        settings.beacon_states,
     )
     return Localiser(ekf, settings.localiser, settings.motion_limits)

@@ -11,6 +11,7 @@ from beams_common.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SPECS
 from beams_common.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, rates_check
 from beams_common.parameters import ROS_NODE_PARAMETERS, ParameterSpec, ParameterTable
 from beams_common.plausibility import MAX_POSE_SIGMA_M, MOTION_SPECS, STAMP_SPECS, motion_limits_of
+from beams_ekf.beacon_states import BEACON_STATE_PARAMETERS, beacon_states_of
 from beams_ekf.bearing_ekf import ProcessNoise
 from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.power_bias_states import POWER_BIAS_PARAMETERS, power_bias_states_of
@@ -249,6 +250,7 @@ def _settings_of(values: Mapping[str, Any]) -> FilterSettings:
         motion_limits_of(values),
         power_bias=power_bias_states_of(values),
         turret_offset=turret_offset_states_of(values),
+        beacon_states=beacon_states_of(values),
     )
 
 
@@ -271,6 +273,7 @@ EKF_PARAMETERS = ParameterTable(
         ODOMETRY_RATE_SPEC,
         *POWER_BIAS_PARAMETERS,
         *TURRET_OFFSET_PARAMETERS,
+        *BEACON_STATE_PARAMETERS,
         ParameterSpec("map_frame", "map", "Frame of the estimate (REP-105)."),
         ParameterSpec("base_frame", "base_link", "The robot's frame (child)."),
         ParameterSpec("odom_frame", "odom", "The odometry's frame (child of the map -> odom transform)."),

@@ -3,7 +3,8 @@
 The power-bias states (`power_bias_states`) hold the curve f(w) of eq. 7.19 on a Chebyshev basis; the
 file holds it as eq. 7.19's (a, b, c, d) with the window range (beams_common.calibration_file), so
 driver_node corrects the bearings with it and the chapter-7 tools (`calibrate`, the plots) read it. With
-turret offset states (`turret_offset_states`) the file's turret offset is the configured one corrected.
+turret offset states (`turret_offset_states`) the file's turret offset is the configured one corrected,
+with beacon states (`beacon_states`) its beacon map holds the learnt coordinates of those beacons.
 """
 
 import os
@@ -17,7 +18,8 @@ def self_calibration(
     ekf: BearingEkf, beacon_map: BeaconMap, turret_offset_m: tuple[float, float]
 ) -> SensorCalibration:
     """The calibration of the filter's power-bias estimate, with the geometry it runs with (turret_offset_m
-    the configured offset, corrected by the filter's estimate when it has turret offset states);
+    the configured offset, corrected by the filter's estimate when it has turret offset states; the
+    beacons it estimates at their learnt coordinates);
     ValueError when the filter has no power-bias states."""
     estimate = ekf.power_bias_estimate
     if estimate is None or ekf.power_bias is None:
@@ -26,6 +28,10 @@ def self_calibration(
     offset = ekf.turret_offset_estimate
     if offset is not None:
         turret_offset_m = (turret_offset_m[0] + float(offset[0][0]), turret_offset_m[1] + float(offset[0][1]))
+    learnt = ekf.beacon_estimate
+    if learnt:
+        xy = [learnt[i][0] if i in learnt else tuple(beacon_map.xy[n]) for n, i in enumerate(beacon_map.ids)]
+        beacon_map = BeaconMap.from_lists(beacon_map.ids, [p[0] for p in xy], [p[1] for p in xy])
     warnings = () if ekf.power_bias.estimate else ("power_bias_states 'consider': the prior, nothing learnt",)
     return SensorCalibration(
         beacon_map,

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from beams_common.plausibility import MotionLimits
+from beams_ekf.beacon_states import BeaconStates
 from beams_ekf.bearing_ekf import ProcessNoise
 from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.power_bias_states import PowerBiasStates
@@ -105,6 +106,8 @@ class FilterSettings:
     power_bias: PowerBiasStates | None = field(default_factory=PowerBiasStates)
     # the turret offset's correction as states (self-calibration); None: the configured offset is exact
     turret_offset: TurretOffsetStates | None = None
+    # some beacons' coordinate corrections as states (self-calibration); None: the map is exact
+    beacon_states: BeaconStates | None = None
 
     def __post_init__(self) -> None:
         if len(self.default_pose_sigma) != 3:

@@ -109,17 +109,20 @@ def test_parameters_give_the_states_or_none():
 
 
 def test_measurement_jacobian_matches_finite_differences_over_every_state():
-    """h(x) of a bearing with odometry error, power bias and turret offset states: its analytic
-    Jacobian against central differences of h, at a random state and a turned lever."""
+    """h(x) of a bearing with odometry error, power bias, turret offset and beacon states (the observed
+    beacon's coordinates estimated, a fourth beacon fixed): its analytic Jacobian against central
+    differences of h, at a random state and a turned lever."""
+    from beams_ekf.beacon_states import BeaconStates
     from beams_ekf.odometry_errors import OdometryErrorStates
     from beams_ekf.turret_offset_states import TurretOffsetStates
 
     ekf = BearingEkf(
-        EUROBOT_BEACON_MAP.as_dict(),
+        {**EUROBOT_BEACON_MAP.as_dict(), 4: (1.5, -0.062)},
         (0.03, -0.01),
         odometry_errors=OdometryErrorStates(),
         power_bias=PowerBiasStates(),
         turret_offset=TurretOffsetStates(),
+        beacons=BeaconStates((3,)),
     )
     ekf.initialise((1.2, 0.7, 0.4), np.eye(3) * 1e-4)
     rng = np.random.default_rng(5)
@@ -142,3 +145,4 @@ def test_measurement_jacobian_matches_finite_differences_over_every_state():
     # the odometry error states do not enter a bearing (only the prediction)
     assert np.allclose(jacobian[0], numeric, atol=1e-6), (jacobian[0], numeric)
     assert np.all(numeric[3:6] == 0.0)
+    assert np.all(numeric[-2:] != 0.0)  # the beacon's coordinates enter its bearing

@@ -79,7 +79,7 @@ class ReplayPipelines:
         """A time jump: both pipelines start over (the EKF waits for a pose again); `flush` first."""
         self._new_triangulation()
         self.first_odometry_s = None
-        self.localiser.reset("time_jump_resets")
+        self.localiser.reset("time_jump_resets", forget_learnt=True)
 
     def flush(self) -> list[RevolutionPose]:
         """The revolution ToTal still waits odometry for, estimated now (the streams ended or jumped)."""
