@@ -14,7 +14,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from beams_bringup.match_replay import match_fixes, replay_match
+from beams_thesis.match_replay import match_fixes, replay_match
 from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_common.calibration_file import load_calibration
 from beams_driver.parameters import SENSOR_PARAMETERS, variance_model_of
