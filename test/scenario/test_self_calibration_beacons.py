@@ -14,7 +14,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from beams_thesis.match_replay import match_fixes, replay_match
 from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_common.calibration_file import load_calibration
 from beams_driver.parameters import SENSOR_PARAMETERS, variance_model_of
@@ -26,6 +25,7 @@ from beams_ekf.parameters import filter_settings
 from beams_ekf.power_bias_states import PowerBiasStates
 from beams_ekf.self_calibration import save_self_calibration
 from beams_sim.simulated_match import sensor_config_of, simulate_match
+from beams_thesis.match_replay import match_fixes, replay_match
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "bench"))
 from bench_self_calibration import START_SIGMA, default_driver_match, nees, run
