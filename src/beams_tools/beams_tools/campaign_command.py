@@ -49,7 +49,8 @@ from beams_tools.serial_feed import SerialFeed
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 
 CALL_TIMEOUT_S = 5.0
-RESPAWN_DELAY_S = 1.0
+# beams_bringup.system.RESPAWN_DELAY_S, the launch file's respawn_delay (test_respawn_delay_agrees checks)
+RESPAWN_DELAY_S = 0.25
 START_TIMEOUT_S = 90.0
 STOP_TIMEOUT_S = 15.0
 RSS_PERIOD_S = 5.0
