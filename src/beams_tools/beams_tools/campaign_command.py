@@ -896,7 +896,10 @@ class Campaign:
             self.at(start, label, lambda: probe.set_parameter(label, node, "calibration_file", "", True))
             self.at(start + 0.3, label, lambda: self._reload(label, node, False))
             self.at(start + 0.6, label, lambda: self._set_pose(label, nan_pose(), False))
+            # the probe's bearings publisher exists only while a fault uses it (it is a second source)
+            self.at(start, label, lambda: probe.open_publisher("bearings"))
             self.at(start + 0.8, label, lambda: self._publish_bad("nan_bearings"))
+            self.at(fault.end_s, label, lambda: probe.close_publisher("bearings"))
         elif variant == "reload_missing_file":
             # the change is refused (the file does not exist); the reload then reads the file in use
             node = fault.value("node")
