@@ -3,14 +3,17 @@
 
 The whole robot runs under the supervisor the demo uses; each node in turn is killed with SIGKILL (no
 chance to clean up); the killed node's own output is seen again (its process started again), and the
-longest silence of the EKF's output (beams/ekf/odometry) in the SILENCE_WINDOW_S after the kill is
-bounded:
-- the driver or the triangulation killed: the EKF goes on (predicting on odometry), silent at most
-  EKF_BACK_S (measured <= 0.17 s, bench/bench_integrity.py);
-- the odometry source (sim_world_node) or the EKF itself killed: the EKF's output needs that node back,
-  RESPAWN_DELAY_S plus a Python node's start-up: 2.2-2.7 s for ekf_node on the 2-core machine under a
-  load of 15 (scipy.stats, imported by filterpy.kalman and the localiser, is 2 s of it), 1 s unloaded;
-  measured silences 2.1-4.6 s. Bounded by RESPAWN_DELAY_S + NODE_START_S.
+longest silence of the EKF's output (beams/ekf/odometry) in the SILENCE_WINDOW_S after the kill is at
+most EKF_BACK_S, issue 18's 2 s, for every node but the EKF itself:
+- the driver or the triangulation killed: the EKF goes on (predicting on odometry), silent <= 0.1 s;
+- the odometry source (sim_world_node) killed: the EKF's output needs it back, RESPAWN_DELAY_S (0.25 s)
+  plus its start-up (imports 0.5 s of CPU, its 600-s trajectory 0.5 s): 1.6 s measured under a load of 4,
+  2.0-2.4 s under a load of 5 (the bound is tight there; make test reruns a failed DDS test once);
+- ekf_node itself killed: not within 2 s on this machine. Its imports are 1.6 s of CPU, 1.1 s of them
+  filterpy's (filterpy/__init__ imports every subpackage, and its EKF module imports scipy.stats and
+  scipy.linalg: no narrower import avoids them); with its construction, DDS discovery and its first
+  fix, 1.5 s idle and 2.2-2.7 s under a load of 4-6 (2 cores). Bounded by EKF_RESTART_S until the
+  EKF's start-up loses filterpy's imports (the lead's decision: filterpy is the EKF's library).
 """
 
 import itertools
@@ -23,12 +26,11 @@ import pytest
 pytestmark = pytest.mark.dds
 
 UP_TIMEOUT_S = 60.0
-EKF_BACK_S = 2.0
-# a Python node's start-up under load (ekf_node measured 2.2-2.7 s), then the EKF's first output
-NODE_START_S = 5.0
+EKF_BACK_S = 2.0  # issue 18: "sees the EKF back within 2 s"
+# ekf_node killed: RESPAWN_DELAY_S + its start-up, 2.2-2.7 s measured under a load of 4-6, once 5.4 s
+# (see above); the bound the test had with the 1-s delay
+EKF_RESTART_S = 6.0
 SILENCE_WINDOW_S = 8.0
-# nodes the EKF's output needs: the odometry source and the EKF itself
-EKF_NEEDS = ("sim_world_node", "ekf_node")
 # the killed node's own output: the respawn delay, a Python node's start-up on a loaded machine, the
 # EKF's first fix from a ToTal pose
 NODE_BACK_S = 15.0
@@ -115,8 +117,8 @@ def test_each_node_killed_in_turn_comes_back_and_the_ekf_output_within_2_s(rclpy
             supervised(lambda end=killed_at + SILENCE_WINDOW_S: time.monotonic() > end), 60.0
         )
         silence_s = longest_silence(arrivals[ekf_topic], killed_at, killed_at + SILENCE_WINDOW_S)
-        bound_s = RESPAWN_DELAY_S + NODE_START_S if name in EKF_NEEDS else EKF_BACK_S
-        print(f"{name} killed: longest EKF silence {silence_s:.2f} s (bound {bound_s:g} s)")
+        print(f"{name} killed: longest EKF silence {silence_s:.2f} s (respawn delay {RESPAWN_DELAY_S:g} s)")
+        bound_s = EKF_RESTART_S if name == "ekf_node" else EKF_BACK_S
         assert silence_s <= bound_s, f"EKF silent {silence_s:.2f} s after killing {name}: {events}\n{logs()}"
     assert [node.restarts for node in supervisor.nodes.values()] == [1, 1, 1, 1], events
     assert all(

@@ -150,3 +150,44 @@ def test_a_second_simulated_world_is_said_by_every_node_that_reads_odometry_or_g
     assert rclpy_node.spin_until(lambda: not any(said(n) for n in watchers), CLEAR_BOUND_S), {
         n: latest[n].message for n in watchers
     }
+
+
+def test_a_second_ekf_is_said_by_the_ekf_itself_naming_both(start_node, rclpy_node):
+    """No node of the suite reads beams/ekf/odometry, so a second ekf_node (the same launch twice) is said
+    by the EKFs themselves: each sees a second publisher on its own output (input_watch's output check)."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+
+    reports: list[tuple[float, object]] = []
+
+    def on_diagnostics(msg) -> None:
+        reports.extend((time.monotonic(), s) for s in msg.status if "/ekf_node:" in s.name)
+
+    rclpy_node.node.create_subscription(DiagnosticArray, "/diagnostics", on_diagnostics, 50)
+    first = start_node("beams_ekf", "ekf_node")
+    assert rclpy_node.spin_until(lambda: bool(reports), UP_TIMEOUT_S), first.log()
+    rclpy_node.spin_for(1.5)
+    expected = "2 publishers on /beams/ekf/odometry (this node's output): /ekf_node (x2)"
+    assert not any(expected in s.message for _t, s in reports)  # one EKF: no alarm
+    second = start_node("beams_ekf", "ekf_node")
+    assert rclpy_node.spin_until(
+        lambda: rclpy_node.node.count_publishers("/beams/ekf/odometry") == 2, UP_TIMEOUT_S
+    ), second.log()
+    appeared = time.monotonic()
+
+    def said_since(since: float) -> bool:
+        return any(
+            t > since and s.level == DiagnosticStatus.ERROR and expected in s.message for t, s in reports
+        )
+
+    assert rclpy_node.spin_until(lambda: said_since(appeared), DETECTION_BOUND_S + 1.0), [
+        s.message for _t, s in reports[-4:]
+    ]
+    said_at = min(t for t, s in reports if t > appeared and expected in s.message)
+    print(f"second ekf_node said at ERROR {said_at - appeared:.2f} s after it appeared")
+    assert said_at - appeared <= DETECTION_BOUND_S
+    second.assert_clean_exit()
+    gone = time.monotonic()
+    assert rclpy_node.spin_until(
+        lambda: any(t > gone + 1.0 and expected not in s.message for t, s in reports), CLEAR_BOUND_S
+    ), [s.message for _t, s in reports[-4:]]
+    first.assert_clean_exit()

@@ -12,7 +12,7 @@ Each node reads its section of beams_bringup's config/beams_params.yaml; the cal
 overrides the beacon coordinates and carries the turret offset and the bearing corrections. The nodes run
 with the package's Fast DDS profile (config/fastdds_fast_discovery.xml: a node restarted after a kill -9
 is back within 0.5 s) unless FASTRTPS_DEFAULT_PROFILES_FILE is already set.
-A node that dies is started again RESPAWN_DELAY_S (1 s) later (respawn), the driver too: with
+A node that dies is started again RESPAWN_DELAY_S (0.25 s) later (respawn), the driver too: with
 driver_autostart:=false it comes back unconfigured, which is what a lifecycle manager that reconnects
 to respawned nodes (nav2's attempt_respawn_reconnection) expects; a dead driver would need one anyway.
 """

@@ -14,7 +14,8 @@ from typing import Any
 
 import numpy as np
 
-# The classes of issue 18 the campaign plays (a link between hosts is left out: docs/fault_campaign.md).
+# The classes of issue 18 the campaign plays everywhere (the serial line's and the hosts' link below need
+# a serial sensor and network namespaces).
 FAULT_CLASSES = (
     "bad_message",
     "bad_service_call",
@@ -29,7 +30,11 @@ FAULT_CLASSES = (
 )
 # the serial line's faults, drawn when driver_node reads a (simulated) sensor on a serial port
 SERIAL_CLASS = "serial_line"
-SERIAL_LINE_FAULTS = ("noise", "silence", "unplug")
+SERIAL_LINE_FAULTS = ("noise", "spurious_zero", "silence", "unplug")
+# a link down between two network namespaces (hosts): driver_node on the sensor's host, the rest of the
+# robot on the main computer's, joined by one veth link (campaign_command.Hosts; root and iproute2)
+LINK_CLASS = "link_down"
+LINKS = ("sensor_link",)
 # The robot's nodes, each its own process (a kill or a duplicate picks among them).
 ROBOT_NODE_NAMES = ("sim_world", "driver", "triangulation", "ekf")
 # After a fault ends, its effects still count as its own for this long (s): a killed node's restart and
@@ -42,6 +47,7 @@ RECOVERY_S = {
     "calibration_reload": 4.0,
     "lifecycle": 4.0,
     SERIAL_CLASS: 4.0,
+    LINK_CLASS: 4.0,
 }
 
 BAD_MESSAGES = (
@@ -64,7 +70,9 @@ BAD_SERVICE_CALLS = (
 PARAMETER_CHANGES = ("good", "out_of_range", "wrong_type", "read_only")
 CALIBRATION_FILES = ("good", "rotation_bias_3rad", "power_bias_1e300", "malformed")
 LIFECYCLE_SEQUENCES = ("deactivate_activate", "cleanup_configure_activate", "invalid_transition")
-DUPLICATED_NODES = ("driver", "sim_world")
+DUPLICATED_NODES = ("driver", "sim_world", "ekf")
+# a second ekf_node runs this much longer (s): its start-up (imports, its first fix) takes 1.5-3 s
+DUPLICATE_EKF_EXTRA_S = 3.0
 
 
 @dataclass(frozen=True)
@@ -144,13 +152,19 @@ def _draw(kind: str, rng: np.random.Generator) -> tuple[str, float, dict[str, An
         offset_s = -float(rng.uniform(0.3, 3.0)) if late else 0.5
         return ("late" if late else "early"), float(rng.uniform(2.0, 4.0)), {"offset_s": offset_s}
     if kind == "duplicate_publisher":
-        return _pick(rng, DUPLICATED_NODES), float(rng.uniform(2.0, 4.0)), {"seed": int(rng.integers(1000))}
+        node, duration_s = _pick(rng, DUPLICATED_NODES), float(rng.uniform(2.0, 4.0))
+        extra_s = DUPLICATE_EKF_EXTRA_S if node == "ekf" else 0.0
+        return node, duration_s + extra_s, {"seed": int(rng.integers(1000))}
     if kind == SERIAL_CLASS:
         return _pick(rng, SERIAL_LINE_FAULTS), float(rng.uniform(2.0, 5.0)), {}
+    if kind == LINK_CLASS:
+        # a Wi-Fi or cable drop shorter than the DDS lease (5 s): the participants stay matched
+        return _pick(rng, LINKS), float(rng.uniform(1.5, 4.0)), {}
     if kind == "node_kill":
         # kill -9, restarted after this delay as a launch respawn would
         return _pick(rng, ROBOT_NODE_NAMES), float(rng.uniform(0.5, 2.0)), {}
-    raise ValueError(f"unknown fault class {kind!r}; expected one of {(*FAULT_CLASSES, SERIAL_CLASS)}")
+    known = (*FAULT_CLASSES, SERIAL_CLASS, LINK_CLASS)
+    raise ValueError(f"unknown fault class {kind!r}; expected one of {known}")
 
 
 def draw_schedule(

@@ -4,8 +4,9 @@ A thread streams one simulated revolution per turret period, in real time, behin
 symlink, as udev's /dev/serial/by-id/ links are): the revolution that covers [t, t + period) of host time
 is written at its end, as the firmware's frames leave while the turret turns, with the robot at the pose
 the campaign's truth gives for each instant. Faults of the line (issue 18): random bytes in every
-revolution (line noise), silence (nothing sent, the port open), and unplugging (the pty closed, the path
-removed) until `clear`/`plug`.
+revolution (line noise), a spurious zero reference SPURIOUS_ZERO_EARLY_S before every real one (a
+bouncing optical switch: a driver that trusts it closes each revolution 1.2 % short), silence (nothing
+sent, the port open), and unplugging (the pty closed, the path removed) until `clear`/`plug`.
 """
 
 import contextlib
@@ -20,9 +21,11 @@ import numpy as np
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
-from beams_driver.serial_protocol import FrameEncoder
+from beams_driver.serial_protocol import EventKind, FrameEncoder, seconds_to_ticks
 from beams_tools.fault_schedule import SERIAL_LINE_FAULTS
 
+# issue 18's case: a spurious zero reference this long (s) before each real one, 1.2 % of a 0.1 s turn
+SPURIOUS_ZERO_EARLY_S = 1.2e-3
 # (x, y, theta) of the robot at a host time (s), or None while unknown
 PoseAtHost = Callable[[float], tuple[float, float, float] | None]
 
@@ -68,7 +71,7 @@ class SerialFeed:
             self.link.unlink(missing_ok=True)
 
     def set_fault(self, fault: str | None) -> None:
-        """Start a line fault ("noise", "silence", "unplug") or end it (None)."""
+        """Start a line fault ("noise", "spurious_zero", "silence", "unplug") or end it (None)."""
         if fault is not None and fault not in SERIAL_LINE_FAULTS:
             raise ValueError(f"line fault must be one of {SERIAL_LINE_FAULTS}, got {fault!r}")
         if fault == "unplug":
@@ -107,7 +110,10 @@ class SerialFeed:
             def pose_at(device_s: float) -> tuple[float, float, float]:
                 return self._pose_at_host(start_s + device_s) or (0.0, 0.0, 0.0)
 
-            frames = encoder.revolution(simulator.revolution(pose_at, revolution * period_s))
+            edges = simulator.revolution(pose_at, revolution * period_s)
+            frames = (
+                spurious_zero_then(encoder, edges.start_time_s) if self.fault == "spurious_zero" else b""
+            ) + encoder.revolution(edges)
             if self.fault == "noise":
                 frames = self._noisy(frames)
             with self._lock:
@@ -116,3 +122,12 @@ class SerialFeed:
                         os.write(self._master, frames)
                         self.revolutions_written += 1
             revolution += 1
+
+
+def spurious_zero_then(encoder: FrameEncoder, opening_s: float) -> bytes:
+    """The frame of a spurious zero reference SPURIOUS_ZERO_EARLY_S before a revolution's opening one
+    (nothing when the previous revolution's last edge came later: the frames stay in time order)."""
+    try:
+        return encoder.event(EventKind.ZERO_REFERENCE, seconds_to_ticks(opening_s - SPURIOUS_ZERO_EARLY_S))
+    except ValueError:
+        return b""

@@ -16,7 +16,9 @@ from beams_tools.campaign_metrics import (
     truth_at,
 )
 from beams_tools.fault_schedule import (
+    DUPLICATE_EKF_EXTRA_S,
     FAULT_CLASSES,
+    LINK_CLASS,
     SERIAL_CLASS,
     ScheduleSettings,
     draw_schedule,
@@ -46,6 +48,72 @@ def test_a_two_minute_campaign_draws_every_class_without_overlap(seed):
 def test_with_the_serial_line_every_class_still_fits_two_minutes(seed):
     classes = (*FAULT_CLASSES, SERIAL_CLASS)
     assert {fault.kind for fault in draw_schedule(seed, ScheduleSettings(), classes)} == set(classes)
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_with_the_serial_line_and_the_hosts_link_every_class_still_fits_two_minutes(seed):
+    classes = (*FAULT_CLASSES, SERIAL_CLASS, LINK_CLASS)
+    faults = draw_schedule(seed, ScheduleSettings(), classes)
+    assert {fault.kind for fault in faults} == set(classes)
+    for earlier, later in itertools.pairwise(faults):
+        assert later.start_s > earlier.window[1]
+
+
+def test_twenty_minutes_draw_every_variant_of_issue_18s_last_classes():
+    """The link between hosts cut 1.5-4 s (shorter than the 5-s DDS lease), a second ekf_node (kept long
+    enough to start), a spurious zero reference on the serial line: each drawn, in the windows stated."""
+    classes = (*FAULT_CLASSES, SERIAL_CLASS, LINK_CLASS)
+    faults = draw_schedule(18, ScheduleSettings(duration_s=1200.0), classes)
+    links = [f for f in faults if f.kind == LINK_CLASS]
+    assert len(links) >= 8
+    assert all(f.variant == "sensor_link" and 1.5 <= f.duration_s <= 4.0 for f in links)
+    assert all(f.window[1] - f.end_s == 4.0 for f in links)  # its recovery time
+    duplicates = {f.variant: [] for f in faults if f.kind == "duplicate_publisher"}
+    for f in faults:
+        if f.kind == "duplicate_publisher":
+            duplicates[f.variant].append(f.duration_s)
+    assert set(duplicates) == {"driver", "sim_world", "ekf"}
+    assert min(duplicates["ekf"]) >= 2.0 + DUPLICATE_EKF_EXTRA_S
+    assert max(duplicates["driver"] + duplicates["sim_world"]) <= 4.0
+    serial = {f.variant for f in faults if f.kind == SERIAL_CLASS}
+    assert serial == {"noise", "spurious_zero", "silence", "unplug"}
+
+
+def test_the_classes_a_campaign_draws_and_why_the_hosts_link_is_skipped(monkeypatch, tmp_path):
+    from beams_tools import campaign_command
+
+    assert campaign_command.campaign_classes(False) == FAULT_CLASSES
+    assert campaign_command.campaign_classes(True, hosts=True) == (*FAULT_CLASSES, SERIAL_CLASS, LINK_CLASS)
+    assert campaign_command.campaign_classes(False, hosts=True) == (*FAULT_CLASSES, LINK_CLASS)
+    monkeypatch.setattr(campaign_command.os, "geteuid", lambda: 1000)
+    assert "need root" in campaign_command.hosts_problem()
+    monkeypatch.setattr(campaign_command.os, "geteuid", lambda: 0)
+    monkeypatch.setattr(campaign_command.shutil, "which", lambda _name: None)
+    assert "`ip` is missing" in campaign_command.hosts_problem()
+    monkeypatch.setattr(campaign_command.shutil, "which", lambda _name: "/usr/sbin/ip")
+    assert campaign_command.hosts_problem() == ""
+    # a campaign asked for hosts where they cannot be made says so in its notes and draws no link fault
+    monkeypatch.setattr(campaign_command.os, "geteuid", lambda: 1000)
+    campaign = campaign_command.Campaign(
+        campaign_command.CampaignConfig(
+            hosts=True, install_base=_fake_install(monkeypatch), output_dir=tmp_path
+        )
+    )
+    assert campaign.hosts is None
+    assert campaign.notes == [
+        f"{LINK_CLASS}: skipped here, network namespaces need root (CAP_NET_ADMIN, CAP_SYS_ADMIN)"
+    ]
+    assert LINK_CLASS not in {fault.kind for fault in campaign.schedule}
+
+
+def _fake_install(monkeypatch):
+    """An install base whose executables 'exist' (the campaign only builds their commands here)."""
+    import pathlib
+
+    from beams_tools import campaign_command
+
+    monkeypatch.setattr(campaign_command, "_executable", lambda base, package, executable: executable)
+    return pathlib.Path("/nonexistent")
 
 
 def test_a_longer_campaign_repeats_the_classes_in_passes():

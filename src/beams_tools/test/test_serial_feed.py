@@ -1,14 +1,16 @@
 """The campaign's simulated serial sensor: real-time revolutions on a pty behind a fixed path, and its
-line faults (noise, silence, unplugging), read back with the driver's own frame parser."""
+line faults (noise, spurious zero references, silence, unplugging), read back with the driver's own frame
+parser."""
 
 import contextlib
 import os
 import time
 
+import numpy as np
 import pytest
 
-from beams_driver.serial_protocol import EventKind, FrameParser
-from beams_tools.serial_feed import SerialFeed
+from beams_driver.serial_protocol import TIMER_HZ, EventKind, FrameParser
+from beams_tools.serial_feed import SPURIOUS_ZERO_EARLY_S, SerialFeed
 
 POSE = (1.2, 0.8, 0.3)
 READ_S = 1.0  # ten turret periods
@@ -69,3 +71,14 @@ def test_unplugging_removes_the_path_and_plugging_back_restores_it(feed):
     feed.set_fault(None)
     assert feed.link.exists()
     assert _zero_references(_read(feed.link, READ_S)) >= 7
+
+
+def test_a_spurious_zero_reference_comes_just_before_each_real_one(feed):
+    feed.set_fault("spurious_zero")
+    _read(feed.link, 0.2)  # what was written before the fault, still in the pty
+    events = [e for e in FrameParser().feed(_read(feed.link, READ_S)) if e.kind == EventKind.ZERO_REFERENCE]
+    gaps_s = np.diff([e.ticks for e in events]) / TIMER_HZ
+    # pairs 1.2 ms apart
+    spurious = np.isclose(gaps_s, SPURIOUS_ZERO_EARLY_S, atol=2e-5)
+    assert spurious.sum() >= 6, gaps_s
+    assert np.all(spurious | (gaps_s > 0.09)), gaps_s  # otherwise the rest of the 0.1 s turn

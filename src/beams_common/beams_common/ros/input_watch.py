@@ -9,7 +9,9 @@ odometry, ground truth, ToTal poses; not /initialpose, where any operator may pu
 - the ROS graph, every GRAPH_CHECK_PERIOD_S on the steady clock: more than one publisher on the topic is
   an ERROR condition naming them (node names, and how many share a name), cleared once one is left;
 - the messages: revolution counters or stamps that interleave (`stream_interleave.InterleaveDetector`),
-  which also catches two sources behind one publisher (a relay) and says so the same way.
+  which also catches two sources behind one publisher (a relay) and says so the same way;
+- with the same graph check, its own outputs of those types (ekf_node's beams/ekf/odometry, which no node
+  of the suite reads): a second ekf_node in the namespace is said by the EKF itself.
 
 The conditions go through `Diagnostics.set_condition`: the node's status is ERROR with the reason first,
 whatever else it says. A node killed with SIGKILL stays in the graph until its DDS lease ends (5 s in
@@ -109,9 +111,34 @@ class WatchedInputs:
                 )
                 self._show_input_condition(name, f"{len(publishers)} publishers on {topic}: {listed}", None)
             else:
-                diagnostics = getattr(self, "diagnostics", None)
-                if diagnostics is not None:
-                    diagnostics.clear_condition(name)
+                self._clear_input_condition(name)
+        self.check_output_publishers()
+
+    def check_output_publishers(self) -> None:
+        """The same graph check on the node's own single-source outputs: a second publisher there (a
+        second ekf_node in the namespace, whose estimates interleave with this one's on
+        beams/ekf/odometry, read by nothing in the suite) is said by the node itself, naming both."""
+        watched = self.__dict__.get("_watched_inputs", {})
+        for publisher in list(self.publishers):
+            topic = publisher.topic_name
+            if topic in watched or type_name(publisher.msg_type) not in SINGLE_SOURCE_INPUTS:
+                continue
+            name = f"publishers {topic}"
+            publishers = self.get_publishers_info_by_topic(topic)
+            if len(publishers) > 1:
+                names = sorted(_qualified(info.node_namespace, info.node_name) for info in publishers)
+                listed = ", ".join(
+                    f"{n} (x{names.count(n)})" if names.count(n) > 1 else n for n in sorted(set(names))
+                )
+                reason = f"{len(publishers)} publishers on {topic} (this node's output): {listed}"
+                self._show_input_condition(name, reason, None)
+            else:
+                self._clear_input_condition(name)
+
+    def _clear_input_condition(self, name: str) -> None:
+        diagnostics = getattr(self, "diagnostics", None)
+        if diagnostics is not None:
+            diagnostics.clear_condition(name)
 
     def _show_input_condition(self, name: str, reason: str, hold_s: float | None) -> None:
         diagnostics = getattr(self, "diagnostics", None)
