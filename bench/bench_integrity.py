@@ -159,7 +159,8 @@ def rows() -> list[Row]:
     env = dict(os.environ)
     with tempfile.TemporaryDirectory() as directory:
         output = pathlib.Path(directory)
-        commands = node_commands(600.0, sensor_setup(SENSOR_MODELS[0], output))
+        # the plain defaults a user gets: uncalibrated, self-calibrating (make demo without --calibrated)
+        commands = node_commands(600.0, sensor_setup(SENSOR_MODELS[0], output, calibrated=False))
         supervisor = NodeSupervisor(commands, env, output)
         probe = Probe()
         supervisor.start()
