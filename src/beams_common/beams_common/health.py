@@ -4,9 +4,12 @@ GNSS integrity monitoring calls a wrong position under a healthy status "hazardo
 information"; a BeAMS node says one of four statuses (`Status`), each with its reasons:
 
 - waiting: no estimate yet (nothing to use);
-- tracking: every consistency check passes (the estimate may be used as its covariance says);
+- tracking: every consistency check passes and the node's own sensor has verified the estimate (the
+  EKF's bearings have confirmed its pose since the last break of its continuity: an operator's pose is
+  no sensor's): the estimate may be used as its covariance says;
 - degraded: an estimate exists but a check fails (an input rate out of range, inputs refused as
-  implausible lately, a calibration that made the fixes worse): use with care, its covariance may lie;
+  implausible lately, a calibration that made the fixes worse, a pose not yet confirmed by the
+  bearings): use with care, its covariance may lie;
 - lost: the estimate must not be used (the innovations contradict it, no odometry moves it).
 
 The pieces every node composes: `RateMonitor` (an input's rate over a sliding window against its

@@ -6,6 +6,10 @@
 - `NisMonitor`: the filter is lost when the bearings' innovations, over a sliding window, are too large
   for its covariance.
 Either lets the next ToTal fix re-initialise the filter (`Localiser.on_pose`).
+- `PoseConfirmation`: after an event that breaks the estimate's continuity (an operator's pose, an
+  implausible odometry step, an odometry silence, a time jump, a re-initialisation from ToTal after a
+  kidnap or a lost test), the estimate is not the filter's own until its bearings confirm it: the status
+  says degraded meanwhile (issue 18: a pose no sensor has verified must not be called "tracking").
 """
 
 from collections import deque
@@ -113,3 +117,84 @@ class KidnapEvidence:
 
     def clear(self) -> None:
         self._recent_gated.clear()
+
+
+# Accepted bearings in a row, with no gated one between them, that confirm a pose after a break of
+# continuity: three revolutions of the three beacons, 0.3 s at 10 Hz. Three bearings of one revolution
+# fix a pose on their own (ToTal), so a pose 0.5 m off cannot have them all inside its gate: each gated
+# one starts the count again, and 6 gated of the last 12 make the kidnap evidence that re-initialises
+# from ToTal; three revolutions in a row leave the filter three updates of each beacon to pull a slightly
+# wrong pose in before it is called tracking. Counted in bearings, not in calls:
+# a revolution's bearings can reach the filter in two parts (those stamped after the newest odometry wait
+# for it) and the offline replay feeds them one by one.
+CONFIRMING_BEARINGS = 9
+# ... from at least this many beacons: the bearings of a single beacon leave the position free along
+# the line to it.
+CONFIRMING_BEACONS = 2
+# An odometry silence (s, data time) this long breaks the estimate's continuity: ekf_health's lost test
+# says "no odometry" beyond the same 0.5 s (25 samples of 50 Hz odometry; a restarted odometry source
+# that jumped within its speed limit over the silence, a simulator's new match, is not refused as a jump).
+CONTINUITY_GAP_S = 0.5
+
+
+class PoseConfirmation:
+    """Whether the bearings have confirmed the estimate since the last break of its continuity.
+
+    `broken(event)` makes the estimate unconfirmed; `add(beacon_id, gated)` records each new bearing the
+    filter judged (accepted or gated out): `confirming_bearings` accepted in a row, from at least
+    CONFIRMING_BEACONS beacons, confirm it; a gated one starts the count again. `confirming_bearings` 0
+    switches the check off (every pose confirmed at once). The very first initialisation from ToTal
+    needs no confirmation: its pose is the bearings' own (one revolution triangulated and gated by ToTal),
+    while an operator's is no sensor's, and a re-initialisation after a kidnap or a lost test follows
+    evidence that the world broke the estimate (the fix may straddle it).
+    """
+
+    def __init__(self, confirming_bearings: int = CONFIRMING_BEARINGS) -> None:
+        if confirming_bearings < 0:
+            raise ValueError(f"confirming_bearings must be >= 0, got {confirming_bearings}")
+        self.confirming_bearings = confirming_bearings
+        self._event = ""  # '' when confirmed
+        self._run: list[int] = []  # beacon ids of the accepted bearings in a row since the event
+
+    @property
+    def confirmed(self) -> bool:
+        return not self._event
+
+    @property
+    def event(self) -> str:
+        """The event since which the estimate is unconfirmed ('' when confirmed)."""
+        return self._event
+
+    def broken(self, event: str) -> None:
+        """An event broke the estimate's continuity (no effect when the check is off)."""
+        if self.confirming_bearings:
+            self._event = event
+            self._run.clear()
+
+    def add(self, beacon_id: int, gated: bool) -> bool:
+        """One new bearing judged by the filter; True when it completes the confirmation."""
+        if self.confirmed:
+            return False
+        if gated:
+            self._run.clear()
+            return False
+        self._run.append(beacon_id)
+        if len(self._run) >= self.confirming_bearings and len(set(self._run)) >= CONFIRMING_BEACONS:
+            self.clear()
+            return True
+        return False
+
+    @property
+    def problem(self) -> str:
+        """Why the estimate is not confirmed, or ''."""
+        if self.confirmed:
+            return ""
+        return (
+            f"pose not yet confirmed by the bearings since {self._event} "
+            f"({len(self._run)} of {self.confirming_bearings} agreeing bearings)"
+        )
+
+    def clear(self) -> None:
+        """Confirmed (a reset: the next initialisation from ToTal is a first one)."""
+        self._event = ""
+        self._run.clear()

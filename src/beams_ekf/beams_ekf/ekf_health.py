@@ -7,9 +7,11 @@
 - degraded: an input rate out of its range (bearings ~10 Hz, odometry at its rate, like
   diagnostic_updater's frequency status), inputs refused as implausible within the last FAULT_HOLD_S
   (stamps late or early against the receiving clock, odometry jumps, a calibration that made the
-  bearings worse), or no bearing accepted for more than MAX_BEARING_SILENCE_S of data time (odometry
-  alone: the covariance grows).
-- tracking: none of the above.
+  bearings worse), no bearing accepted for more than MAX_BEARING_SILENCE_S of data time (odometry
+  alone: the covariance grows), or a pose the bearings have not confirmed since an event that broke the
+  estimate's continuity (an operator's pose, an odometry jump or silence, a time jump, a
+  re-initialisation from ToTal after a kidnap or a lost test: `consistency.PoseConfirmation`).
+- tracking: none of the above: the estimate is the filter's own, verified by its bearings.
 
 The receiving clock is the node's (ROS time: /clock under use_sim_time); pure, times passed in.
 """
@@ -80,9 +82,11 @@ class EkfHealth:
         nis_lost: bool,
         kidnap_suspected: bool,
         bearing_silence_s: float,
+        unconfirmed: str = "",
     ) -> Verdict:
         """The status now, from the filter's tests (NIS, kidnap), the time since the last accepted bearing
-        (data time) and this monitor's rates and faults."""
+        (data time), why the bearings have not yet confirmed the estimate (`Localiser.unconfirmed`, ''
+        when they have) and this monitor's rates and faults."""
         if not initialised:
             return judge(WAITING_FOR_POSE)
         lost = []
@@ -92,7 +96,8 @@ class EkfHealth:
             lost.append("most recent bearings gated out (robot moved?): waiting for a ToTal pose")
         if self._last_odometry_s is not None and now_s - self._last_odometry_s > MAX_ODOMETRY_SILENCE_S:
             lost.append(f"no odometry for {now_s - self._last_odometry_s:.1f} s: the estimate stands still")
-        degraded = [p for p in (self.bearing_rate.problem(now_s), self._odometry_rate_problem(now_s)) if p]
+        degraded = [unconfirmed] if unconfirmed else []
+        degraded += [p for p in (self.bearing_rate.problem(now_s), self._odometry_rate_problem(now_s)) if p]
         degraded += self.faults.active(now_s)
         if bearing_silence_s > MAX_BEARING_SILENCE_S:
             degraded.append(f"no accepted bearing for {min(bearing_silence_s, 1e6):.1f} s: odometry only")

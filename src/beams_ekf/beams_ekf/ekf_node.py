@@ -28,7 +28,10 @@ ahead of the node's clock is refused with the reason (`<bearings|odometry|total_
 calibration is checked against
 chapter 7's ranges and the nominal geometry, and flagged when it makes the recent bearings worse.
 /diagnostics carries the status (`ekf_health`: waiting, tracking, degraded or lost, with the reasons; the
-`status` value); the pose messages cannot carry it.
+`status` value), published at once when it changes; the pose messages cannot carry it. A pose the
+bearings have not confirmed since a break of the estimate's continuity (an operator's pose, an odometry
+jump or silence, a time jump, a re-initialisation after a kidnap) is degraded, not tracking
+(`consistency.PoseConfirmation`).
 """
 
 import math
@@ -48,6 +51,7 @@ from beams_common.bearing_intake import RevolutionIntake, bearings_message_intak
 from beams_common.calibration_checks import BearingSample, RecentBearings
 from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import BeaconGeometry, geometry_of_calibration, runtime_geometry
+from beams_common.health import Status
 from beams_common.plausibility import StampCheck, stamp_tolerance_of
 from beams_common.pose_intake import PoseIntake, PoseSource, RefusedPose, pose_message_intake
 from beams_common.ros.callback_guard import GuardedCallbacks
@@ -102,6 +106,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         rate_hz = self.parameters["publish_rate_hz"]
         self.diagnostics = Diagnostics(self, "ekf")
         self.diagnostics.set_level("warn", WAITING_FOR_POSE)
+        self._status = Status.WAITING  # the status last set on /diagnostics
         self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
         self.health = EkfHealth(self.parameters, self._now_s())
         self.recent_bearings = RecentBearings()
@@ -182,6 +187,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         stamp_s = stamp_to_seconds(msg.header.stamp)
         if self._implausible_stamp("odometry", f"odometry at {stamp_s:.3f} s", stamp_s, now_s):
             return
+        breaks = self.localiser.stats.counts["continuity_breaks"]
         outcome = self.localiser.on_odometry(stamp_s, pose2d_of(msg.pose.pose))
         if outcome is OdometryOutcome.INVALID:
             self.diagnostics.refuse("odometry_refused", f"odometry at {stamp_s:.3f} s: non-finite pose")
@@ -194,6 +200,8 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
             self._last_odometry_stamp = (stamp_s, msg.header.stamp)
         if outcome is OdometryOutcome.REFERENCE:  # a time jump resets what was published too
             self._published_stamp_s = None
+        if self.localiser.stats.counts["continuity_breaks"] != breaks:
+            self._status_now()
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
         now_s = self._now_s()
@@ -221,7 +229,14 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         what = f"ToTal pose at {intake.stamp_s:.3f} s"
         if self._implausible_stamp("total_pose", what, intake.stamp_s, self._now_s()):
             return  # a fix taken at the wrong instant is brought to the filter's instant wrongly
-        self.localiser.offer_pose(intake, self.settings.default_pose_covariance)
+        if self.localiser.offer_pose(intake, self.settings.default_pose_covariance).taken:
+            self._status_now()
+
+    def _status_now(self) -> None:
+        """The estimate broke its continuity (or was re-initialised): publish it with its status now, so
+        that no 1 Hz report says the old status once the new estimate exists."""
+        self._changed = True
+        self._publish()
 
     def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
         self._operator_pose(msg)
@@ -353,11 +368,21 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
             nis_lost=self.localiser.nis_monitor.lost,
             kidnap_suspected=self.localiser.kidnap_suspected,
             bearing_silence_s=since_s,
+            unconfirmed=self.localiser.unconfirmed if estimate is not None else "",
         )
-        self.diagnostics.set("status", str(verdict.status))
         self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
         self.diagnostics.set("odometry_rate_hz", self.health.odometry_rate.rate_hz(now_s))
+        changed = verdict.status is not self._status
+        if changed and verdict.status is Status.TRACKING:
+            # the old status's report, stamped now, closes its span: a reader that gives each estimate
+            # the first report at or after it (the fault campaign) never credits the estimates made
+            # before the change with the new "tracking"
+            self.diagnostics.publish()
+        self._status = verdict.status
+        self.diagnostics.set("status", str(verdict.status))
         self.diagnostics.set_level(verdict.level, verdict.message)
+        if changed:  # a new status is said at once, not at the next 1 Hz report
+            self.diagnostics.publish()
 
 
 def _newest_stamp_s(intake: RevolutionIntake) -> float:

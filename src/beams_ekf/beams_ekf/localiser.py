@@ -19,6 +19,11 @@ stray; `beams_common.time_jumps`) resets everything, what the filter learnt of t
 increment beyond the robot's speed or yaw rate (a +100 m jump: issue 18, `beams_common.plausibility`)
 is never predicted with: the sample becomes the new reference and the covariance grows by the most the
 robot could have moved (`Localiser._rereference`).
+After any event that breaks the estimate's continuity (an operator's pose, an odometry jump, an odometry
+silence of CONTINUITY_GAP_S, a time jump, a re-initialisation from ToTal after a kidnap or a lost test)
+the estimate is unconfirmed until its bearings confirm it (`consistency.PoseConfirmation`,
+`Localiser.unconfirmed`: ekf_node's status is degraded meanwhile); the first initialisation from ToTal
+is the bearings' own pose and needs none.
 
 This module is the timing and the replay of late bearings; the consistency monitors are in
 `consistency` (NisMonitor, KidnapEvidence), the settings in `settings` (built from the parameters by
@@ -43,13 +48,19 @@ from beams_common.pose_intake import KeptPose, PoseIntake, RefusedPose, planar_p
 from beams_common.time_jumps import StampOrder, TimeJumpDetector
 from beams_common.validation import odometry_problem
 from beams_ekf.bearing_ekf import BearingEkf, turret_pose
-from beams_ekf.consistency import KidnapEvidence, NisMonitor
+from beams_ekf.consistency import CONTINUITY_GAP_S, KidnapEvidence, NisMonitor, PoseConfirmation
 from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, PoseFilter, rejected
 from beams_ekf.settings import FilterSettings, LocaliserConfig
 
 # bearings waiting for odometry beyond this many are dropped, oldest first (a dead odometry source)
 MAX_PENDING_BEARINGS = 64
+# ToTal's re-initialisations that break the estimate's continuity (the first initialisation does not:
+# `consistency.PoseConfirmation`)
+_CONTINUITY_EVENTS = {
+    PoseOutcome.KIDNAP_REINITIALISED: "a re-initialisation from ToTal after a kidnap",
+    PoseOutcome.LOST_REINITIALISED: "a re-initialisation from ToTal after the lost test",
+}
 
 
 def operator_pose_stamp_s(stamp_s: float, newest_odometry_s: float | None) -> float:
@@ -108,6 +119,7 @@ class Localiser:
         self.nis_monitor = NisMonitor(
             self.config.lost_nis_window_bearings, self.config.lost_nis_probability, ekf.gate
         )
+        self.confirmation = PoseConfirmation(self.config.confirming_bearings)
         self._stamp_s: float | None = None
         # bearings stamped after the newest odometry, waiting for the odometry that covers them
         self._pending: list[Bearing] = []
@@ -116,6 +128,16 @@ class Localiser:
     def initialised(self) -> bool:
         """True once a pose initialised the filter (and no reset since)."""
         return self.ekf.initialised
+
+    @property
+    def unconfirmed(self) -> str:
+        """Why the estimate is not yet confirmed by the bearings (`PoseConfirmation.problem`), or ''."""
+        return self.confirmation.problem
+
+    def _break_continuity(self, event: str) -> None:
+        """An event after which the estimate is unconfirmed until the bearings confirm it."""
+        self.confirmation.broken(event)
+        self.stats.counts["continuity_breaks"] += 1
 
     def configure(
         self,
@@ -142,6 +164,7 @@ class Localiser:
         self._stamp_s = None
         self._pending.clear()
         self._time_jumps.clear()
+        self.confirmation.clear()  # the next initialisation from ToTal is a first one
         self.stats.counts[reason] += 1
 
     # -- odometry -------------------------------------------------------------------------------------
@@ -158,6 +181,8 @@ class Localiser:
             return OdometryOutcome.STALE if order is StampOrder.STALE else OdometryOutcome.HELD
         if order is StampOrder.JUMP:
             self.reset("time_jump_resets", forget_learnt=True)
+            # the fix that initialises the filter again may come from either side of the jump
+            self._break_continuity("a time jump (odometry stamps went back)")
             latest = None
         self.stats.counts["odometry"] += 1
         jump = (
@@ -174,6 +199,10 @@ class Localiser:
             return OdometryOutcome.REFERENCE
         if stamp_s - latest[0] > self.config.odometry_gap_s:
             self.stats.counts["odometry_gaps"] += 1
+        if stamp_s - latest[0] > CONTINUITY_GAP_S:
+            # the estimate stood still: an odometry source restarted within its speed limit (a
+            # simulator's new match) or a robot pushed meanwhile is not followed
+            self._break_continuity(f"an odometry silence of {stamp_s - latest[0]:.1f} s")
         self._advance(latest[0], latest[1], stamp_s, odom_pose)
         self.history.append(stamp_s, odom_pose, _Slot(self.ekf.state()))
         self._stamp_s = stamp_s
@@ -194,6 +223,7 @@ class Localiser:
             return
         max_translation_m, max_rotation_rad = self.motion_limits.max_step(interval_s)
         self.ekf.add_time_noise(max_translation_m**2, max_rotation_rad**2)
+        self._break_continuity("an odometry jump")
         self.history.append(stamp_s, odom_pose, _Slot(self.ekf.state()))
         self._stamp_s = stamp_s
         self._apply_pending(stamp_s)
@@ -388,6 +418,8 @@ class Localiser:
             self.stats.last_bearing_stamp_s = bearing.stamp_s
         if outcome.accepted or outcome.reason is BearingReason.GATED:
             self.kidnap.add(not outcome.accepted)
+            if self.confirmation.add(bearing.beacon_id, not outcome.accepted):
+                self.stats.counts["pose_confirmations"] += 1
             if self.nis_monitor.add(outcome.nis):
                 self.stats.counts["lost_detections"] += 1
 
@@ -430,7 +462,7 @@ class Localiser:
             return PoseOutcome.OUTSIDE_HISTORY
         pose_now = pose if motion is None else compose(pose, motion)
         if operator or not self.ekf.initialised:
-            return self._initialise(stamp_s, pose_now, covariance, PoseOutcome.INITIALISED)
+            return self._initialise(stamp_s, pose_now, covariance, PoseOutcome.INITIALISED, operator)
         if self.kidnap.suspected and self.kidnap.elsewhere(
             pose_now, covariance, self.ekf.pose, self.ekf.covariance
         ):
@@ -460,7 +492,12 @@ class Localiser:
         return self._on_pose(stamp_s, kept.pose, covariance, operator=kept.operator)
 
     def _initialise(
-        self, stamp_s: float, pose: Pose2D, covariance: np.ndarray, outcome: PoseOutcome
+        self,
+        stamp_s: float,
+        pose: Pose2D,
+        covariance: np.ndarray,
+        outcome: PoseOutcome,
+        operator: bool = False,
     ) -> PoseOutcome:
         try:
             self.ekf.initialise(pose, covariance)
@@ -469,6 +506,11 @@ class Localiser:
             return PoseOutcome.INVALID
         self.kidnap.clear()
         self.nis_monitor.clear()
+        event = _CONTINUITY_EVENTS.get(outcome)
+        if operator:
+            self._break_continuity("an operator's pose")
+        elif event:
+            self._break_continuity(event)
         # the states kept for late bearings belong to the old estimate
         for index in range(len(self.history)):
             self.history.set_payload(index, None)

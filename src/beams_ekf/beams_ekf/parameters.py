@@ -191,6 +191,16 @@ FILTER_SPECS = (
         maximum=1.0 - 1e-12,
     ),
     ParameterSpec(
+        "confirming_bearings",
+        _TIMING.confirming_bearings,
+        "Accepted bearings in a row (from two beacons at least; 9: three revolutions of three beacons) "
+        "that confirm the estimate after a break of its continuity (an operator's pose, an odometry jump "
+        "or silence, a time jump, a re-initialisation after a kidnap or a lost test): the status is "
+        "degraded until then; 0 switches the check off.",
+        minimum=0,
+        maximum=1000,
+    ),
+    ParameterSpec(
         "use_total_pose",
         _DEFAULTS.use_total_pose,
         "Initialise (and re-initialise after a kidnapping) from ToTal's accepted poses on beams/pose.",
@@ -239,6 +249,7 @@ def _settings_of(values: Mapping[str, Any]) -> FilterSettings:
         time_jump_confirmations=int(values["time_jump_confirmations"]),
         lost_nis_window_bearings=int(values["lost_nis_window_bearings"]),
         lost_nis_probability=float(values["lost_nis_probability"]),
+        confirming_bearings=int(values["confirming_bearings"]),
     )
     return FilterSettings(
         noise,

@@ -13,6 +13,7 @@ import numpy as np
 from beams_common.plausibility import MotionLimits
 from beams_ekf.beacon_states import BeaconStates
 from beams_ekf.bearing_ekf import ProcessNoise
+from beams_ekf.consistency import CONFIRMING_BEARINGS
 from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.power_bias_states import PowerBiasStates
 from beams_ekf.turret_offset_states import TurretOffsetStates
@@ -47,6 +48,10 @@ class LocaliserConfig:
     # beyond the chi-square quantile at lost_nis_probability (0: the monitor is off)
     lost_nis_window_bearings: int = 30
     lost_nis_probability: float = 1.0 - 1.0e-6
+    # after a break of the estimate's continuity (an operator's pose, an odometry jump or silence, a time
+    # jump, a re-initialisation after a kidnap or a lost test), the accepted bearings in a row that
+    # confirm it (`consistency.PoseConfirmation`; 0: the check is off)
+    confirming_bearings: int = CONFIRMING_BEARINGS
 
     def __post_init__(self) -> None:
         if self.lost_nis_window_bearings < 0 or not 0.0 < self.lost_nis_probability < 1.0:
@@ -67,6 +72,8 @@ class LocaliserConfig:
                 f"need 1 <= kidnap_gated_bearings <= kidnap_window_bearings, got "
                 f"{self.kidnap_gated_bearings} and {self.kidnap_window_bearings}"
             )
+        if self.confirming_bearings < 0:
+            raise ValueError(f"confirming_bearings must be >= 0, got {self.confirming_bearings}")
         if self.time_jump_confirmations < 1:
             raise ValueError(f"time_jump_confirmations must be >= 1, got {self.time_jump_confirmations}")
         if not 0.0 < self.kidnap_probability < 1.0:
