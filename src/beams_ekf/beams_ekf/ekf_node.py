@@ -187,7 +187,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         stamp_s = stamp_to_seconds(msg.header.stamp)
         if self._implausible_stamp("odometry", f"odometry at {stamp_s:.3f} s", stamp_s, now_s):
             return
-        breaks = self.localiser.stats.counts["continuity_breaks"]
         outcome = self.localiser.on_odometry(stamp_s, pose2d_of(msg.pose.pose))
         if outcome is OdometryOutcome.INVALID:
             self.diagnostics.refuse("odometry_refused", f"odometry at {stamp_s:.3f} s: non-finite pose")
@@ -200,8 +199,8 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
             self._last_odometry_stamp = (stamp_s, msg.header.stamp)
         if outcome is OdometryOutcome.REFERENCE:  # a time jump resets what was published too
             self._published_stamp_s = None
-        if self.localiser.stats.counts["continuity_breaks"] != breaks:
-            self._status_now()
+        if self.localiser.unconfirmed and self._status is Status.TRACKING:
+            self._status_now()  # a continuity break (odometry jump or silence, time jump): no longer tracking
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
         now_s = self._now_s()
