@@ -154,13 +154,16 @@ def pose_intake(
     if not all(math.isfinite(v) for v in values):
         reason = f"{source} pose: position {tuple(position)} or orientation {tuple(quaternion)} not finite"
         return RefusedPose(source, PoseRefusal.INVALID, bounded(reason))
-    if math.hypot(*values[3:]) < MIN_QUATERNION_NORM:  # hypot: no overflow on huge entries
+    norm = math.hypot(*values[3:])  # hypot: no overflow on huge entries
+    if norm < MIN_QUATERNION_NORM:
         return RefusedPose(source, PoseRefusal.INVALID, f"{source} pose: orientation quaternion of zero norm")
     entries = np.asarray(covariance_6x6, dtype=float).ravel()
     if entries.size != 36 or not np.all(np.isfinite(entries)):  # z, roll, pitch too: a corrupt message
         return RefusedPose(source, PoseRefusal.INVALID, f"{source} pose: covariance has a non-finite entry")
     planar = entries.reshape(6, 6)[np.ix_(PLANAR_INDICES, PLANAR_INDICES)]
-    pose = (values[0], values[1], yaw_of_quaternion(*values[3:]))
+    # the rotation a non-unit quaternion stands for is its normalised one (and huge entries then
+    # cannot overflow the yaw's products)
+    pose = (values[0], values[1], yaw_of_quaternion(*(v / norm for v in values[3:])))
     return planar_pose_intake(source, stamp_s, pose, planar)
 
 

@@ -153,3 +153,12 @@ def test_a_planar_pose_or_stamp_not_finite_is_invalid(pose, stamp_s):
     assert isinstance(answer, KeptPose) == finite
     if not finite:
         assert answer.refusal is PoseRefusal.INVALID and answer.counter_key == "total_poses_invalid"
+
+
+def test_a_huge_but_finite_quaternion_is_its_normalised_rotation():
+    """Found by hypothesis: entries near 1e291 overflowed the yaw's products to NaN (refused as 'not
+    finite' although every field was); the quaternion is normalised first, as its rotation is."""
+    quaternion = [0.0, 0.0, 6.2e291, 6.2e291]  # 90 degrees about z, scaled
+    answer = pose_intake(PoseSource.TOTAL, MAP, MAP, 3.0, [1.0, 2.0, 0.0], quaternion, [0.0] * 36)
+    assert not isinstance(answer, RefusedPose)
+    assert math.isclose(answer.pose[2], math.pi / 2, rel_tol=1e-12)
