@@ -66,6 +66,7 @@ FILE_SECONDS = {
     "test_triangulation_node.py": 12,
     "test_driver_serial_replug.py": 11,
     "test_rate_status.py": 11,
+    "test_status_topic.py": 9,
     "test_calibration_algorithm.py": 11,
     "test_estimate_noise_cli.py": 10,
     "test_driver_serial_source.py": 10,

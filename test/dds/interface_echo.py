@@ -8,10 +8,10 @@ import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
-from beams_msgs.msg import BeaconBearing, BeaconBearingArray, TriangulatedPose
+from beams_msgs.msg import BeaconBearing, BeaconBearingArray, LocalisationStatus, TriangulatedPose
 from beams_msgs.srv import Calibrate, CaptureReference, ListConfigurations
 
-MESSAGE_TYPES = (BeaconBearing, BeaconBearingArray, TriangulatedPose)
+MESSAGE_TYPES = (BeaconBearing, BeaconBearingArray, TriangulatedPose, LocalisationStatus)
 
 
 class InterfaceEcho(Node):

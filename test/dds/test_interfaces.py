@@ -32,7 +32,10 @@ def _sample_messages():
     pose.beacon_ids = [3, 1, 2]
     pose.accepted = False
     pose.reason = "1/|D| above the gate"
-    return [lone_bearing, array, pose]
+    status = beams_msgs_msg.LocalisationStatus(status=beams_msgs_msg.LocalisationStatus.DEGRADED)
+    status.header.stamp.sec = 12
+    status.message = "degraded: pose not yet confirmed by the bearings since operator pose (3 of 9)"
+    return [lone_bearing, array, pose, status]
 
 
 @pytest.fixture

@@ -28,7 +28,8 @@ ahead of the node's clock is refused with the reason (`<bearings|odometry|total_
 calibration is checked against
 chapter 7's ranges and the nominal geometry, and flagged when it makes the recent bearings worse.
 /diagnostics carries the status (`ekf_health`: waiting, tracking, degraded or lost, with the reasons; the
-`status` value), published at once when it changes; the pose messages cannot carry it. A pose the
+`status` value), published at once when it changes; the pose messages cannot carry it, so it is also on
+beams/ekf/status (beams_msgs/LocalisationStatus, latched: on each change and every second). A pose the
 bearings have not confirmed since a break of the estimate's continuity (an operator's pose, an odometry
 jump or silence, a time jump, a re-initialisation after a kidnap) is degraded, not tracking
 (`consistency.PoseConfirmation`).
@@ -75,6 +76,7 @@ from beams_common.ros.node_support import (
     startup_geometry,
 )
 from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
+from beams_common.ros.status_topic import StatusTopic
 from beams_common.validation import bounded, planar_estimate_problem
 from beams_ekf.ekf_health import WAITING_FOR_POSE, EkfHealth
 from beams_ekf.localiser import build_localiser
@@ -105,6 +107,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         publish_tf = self.parameters["publish_tf"]
         rate_hz = self.parameters["publish_rate_hz"]
         self.diagnostics = Diagnostics(self, "ekf")
+        self.status_topic = StatusTopic(self, topics.EKF_STATUS)
         self.diagnostics.set_level("warn", WAITING_FOR_POSE)
         self._status = Status.WAITING  # the status last set on /diagnostics
         self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
@@ -382,6 +385,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         self.diagnostics.set_level(verdict.level, verdict.message)
         if changed:  # a new status is said at once, not at the next 1 Hz report
             self.diagnostics.publish()
+        self.status_topic.say(verdict)
 
 
 def _newest_stamp_s(intake: RevolutionIntake) -> float:

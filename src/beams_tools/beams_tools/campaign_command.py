@@ -63,6 +63,8 @@ RESPAWN_DELAY_S = 0.25
 START_TIMEOUT_S = 90.0
 STOP_TIMEOUT_S = 15.0
 RSS_PERIOD_S = 5.0
+# diagnostic_msgs/DiagnosticStatus levels, to name a status report's level in the reasons
+LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 # a process's RSS counts from this long (s) after its start: its imports and first allocations are not growth
 RSS_SETTLE_S = 10.0
 BAD_MESSAGE_PERIOD_S = 0.1
@@ -194,6 +196,11 @@ class CampaignResult:
                 f"{figures.misleading_s:.2f} | {100 * figures.availability:.1f} | "
                 f"{figures.max_misleading_error_m:.3g}"
             )
+        if f.unavailable_outside_by_reason:
+            lines.append("unavailable outside fault windows, by the EKF's status: seconds | reason")
+            lines += [
+                f"  {seconds:.2f} | {reason}" for reason, seconds in f.unavailable_outside_by_reason.items()
+            ]
         lines += [
             f"  dead: {d.name} at {d.campaign_s:.1f} s (exit {d.status}) during {d.fault}"
             for d in self.deaths
@@ -1045,6 +1052,7 @@ class Campaign:
             ekf, truth, status = (
                 np.array(rows, dtype=float) for rows in (probe.ekf, probe.truth, probe.status)
             )
+            messages = list(probe.status_messages)
             probe.close()
         windows = [(f.kind, self.t0_s + f.window[0], self.t0_s + f.window[1]) for f in self.schedule]
         figures = campaign_figures(
@@ -1054,8 +1062,18 @@ class Campaign:
             windows,
             self.t0_s + self.config.warmup_s,
             self.t0_s + self.config.duration_s,
+            [(stamp, f"{LEVEL_NAMES.get(level, level)}: {text}") for stamp, level, text in messages],
         )
-        np.savez(self.log_dir / "series.npz", ekf=ekf, truth=truth, status=status, t0_s=self.t0_s)
+        np.savez(
+            self.log_dir / "series.npz",
+            ekf=ekf,
+            truth=truth,
+            status=status,
+            t0_s=self.t0_s,
+            status_stamps=np.array([row[0] for row in messages], dtype=float),
+            status_levels=np.array([row[1] for row in messages], dtype=int),
+            status_messages=np.array([row[2] for row in messages], dtype=str),
+        )
         growth = {name: rss_growth_mb(process.rss_samples) for name, process in self.processes.items()}
         if probe.duplicate_estimates:
             self.notes.append(

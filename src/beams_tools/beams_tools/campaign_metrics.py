@@ -4,7 +4,8 @@ Every time is a ROS stamp in seconds (the nodes' clocks: system time, one machin
 - the EKF's published estimates: rows (stamp, x, y, var_xx, cov_xy, var_yy), position and its covariance;
 - the truth: rows (stamp, x, y) from the simulator that drives the robot;
 - the EKF's status reports: rows (report stamp, tracking 1/0): tracking is /diagnostics level OK with the
-  message "tracking".
+  message "tracking"; and optionally their messages (report stamp, message), which say why the time that
+  was not available was not (`unavailable_reasons`).
 
 Hazardously misleading: an estimate whose position error (against the truth interpolated at its stamp)
 exceeds max(5 cm, 5 sigma), sigma being the standard deviation of its own covariance along the error's
@@ -17,6 +18,7 @@ Availability: the fraction of a span's time in which the newest estimate is at m
 status a user sees then (the EKF's last report at or before that time) says tracking.
 """
 
+import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
@@ -32,6 +34,9 @@ MAX_TRUTH_GAP_S = 0.2
 # an estimate older than this (s) does not make the time available
 FRESH_S = 0.25
 GRID_STEP_S = 0.02
+# the reason given for unavailable time while the EKF published nothing fresh
+SILENT_REASON = "no fresh estimate (the EKF silent)"
+NO_REPORT_REASON = "no status message at or before it"
 
 
 def truth_at(stamps: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -137,17 +142,51 @@ def misleading_time_s(judged: Judged, mask: np.ndarray | None = None) -> float:
     return float(np.sum(judged.spans_s[selected]))
 
 
+def fresh_at(judged: Judged, times: np.ndarray) -> np.ndarray:
+    """Whether the newest estimate at each time is at most FRESH_S old."""
+    if len(judged.stamps) == 0:
+        return np.zeros(len(times), dtype=bool)
+    newest = np.searchsorted(judged.stamps, times, side="right") - 1
+    return (newest >= 0) & (times - judged.stamps[np.maximum(newest, 0)] <= FRESH_S)
+
+
 def availability_grid(
     judged: Judged, status: np.ndarray, start_s: float, end_s: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """(grid times, available mask) over [start, end): a fresh estimate and a tracking status (the last
     report)."""
     grid = np.arange(start_s, end_s, GRID_STEP_S)
-    if len(judged.stamps) == 0:
-        return grid, np.zeros(len(grid), dtype=bool)
-    newest = np.searchsorted(judged.stamps, grid, side="right") - 1
-    fresh = (newest >= 0) & (grid - judged.stamps[np.maximum(newest, 0)] <= FRESH_S)
-    return grid, fresh & status_of(grid, status, report="last")
+    return grid, fresh_at(judged, grid) & status_of(grid, status, report="last")
+
+
+def reason_of(message: str) -> str:
+    """A status message as a reason to sum time under: its counts and figures replaced by '#' (so that
+    "3 of 9 agreeing bearings" and "5 of 9 ..." are one reason)."""
+    return re.sub(r"[-+]?\d+(?:\.\d+)?(?:e[-+]?\d+)?", "#", message.strip()) or "(empty message)"
+
+
+def unavailable_reasons(
+    judged: Judged,
+    available: np.ndarray,
+    messages: Sequence[tuple[float, str]],
+    grid: np.ndarray,
+    mask: np.ndarray,
+) -> dict[str, float]:
+    """Time (s) of the grid points selected by mask that were not available, by reason, longest first:
+    no fresh estimate, or the message of the status report a user saw then (the last at or before)."""
+    fresh = fresh_at(judged, grid)
+    ordered = sorted(messages, key=lambda row: row[0])
+    report = np.searchsorted(np.array([stamp for stamp, _ in ordered], dtype=float), grid, side="right") - 1
+    totals: dict[str, float] = {}
+    for k in np.flatnonzero(mask & ~available):
+        if not fresh[k]:
+            reason = SILENT_REASON
+        elif report[k] < 0:
+            reason = NO_REPORT_REASON
+        else:
+            reason = reason_of(ordered[report[k]][1])
+        totals[reason] = totals.get(reason, 0.0) + GRID_STEP_S
+    return dict(sorted(totals.items(), key=lambda item: -item[1]))
 
 
 def fraction(mask: np.ndarray) -> float:
@@ -179,6 +218,8 @@ class CampaignFigures:
     outside_s: float
     max_misleading_error_m: float
     per_class: dict[str, ClassFigures] = field(default_factory=dict)
+    # outside every fault's window, the time not available (s) by the reason the EKF's status gave
+    unavailable_outside_by_reason: dict[str, float] = field(default_factory=dict)
 
 
 def campaign_figures(
@@ -188,8 +229,10 @@ def campaign_figures(
     windows: Sequence[tuple[str, float, float]],
     start_s: float,
     end_s: float,
+    messages: Sequence[tuple[float, str]] = (),
 ) -> CampaignFigures:
-    """The figures of one run over [start_s, end_s) (stamps); windows: (fault class, start, end)."""
+    """The figures of one run over [start_s, end_s) (stamps); windows: (fault class, start, end);
+    messages: the EKF's status reports (stamp, message), to attribute the unavailable time."""
     judged = judge(ekf, truth, status)
     measured = (judged.stamps >= start_s) & (judged.stamps < end_s)
     spans = [(start, end) for _, start, end in windows]
@@ -209,6 +252,7 @@ def campaign_figures(
         availability_outside=fraction(available[grid_outside]),
         outside_s=float(np.sum(grid_outside) * GRID_STEP_S),
         max_misleading_error_m=max_error(measured),
+        unavailable_outside_by_reason=unavailable_reasons(judged, available, messages, grid, grid_outside),
     )
     for kind in dict.fromkeys(kind for kind, _, _ in windows):
         own = [(start, end) for other, start, end in windows if other == kind]

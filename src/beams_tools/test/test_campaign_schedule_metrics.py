@@ -9,6 +9,8 @@ import pytest
 from beams_tools.campaign_metrics import (
     FRESH_S,
     MAX_SAMPLE_SPAN_S,
+    NO_REPORT_REASON,
+    SILENT_REASON,
     campaign_figures,
     judge,
     sigma_along,
@@ -237,3 +239,38 @@ def test_figures_attribute_misleading_time_and_availability_to_the_fault_windows
     assert kill_availability == pytest.approx(1.0 - (2.0 - FRESH_S) / 6.0, abs=0.02)
     assert figures.availability_outside == pytest.approx(1.0)
     assert figures.outside_s == pytest.approx(34.0 - 4.0 - 6.0, abs=0.05)
+
+
+def test_unavailable_time_outside_the_windows_is_attributed_to_the_status_the_user_saw():
+    truth = _straight_truth(0.0, 40.0)
+    ekf = _estimates(truth, 0.0, 0.01, 0.0, 40.0)
+    ekf = ekf[~((ekf[:, 0] >= 30.0) & (ekf[:, 0] < 32.0))]  # two silent seconds outside any window
+    reports = [(t + 0.5, True) for t in range(40)]
+    # 10.5-13.5 s: unconfirmed (the count changes from report to report), 20.5-21.5 s: lost
+    texts = {t: "tracking" for t in range(40)}
+    for t, k in ((10, 2), (11, 5), (12, 8)):
+        reports[t] = (t + 0.5, False)
+        texts[t] = f"degraded: pose not yet confirmed by the bearings since operator pose ({k} of 9)"
+    reports[20] = (20.5, False)
+    texts[20] = "lost: 12 bearings gated in a row"
+    messages = [
+        (t + 0.5, f"{'OK' if tracking else 'WARN'}: {texts[t]}") for t, (_, tracking) in enumerate(reports)
+    ]
+    figures = campaign_figures(ekf, truth, _status(reports), [("node_kill", 2.0, 4.0)], 5.0, 39.0, messages)
+    reasons = figures.unavailable_outside_by_reason
+    unconfirmed = "WARN: degraded: pose not yet confirmed by the bearings since operator pose (# of #)"
+    assert reasons[unconfirmed] == pytest.approx(3.0, abs=0.05)
+    assert reasons["WARN: lost: # bearings gated in a row"] == pytest.approx(1.0, abs=0.05)
+    assert reasons[SILENT_REASON] == pytest.approx(2.0 - FRESH_S, abs=0.05)
+    assert next(iter(reasons)) == unconfirmed  # longest first
+    # every unavailable second outside the windows has its reason
+    unavailable_s = (1.0 - figures.availability_outside) * figures.outside_s
+    assert sum(reasons.values()) == pytest.approx(unavailable_s, abs=0.05)
+
+
+def test_without_messages_unavailable_time_has_no_report_reason_unless_the_ekf_was_silent():
+    truth = _straight_truth(0.0, 20.0)
+    ekf = _estimates(truth, 0.0, 0.01, 0.0, 20.0)
+    status = _status([(t + 0.5, t != 10) for t in range(20)])
+    figures = campaign_figures(ekf, truth, status, [], 5.0, 19.0)
+    assert figures.unavailable_outside_by_reason == {NO_REPORT_REASON: pytest.approx(1.0, abs=0.05)}

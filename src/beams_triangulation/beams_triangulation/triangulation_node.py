@@ -18,7 +18,8 @@ message, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s` ahe
 is refused with the reason; an odometry increment beyond `max_speed_m_per_s` or
 `max_yaw_rate_rad_per_s` restarts the odometry history (no revolution compensated across it). The
 status on /diagnostics (`triangulation_health`: waiting, tracking, degraded or lost, with the reasons;
-the `status` value); each pose message carries its own verdict (accepted, reason).
+the `status` value), also on beams/triangulation/status (beams_msgs/LocalisationStatus, latched: on
+each change and every second); each pose message carries its own verdict (accepted, reason).
 """
 
 from __future__ import annotations
@@ -52,6 +53,7 @@ from beams_common.ros.node_support import (
     startup_geometry,
 )
 from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
+from beams_common.ros.status_topic import StatusTopic
 from beams_common.validation import bounded, planar_estimate_problem
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_triangulation.gating import NoPose, PoseEstimate
@@ -81,6 +83,7 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         apply_runtime_changes(self, TRIANGULATION_PARAMETERS, self.parameters, self._prepare_parameters)
         serve_calibration_reload(self, self._apply_calibration)
         self.diagnostics = Diagnostics(self, "triangulation")
+        self.status_topic = StatusTopic(self, topics.TRIANGULATION_STATUS)
         self.diagnostics.set_level("warn", WAITING_FOR_BEARINGS)
         self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
         self.health = TriangulationHealth(self.parameters, self._now_s(), use_odometry=self.use_odometry)
@@ -232,6 +235,7 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         self.diagnostics.set("status", str(verdict.status))
         self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
         self.diagnostics.set_level(verdict.level, verdict.message)
+        self.status_topic.say(verdict)
 
     def _markers(self, estimate: PoseEstimate, header) -> MarkerArray:
         """Beacons (spheres), the pose (arrow) and its 2-sigma position ellipse (flat cylinder)."""

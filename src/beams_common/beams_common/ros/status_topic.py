@@ -1,0 +1,48 @@
+"""A localisation node's status on a topic of its own, beside its estimates (issue 18, docs/status.md).
+
+The estimates' messages (nav_msgs/Odometry, geometry_msgs/PoseWithCovarianceStamped) have no field for
+a status, and /diagnostics is one array for every node at 1 Hz: a consumer that must not use an
+untrusted pose (a planner, `ros2 topic echo`, a bag) reads beams_msgs/LocalisationStatus instead. It is
+latched (transient local, depth 1): a late subscriber gets the current status at once.
+"""
+
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+
+from beams_common.health import Status, Verdict
+from beams_msgs.msg import LocalisationStatus
+
+STATUS_QOS = QoSProfile(
+    depth=1, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL
+)
+# a status unchanged this long (s) is said again, so that a node judging it once a second (its 1 Hz
+# timer, whose ticks jitter) says it every second: a silent status topic is a node that died
+STATUS_HEARTBEAT_S = 0.9
+
+STATUS_CODES = {
+    Status.WAITING: LocalisationStatus.WAITING,
+    Status.TRACKING: LocalisationStatus.TRACKING,
+    Status.DEGRADED: LocalisationStatus.DEGRADED,
+    Status.LOST: LocalisationStatus.LOST,
+}
+
+
+class StatusTopic:
+    """Publishes a node's verdict (beams_common.health) at once when its status or message changes,
+    and again when STATUS_HEARTBEAT_S has passed since it last said it."""
+
+    def __init__(self, node: Node, topic: str) -> None:
+        self.node = node
+        self.publisher = node.create_publisher(LocalisationStatus, topic, STATUS_QOS)
+        self._said: tuple[Status, str] | None = None
+        self._said_ns = 0
+
+    def say(self, verdict: Verdict) -> None:
+        now = self.node.get_clock().now()
+        said = (verdict.status, verdict.message)
+        if said == self._said and now.nanoseconds - self._said_ns < STATUS_HEARTBEAT_S * 1e9:
+            return
+        message = LocalisationStatus(status=STATUS_CODES[verdict.status], message=verdict.message)
+        message.header.stamp = now.to_msg()
+        self.publisher.publish(message)
+        self._said, self._said_ns = said, now.nanoseconds
