@@ -1,0 +1,149 @@
+"""The band a consistent filter's mean NEES over a time window falls in, its samples being correlated.
+
+Bar-Shalom, Li and Kirubarajan ("Estimation with Applications to Tracking and Navigation", 2001, section
+5.4.2): the NEES e' P^-1 e of a consistent filter's n-dimensional error is chi-square with n degrees of
+freedom, and the mean of N independent NEES samples is chi2(n N) / N, whose two-sided 95 % quantiles are
+the band the mean must fall in. Along one run the samples are not independent: the error of a filter
+that updates ten times a second wanders slowly (odometry drift between fixes, the bias states' error), so
+the mean over a window of N samples varies as that of fewer independent ones, N_eff = N / tau, tau the
+integrated autocorrelation time of the NEES in samples (Sokal 1997, "Monte Carlo methods in statistical
+mechanics", section 3):
+
+    tau = 1 + 2 sum_{j >= 1} rho(j),     Var(mean of N) = Var(NEES) tau_N / N,
+    tau_N = 1 + 2 sum_{j=1}^{N-1} (1 - j / N) rho(j)     (the finite window's exact weights),
+
+rho the NEES's autocorrelation at lag j. The window mean of a consistent filter is then taken as
+chi2(n N_eff) / N_eff with N_eff = N / tau_N: the Satterthwaite (Welch) approximation of a correlated
+sum of squared Gaussians by a chi-square with the same mean (n) and variance (2 n / N_eff). For the
+AR(1) and i.i.d. processes of the tests it covers 95 % of the windows (test_nees_band.py); a Monte-Carlo
+band from a Gaussian process of the same autocorrelation would be exact for Gaussian errors, but needs
+the error components' cross-correlations, which a NEES series does not give.
+
+Why the NEES's own autocorrelation rather than the normalised error components': the window mean's
+variance is the NEES's (a fourth moment of the errors); for Gaussian errors z = L^-1 e with
+E[z_k z_(k+j)'] = C(j) it is 2 |C(j)|_F^2, so the NEES's rho(j) = |C(j)|_F^2 / n, the square of the
+components' correlation: a correlation time roughly half the components'. Estimated on the NEES itself it
+needs no Gaussian assumption (a heavy-tailed or scale-wandering error shows), and a NEES series with
+stamps is what every replay gives. rho is estimated about the pooled mean of all runs (not each run's):
+a run whose errors stay large for its whole length is the long correlation the band must account for.
+
+The sum is cut at Sokal's automatic window, the smallest M with M >= c tau(M) (c = 5): past it the
+estimated rho is mostly noise. The stamps' mean interval turns samples into seconds (the replays give
+one sample per bearing, about 30 a second, nearly evenly spread).
+"""
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.stats import chi2
+
+# Sokal's window: the autocorrelation summed up to the first lag M >= SOKAL_WINDOW_C * tau(M)
+SOKAL_WINDOW_C = 5.0
+# a pose's NEES: x, y, heading
+POSE_DOF = 3
+
+
+@dataclass(frozen=True)
+class NeesCorrelation:
+    """The NEES's autocorrelation (lags 0..M, in samples, M Sokal's window) and its sampling, estimated
+    from one or more runs: what the band of a window mean needs."""
+
+    autocorrelation: np.ndarray  # rho(0) = 1, rho(1), ..., rho(M)
+    sample_interval_s: float
+    samples: int  # over all runs
+    # True when Sokal's window was found before the longest lag the runs allow
+    converged: bool
+    dof: int = POSE_DOF
+
+    @property
+    def tau_samples(self) -> float:
+        """The integrated autocorrelation time 1 + 2 sum_{j=1}^{M} rho(j) (samples), at least 1: a
+        Gaussian error's NEES is never anti-correlated (rho = |C|_F^2 / n)."""
+        return max(1.0 + 2.0 * float(np.sum(self.autocorrelation[1:])), 1.0)
+
+    @property
+    def tau_s(self) -> float:
+        """The integrated autocorrelation time in seconds."""
+        return self.tau_samples * self.sample_interval_s
+
+    def effective_samples(self, window_s: float) -> float:
+        """N_eff = N / tau_N of a window of window_s seconds (N samples), tau_N with the finite
+        window's weights (1 - j / N): the independent samples its mean is worth."""
+        n = max(window_s / self.sample_interval_s, 1.0)
+        lags = np.arange(1, min(len(self.autocorrelation), int(np.ceil(n))))
+        tau_n = 1.0 + 2.0 * float(np.sum((1.0 - lags / n) * self.autocorrelation[lags]))
+        return n / max(tau_n, 1.0)
+
+    def band(self, window_s: float, probability: float = 0.95) -> tuple[float, float]:
+        """The two-sided `probability` band of a consistent filter's mean NEES over window_s seconds:
+        chi2.ppf((1 -+ p) / 2, dof N_eff) / N_eff (Bar-Shalom et al. 5.4.2, N_eff for N)."""
+        return chi_square_mean_band(self.effective_samples(window_s), probability, self.dof)
+
+
+def chi_square_mean_band(
+    effective_samples: float, probability: float = 0.95, dof: int = POSE_DOF
+) -> tuple[float, float]:
+    """Two-sided band of the mean of `effective_samples` independent chi-square (dof) draws."""
+    tails = np.array([(1.0 - probability) / 2.0, (1.0 + probability) / 2.0])
+    low, high = chi2.ppf(tails, dof * effective_samples) / effective_samples
+    return float(low), float(high)
+
+
+def _autocovariance_sums(values: np.ndarray) -> np.ndarray:
+    """sum_k x_k x_(k+j) for every lag j of one series (FFT, zero-padded: no circular wrap)."""
+    spectrum = np.fft.rfft(values, 2 * len(values))
+    return np.fft.irfft(spectrum * np.conj(spectrum))[: len(values)]
+
+
+def nees_correlation(
+    runs: Sequence[tuple[ArrayLike, ArrayLike]], dof: int = POSE_DOF, window_c: float = SOKAL_WINDOW_C
+) -> NeesCorrelation:
+    """The NEES's autocorrelation pooled over runs, each (stamps_s, nees) in time order.
+
+    rho(j) = sum over runs and k of (x_k - m)(x_(k+j) - m) / sum of (x_k - m)^2, m the pooled mean (the
+    biased estimator: its error shrinks at long lags); cut at Sokal's window."""
+    series = [np.asarray(nees, dtype=float) for _, nees in runs]
+    stamps = [np.asarray(t, dtype=float) for t, _ in runs]
+    if not series or any(len(v) < 2 or len(v) != len(t) for v, t in zip(series, stamps, strict=True)):
+        raise ValueError("nees_correlation: every run needs two or more (stamp, NEES) samples")
+    if not all(np.all(np.isfinite(v)) for v in series):
+        raise ValueError("nees_correlation: a NEES is not finite")
+    mean = float(np.mean(np.concatenate(series)))
+    longest = max(len(v) for v in series)
+    sums = np.zeros(longest)
+    for values in series:
+        sums[: len(values)] += _autocovariance_sums(values - mean)
+    if not sums[0] > 0.0:
+        raise ValueError("nees_correlation: the NEES does not vary")
+    rho = sums / sums[0]
+    taus = 1.0 + 2.0 * np.cumsum(rho[1:])
+    lags = np.arange(1, longest)
+    within = np.nonzero(lags >= window_c * taus)[0]
+    window = int(lags[within[0]]) if len(within) else longest - 1
+    duration_s = sum(float(t[-1] - t[0]) for t in stamps)
+    interval_s = duration_s / sum(len(t) - 1 for t in stamps)
+    if not interval_s > 0.0:
+        raise ValueError("nees_correlation: the stamps do not advance")
+    return NeesCorrelation(
+        rho[: window + 1].copy(), interval_s, sum(map(len, series)), bool(len(within)), dof
+    )
+
+
+def window_means(
+    stamps_s: ArrayLike,
+    nees: ArrayLike,
+    windows_s: Sequence[tuple[float, float]],
+    origin_s: float | None = None,
+) -> list[float | None]:
+    """The mean NEES over each window [start, end) of time since origin_s (default: the first stamp);
+    None for an empty one."""
+    t = np.asarray(stamps_s, dtype=float)
+    values = np.asarray(nees, dtype=float)
+    t = t - (t[0] if origin_s is None else origin_s)
+    means: list[float | None] = []
+    for start_s, end_s in windows_s:
+        keep = (t >= start_s) & (t < end_s)
+        means.append(float(values[keep].mean()) if keep.any() else None)
+    return means
