@@ -54,6 +54,7 @@ from beams_driver.parameters import (
     SENSOR_PARAMETERS,
     VARIANCE_PARAMETERS,
     codes_of,
+    corrected_variance_of,
     variance_model_of,
 )
 from beams_msgs.msg import BeaconBearingArray
@@ -424,12 +425,17 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
             self.diagnostics.set_level("warn", f"{UNCALIBRATED}; {status}")
 
     def _bearing_fields(self, decoded) -> BearingFields:
-        """A decoded bearing, corrected by the calibration (power and rotation bias)."""
+        """A decoded bearing, corrected by the calibration (power and rotation bias), its variance with
+        what the power-bias correction at the noisy decoded window adds."""
+        variance = decoded.variance
+        if not self.correction.is_identity and self.decoder is not None:
+            published = corrected_variance_of(self.decoder.variance_model, self.correction)
+            variance = published.variance(decoded.beacon_id, decoded.angular_window)
         return BearingFields(
             stamp_ns=nanoseconds(decoded.stamp_s),
             beacon_id=decoded.beacon_id,
             bearing_rad=float(wrap_to_pi(self.correction.correct(decoded.bearing, decoded.angular_window))),
-            variance_rad2=decoded.variance,
+            variance_rad2=variance,
             angular_window_rad=decoded.angular_window,
             rising_angle_rad=decoded.rising_angle,
             falling_angle_rad=decoded.falling_angle,

@@ -10,13 +10,14 @@ exit or to wait for a lifecycle manager when another parameter is bad; DRIVER_PA
 from collections.abc import Mapping
 from typing import Any
 
+from beams_common.bearing_correction import BearingCorrection
 from beams_common.geometry_parameters import CALIBRATION_FILE
 from beams_common.parameters import ParameterSpec, ParameterTable
 from beams_driver.codes import BIT_TIME_S, BeaconCode, code_family, codes_from_strings, validate_codes
 from beams_driver.decoder import MIN_CODES_SEEN
 from beams_driver.receiver import ReceiverModel
 from beams_driver.sensor_sim import SensorSimConfig
-from beams_driver.variance import VARIANCE_MODES, VarianceModel
+from beams_driver.variance import VARIANCE_MODES, CorrectedVariance, VarianceModel, split_natural_variance
 
 # The defaults describe the receiver the simulated sensor emulates by default (sim_noise_model
 # thesis_hardware, sections 5.5-5.7), so that the nodes run with no parameter publish honest variances.
@@ -84,6 +85,16 @@ def variance_model_of(
         constant_variance_rad2=values["constant_variance_rad2"],
         min_burst_fraction=receiver.min_burst_fraction,
         min_burst_gap_exponent=receiver.min_burst_gap_exponent,
+    )
+
+
+def corrected_variance_of(model: VarianceModel, correction: BearingCorrection) -> CorrectedVariance:
+    """The variance the driver publishes for a bearing the calibration corrects: the model's, plus what the
+    power-bias correction at the noisy decoded window adds (eq. 7.18-7.19 to first order,
+    `CorrectedVariance`), the model's natural variance split between the two edges as the thesis
+    hardware's receiver splits it (fig. 5.3: its AGC makes the rising edge the noisier)."""
+    return CorrectedVariance(
+        model, correction, split_natural_variance(model, _THESIS_HARDWARE.hardware.rising_share)
     )
 
 

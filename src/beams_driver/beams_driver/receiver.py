@@ -139,6 +139,12 @@ class HardwareNoise:
         falling = self.falling_variance_deg2[0] + fraction * np.diff(self.falling_variance_deg2)[0]
         return np.sqrt(rising * scale), np.sqrt(falling * scale)
 
+    def rising_share(self, window_rad: float) -> float:
+        """sigma_r^2 / (sigma_r^2 + sigma_f^2) at window w (rad): the rising edge's share of the edge noise
+        (fig. 5.3: 0.96 at the smallest window, 0.86 at the largest; the same for every code)."""
+        rising, falling = self.edge_std_rad(window_rad, None)
+        return float(rising**2 / (rising**2 + falling**2))
+
     def off_gain(self, code: BeaconCode | None) -> float:
         """Factor on the natural variance for a code's OFF periods (1 for C_k and one-bit gaps)."""
         if code is None:

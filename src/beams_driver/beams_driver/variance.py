@@ -12,12 +12,14 @@
 
 from bisect import bisect_right
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike
 
+from beams_common.bearing_correction import BearingCorrection
 from beams_driver.codes import BeaconCode, first_last_edges, is_family_code
 from beams_driver.edges import TURRET_SPEED_RAD_S
 from beams_driver.receiver import ReceiverModel
@@ -333,3 +335,52 @@ class VarianceModel:
         if self._codes.get(code.code_id) is code:
             return self._families[code.code_id]
         return is_family_code(code) if self.min_burst_fraction == 0.0 else None
+
+
+# (rising, falling) edge-noise variances (rad^2) of a code's window: what the power-bias correction's
+# variance needs of the receiver
+EdgeVariances = Callable[[BeaconCode, float], tuple[float, float]]
+
+
+@dataclass(frozen=True)
+class CorrectedVariance:
+    """The variance (rad^2) of a bearing the power-bias correction moved: a VarianceSource.
+
+    The correction subtracts f(w^) at the decoded window w^ (eq. 7.18, f of eq. 7.19), which is noisy: to
+    first order in the window error dw, with f' = df/dw (`BearingCorrection.power_bias_slope`, 0 where
+    the window is clamped),
+
+        Var(phi^ - f(w^)) = Var(phi^) + f'^2 Var(w^) - 2 f' Cov(phi^, w^).
+
+    phi^ = (r + f) / 2 and w^ = f - r come from the first rising and last falling edges (eq. 2.5): their
+    edge noise, of variances sigma_r^2 and sigma_f^2 (independent), gives Var(w^) = sigma_r^2 +
+    sigma_f^2 and Cov = (sigma_f^2 - sigma_r^2) / 2; the code's own window variance
+    (`VarianceModel.window_variance_rad2`) adds to Var(w^), uncorrelated with the bearing's error (the
+    rising and falling delays of a code are alike). Var(phi^) is the model's.
+    """
+
+    model: VarianceModel
+    correction: BearingCorrection
+    edge_variances_rad2: EdgeVariances
+
+    def variance(self, code: int | BeaconCode, angular_window_rad: float) -> float:
+        variance = float(self.model.variance(code, angular_window_rad))
+        slope = float(self.correction.power_bias_slope(angular_window_rad))
+        if slope == 0.0:
+            return variance
+        code = self.model.code(code)
+        rising, falling = self.edge_variances_rad2(code, angular_window_rad)
+        window_variance = rising + falling + float(self.model.window_variance_rad2(code, angular_window_rad))
+        return variance + slope**2 * window_variance + slope * (rising - falling)
+
+
+def split_natural_variance(model: VarianceModel, rising_share: Callable[[float], float]) -> EdgeVariances:
+    """The model's natural variance, (sigma_r^2 + sigma_f^2) / 4 (eq. 3.13 with independent edges), as
+    the two edges' variances, the rising edge's share of them given by `rising_share(window)`."""
+
+    def edge_variances(code: BeaconCode, angular_window_rad: float) -> tuple[float, float]:
+        edges = 4.0 * float(model.natural_variance(angular_window_rad))
+        share = rising_share(angular_window_rad)
+        return edges * share, edges * (1.0 - share)
+
+    return edge_variances

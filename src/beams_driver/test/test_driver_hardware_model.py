@@ -254,3 +254,74 @@ def test_window_variance_is_the_codes_outer_edges_variance(window_bits):
     measured = np.var(falling - rising) * HARDWARE.turret_speed_rad_s**2
     predicted = model.window_variance_rad2(code, window_s * HARDWARE.turret_speed_rad_s)
     assert predicted == pytest.approx(measured, rel=0.02, abs=1e-4 * PHI0_RAD**2)
+
+
+class _EdgeNoiseOnly:
+    """A variance model of edge noise alone (no code: no window variance of its own), for the
+    propagation through the power-bias correction."""
+
+    def __init__(self, rising_rad2: float, falling_rad2: float) -> None:
+        self.edges = (rising_rad2, falling_rad2)
+
+    def code(self, code):
+        return code
+
+    def variance(self, code, angular_window_rad):
+        return sum(self.edges) / 4.0
+
+    def window_variance_rad2(self, code, angular_window_rad):
+        return 0.0
+
+
+@settings(max_examples=20, deadline=None)
+@given(fraction=st.floats(0.0, 1.0), seed=st.integers(0, 2**32 - 1))
+def test_corrected_variance_is_the_spread_of_bearings_corrected_at_their_noisy_window(fraction, seed):
+    """Edges jittered as the thesis hardware's at a window (rising the noisier, fig. 5.3), the bearing and
+    window of eq. 2.5, the bias corrected at the noisy window (eq. 7.18): the corrected bearings' spread
+    is CorrectedVariance's, with its cross term (its sign flipped fails this), not the
+    uncorrected bearing's variance."""
+    from beams_driver.variance import CorrectedVariance
+
+    noise = HARDWARE.hardware
+    correction = noise.power_bias_correction()
+    low, high = noise.window_range_rad
+    window = low + 0.005 + fraction * (high - low - 0.01)
+    rising_std, falling_std = (float(s) for s in noise.edge_std_rad(window, None))
+    rng = np.random.default_rng(seed)
+    samples = 40000
+    rising = -window / 2 + rising_std * rng.standard_normal(samples)
+    falling = window / 2 + falling_std * rng.standard_normal(samples)
+    decoded_window = falling - rising
+    corrected = (rising + falling) / 2 - np.asarray(correction.power_bias(decoded_window))
+    model = _EdgeNoiseOnly(rising_std**2, falling_std**2)
+    published = CorrectedVariance(model, correction, lambda code, w: model.edges).variance(None, window)
+    # 40000 samples: the sample variance within 1.5 % (1 sd), 6 % is 4 sd
+    assert np.var(corrected) == pytest.approx(published, rel=0.06)
+    assert CorrectedVariance(model, correction, lambda code, w: model.edges).variance(None, high + 0.01) == (
+        model.variance(None, high + 0.01)
+    )
+
+
+def test_the_driver_splits_its_natural_variance_as_the_thesis_receiver():
+    """parameters.corrected_variance_of: the natural variance (sigma_r^2 + sigma_f^2) / 4 split as fig. 5.3
+    (the rising edge 0.96 of it at the smallest window, 0.86 at the largest), so the published variance
+    of a corrected bearing is what the simulator's true edge noise gives at the default natural variance."""
+    from beams_driver.parameters import SENSOR_PARAMETERS, corrected_variance_of, variance_model_of
+    from beams_driver.variance import CorrectedVariance
+
+    noise = HARDWARE.hardware
+    low, high = noise.window_range_rad
+    assert noise.rising_share(low) == pytest.approx(0.0018 / (0.0018 + 0.000066))
+    assert noise.rising_share(high) == pytest.approx(0.0137 / (0.0137 + 0.0023))
+    model = variance_model_of(SENSOR_PARAMETERS.defaults(), HARDWARE.codes, HARDWARE)
+    correction = noise.power_bias_correction()
+
+    def true_edges(code, window):
+        return tuple(float(s) ** 2 for s in noise.edge_std_rad(window, code))
+
+    simulated = CorrectedVariance(model, correction, true_edges)
+    published = corrected_variance_of(model, correction)
+    for window in np.linspace(low + 0.002, high - 0.002, 7):
+        code = HARDWARE.codes[0].code_id
+        assert published.variance(code, window) == pytest.approx(simulated.variance(code, window), rel=0.02)
+    assert published.variance(code, 0.0) == model.variance(code, 0.0)  # below the range: held, slope 0

@@ -39,7 +39,7 @@ from beams_driver.sensor_sim import (
     SimulatedBeacon,
     beacons_from_map,
 )
-from beams_driver.variance import VarianceModel
+from beams_driver.variance import CorrectedVariance, EdgeVariances, VarianceModel
 from beams_sim.sim_source import SIM_NOISE_MODELS
 from beams_sim.world import (
     MATCH_DURATION_S,
@@ -230,30 +230,15 @@ def calibration_of(config: SensorSimConfig) -> BearingCorrection:
     return config.hardware.power_bias_correction() if config.hardware is not None else BearingCorrection()
 
 
-@dataclass(frozen=True)
-class CorrectedVariance:
-    """The variance (rad^2) of a bearing the power-bias correction moved: a VarianceSource for the decoder.
+def simulated_edge_variances(config: SensorSimConfig) -> EdgeVariances:
+    """The simulated receiver's true (rising, falling) edge-noise variances (rad^2) at a window, for the
+    power-bias correction's variance (`beams_driver.variance.CorrectedVariance`)."""
 
-    The correction subtracts f(w) at the decoded window (eq. 7.18), so the window's error enters the
-    bearing through the slope f'(w): to first order, with bearing error db and window error dw,
-    Var = Var(db) + f'^2 Var(dw) - 2 f' Cov(db, dw). The receiver's edge noise (sigma_r, sigma_f of
-    `HardwareNoise`, before the code) gives Var(dw) = sigma_r^2 + sigma_f^2 plus the code's own window
-    variance and Cov(db, dw) = (sigma_f^2 - sigma_r^2) / 2 (the code part is uncorrelated: its rising
-    and falling delays are alike). Var(db) is the driver's model.
-    """
+    def edge_variances(code: BeaconCode, angular_window_rad: float) -> tuple[float, float]:
+        rising, falling = config.hardware.edge_std_rad(angular_window_rad, code)
+        return float(rising) ** 2, float(falling) ** 2
 
-    model: VarianceModel
-    config: SensorSimConfig
-    correction: BearingCorrection
-
-    def variance(self, code: int | BeaconCode, angular_window_rad: float) -> float:
-        variance = float(self.model.variance(code, angular_window_rad))
-        slope = float(self.correction.power_bias_slope(angular_window_rad))
-        if slope == 0.0 or self.config.hardware is None:
-            return variance
-        rising, falling = self.config.hardware.edge_std_rad(angular_window_rad, self.model.code(code))
-        window_variance = rising**2 + falling**2 + self.model.window_variance_rad2(code, angular_window_rad)
-        return variance + float(slope**2 * window_variance + slope * (rising**2 - falling**2))
+    return edge_variances
 
 
 def calibrated_match(
@@ -268,7 +253,11 @@ def calibrated_match(
     config = sensor_config_of(sensor_model)
     correction = calibration_of(config)
     model = default_variance_model(config.codes, config, table_natural_variance_rad2(config))
-    variance = model if correction.is_identity else CorrectedVariance(model, config, correction)
+    variance = (
+        model
+        if correction.is_identity
+        else CorrectedVariance(model, correction, simulated_edge_variances(config))
+    )
     match = simulate_match(duration_s, seed, sensor_config=config, variance_model=variance, **options)  # type: ignore[arg-type]
     return match if correction.is_identity else match.corrected(correction)
 
