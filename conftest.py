@@ -60,7 +60,7 @@ FILE_SECONDS = {
     "test_bag_replay.py": 19,
     "test_parameters.py": 18,
     "test_driver_serial_integrity.py": 17,
-    "test_self_calibration.py": 15,
+    "test_self_calibration.py": 17,
     "test_ekf_lost_detection.py": 15,
     "test_driver_decoder.py": 13,
     "test_triangulation_node.py": 12,

@@ -19,6 +19,11 @@ ratio RMS / bound says what is left to gain. The self-calibrated curve's error i
 windows of (estimated - true bias). Each mean NEES comes with its range over the seeds (one seed's
 mean over the period).
 
+Each run's 30 s windows (six in 180 s, the first from SETTLE_S) are also held to the band a consistent
+filter's window mean falls in with 95 % probability (beams_ekf.nees_band: the NEES's integrated
+autocorrelation time pooled over the seeds, N_eff = 30 s / tau, chi2(3 N_eff) / N_eff), and to issue 19's
+2.0-4.5: how many of the seeds x windows fall outside each.
+
 Usage: python bench/bench_self_calibration.py [--seeds N] [--duration S]
 """
 
@@ -31,8 +36,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from bench_ekf_consistency import START_SIGMA, match_bound
 
-from beams_driver.parameters import SENSOR_PARAMETERS, variance_model_of
+from beams_driver.parameters import SENSOR_PARAMETERS, corrected_variance_of, variance_model_of
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
+from beams_ekf.nees_band import NeesCorrelation, nees_correlation, window_means
 from beams_ekf.power_bias_states import PowerBiasStates
 from beams_sim.simulated_match import SimulatedMatch, calibration_of, sensor_config_of, simulate_match
 from beams_thesis.match_replay import match_fixes, replay_match
@@ -44,15 +50,29 @@ SETTLE_S = 1.0
 # the figures of each period: from the start, after 30 s, 60 s and 120 s of self-calibration
 PERIODS_S = ((SETTLE_S, 30.0), (30.0, 60.0), (60.0, 120.0), (120.0, 180.0))
 SENSOR_MODEL = "thesis_hardware"
+# one seed's 30 s windows of the match, each held to the consistent band and to issue 19's
+WINDOW_S = 30.0
+ISSUE_NEES_BAND = (2.0, 4.5)
+
+
+def windows_of(duration_s: float) -> list[tuple[float, float]]:
+    """The whole 30 s windows of a match, the first from SETTLE_S (ToTal's first fix settling)."""
+    return [(max(start, SETTLE_S), start + WINDOW_S) for start in np.arange(0.0, duration_s - 1e-9, WINDOW_S)]
 
 
 def default_driver_match(duration_s: float, seed: int, calibrated: bool) -> SimulatedMatch:
     """A match of the thesis hardware as driver_node publishes it with its defaults: its variance model,
-    and, `calibrated`, the bearings corrected by a perfect chapter-7 calibration."""
+    and, `calibrated`, the bearings corrected by a perfect chapter-7 calibration, their variance with what
+    the correction at the noisy decoded window adds (`corrected_variance_of`, as the driver publishes)."""
     config = sensor_config_of(SENSOR_MODEL)
     model = variance_model_of(SENSOR_PARAMETERS.defaults(), config.codes, config)
-    match = simulate_match(duration_s, seed, sensor_config=config, variance_model=model)
-    return match.corrected(calibration_of(config)) if calibrated else match
+    if not calibrated:
+        return simulate_match(duration_s, seed, sensor_config=config, variance_model=model)
+    correction = calibration_of(config)
+    variance = corrected_variance_of(model, correction)
+    return simulate_match(duration_s, seed, sensor_config=config, variance_model=variance).corrected(
+        correction
+    )
 
 
 def filter_of(match: SimulatedMatch, power_bias: PowerBiasStates | None) -> Localiser:
@@ -78,6 +98,25 @@ def nees(result: ReplayResult) -> np.ndarray:
     return np.einsum("ki,kij,kj->k", errors, np.linalg.inv(result.covariances), errors)
 
 
+def nees_series(result: ReplayResult) -> tuple[np.ndarray, np.ndarray]:
+    """(time since the first estimate, NEES) of a replay from SETTLE_S on."""
+    t = result.times_s - result.times_s[0]
+    return t[t >= SETTLE_S], nees(result)[t >= SETTLE_S]
+
+
+def windows_against_band(
+    series: list[tuple[np.ndarray, np.ndarray]], duration_s: float, probability: float = 0.95
+) -> tuple[NeesCorrelation, np.ndarray, np.ndarray]:
+    """The NEES's correlation pooled over the seeds' series, each seed's mean over each 30 s window
+    (seeds x windows) and the band a consistent filter's mean falls in with `probability` for each
+    window (windows x 2, from the pooled correlation, not the window's own)."""
+    correlation = nees_correlation(series)
+    windows = windows_of(duration_s)
+    means = np.array([window_means(t, values, windows, 0.0) for t, values in series], dtype=float)
+    bands = [correlation.band(end - start, probability) for start, end in windows]
+    return correlation, means, np.array(bands)
+
+
 def bias_curve_error_rad(localiser: Localiser, match: SimulatedMatch) -> float:
     """RMS over the windows the table gives (0.2 m to 3.7 m from a beacon) of the estimated power bias
     minus the simulated one, both less their mean (a constant bias is the heading's)."""
@@ -98,14 +137,17 @@ class Pool:
     errors: dict[tuple[float, float], list[np.ndarray]]
     nees: dict[tuple[float, float], list[np.ndarray]]
     bounds: dict[tuple[float, float], list[np.ndarray]]
+    # per seed: (time since the first estimate, NEES) from SETTLE_S on
+    series: list[tuple[np.ndarray, np.ndarray]]
 
     @classmethod
     def empty(cls) -> "Pool":
-        return cls(*({p: [] for p in PERIODS_S} for _ in range(3)))
+        return cls(*({p: [] for p in PERIODS_S} for _ in range(3)), [])
 
     def add(self, result: ReplayResult, bound) -> None:
         t = result.times_s - result.times_s[0]
         values = nees(result)
+        self.series.append(nees_series(result))
         for period in PERIODS_S:
             keep = (t >= period[0]) & (t < period[1])
             if keep.any():
@@ -127,6 +169,39 @@ class Pool:
             "nees_seed_max": max(per_seed),
             "bound_m": float(np.sqrt(np.mean(bound[:, 0, 0] + bound[:, 1, 1]))),
         }
+
+    def window_rows(self, name: str, duration_s: float) -> list[tuple[str, float, str, str]]:
+        """The 30 s windows of every seed against the consistent band (from the NEES's correlation pooled
+        over the seeds) and against issue 19's band."""
+        correlation, means, bands = windows_against_band(self.series, duration_s)
+        below, above = (means < bands[:, 0]).sum(), (means > bands[:, 1]).sum()
+        issue_below, issue_above = (means < ISSUE_NEES_BAND[0]).sum(), (means > ISSUE_NEES_BAND[1]).sum()
+        low, high = correlation.band(WINDOW_S)
+        count = f"of {means.size} ({means.shape[1]} windows x {means.shape[0]} seeds)"
+        return [
+            (
+                f"{name}: NEES integrated autocorrelation time, pooled over the seeds",
+                correlation.tau_s,
+                "s",
+                f"{correlation.tau_samples:.0f} samples of {1000 * correlation.sample_interval_s:.0f} ms"
+                f"{'' if correlation.converged else ' (window not converged)'}; N_eff "
+                f"{correlation.effective_samples(WINDOW_S):.1f} per 30 s window: consistent 95 % band of "
+                f"its mean NEES {low:.2f}-{high:.2f}",
+            ),
+            (
+                f"{name}: 30 s windows outside the consistent 95 % band",
+                int(below + above),
+                "windows",
+                f"{count}: {below} below, {above} above (5 % expected: {0.05 * means.size:.1f}); "
+                f"window means {np.min(means):.2f}-{np.max(means):.2f}",
+            ),
+            (
+                f"{name}: 30 s windows outside 2.0-4.5",
+                int(issue_below + issue_above),
+                "windows",
+                f"{count}: {issue_below} below, {issue_above} above (issue 19's band)",
+            ),
+        ]
 
 
 RUNS = (
@@ -177,6 +252,8 @@ def rows(
                     f"(ratio {f['rms_m'] / calibrated_rms[period]:.2f}, goal <= 1.3 after 60 s)",
                 ),
             ]
+    for name, _, _ in RUNS:
+        table += pools[name].window_rows(name, duration_s)
     table.append(
         (
             f"self-calibrated power-bias curve error at {duration_s:.0f} s (RMS over the table's windows, "
