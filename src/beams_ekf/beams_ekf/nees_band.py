@@ -28,8 +28,8 @@ stamps is what every replay gives. rho is estimated about the pooled mean of all
 a run whose errors stay large for its whole length is the long correlation the band must account for.
 
 The sum is cut at Sokal's automatic window, the smallest M with M >= c tau(M) (c = 5): past it the
-estimated rho is mostly noise. The stamps' mean interval turns samples into seconds (the replays give
-one sample per bearing, about 30 a second, nearly evenly spread).
+estimated rho is mostly noise. The stamps' mean interval turns samples into seconds (the match replays
+give one sample per revolution, 10 a second, evenly spread; the lags are counted in samples).
 """
 
 from collections.abc import Sequence
