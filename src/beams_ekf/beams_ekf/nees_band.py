@@ -12,12 +12,19 @@ mechanics", section 3):
     tau = 1 + 2 sum_{j >= 1} rho(j),     Var(mean of N) = Var(NEES) tau_N / N,
     tau_N = 1 + 2 sum_{j=1}^{N-1} (1 - j / N) rho(j)     (the finite window's exact weights),
 
-rho the NEES's autocorrelation at lag j. The window mean of a consistent filter is then taken as
-chi2(n N_eff) / N_eff with N_eff = N / tau_N: the Satterthwaite (Welch) approximation of a correlated
-sum of squared Gaussians by a chi-square with the same mean (n) and variance (2 n / N_eff). For the
-AR(1) and i.i.d. processes of the tests it covers 95 % of the windows (test_nees_band.py); a Monte-Carlo
-band from a Gaussian process of the same autocorrelation would be exact for Gaussian errors, but needs
-the error components' cross-correlations, which a NEES series does not give.
+rho the NEES's autocorrelation at lag j. Two bands of a consistent filter's window mean follow:
+
+- `NeesCorrelation.band`: chi2(n N_eff) / N_eff with N_eff = N / tau_N, the Satterthwaite (Welch)
+  approximation of a correlated sum of squared Gaussians by a chi-square of the same mean (n) and
+  variance (2 n / N_eff). Exact in its first two moments only: for an AR(1) error it puts 2.5 % of the
+  windows on each side, but for an error with a fast and a slow part (a filter's: the noise between
+  fixes, the learnt states' slow error) the true sum is more skewed (its third cumulant 8 sum lambda^3
+  exceeds the chi-square's by Cauchy-Schwarz) and the band sits low: under 1 % of the windows below it,
+  4-5 % above (test_nees_band.py).
+- `gaussian_window_band`: the quantiles of the window means of a stationary Gaussian error whose NEES
+  has this autocorrelation, by Monte-Carlo: the skewness of the correlated sum included. It assumes the
+  normalised error's components share one autocorrelation and are uncorrelated with each other (a NEES
+  series cannot tell more); it is the band the benches hold the filters to.
 
 Why the NEES's own autocorrelation rather than the normalised error components': the window mean's
 variance is the NEES's (a fourth moment of the errors); for Gaussian errors z = L^-1 e with
@@ -147,3 +154,44 @@ def window_means(
         keep = (t >= start_s) & (t < end_s)
         means.append(float(values[keep].mean()) if keep.any() else None)
     return means
+
+
+def gaussian_window_band(
+    correlation: NeesCorrelation,
+    window_s: float,
+    probability: float = 0.95,
+    windows: int = 20000,
+    seed: int = 0,
+) -> tuple[float, float]:
+    """The Monte-Carlo band of a consistent filter's mean NEES over window_s seconds: the quantiles of the
+    window means of a stationary Gaussian error whose NEES has `correlation`'s autocorrelation.
+
+    Its `dof` components are independent, each of autocorrelation r(j) = sqrt(rho(j)) (the NEES of such
+    an error has rho(j) = r(j)^2, |C(j)|_F^2 / dof), drawn by circulant embedding (Dietrich and Newsam
+    1997: the autocorrelation on a circle, its spectrum's negative parts from the truncation set to 0).
+    Where the chi-square band matches the mean and variance only, this one has the skewness of such a
+    sum of correlated squares (heavier on the high side). What it assumes that a NEES series cannot
+    tell: the components share one autocorrelation and are uncorrelated with each other."""
+    rho = np.clip(correlation.autocorrelation, 0.0, None)
+    r = np.sqrt(rho)
+    n = max(round(window_s / correlation.sample_interval_s), 1)
+    length = 1 << int(np.ceil(np.log2(max(64 * n, 4 * len(r)))))
+    circle = np.zeros(length)
+    circle[: len(r)] = r
+    circle[length - len(r) + 1 :] = r[1:][::-1]
+    spectrum = np.clip(np.fft.fft(circle).real, 0.0, None)
+    scale = np.sqrt(spectrum / length) / np.sqrt(spectrum.mean())  # unit variance after the clipping
+    rng = np.random.default_rng(seed)
+    per_draw = length // n
+    means: list[np.ndarray] = []
+    while sum(map(len, means)) < windows:
+        # each complex draw gives two independent components (its real and imaginary parts)
+        draws = [np.fft.fft(scale * (rng.standard_normal(length) + 1j * rng.standard_normal(length)))]
+        while 2 * len(draws) < correlation.dof:
+            draws.append(np.fft.fft(scale * (rng.standard_normal(length) + 1j * rng.standard_normal(length))))
+        components = [part for d in draws for part in (d.real, d.imag)][: correlation.dof]
+        nees = np.sum(np.square(components), axis=0)
+        means.append(nees[: per_draw * n].reshape(per_draw, n).mean(axis=1))
+    tails = [(1.0 - probability) / 2.0, (1.0 + probability) / 2.0]
+    low, high = np.quantile(np.concatenate(means), tails)
+    return float(low), float(high)

@@ -1,6 +1,7 @@
-"""The consistent band of a window's mean NEES (beams_ekf.nees_band) on synthetic errors whose answer is
-known: independent chi-square samples, an AR(1) Gaussian error of known correlation, a filter
-overconfident by a factor 2 in its covariance."""
+"""The consistent bands of a window's mean NEES (beams_ekf.nees_band: chi-square and Gaussian
+Monte-Carlo) on synthetic errors whose answer is known: independent chi-square samples, an AR(1)
+Gaussian error of known correlation, an error with a fast and a slow part (where the chi-square band's
+skew is too small), a filter overconfident by a factor 2 in its covariance."""
 
 import numpy as np
 import pytest
@@ -8,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.signal import lfilter
 
-from beams_ekf.nees_band import chi_square_mean_band, nees_correlation, window_means
+from beams_ekf.nees_band import chi_square_mean_band, gaussian_window_band, nees_correlation, window_means
 
 SAMPLE_INTERVAL_S = 0.1
 WINDOWS = 400  # synthetic windows per example: the coverage's binomial sd is 1.1 %
@@ -107,3 +108,41 @@ def test_window_means_and_refusals():
         nees_correlation([(t, np.full(len(t), np.nan))])
     with pytest.raises(ValueError, match="does not vary"):
         nees_correlation([(t, np.ones(len(t)))])
+
+
+def two_timescale_nees(rng: np.random.Generator, samples: int) -> np.ndarray:
+    """The NEES of an error with a fast part (0.7 per sample) and a slow one (0.99), half the variance
+    each: a filter's shape (the noise between fixes, the slow error of what it learns)."""
+    errors = np.sqrt(0.5) * ar1_errors(rng, 0.7, samples) + np.sqrt(0.5) * ar1_errors(rng, 0.99, samples)
+    return np.sum(errors**2, axis=1)
+
+
+@settings(max_examples=5, deadline=None)
+@given(seed=seeds, rho=st.floats(0.5, 0.95))
+def test_the_gaussian_band_of_an_ar1_error_covers_95_percent(seed, rho):
+    rng = np.random.default_rng(seed)
+    nees = np.sum(ar1_errors(rng, rho, WINDOWS * 300) ** 2, axis=1)
+    correlation = nees_correlation([(stamps(len(nees)), nees)])
+    band = gaussian_window_band(correlation, 30.0)
+    assert COVERAGE[0] <= coverage(nees, 300, band) <= COVERAGE[1]
+
+
+@settings(max_examples=5, deadline=None)
+@given(seed=seeds)
+def test_a_two_timescale_error_needs_the_gaussian_band_not_the_chi_square(seed):
+    """2000 windows of 30 s: the Gaussian band leaves 1-4.5 % of the window means on each side; the
+    chi-square band, of the right mean and variance but too little skew, under 1 % below it."""
+    rng = np.random.default_rng(seed)
+    nees = two_timescale_nees(rng, 2000 * 300)
+    correlation = nees_correlation([(stamps(len(nees)), nees)])
+    means = nees.reshape(-1, 300).mean(axis=1)
+    low, high = gaussian_window_band(correlation, 30.0)
+    assert 0.01 <= np.mean(means < low) <= 0.045
+    assert 0.01 <= np.mean(means > high) <= 0.045
+    assert np.mean(means < correlation.band(30.0)[0]) < 0.01
+
+
+def test_the_gaussian_band_of_independent_samples_is_the_chi_square_one():
+    nees = np.random.default_rng(0).chisquare(3, 30000)
+    correlation = nees_correlation([(stamps(len(nees)), nees)])
+    assert gaussian_window_band(correlation, 30.0) == pytest.approx(correlation.band(30.0), abs=0.02)
