@@ -177,25 +177,26 @@ def sensor_setup(sensor_model: str, output: pathlib.Path, calibrated: bool) -> S
     return SensorSetup(sensor_model, tuple(arguments), description)
 
 
-def node_commands(duration_s: float, sensor: SensorSetup) -> dict[str, list[str]]:
-    """The command of each robot node (installed executable, beams_params.yaml, the demo's overrides)."""
+def node_commands(duration_s: float, sensor: SensorSetup, standby: bool = True) -> dict[str, list[str]]:
+    """The command of each robot process (installed executable, beams_params.yaml, the demo's overrides),
+    by process name: a node with a hot standby has two (`RobotNode.processes`) unless `standby` is off."""
     params_file = installed_params_file()
     if params_file is None:
         raise FileNotFoundError(f"{PARAMS_FILE} of beams_bringup is not installed: run `make build`")
     commands = {}
     for node in ROBOT_NODES:
         package, executable = node.package, node.executable
-        command = [
-            str(INSTALL_BASE / package / "lib" / package / executable),
-            "--ros-args",
-            "--params-file",
-            str(params_file),
-        ]
+        ros_arguments = ["--ros-args", "--params-file", str(params_file)]
         if executable == "sim_world_node":
-            command += ["-p", f"duration_s:={duration_s}"]
+            ros_arguments += ["-p", f"duration_s:={duration_s}"]
         if executable == "driver_node":
-            command += list(sensor.driver_arguments)
-        commands[executable] = command
+            ros_arguments += list(sensor.driver_arguments)
+        for name, arguments in node.processes(standby).items():
+            commands[name] = [
+                str(INSTALL_BASE / package / "lib" / package / executable),
+                *arguments,
+                *ros_arguments,
+            ]
     return commands
 
 
