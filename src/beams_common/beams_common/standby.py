@@ -17,17 +17,21 @@ Its cost: any process of the network namespace may bind the name, whoever the us
 coordination between cooperating processes, not a security boundary).
 
 The holder listens on its socket and never accepts; a standby connects and waits for that connection to
-break, which the kernel does when the holder's socket closes: no polling, no CPU while waiting, and the
-takeover starts as soon as the holder is gone.
+break, which the kernel does when the holder's socket closes: the takeover starts as soon as the holder
+is gone. Meanwhile the standby blocks in select on that connection and on a signal wakeup pipe
+(`signal_wakeup`): no timeout, no CPU, and a stop signal still seen at once.
 """
 
+import contextlib
 import errno
 import hashlib
+import os
 import select
+import signal
 import socket
 import struct
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 
 STANDBY_FLAG = "--standby"
@@ -39,6 +43,7 @@ LISTEN_BACKLOG = 16
 # A standby that cannot watch the holder (the holder between bind and listen, its backlog full)
 # tries again after this long (s).
 RETRY_S = 0.02
+CONNECT_TIMEOUT_S = 1.0  # a connect blocks only while the holder's backlog is full
 ROS_ARGS_START = "--ros-args"
 ROS_ARGS_END = "--"
 REMAP_FLAGS = ("-r", "--remap")
@@ -173,7 +178,7 @@ class RoleLock:
 
     def holder_pid(self) -> int | None:
         """The process id of the role's holder (the kernel's record of who listens), None when free."""
-        probe = self._connect(timeout_s=1.0)
+        probe = self._connect(timeout_s=CONNECT_TIMEOUT_S)
         if probe is None:
             return None
         with probe:
@@ -194,29 +199,59 @@ class RoleLock:
             return None
         return connection
 
-    def wait_for_holder_to_end(self, stopped: Callable[[], bool], poll_s: float) -> None:
+    def wait_for_holder_to_end(
+        self, stopped: Callable[[], bool], wakeup_fd: int | None, poll_s: float | None
+    ) -> None:
         """Return when the current holder's socket closed (its process died or released the role), when
-        there is no holder to watch, or when stopped() is true (checked every poll_s)."""
-        watch = self._connect(timeout_s=poll_s)
+        there is no holder to watch, or when stopped() is true: checked each time `wakeup_fd` becomes
+        readable (`signal_wakeup`) and every poll_s (None: never by time)."""
+        watch = self._connect(timeout_s=CONNECT_TIMEOUT_S)
         if watch is None:
             time.sleep(RETRY_S)  # not listening yet, or its backlog full: no busy loop
             return
+        waited = [watch] if wakeup_fd is None else [watch, wakeup_fd]
         with watch:
-            # the holder never accepts nor writes: readable means the connection broke (EOF or reset)
             while not stopped():
-                readable, _, _ = select.select([watch], [], [], poll_s)
-                if readable:
+                readable, _, _ = select.select(waited, [], [], poll_s)
+                # the holder never accepts nor writes: readable means the connection broke (EOF or reset)
+                if watch in readable:
                     return
+                if wakeup_fd in readable:
+                    _drain(wakeup_fd)
+
+
+def _drain(fd: int) -> None:
+    """Read what a non-blocking descriptor holds (the signal numbers set_wakeup_fd wrote)."""
+    with contextlib.suppress(BlockingIOError):
+        while os.read(fd, 512):
+            pass
+
+
+@contextlib.contextmanager
+def signal_wakeup() -> Iterator[int]:
+    """A descriptor that becomes readable when a signal with a Python handler arrives
+    (signal.set_wakeup_fd; the main thread only): a wait blocks on it and on its event, with no timeout
+    and no CPU, and still sees a stop signal at once. A pipe, not a socket: no endpoint of any kind."""
+    reader, writer = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+    previous = signal.set_wakeup_fd(writer, warn_on_full_buffer=False)
+    try:
+        yield reader
+    finally:
+        signal.set_wakeup_fd(previous)
+        os.close(reader)
+        os.close(writer)
 
 
 def wait_for_role(
     lock: RoleLock,
     stopped: Callable[[], bool],
-    poll_s: float,
     on_waiting: Callable[[int | None], None] = lambda _pid: None,
+    wakeup_fd: int | None = None,
+    poll_s: float | None = None,
 ) -> bool:
-    """Take the role as soon as it is free: True once held, False when stopped() became true first.
-    `on_waiting(holder pid)` is called once, when the role is found held."""
+    """Take the role as soon as it is free: True once held, False when stopped() became true first
+    (looked at whenever `wakeup_fd` is readable and every poll_s; with neither, only when a holder
+    ends). `on_waiting(holder pid)` is called once, when the role is found held."""
     said = False
     while not stopped():
         if lock.try_acquire():
@@ -224,5 +259,5 @@ def wait_for_role(
         if not said:
             on_waiting(lock.holder_pid())
             said = True
-        lock.wait_for_holder_to_end(stopped, poll_s)
+        lock.wait_for_holder_to_end(stopped, wakeup_fd, poll_s)
     return False

@@ -20,6 +20,7 @@ from beams_common.standby import (
     domain_id_of,
     node_identity,
     role_name,
+    signal_wakeup,
     split_standby_flag,
     wait_for_role,
 )
@@ -74,7 +75,7 @@ def test_the_role_is_freed_when_its_holder_is_killed_and_a_waiting_standby_takes
         stop = threading.Event()
 
         def wait() -> None:
-            outcome["taken"] = wait_for_role(standby, stop.is_set, 0.1, seen_holders.append)
+            outcome["taken"] = wait_for_role(standby, stop.is_set, seen_holders.append, poll_s=0.1)
             outcome["at_s"] = time.monotonic()
 
         waiter = threading.Thread(target=wait)
@@ -94,24 +95,53 @@ def test_the_role_is_freed_when_its_holder_is_killed_and_a_waiting_standby_takes
         standby.release()
 
 
-def test_a_waiting_standby_stops_when_asked_and_costs_no_cpu():
+def test_a_waiting_standby_blocks_without_cpu_and_wakes_on_its_wakeup_descriptor():
     name = unique_role()
     holder = RoleLock(name)
     assert holder.try_acquire()
     stop = threading.Event()
     outcome: list[bool] = []
-    waiter = threading.Thread(target=lambda: outcome.append(wait_for_role(RoleLock(name), stop.is_set, 0.05)))
-    waiter.start()
-    time.sleep(0.1)  # connected and waiting
-    cpu_before_s = time.process_time()
-    time.sleep(1.0)  # this thread sleeps: the process's CPU meanwhile is the waiter's
-    waiting_cpu_s = time.process_time() - cpu_before_s
-    stop.set()
-    waiter.join(timeout=SUBPROCESS_TIMEOUT_S)
-    holder.release()
+    reader, writer = os.pipe2(os.O_NONBLOCK)
+    waiter = threading.Thread(
+        target=lambda: outcome.append(wait_for_role(RoleLock(name), stop.is_set, wakeup_fd=reader))
+    )
+    try:
+        waiter.start()
+        time.sleep(0.1)  # connected and waiting
+        cpu_before_s = time.process_time()
+        time.sleep(1.0)  # this thread sleeps: the process's CPU meanwhile is the waiter's
+        waiting_cpu_s = time.process_time() - cpu_before_s
+        stop.set()
+        os.write(writer, b"x")  # what a signal does through signal_wakeup
+        waiter.join(timeout=SUBPROCESS_TIMEOUT_S)
+    finally:
+        holder.release()
+        os.close(reader)
+        os.close(writer)
     assert outcome == [False]
-    # 20 wake-ups of a select to look at the stop flag: microseconds; a busy loop would take the second
-    assert waiting_cpu_s < 0.02
+    # blocked in select with no timeout: no wake-up at all (a 0.1-s poll cost 1 ms a second)
+    assert waiting_cpu_s < 0.002
+
+
+def test_a_stop_signal_ends_the_wait_at_once_through_signal_wakeup():
+    name = unique_role()
+    holder = RoleLock(name)
+    assert holder.try_acquire()
+    received: list[int] = []
+    previous = signal.signal(signal.SIGUSR1, lambda number, _frame: received.append(number))
+    sender = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGUSR1))
+    try:
+        started_s = time.monotonic()
+        sender.start()
+        with signal_wakeup() as wakeup_fd:
+            taken = wait_for_role(RoleLock(name), lambda: bool(received), wakeup_fd=wakeup_fd)
+        waited_s = time.monotonic() - started_s
+    finally:
+        sender.cancel()
+        signal.signal(signal.SIGUSR1, previous)
+        holder.release()
+    assert not taken and received == [signal.SIGUSR1]
+    assert 0.3 <= waited_s < 0.3 + TAKEOVER_BOUND_S
 
 
 def test_roles_of_other_namespaces_names_and_domains_are_independent():

@@ -35,6 +35,7 @@ from beams_common.standby import (
     domain_id_of,
     node_identity,
     role_name,
+    signal_wakeup,
     split_standby_flag,
     wait_for_role,
 )
@@ -144,7 +145,9 @@ def _take_role(
             "participant; taking over when that process ends"
         )
 
-    if not wait_for_role(lock, lambda: bool(stop_signals), STOP_POLL_PERIOD_S, waiting):
+    with signal_wakeup() as wakeup_fd:
+        taken = wait_for_role(lock, lambda: bool(stop_signals), waiting, wakeup_fd=wakeup_fd)
+    if not taken:
         return None
     logger.info(f"standby: took the role of {role} after {time.monotonic() - waiting_since_s:.2f} s")
     return lock
