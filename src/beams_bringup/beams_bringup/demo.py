@@ -1,10 +1,11 @@
 """`make demo`: a simulated Eurobot match with every BeAMS node running as its own process.
 
-Starts sim_world_node, driver_node (simulated sensor), triangulation_node and ekf_node from the install
-tree (the executables `ros2 run` starts), records every topic to an MCAP bag as `ros2 bag record` does
-(fully qualified names, the publishers' offered QoS profiles in the metadata), prints live progress
-(pose errors against the truth, bearings per second, rejected windows), stops the nodes with SIGINT and
-leaves a trajectory plot and a summary table in the output directory.
+Starts sim_world_node, driver_node (simulated sensor), triangulation_node and ekf_node with its hot
+standby (two processes, beams_common.standby) from the install tree (the executables `ros2 run`
+starts), records every topic to an MCAP bag as `ros2 bag record` does (fully qualified names, the
+publishers' offered QoS profiles in the metadata), prints live progress (pose errors against the truth,
+bearings per second, rejected windows), stops the nodes with SIGINT and leaves a trajectory plot and a
+summary table in the output directory.
 
 By default every node runs with its own defaults, as a new user's robot would: the driver uncalibrated
 (WARN "uncalibrated" on /diagnostics, `calibrated: false` on beams/bearings) and the EKF estimating the
