@@ -75,6 +75,8 @@ FILE_SECONDS = {
     "test_driver_serial_versions.py": 8,
     "test_calibration_thesis_results.py": 8,
     "test_tools_bag_replay.py": 8,
+    "test_common_standby.py": 3,
+    "test_node_names.py": 1,
 }
 # A file of this or more (its tests together) is `slow`: the DDS files that run real-time matches or
 # sessions of a minute or more (the fault campaign, the guided session, the faults, the plain defaults,

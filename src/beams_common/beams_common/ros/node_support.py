@@ -58,11 +58,7 @@ _LEVELS = {"ok": DiagnosticStatus.OK, "warn": DiagnosticStatus.WARN, "error": Di
 
 
 def run_node(
-    node_class: Callable[[], Node],
-    args: list[str] | None = None,
-    *,
-    events_executor: bool = True,
-    node_name: str | None = None,
+    node_class: Callable[[], Node], args: list[str] | None = None, *, events_executor: bool = True
 ) -> int:
     """Create the node, spin it until SIGINT or SIGTERM, and return the process exit status.
 
@@ -73,12 +69,12 @@ def run_node(
     variable BEAMS_EXECUTOR=single_threaded puts every node back on rclpy's SingleThreadedExecutor.
 
     Hot standby (issue 18, beams_common.standby): the process first takes its node's role (ROS_DOMAIN_ID
-    and the fully qualified name its remaps give; `node_name` is the name node_class gives its node,
-    by default the executable's, which is the node's in this suite). Started with `--standby` before
-    --ros-args, it waits, its modules imported but no rclpy context or DDS participant made, until the
-    role is free, and only then starts the node; a stop signal while it waits ends it with 0. Started
-    without, it runs whether the role is free or not (a second instance: one WARN line; the graph
-    watch of the others says the duplicate, beams_common.ros.input_watch).
+    and the fully qualified name its remaps give to the node's own name, which is its executable's in
+    this suite: test/static/test_node_names.py). Started with `--standby` before --ros-args, it waits,
+    its modules imported but no rclpy context or DDS participant made, until the role is free, and only
+    then starts the node; a stop signal while it waits ends it with 0. Started without, it runs whether
+    the role is free or not (a second instance: one WARN line; the graph watch of the others says the
+    duplicate, beams_common.ros.input_watch).
 
     Every stop signal, however many and whenever they come, ends in the same quiet shutdown (see
     _catch_stop_signals): returns 0 (no traceback), and EXIT_INVALID_PARAMETERS when the node refused
@@ -86,7 +82,7 @@ def run_node(
     """
     stop_signals = _catch_stop_signals()
     arguments, standby = split_standby_flag(sys.argv if args is None else args)
-    role = _take_role(arguments, standby, node_name, stop_signals)
+    role = _take_role(arguments, standby, stop_signals)
     if role is None:  # a standby stopped while it waited
         _ignore_stop_signals()
         return 0
@@ -118,13 +114,12 @@ def run_node(
     return 0
 
 
-def _take_role(
-    arguments: list[str], standby: bool, node_name: str | None, stop_signals: list[int]
-) -> RoleLock | None:
+def _take_role(arguments: list[str], standby: bool, stop_signals: list[int]) -> RoleLock | None:
     """The node's role (beams_common.standby), taken when free; a standby waits for it and gets None
     when a stop signal came first. Says in one line why a process waits, takes over or runs beside
     another instance."""
-    identity = node_identity(arguments, node_name or pathlib.Path(arguments[0] if arguments else "").stem)
+    # the executable's name (`ekf_node`, or `ekf_node.py` run as a script) is the node's
+    identity = node_identity(arguments, pathlib.Path(arguments[0] if arguments else "").stem)
     domain_id = domain_id_of(os.environ)
     lock = RoleLock(role_name(identity, domain_id))
     role = f"{identity.fully_qualified_name} (ROS_DOMAIN_ID {domain_id})"
