@@ -48,7 +48,16 @@ ROS_ARGS_START = "--ros-args"
 ROS_ARGS_END = "--"
 REMAP_FLAGS = ("-r", "--remap")
 # --ros-args flags followed by a value (rcl's arguments.h), skipped so a value is never read as a remap
-VALUE_FLAGS = ("-p", "--param", "--params-file", "-e", "--enclave", "--log-level", "--log-config-file")
+VALUE_FLAGS = (
+    "-p",
+    "--param",
+    "--params-file",
+    "-e",
+    "--enclave",
+    "--log-level",
+    "--log-config-file",
+    "--log-file-name",
+)
 NAMESPACE_REMAP = "__ns"
 NAME_REMAPS = ("__node", "__name")  # rcl accepts both; __name is the older spelling
 _UCRED = struct.Struct("3i")  # struct ucred: pid, uid, gid (SO_PEERCRED)
