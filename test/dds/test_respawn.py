@@ -13,9 +13,10 @@ The killed node's own output is seen again, and the longest silence of the EKF's
 - ekf_node's active process killed: its standby, its modules already imported, takes the role the
   instant the kernel frees it and starts the node (rclpy and the node's construction, 0.1 s idle; DDS
   discovery, about 0.2 s with the project's Fast DDS profile; ToTal's next fix, at most 0.1 s): 0.45 and
-  0.49 s measured here under a load of 5-6 (2026-11-25), 0.35-0.42 s idle and 0.41-0.50 s under a load of
-  5-6 in bench/bench_integrity.py. Restarted alone instead (ekf_standby:=false), its own start-up
-  (filterpy's imports, 1.6 s of CPU) brought it back in 1.5 s idle and 2.2-2.7 s under a load of 4-6.
+  0.49 s measured here under a load of 5-6, 0.41 and 0.46 s at a load of 2 (2026-11-25); 0.35-0.51 s
+  idle and 0.41-0.50 s under a load of 5-6 in bench/bench_integrity.py. Restarted alone instead
+  (ekf_standby:=false), its own start-up (filterpy's imports, 1.6 s of CPU) brought it back in 1.5 s
+  idle and 2.2-2.7 s under a load of 4-6.
 After each kill of the EKF, once the dead process has left the graph (its 5-s lease): one ekf_node in
 the graph, the other process of the pair holding the role, and the killed one respawned and waiting.
 """
