@@ -9,7 +9,6 @@ processes (beams_bringup.system.RobotNode.processes), each restarted alike; `act
 holds the node's role.
 """
 
-import pathlib
 import signal
 import subprocess
 import time
@@ -101,7 +100,7 @@ class NodeSupervisor:
 
     def processes_of(self, executable: str) -> list[str]:
         """The names of the processes running `executable` (two for a hot standby pair)."""
-        return [node.name for node in self.nodes.values() if pathlib.Path(node.command[0]).name == executable]
+        return [node.name for node in self.nodes.values() if Path(node.command[0]).name == executable]
 
     def active(self, executable: str) -> str | None:
         """Of the processes running `executable`, the name of the one holding its node's role
