@@ -39,9 +39,9 @@ FILE_SECONDS = {
     "test_system_faults.py": 95,
     "test_plain_defaults.py": 81,
     "test_system_bad_inputs.py": 60,
+    "test_respawn.py": 52,
     "test_system_multi_robot.py": 51,
     "test_executables.py": 43,
-    "test_respawn.py": 41,
     "test_calibration_outputs.py": 41,
     "test_calibration_node.py": 37,
     "test_sim_time.py": 37,
@@ -52,6 +52,7 @@ FILE_SECONDS = {
     "test_second_publisher.py": 30,
     "test_driver_lifecycle.py": 29,
     "test_ekf_node.py": 28,
+    "test_standby.py": 28,
     "test_ekf_message_validation.py": 27,
     "test_common_validation.py": 25,
     "test_driver_node.py": 24,
@@ -75,6 +76,8 @@ FILE_SECONDS = {
     "test_driver_serial_versions.py": 8,
     "test_calibration_thesis_results.py": 8,
     "test_tools_bag_replay.py": 8,
+    "test_common_standby.py": 3,
+    "test_node_names.py": 1,
 }
 # A file of this or more (its tests together) is `slow`: the DDS files that run real-time matches or
 # sessions of a minute or more (the fault campaign, the guided session, the faults, the plain defaults,

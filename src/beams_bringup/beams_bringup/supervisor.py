@@ -4,7 +4,9 @@ What `ros2 launch` does with `respawn=True, respawn_delay=RESPAWN_DELAY_S` (beam
 environments without launch (the PyPI wheels): a node that exits while the supervisor is not stopping is
 started again, with the same command, RESPAWN_DELAY_S later; its log file gets a line saying so and the
 output of the new process. A node that refused its parameters at start-up (exit status 2, run_node's
-EXIT_INVALID_PARAMETERS) is not restarted: it would refuse them again.
+EXIT_INVALID_PARAMETERS) is not restarted: it would refuse them again. A node with a hot standby is two
+processes (beams_bringup.system.RobotNode.processes), each restarted alike; `active` names the one that
+holds the node's role.
 """
 
 import signal
@@ -16,6 +18,7 @@ from pathlib import Path
 from typing import TextIO
 
 from beams_bringup.system import RESPAWN_DELAY_S
+from beams_common.standby import RoleLock, domain_id_of, node_identity, role_name
 
 EXIT_INVALID_PARAMETERS = 2  # run_node's start-up refusal (beams_common.ros.node_support)
 STOP_TIMEOUT_S = 15.0
@@ -94,6 +97,20 @@ class NodeSupervisor:
         if node.process is None or node.process.poll() is not None:
             return None
         return node.process.pid
+
+    def processes_of(self, executable: str) -> list[str]:
+        """The names of the processes running `executable` (two for a hot standby pair)."""
+        return [node.name for node in self.nodes.values() if Path(node.command[0]).name == executable]
+
+    def active(self, executable: str) -> str | None:
+        """Of the processes running `executable`, the name of the one holding its node's role
+        (beams_common.standby): the active one of a hot standby pair; None while none does."""
+        names = self.processes_of(executable)
+        if not names:
+            raise KeyError(f"no process runs {executable}")
+        identity = node_identity(self.nodes[names[0]].command, executable)
+        holder_pid = RoleLock(role_name(identity, domain_id_of(self._env))).holder_pid()
+        return next((name for name in names if holder_pid is not None and self.pid(name) == holder_pid), None)
 
     def stop(self) -> dict[str, int]:
         """SIGINT to every node (no restart from now on), then the exit status of each (SIGKILL after

@@ -3,16 +3,19 @@ installed parameter file is found by beams_tools.replay_settings.installed_param
 
 from dataclasses import dataclass
 
+from beams_common.standby import STANDBY_FLAG
+
 PARAMS_FILE = "beams_params.yaml"
 DISCOVERY_PROFILE = "fastdds_fast_discovery.xml"
 # A node that dies is started again this long after (s): `ros2 launch` (respawn_delay), the demo's
 # supervisor and the fault campaign alike. Issue 18 wants the EKF back within 2 s of any kill, and a
-# Python node's own start-up already takes 0.5-1.6 s of it (imports, DDS discovery; the EKF's
-# is the longest), so the delay must be short. What bounds a respawn storm (a node that dies at every
-# start) is that start-up, not the delay: a start costs at least 0.5 s of CPU, so a crash loop restarts
-# at most 1 / (0.25 + 0.5) = 1.3 times a second, and the participants it leaves in the DDS graph (each
-# until its 5-s lease ends, fastdds_fast_discovery.xml) number at most 5 / 0.75, about 7. A longer delay
-# would only move that bound a little (1 s: 0.7 starts/s, 3 participants) and cost the EKF its 2 s.
+# Python node's own start-up already takes 0.5-1.6 s of it (imports, DDS discovery; the EKF's is the
+# longest, hence its hot standby: RobotNode.hot_standby), so the delay must be short. What bounds a
+# respawn storm (a node that dies at every start) is that start-up, not the delay: a start costs at
+# least 0.5 s of CPU, so a crash loop restarts at most 1 / (0.25 + 0.5) = 1.3 times a second, and the
+# participants it leaves in the DDS graph (each until its 5-s lease ends, fastdds_fast_discovery.xml)
+# number at most 5 / 0.75, about 7. A longer delay would only move that bound a little (1 s: 0.7
+# starts/s, 3 participants) and cost a respawned node 0.75 s more.
 RESPAWN_DELAY_S = 0.25
 
 
@@ -26,11 +29,29 @@ class RobotNode:
     simulation_only: bool = False
     # reads the calibration file (the driver's corrections, the geometry of the filters)
     takes_calibration: bool = True
+    # runs as a pair, one process a hot standby (beams_common.standby): the node's own start-up is too
+    # long for issue 18's 2 s under load, a waiting standby's takeover is not
+    hot_standby: bool = False
+
+    @property
+    def standby_argument(self) -> str:
+        """The launch argument that turns its standby off (`ekf_standby:=false`)."""
+        return f"{self.executable.removesuffix('_node')}_standby"
+
+    def processes(self, standby: bool = True) -> dict[str, list[str]]:
+        """Its processes: a name for each (the supervisor's, its log's) and its arguments before --ros-args.
+        With its hot standby, two, both with --standby: the first to start finds the role free and takes
+        it at once, and whichever dies is respawned into a role held by the other, so it waits."""
+        if not (self.hot_standby and standby):
+            return {self.executable: []}
+        return {self.executable: [STANDBY_FLAG], f"{self.executable}_2": [STANDBY_FLAG]}
 
 
 ROBOT_NODES = (
     RobotNode("beams_sim", "sim_world_node", simulation_only=True, takes_calibration=False),
     RobotNode("beams_driver", "driver_node"),
     RobotNode("beams_triangulation", "triangulation_node"),
-    RobotNode("beams_ekf", "ekf_node"),
+    # filterpy's imports (scipy.stats) make the EKF's start-up 1.6 s of CPU: respawned, it was back
+    # 2.2-2.7 s after a kill under a load of 4-6; its standby takes over in 0.41-0.50 s (BENCHMARKS.md)
+    RobotNode("beams_ekf", "ekf_node", hot_standby=True),
 )
