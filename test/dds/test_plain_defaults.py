@@ -6,9 +6,14 @@ driver_node with its defaults) run at once, each node its own process:
 - the driver says it is uncalibrated: WARN "uncalibrated" on /diagnostics and `calibrated: false` on every
   beams/bearings message;
 - the still robot's bearings spread as the driver's published variances say, within 0.7-1.43 per beacon;
-- the EKF's mean NEES over 30 s of the match, 30-60 s after its first estimate, is within 2.0-4.5 (3 for
-  a consistent filter; the power bias treated as white noise before issue 19 gave 37-42 over 30 s);
-  six runs on the loaded machine gave 2.10, 2.48, 2.58, 1.91 (a CPU-heavy replay beside it), 3.33, 4.25.
+- the EKF's mean NEES over 30 s of the match, 30-60 s after its first estimate, is within the band a
+  consistent filter's falls in 99 % of the time (3 for a consistent filter; the power bias treated as
+  white noise before issue 19 gave 37-42 over 30 s). One run's 30 s mean averages correlated samples:
+  the self-calibrating filter's NEES has an integrated autocorrelation time of 3.2 s (pooled over 10
+  matches, bench_self_calibration.py), 10.6 independent samples per 30 s, so the band is
+  chi2(3 x 10.6) / 10.6's 1.41-5.29 (beams_ekf.nees_band; issue 19's 2.0-4.5 holds 91.5 % of a
+  consistent filter's windows, too tight for one window tested in every `make test`). Runs on the
+  loaded machine gave 2.10, 2.48, 2.58, 1.91 (a CPU-heavy replay beside it), 3.33, 4.25, 1.94.
   The first 30 s (for 10 s the power bias is not modelled yet: those bearings update the pose alone)
   vary more from run to run over DDS, 1.60, 2.03, 1.80, 14.64 (the same loaded run), 3.55, 5.27: held
   to 1.0-10 only (docs/self_calibration.md).
@@ -29,8 +34,11 @@ ROBOT_NODES = (
 )
 
 SPREAD_BAND = (0.7, 1.43)
-NEES_BAND = (2.0, 4.5)
 NEES_WINDOW_S = 30.0
+# independent samples in a 30 s mean of the self-calibrating filter's NEES (tau 3.18 s, BENCHMARKS.md's
+# bench_self_calibration rows) and the probability its band holds for a consistent filter
+SELF_CALIBRATING_SAMPLES_PER_WINDOW = 10.6
+NEES_BAND_PROBABILITY = 0.99
 WARM_UP_NEES_BAND = (1.0, 10.0)
 # the EKF's first estimates need the nodes up and ToTal's first fix: bounded waits
 START_TIMEOUT_S = 60.0
@@ -51,6 +59,7 @@ def test_plain_defaults_are_honest(start_node, rclpy_node):
     from beams_bringup.demo import nees_against_truth
     from beams_common.ros.messages import planar_covariance
     from beams_common.ros.node_support import BEARINGS_QOS
+    from beams_ekf.nees_band import chi_square_mean_band
     from beams_msgs.msg import BeaconBearingArray
 
     graph = rclpy_node
@@ -112,7 +121,8 @@ def test_plain_defaults_are_honest(start_node, rclpy_node):
         means.append(float(nees.mean()))
     print(f"EKF mean NEES over 0-30 s: {means[0]:.2f}, over 30-60 s: {means[1]:.2f}")
     assert WARM_UP_NEES_BAND[0] <= means[0] <= WARM_UP_NEES_BAND[1], means
-    assert NEES_BAND[0] <= means[1] <= NEES_BAND[1], means
+    low, high = chi_square_mean_band(SELF_CALIBRATING_SAMPLES_PER_WINDOW, NEES_BAND_PROBABILITY)
+    assert low <= means[1] <= high, (means, (low, high))
 
 
 def test_save_calibration_writes_a_file_the_driver_reads(start_node, rclpy_node, tmp_path):
