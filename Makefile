@@ -65,11 +65,11 @@ DDS_PARALLEL := $(if $(filter-out 0 1,$(DDS_WORKERS)),-n $(DDS_WORKERS) --dist l
 # a DDS test that fails runs again, up to DDS_RERUNS times (separate processes timed on 2 shared cores:
 # the guided session's fit and the campaign's availability each failed beside another worker and passed
 # alone; on 2026-11-24 the guided session's beacon fit failed twice in one run of the merged main, beside
-# the fault campaign, and passed alone: its cause is open); pytest lists every rerun in its summary
+# the fault campaign, and passed alone: its cause is open); -raR lists every rerun in the summary
 DDS_RERUNS ?= 2
 test: build lint hil-if-possible
 	$(ROS_ENV) python -m pytest -m "not dds" $(FAST_PARALLEL) $(PYTEST_ARGS) || [ $$? -eq 5 ]
-	$(ROS_ENV) python -m pytest -m dds $(DDS_PARALLEL) --reruns $(DDS_RERUNS) $(PYTEST_ARGS) || [ $$? -eq 5 ]
+	$(ROS_ENV) python -m pytest -m dds $(DDS_PARALLEL) --reruns $(DDS_RERUNS) -raR $(PYTEST_ARGS) || [ $$? -eq 5 ]
 
 ## test-fast: the linters, the firmware harness (when possible) and every test but the DDS tier, on
 ## FAST_WORKERS workers (FAST_WORKERS=1: one process)

@@ -43,6 +43,7 @@ import yaml
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.bearing_correction import BearingCorrection
 from beams_common.calibration_file import SensorCalibration, save_calibration
+from beams_common.standby import STANDBY_FLAG, RoleLock, domain_id_of, node_identity, role_name
 from beams_driver.parameters import DRIVER_PARAMETERS
 from beams_ekf.parameters import EKF_PARAMETERS
 from beams_tools.campaign_metrics import CampaignFigures, campaign_figures, rss_growth_mb
@@ -89,8 +90,13 @@ PROCESSES = {
     "driver": ("beams_driver", "driver_node", ("beams/bearings:=beams/bearings_raw",)),
     "triangulation": ("beams_triangulation", "triangulation_node", ()),
     "ekf": ("beams_ekf", "ekf_node", ()),
+    "ekf_standby": ("beams_ekf", "ekf_node", ()),
     "relay": ("beams_tools", "fault_relay_node", ()),
 }
+# the nodes that run as a hot standby pair, as the launch file and the demo run them (beams_bringup.system's
+# RobotNode.hot_standby; test/static/test_hot_standby_pairs.py checks that the two agree): the first
+# process's name -> the second's; both start with --standby, a node_kill kills the one holding the role
+HOT_STANDBY = {"ekf": "ekf_standby"}
 NODE_NAMES = {name: executable for name, (_, executable, _) in PROCESSES.items()}
 # A parameter per node for the parameter faults: (name, good value, out-of-range value, read-only name)
 PARAMETER_FAULTS = {
@@ -300,6 +306,8 @@ def node_parameters(config: CampaignConfig, serial_link: pathlib.Path) -> dict[s
     }
     for name, values in config.overrides.items():
         parameters[name].update(values)
+    for first, second in HOT_STANDBY.items():  # one node, two processes
+        parameters[second] = parameters[first]
     return parameters
 
 
@@ -311,7 +319,8 @@ def command_of(
     log_dir: pathlib.Path,
 ) -> list[str]:
     package, executable, _ = PROCESSES[name.removeprefix("duplicate_")]
-    command = [_executable(config.install_base, package, executable), "--ros-args"]
+    standby = [STANDBY_FLAG] if name in HOT_STANDBY or name in HOT_STANDBY.values() else []
+    command = [_executable(config.install_base, package, executable), *standby, "--ros-args"]
     if parameters:
         params_file = log_dir / f"{name}.params.yaml"
         params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": parameters}}))
@@ -819,9 +828,14 @@ class Campaign:
             self.at(start, label, lambda: self.hosts.set_link(False))
             self.at(end, label, lambda: self.hosts.set_link(True))
         elif fault.kind == "node_kill":
-            process = self.processes[fault.variant]
-            self.at(start, label, lambda: process.signal(signal.SIGKILL))
-            self.at(end, label, lambda: process.start(self.env))
+            killed: list[ManagedProcess] = []
+
+            def kill(name: str = fault.variant) -> None:
+                killed.append(self.active_process(name))
+                killed[-1].signal(signal.SIGKILL)
+
+            self.at(start, label, kill)
+            self.at(end, label, lambda: killed and killed.pop().start(self.env))
         else:
             raise ValueError(f"no plan for fault class {fault.kind!r}")
 
@@ -941,6 +955,18 @@ class Campaign:
         }[fault.variant]
         for when, transition, expected in steps:
             self.at(when, label, lambda t=transition, e=expected: probe.change_state(label, t, e))
+
+    def active_process(self, name: str) -> ManagedProcess:
+        """The process that is the node `name` now: of a hot standby pair, the one holding the node's role
+        (beams_common.standby), else the first of the pair still running."""
+        process = self.processes[name]
+        if name not in HOT_STANDBY:
+            return process
+        pair = [process, self.processes[HOT_STANDBY[name]]]
+        identity = node_identity(process.command, NODE_NAMES[name])
+        holder_pid = RoleLock(role_name(identity, domain_id_of(self.env))).holder_pid()
+        holder = [p for p in pair if p.running and holder_pid is not None and p.process.pid == holder_pid]
+        return (holder or [p for p in pair if p.running] or pair)[0]
 
     def _start_duplicate(self, fault: Fault) -> None:
         """A second driver_node, sim_world_node or ekf_node in the namespace, on the topics the real one
