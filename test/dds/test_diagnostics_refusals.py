@@ -127,3 +127,33 @@ def test_conditions_are_listed_worst_first_and_lasting_before_held(diagnostics_n
     status = published[-1].status[0]
     assert status.level == b"\x02"
     assert status.message == "2 publishers: /a, /b; sources interleave; input slow; tracking"
+
+
+def test_an_error_conditions_end_is_said_at_once_after_the_old_status_again(diagnostics_node):
+    """An ERROR condition is said at once when set and, as soon as it ends (cleared, or its hold over),
+    the old status is repeated (it closes its span) and the new one follows, not up to a second later."""
+    import time
+
+    diagnostics, published = diagnostics_node
+    diagnostics.set_level("ok", "tracking")
+    diagnostics.set_condition("second_publisher", "error", "2 publishers on /odom")
+    assert [s.status[0].level for s in published] == [b"\x02"]  # said at once
+    diagnostics.publish_if_conditions_changed()
+    assert len(published) == 1  # nothing changed: nothing said
+    diagnostics.clear_condition("second_publisher")
+    assert [s.status[0].level for s in published[1:]] == [b"\x02", b"\x00"]
+    assert published[1].status[0].message == published[0].status[0].message
+    assert published[2].status[0].message == "tracking"
+    # a held ERROR: its end is found by the next check (the nodes check at every estimate or pose)
+    diagnostics.set_condition("interleave", "error", "two sources on /beams/bearings", hold_s=0.05)
+    count = len(published)
+    diagnostics.publish_if_conditions_changed()
+    assert len(published) == count
+    time.sleep(0.1)
+    diagnostics.publish_if_conditions_changed()
+    assert [s.status[0].level for s in published[count:]] == [b"\x02", b"\x00"]
+    # a WARN condition's start and end wait for the next tick, as set_condition says only an ERROR at once
+    diagnostics.set_condition("slow", "warn", "bearings at 5 Hz")
+    count = len(published)
+    diagnostics.clear_condition("slow")
+    assert len(published) == count

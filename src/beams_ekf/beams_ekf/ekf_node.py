@@ -385,6 +385,8 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         self.diagnostics.set_level(verdict.level, verdict.message)
         if changed:  # a new status is said at once, not at the next 1 Hz report
             self.diagnostics.publish()
+        else:  # and an ERROR condition's end (a second publisher gone, its hold over) too
+            self.diagnostics.publish_if_conditions_changed()
         self.status_topic.say(verdict)
 
 

@@ -69,6 +69,8 @@ LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
 # a process's RSS counts from this long (s) after its start: its imports and first allocations are not growth
 RSS_SETTLE_S = 10.0
 BAD_MESSAGE_PERIOD_S = 0.1
+# a bad message's publisher opens this long (s) before its first message: DDS discovery matches it
+BAD_PUBLISHER_DISCOVERY_S = 0.5
 # the relay's fault parameter and the fault's value of each class the relay plays
 RELAY_FAULTS = {
     "odometry_jump": ("odometry_offset_x_m", "offset_x_m"),
@@ -794,16 +796,19 @@ class Campaign:
         start, end = fault.start_s, fault.end_s
         probe = self.probe
         if fault.kind == "bad_message":
+            first_s = start + BAD_PUBLISHER_DISCOVERY_S
             repeats = (
                 1
                 if fault.variant.startswith("initialpose")
-                else max(1, int(fault.duration_s / BAD_MESSAGE_PERIOD_S))
+                else max(1, int((end - first_s) / BAD_MESSAGE_PERIOD_S))
             )
             topic = bad_message_topic(fault.variant)
-            # opened a moment before the first message (discovery), closed after the window
-            self.at(max(start - 0.5, 0.0), label, lambda: probe.open_publisher(topic))
+            # the probe's publisher is a second source from the moment it exists: it opens at the fault's
+            # start (opened 0.5 s before it, the nodes' ERROR "2 publishers" fell outside the window), the
+            # first message once discovery has matched it, closed at the fault's end
+            self.at(start, label, lambda: probe.open_publisher(topic))
             for k in range(repeats):
-                self.at(start + k * BAD_MESSAGE_PERIOD_S, label, lambda: self._publish_bad(fault.variant))
+                self.at(first_s + k * BAD_MESSAGE_PERIOD_S, label, lambda: self._publish_bad(fault.variant))
             self.at(end, label, lambda: probe.close_publisher(topic))
         elif fault.kind == "bad_service_call":
             self._plan_service_call(fault, label)

@@ -235,6 +235,7 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         self.diagnostics.set("status", str(verdict.status))
         self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
         self.diagnostics.set_level(verdict.level, verdict.message)
+        self.diagnostics.publish_if_conditions_changed()  # an ERROR condition's end said at once
         self.status_topic.say(verdict)
 
     def _markers(self, estimate: PoseEstimate, header) -> MarkerArray:

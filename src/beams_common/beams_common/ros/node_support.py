@@ -275,6 +275,8 @@ class Diagnostics:
         self._refusal: tuple[str, str] | None = None  # (level, reason) not yet published
         # name -> (level, reason, steady time it ends or None: until cleared)
         self._conditions: dict[str, tuple[str, str, float | None]] = {}
+        self._published_errors: set[str] = set()  # the ERROR conditions of the last publication
+        self._last_sent: tuple[str, str] | None = None  # its (level, message)
         self._log = ThrottledLog(node.get_logger())
         self._publisher = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self._timer = node.create_timer(period_s, self.publish)
@@ -330,7 +332,22 @@ class Diagnostics:
             self.publish()  # an ERROR is said at once, not at the next tick (up to period_s later)
 
     def clear_condition(self, name: str) -> None:
-        self._conditions.pop(name, None)
+        if name in self._conditions:
+            self._conditions.pop(name)
+            self.publish_if_conditions_changed()
+
+    def publish_if_conditions_changed(self) -> None:
+        """Publish at once when the conditions in force differ from the last publication's at ERROR (one
+        cleared, or its hold ended): the status is said OK again as soon as it is, as an ERROR is said
+        at once (set_condition), not up to period_s later. The last publication is first repeated,
+        stamped now: it closes its span, so a reader that gives each estimate the first report at or
+        after it never credits the estimates made during the ERROR with the report after it."""
+        errors = {name for name, (level, _) in self.active_conditions().items() if level == "error"}
+        if errors == self._published_errors:
+            return
+        if self._last_sent is not None:
+            self._send(*self._last_sent, self._node.get_clock().now().to_msg())
+        self.publish()
 
     def active_conditions(self) -> dict[str, tuple[str, str]]:
         """The conditions in force now: name -> (level, reason); expired ones are dropped."""
@@ -383,7 +400,9 @@ class Diagnostics:
             worst = conditions[ordered[0]][0]
             level = worst if _LEVELS[worst] > _LEVELS[level] else level
             message = bounded("; ".join([*(conditions[name][1] for name in ordered), message]))
+        self._published_errors = {name for name, (c_level, _) in conditions.items() if c_level == "error"}
         self._send(level, message, self._node.get_clock().now().to_msg())
+        self._last_sent = (level, message)
 
     def _send(self, level: str, message: str, stamp: Any) -> None:
         status = DiagnosticStatus(
