@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import TextIO
 
 from beams_bringup.system import RESPAWN_DELAY_S
-from beams_common.standby import RoleLock, domain_id_of, node_identity, role_name
+from beams_common.standby import role_holder_pid
 
 EXIT_INVALID_PARAMETERS = 2  # run_node's start-up refusal (beams_common.ros.node_support)
 STOP_TIMEOUT_S = 15.0
@@ -108,8 +108,7 @@ class NodeSupervisor:
         names = self.processes_of(executable)
         if not names:
             raise KeyError(f"no process runs {executable}")
-        identity = node_identity(self.nodes[names[0]].command, executable)
-        holder_pid = RoleLock(role_name(identity, domain_id_of(self._env))).holder_pid()
+        holder_pid = role_holder_pid(self.nodes[names[0]].command, executable, self._env)
         return next((name for name in names if holder_pid is not None and self.pid(name) == holder_pid), None)
 
     def stop(self) -> dict[str, int]:

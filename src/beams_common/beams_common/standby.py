@@ -151,6 +151,13 @@ def role_name(identity: NodeIdentity, domain_id: str) -> str:
     return name
 
 
+def role_holder_pid(command: Sequence[str], executable: str, environ: Mapping[str, str]) -> int | None:
+    """The process id holding the role a node's command line names (its --ros-args remaps, `executable`
+    the default node name, the environment's ROS_DOMAIN_ID); None when no process holds it: which
+    process of a hot standby pair is the active one."""
+    return RoleLock(role_name(node_identity(command, executable), domain_id_of(environ))).holder_pid()
+
+
 class RoleLock:
     """One process's hold on a role: `try_acquire`, then held until `release` or the process's death."""
 

@@ -43,7 +43,7 @@ import yaml
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.bearing_correction import BearingCorrection
 from beams_common.calibration_file import SensorCalibration, save_calibration
-from beams_common.standby import STANDBY_FLAG, RoleLock, domain_id_of, node_identity, role_name
+from beams_common.standby import STANDBY_FLAG, role_holder_pid
 from beams_driver.parameters import DRIVER_PARAMETERS
 from beams_ekf.parameters import EKF_PARAMETERS
 from beams_tools.campaign_metrics import CampaignFigures, campaign_figures, rss_growth_mb
@@ -968,8 +968,7 @@ class Campaign:
         if name not in HOT_STANDBY:
             return process
         pair = [process, self.processes[HOT_STANDBY[name]]]
-        identity = node_identity(process.command, NODE_NAMES[name])
-        holder_pid = RoleLock(role_name(identity, domain_id_of(self.env))).holder_pid()
+        holder_pid = role_holder_pid(process.command, NODE_NAMES[name], self.env)
         holder = [p for p in pair if p.running and holder_pid is not None and p.process.pid == holder_pid]
         return (holder or [p for p in pair if p.running] or pair)[0]
 
