@@ -1,4 +1,4 @@
-"""Calibration benchmark (issue 6, thesis chapter 7): the whole calibration of the thesis's 48
+"""Calibration benchmark (thesis chapter 7): the whole calibration of the thesis's 48
 configurations, measured by the driver's simulated sensor with thesis-sized biases, its cost; table 7.5
 and figures 7.7 and 7.10 on the stand-in for the thesis's recordings (`thesis_setup.thesis_dataset`).
 
@@ -83,7 +83,7 @@ def rows(seed: int = DEFAULT_SEED) -> list[tuple[str, float, str, str]]:
             f"calibration: whole (Alg. 7.1 + leave-one-out), {count} configurations",
             whole_s,
             "s CPU",
-            "< 60 s (issue 6)",
+            "< 60 s",
         ),
         ("calibration: Algorithm 7.1 alone", algorithm_s, "s CPU", "-"),
         (f"calibration: err_RMS evaluation (eq. 7.12, {count} ToTal fixes)", objective_us, "us", "-"),
@@ -127,13 +127,13 @@ def rows(seed: int = DEFAULT_SEED) -> list[tuple[str, float, str, str]]:
             "calibration: turret offset error",
             math.hypot(*np.subtract(result.turret_offset_m, thesis_setup.THESIS_TURRET_OFFSET_M)) * 1e3,
             "mm",
-            "<= 0.5 mm (issue 6)",
+            "<= 0.5 mm",
         ),
         (
             "calibration: largest beacon error",
             float(np.max(np.hypot(*(result.beacon_map.xy - thesis_setup.TRUE_BEACONS.xy).T))) * 1e3,
             "mm",
-            "<= 1.5 mm (issue 6)",
+            "<= 1.5 mm",
         ),
         *table_rows,
         *figure_rows(seed),

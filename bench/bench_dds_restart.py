@@ -1,4 +1,4 @@
-"""Fast DDS after a kill -9 (issue 7, restart recovery): why the discovery profile puts user data on UDP.
+"""Fast DDS after a kill -9 (restart recovery): why the discovery profile puts user data on UDP.
 
 A plain rclpy publisher (nav_msgs/Odometry at 50 Hz, sensor-data QoS) runs; a plain subscriber process is
 started, killed with SIGKILL once its first message arrived, and started again, RESTARTS times. Each

@@ -1,4 +1,4 @@
-"""EKF benchmark (issue 5, thesis fig. 8.1): accuracy and consistency on the simulated Eurobot match,
+"""EKF benchmark (thesis fig. 8.1): accuracy and consistency on the simulated Eurobot match,
 the three bearing-variance modes, odometry alone and ToTal alone, and the cost of a prediction and of
 a bearing update.
 

@@ -1,4 +1,4 @@
-"""EKF consistency and optimality over seeds of the simulated match (issue 13): NEES, the posterior
+"""EKF consistency and optimality over seeds of the simulated match: NEES, the posterior
 Cramer-Rao bound (PCRB) from the simulator's true noise models, the odometry error states (with two
 beacons hidden for 10 s) and the lost detection.
 

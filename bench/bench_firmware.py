@@ -1,4 +1,4 @@
-"""The turret firmware in simavr (issue 20): emulation speed, edge-to-host latency, the most edges a
+"""The turret firmware in simavr: emulation speed, edge-to-host latency, the most edges a
 revolution carries before the firmware drops some at 500000 baud, and the image's flash and RAM.
 
 Needs `make hil` (firmware/build/turret.elf and the simavr harness). Usage: python bench/bench_firmware.py

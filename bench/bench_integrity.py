@@ -1,4 +1,4 @@
-"""Node-level integrity (issue 18): how fast the EKF is back after a node dies, and how fast a second
+"""Node-level integrity: how fast the EKF is back after a node dies, and how fast a second
 publisher is said.
 
 The robot's four nodes run under the demo's supervisor (beams_bringup.supervisor, respawn after

@@ -1,4 +1,4 @@
-"""Noise estimation on the thesis-hardware simulator (issue 13): a still robot at four poses, 60 s each,
+"""Noise estimation on the thesis-hardware simulator: a still robot at four poses, 60 s each,
 recorded by a driver with its default natural variance (3.05e-7 rad^2); `estimate_noise`'s fit against
 the injected natural variance (fig. 5.3's edge noise, linear in the window), and the published / actual
 variance ratio per beacon before the fit and, on new recordings, from a driver configured with it.

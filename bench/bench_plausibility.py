@@ -1,4 +1,4 @@
-"""Plausibility benchmark (issue 18): the EKF's worst position error on a simulated match under the
+"""Plausibility benchmark: the EKF's worst position error on a simulated match under the
 issue's well-formed-but-wrong inputs, with the checks and without them, and what the checks cost.
 
 The localiser runs the synthetic match (beams_thesis.synthetic) with its bearings' arrival instants as the

@@ -1,4 +1,4 @@
-"""Bag replay benchmark (issue 7, "Rosbag replay"): how fast `replay_bag` runs the triangulation and the
+"""Bag replay benchmark ("Rosbag replay"): how fast `replay_bag` runs the triangulation and the
 EKF over a recorded match, as input messages per second and as a multiple of real time.
 
 The bag is a simulated 90 s Eurobot match (beams_sim.simulated_match: truth and odometry at 50 Hz,

@@ -1,4 +1,4 @@
-"""Self-calibration of the power bias while driving (issue 19): the EKF on simulated matches of the thesis
+"""Self-calibration of the power bias while driving: the EKF on simulated matches of the thesis
 hardware as the nodes run with their own defaults, uncalibrated or perfectly calibrated.
 
 Runs, each over the same seeds (trajectory, sensor and odometry noise):
@@ -206,7 +206,7 @@ class Pool:
                 f"{name}: 30 s windows outside 2.0-4.5",
                 int(issue_below + issue_above),
                 "windows",
-                f"{count}: {issue_below} below, {issue_above} above (issue 19's band)",
+                f"{count}: {issue_below} below, {issue_above} above",
             ),
         ]
 

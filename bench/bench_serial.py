@@ -1,6 +1,6 @@
-"""Serial link and simulated world benchmark (issue 3): parser and assembler throughput against what the
+"""Serial link and simulated world benchmark: parser and assembler throughput against what the
 serial link can carry, and the cost of the simulated robot and of a whole offline match; the link's
-integrity (issue 18): revolutions kept under line noise, and the worst bearing error under spurious
+integrity: revolutions kept under line noise, and the worst bearing error under spurious
 zero references.
 
 Usage: python bench/bench_serial.py   (`rows()` is what bench/run_all.py collects.)

@@ -1,4 +1,4 @@
-"""Whole-system benchmark (issue 7, "Latency and throughput"): every node its own process, over DDS.
+"""Whole-system benchmark ("Latency and throughput"): every node its own process, over DDS.
 
 Starts sim_world_node, driver_node, triangulation_node and ekf_node from the install tree (as `make demo`
 does, in ROS_DOMAIN_ID 68 unless the environment sets one) and measures, with a probe node in this process:

@@ -1,4 +1,4 @@
-"""ToTal benchmark (issue 4, thesis ch. 6): cost of the scalar and vectorised forms, and the accuracy
+"""ToTal benchmark (thesis ch. 6): cost of the scalar and vectorised forms, and the accuracy
 of gated poses on the simulated Eurobot match with and without odometry.
 
 Usage: python bench/bench_triangulation.py [--seed N]

@@ -1,4 +1,4 @@
-"""Validation benchmark (issue 15): what the checks of every input and output cost per revolution, and
+"""Validation benchmark: what the checks of every input and output cost per revolution, and
 what a flood costs the EKF now that a revolution over MAX_BEARINGS_PER_REVOLUTION is refused whole.
 
 Usage: python bench/bench_validation.py

@@ -16,7 +16,7 @@ setup(
     maintainer_email="maintainers@beams-ros.org",
     description=(
         "The tools of the BeAMS suite: the offline bag replay, bag and trajectory tooling, the node "
-        "reference's generator and the fault campaign (issue 18)."
+        "reference's generator and the fault campaign."
     ),
     license="Apache-2.0",
     entry_points={

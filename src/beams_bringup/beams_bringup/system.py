@@ -8,7 +8,7 @@ from beams_common.standby import STANDBY_FLAG
 PARAMS_FILE = "beams_params.yaml"
 DISCOVERY_PROFILE = "fastdds_fast_discovery.xml"
 # A node that dies is started again this long after (s): `ros2 launch` (respawn_delay), the demo's
-# supervisor and the fault campaign alike. Issue 18 wants the EKF back within 2 s of any kill, and a
+# supervisor and the fault campaign alike. The EKF is to be back within 2 s of any kill, and a
 # Python node's own start-up already takes 0.5-1.6 s of it (imports, DDS discovery; the EKF's is the
 # longest, hence its hot standby: RobotNode.hot_standby), so the delay must be short. What bounds a
 # respawn storm (a node that dies at every start) is that start-up, not the delay: a start costs at
@@ -30,7 +30,7 @@ class RobotNode:
     # reads the calibration file (the driver's corrections, the geometry of the filters)
     takes_calibration: bool = True
     # runs as a pair, one process a hot standby (beams_common.standby): the node's own start-up is too
-    # long for issue 18's 2 s under load, a waiting standby's takeover is not
+    # long for the 2 s goal under load, a waiting standby's takeover is not
     hot_standby: bool = False
 
     @property

@@ -89,7 +89,7 @@ def node_action(
         namespace=LaunchConfiguration("namespace"),
         parameters=parameters,
         output="screen",
-        # issue 18: whatever kills a node (a fault past its callback guard, the OOM killer, kill -9)
+        # whatever kills a node (a fault past its callback guard, the OOM killer, kill -9)
         respawn=True,
         respawn_delay=RESPAWN_DELAY_S,
         condition=condition,

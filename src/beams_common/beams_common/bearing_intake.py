@@ -70,8 +70,7 @@ class RevolutionIntake:
     def revolution_refusals(self) -> list[tuple[str, str]]:
         """(diagnostic key, reason) for each kind of refusal that concerns the revolution: refused whole,
         a beacon seen twice at one instant, invalid bearings. A repeated sighting is not, nor a beacon
-        not on the map (another team's beacon in view is ordinary on a Eurobot table: only counted,
-        issue 18)."""
+        not on the map (another team's beacon in view is ordinary on a Eurobot table: only counted)."""
         if self.too_many:
             return [("revolutions_too_many_bearings", self.too_many)]
         refusals = []

@@ -1,4 +1,4 @@
-"""A localisation node's status that means something (issue 18): tracking only while its checks pass.
+"""A localisation node's status that means something: tracking only while its checks pass.
 
 GNSS integrity monitoring calls a wrong position under a healthy status "hazardously misleading
 information"; a BeAMS node says one of four statuses (`Status`), each with its reasons:

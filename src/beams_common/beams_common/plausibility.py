@@ -1,4 +1,4 @@
-"""Semantic plausibility of the inputs (issue 18): well-formed values that cannot be true.
+"""Semantic plausibility of the inputs: well-formed values that cannot be true.
 
 `validation` checks each input's syntax (finite, shaped, bounded); this module checks what a
 well-formed input claims against what is physically possible, each check returning a reason ('' when

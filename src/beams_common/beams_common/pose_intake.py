@@ -16,7 +16,7 @@ for the node's /diagnostics and the replay's counts alike:
    wedged the filter) (`covariance`). A covariance that is semi-definite but not definite (RViz's zeros)
    is kept without it: `KeptPose.covariance` is None and the filter uses its default.
 
-The stamp against the receiving clock (`plausibility.stamp_problem`, issue 18) is the node's, as for the
+The stamp against the receiving clock (`plausibility.stamp_problem`) is the node's, as for the
 bearings and the odometry: the offline replay has no receiving clock. An operator's stamp is no rule
 here either: it is taken as "now" by the Localiser when zero or ahead of the odometry.
 """

@@ -1,4 +1,4 @@
-"""Hot standby (issue 18): one ACTIVE process per node role, a second one waiting to take it over at once.
+"""Hot standby: one ACTIVE process per node role, a second one waiting to take it over at once.
 
 A role is a node's identity on one host: the ROS_DOMAIN_ID and the node's fully qualified name as its
 --ros-args remaps set it (`-r __ns:=/robot1`, `-r __node:=x`, `--remap`), read from the command line

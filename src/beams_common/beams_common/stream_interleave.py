@@ -1,4 +1,4 @@
-"""Two sources in one stream, told from the values: counters or stamps that interleave (issue 18).
+"""Two sources in one stream, told from the values: counters or stamps that interleave.
 
 One source gives increasing values (beams/bearings revolution counters, odometry stamps): each continues
 the previous by a small positive step, and a restart or a long gap starts a new run that the old one

@@ -26,7 +26,7 @@ INITIAL_POSE = "/initialpose"
 RELOAD_CALIBRATION = "~/reload_calibration"
 SET_POSE = "~/set_pose"
 RESET = "~/reset"
-# ekf_node: write the power bias learnt while driving as a calibration file (issue 19)
+# ekf_node: write the power bias learnt while driving as a calibration file
 SAVE_CALIBRATION = "~/save_calibration"
 CAPTURE_REFERENCE = "~/capture_reference"
 CALIBRATE = "~/calibrate"

@@ -1,4 +1,4 @@
-"""Beacon coordinates as EKF states (issue 19: "with a fourth beacon the beacon coordinates").
+"""Beacon coordinates as EKF states (with a fourth beacon the map is overdetermined).
 
 The thesis measures the beacons' coordinates by hand (chapter 7 calibrates them with the turret offset
 from 48 reference poses). With three beacons fixed, the map frame is defined and a further beacon's

@@ -32,7 +32,7 @@ The states past the pose describe the sensor and the odometry, not where the rob
 their covariance. An uncalibrated bearing whose power bias cannot be modelled yet (the window fit not
 ready, `power_bias_states.WindowFit`) updates the pose alone: it carries an unknown bias, and letting it
 teach the constants (odometry errors, turret offset, beacons) baked that bias into them, overconfidently
-(mean NEES over the first 10 s up to 10.5 on one seed of ten, 4.0 at most without; issue 19).
+(mean NEES over the first 10 s up to 10.5 on one seed of ten, 4.0 at most without).
 """
 
 from collections.abc import Mapping, Sequence
@@ -457,7 +457,7 @@ class BearingEkf:
         self._joseph_update(jacobian, variance_rad2, residual, innovation_variance)
         self._ekf.x[2, 0] = wrap_to_pi(float(self._ekf.x[2, 0]))
         # rounding drifts P from symmetric: after a wide prior (sigma 4 m) by more than the 1e-9 the
-        # published-estimate invariant allows (issue 18: every later estimate refused)
+        # published-estimate invariant allows (else every later estimate is refused)
         self._ekf.P = 0.5 * (self._ekf.P + self._ekf.P.T)
         return BearingOutcome(True, nis, residual)
 

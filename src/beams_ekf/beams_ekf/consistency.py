@@ -9,7 +9,7 @@ Either lets the next ToTal fix re-initialise the filter (`Localiser.on_pose`).
 - `PoseConfirmation`: after an event that breaks the estimate's continuity (an operator's pose, an
   implausible odometry step, an odometry silence, a time jump, a re-initialisation from ToTal after a
   kidnap or a lost test), the estimate is not the filter's own until its bearings confirm it: the status
-  says degraded meanwhile (issue 18: a pose no sensor has verified must not be called "tracking").
+  says degraded meanwhile (a pose no sensor has verified must not be called "tracking").
 """
 
 from collections import deque

@@ -1,4 +1,4 @@
-"""ekf_node's status (issue 18, `beams_common.health`): tracking only while its consistency checks pass.
+"""ekf_node's status (`beams_common.health`): tracking only while its consistency checks pass.
 
 - waiting: no pose has initialised the filter (or it was reset).
 - lost: the bearings' innovations contradict the estimate (`NisMonitor`'s chi-square test over its

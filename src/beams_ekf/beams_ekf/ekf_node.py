@@ -12,7 +12,7 @@ source publishes odom -> base_link), plus `/diagnostics`.
 Service `~/reset` (std_srvs/Trigger) forgets the pose estimate until the next pose (what the filter
 learnt of the sensor and the odometry is kept, as across every re-initialisation); `~/save_calibration`
 (std_srvs/Trigger) writes the power bias (and the turret offset and beacon coordinates, when estimated)
-learnt while driving to `self_calibration_file` (issue 19).
+learnt while driving to `self_calibration_file`.
 All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
 
 Every pose (ToTal's accepted fix, /initialpose, `~/set_pose`) goes through the one pose intake
@@ -20,7 +20,7 @@ Every pose (ToTal's accepted fix, /initialpose, `~/set_pose`) goes through the o
 with a covariance asymmetric, not positive semi-definite or beyond 4 m / 2 pi rad, it is refused with
 the reason, counted `<total|operator>_poses_<kind>` on /diagnostics (`~/set_pose` answers it).
 
-Plausibility (issue 18, `beams_common.plausibility`): a revolution whose newest bearing, an odometry
+Plausibility (`beams_common.plausibility`): a revolution whose newest bearing, an odometry
 message, or an accepted ToTal pose, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s`
 ahead of the node's clock is refused with the reason (`<bearings|odometry|total_pose>_stamp_refused`,
 `last_refusal`; two in a row degrade the status); an odometry increment beyond `max_speed_m_per_s` or
@@ -211,7 +211,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         intake = bearings_message_intake(msg, stamp_to_seconds, self.localiser.ekf.beacons_xy)
         newest_s = _newest_stamp_s(intake)
         if self._implausible_stamp("bearings", f"revolution {msg.revolution}", newest_s, now_s):
-            return  # a bearing applied at the wrong instant is confidently wrong (issue 18: 0.3-0.45 m)
+            return  # a bearing applied at the wrong instant is confidently wrong
         self.localiser.on_intake(intake)  # counts the bearings and revolutions refused, applies those kept
         for key, reason in intake.revolution_refusals():  # the localiser's count, with the reason
             counted = self.localiser.stats.counts[key]

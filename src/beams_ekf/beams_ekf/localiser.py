@@ -16,7 +16,7 @@ innovations, over a sliding window, too large for the covariance: the next ToTal
 Time going backwards (a rosbag played in a loop: consecutive odometry messages in the past, not one
 stray; `beams_common.time_jumps`) resets everything, what the filter learnt of the sensor included
 (the data start again); odometry gaps inflate the covariance instead of freezing the filter; an odometry
-increment beyond the robot's speed or yaw rate (a +100 m jump: issue 18, `beams_common.plausibility`)
+increment beyond the robot's speed or yaw rate (a +100 m jump, `beams_common.plausibility`)
 is never predicted with: the sample becomes the new reference and the covariance grows by the most the
 robot could have moved (`Localiser._rereference`).
 After any event that breaks the estimate's continuity (an operator's pose, an odometry jump, an odometry

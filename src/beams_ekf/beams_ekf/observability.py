@@ -1,4 +1,4 @@
-"""Which sensor parameters the bearings and odometry of a moving robot can learn (issue 19).
+"""Which sensor parameters the bearings and odometry of a moving robot can learn.
 
 The batch problem of a trajectory: the unknowns are the robot's pose at every revolution (nuisance) and
 the sensor parameters p; the measurements are the bearings (thesis eq. 2.5, with the power bias f(w) of

@@ -1,4 +1,4 @@
-"""The wheel odometry's increment as an arc, and its systematic errors as filter states (issue 13).
+"""The wheel odometry's increment as an arc, and its systematic errors as filter states.
 
 A differential-drive robot's odometry step is an arc: the robot travels s along it and turns by Delta,
 so its robot-frame increment is

@@ -20,7 +20,7 @@ class OdometryOutcome(StrEnum):
     HELD = "held"  # stamped far in the past, a stray unless the next ones confirm a time jump: dropped
     REFERENCE = "reference"  # the first sample (or the first after a reset or a time jump)
     PREDICTED = "predicted"  # the filter moved by the odometry since the previous sample
-    # an increment beyond the robot's speed or yaw rate (issue 18): not predicted with, the sample is the
+    # an increment beyond the robot's speed or yaw rate: not predicted with, the sample is the
     # new reference and the covariance grows by the largest motion the robot could have made
     JUMPED = "jumped"
 

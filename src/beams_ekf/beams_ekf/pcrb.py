@@ -1,4 +1,4 @@
-"""Posterior Cramer-Rao bound (PCRB) of the pose along a known true trajectory (issue 13).
+"""Posterior Cramer-Rao bound (PCRB) of the pose along a known true trajectory.
 
 Tichavsky, Muravchik and Nehorai (1998) give the Fisher information J_k of the state x_k (the inverse
 of a lower bound on the mean-square error of any estimator of x_k from the data up to k) recursively:

@@ -2,7 +2,7 @@
 
 An uncalibrated BeAMS bearing is phi_real + f(w) + noise, f the power bias, a smooth function of the angular
 window w that fluctuates within 0.23 deg over the working windows (section 5.7, fig. 5.6; eq. 7.19 fits a
-cubic). Treated as white noise it makes the filter overconfident (mean NEES ~40 on a match, issue 19): the
+cubic). Treated as white noise it makes the filter overconfident (mean NEES ~40 on a match): the
 same bias comes back bearing after bearing. Here f is written on the Chebyshev polynomials of the window
 mapped onto [-1, 1] over `window_range_rad` (clamped outside it, as the chapter-7 correction clamps):
 

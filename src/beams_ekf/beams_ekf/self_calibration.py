@@ -1,4 +1,4 @@
-"""What the EKF learnt of the sensor while driving, as a chapter-7 calibration file (issue 19).
+"""What the EKF learnt of the sensor while driving, as a chapter-7 calibration file.
 
 The power-bias states (`power_bias_states`) hold the curve f(w) of eq. 7.19 on a Chebyshev basis; the
 file holds it as eq. 7.19's (a, b, c, d) with the window range (beams_common.calibration_file), so

@@ -107,7 +107,7 @@ class FilterSettings:
     use_total_pose: bool = True
     # standard deviations (m, m, rad) of a pose without a usable covariance
     default_pose_sigma: tuple[float, float, float] = (0.05, 0.05, 0.1)
-    # the robot's maximum speed and yaw rate: an odometry increment beyond them is a jump (issue 18)
+    # the robot's maximum speed and yaw rate: an odometry increment beyond them is a jump
     motion_limits: MotionLimits = field(default_factory=MotionLimits)
     # the power bias of uncalibrated bearings as states (estimated or considered); None: white noise
     power_bias: PowerBiasStates | None = field(default_factory=PowerBiasStates)

@@ -1,4 +1,4 @@
-"""The turret offset (thesis section 7.3.3: the turret's centre in base_link) as EKF states (issue 19).
+"""The turret offset (thesis section 7.3.3: the turret's centre in base_link) as EKF states.
 
 The configured offset (`turret_offset_m`, or a calibration file's) is a measurement by hand; the states
 are its correction (dx, dy) (m), zero-mean with `prior_sigma_m`. A moving robot's bearings and odometry

@@ -1,4 +1,4 @@
-"""`fault_campaign`: plays a seeded schedule of faults against the whole running suite (issue 18) and
+"""`fault_campaign`: plays a seeded schedule of faults against the whole running suite and
 prints what it measured.
 
 The robot's four nodes (sim_world_node, driver_node, triangulation_node, ekf_node) run as separate
@@ -915,7 +915,7 @@ class Campaign:
             make_pose, expected = set_poses[variant]
             self.at(start, label, lambda: self._set_pose(label, make_pose(), expected))
         elif variant == "reload_empty_then_set_pose_nan":
-            # issue 18's reproduction: an ERROR refusal (a reload with an empty calibration_file), then
+            # a reproduction: an ERROR refusal (a reload with an empty calibration_file), then
             # WARN ones (a NaN operator pose, a NaN revolution)
             node = fault.value("node")
             nan_pose = set_poses["set_pose_nan"][0]

@@ -1,4 +1,4 @@
-"""The fault campaign's figures from recorded series (issue 18): pure, so they are tested on synthetic data.
+"""The fault campaign's figures from recorded series: pure, so they are tested on synthetic data.
 
 Every time is a ROS stamp in seconds (the nodes' clocks: system time, one machine). The series:
 - the EKF's published estimates: rows (stamp, x, y, var_xx, cov_xy, var_yy), position and its covariance;

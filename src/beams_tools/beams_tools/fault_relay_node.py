@@ -1,5 +1,5 @@
 """fault_relay_node: sits between the robot's publishers and its filters and makes their data wrong on
-request, well-formed all the same (the fault campaign, issue 18).
+request, well-formed all the same (the fault campaign).
 
 The real publishers are remapped to raw topics (sim_world_node: `odom:=odom_raw`,
 `beams/sim/ground_truth:=beams/sim/ground_truth_raw`; driver_node: `beams/bearings:=beams/bearings_raw`)

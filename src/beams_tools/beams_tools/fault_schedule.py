@@ -1,4 +1,4 @@
-"""The fault campaign's schedule (issue 18): a seeded, reproducible list of faults, one after the other.
+"""The fault campaign's schedule: a seeded, reproducible list of faults, one after the other.
 
 A schedule is a pure function of its seed and settings: the same seed draws the same faults at the same
 offsets from the campaign's start. Faults never overlap, so every second of the campaign belongs to at
@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-# The classes of issue 18 the campaign plays everywhere (the serial line's and the hosts' link below need
+# The fault classes the campaign plays everywhere (the serial line's and the hosts' link below need
 # a serial sensor and network namespaces).
 FAULT_CLASSES = (
     "bad_message",
@@ -147,7 +147,7 @@ def _draw(kind: str, rng: np.random.Generator) -> tuple[str, float, dict[str, An
     if kind == "odometry_delay":
         return "held_back", float(rng.uniform(2.0, 4.0)), {"delay_s": float(rng.uniform(0.2, 1.0))}
     if kind == "bearing_stamp_offset":
-        # the issue's cases: stamped 0.3-3 s late (in the past) or 0.5 s early (in the future)
+        # the cases: stamped 0.3-3 s late (in the past) or 0.5 s early (in the future)
         late = rng.random() < 0.7
         offset_s = -float(rng.uniform(0.3, 3.0)) if late else 0.5
         return ("late" if late else "early"), float(rng.uniform(2.0, 4.0)), {"offset_s": offset_s}

@@ -3,7 +3,7 @@
 A thread streams one simulated revolution per turret period, in real time, behind a fixed path (a
 symlink, as udev's /dev/serial/by-id/ links are): the revolution that covers [t, t + period) of host time
 is written at its end, as the firmware's frames leave while the turret turns, with the robot at the pose
-the campaign's truth gives for each instant. Faults of the line (issue 18): random bytes in every
+the campaign's truth gives for each instant. Faults of the line: random bytes in every
 revolution (line noise), a spurious zero reference SPURIOUS_ZERO_EARLY_S before every real one (a
 bouncing optical switch: a driver that trusts it closes each revolution 1.2 % short), silence (nothing
 sent, the port open), and unplugging (the pty closed, the path removed) until `clear`/`plug`.
@@ -24,7 +24,7 @@ from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_driver.serial_protocol import EventKind, FrameEncoder, seconds_to_ticks
 from beams_tools.fault_schedule import SERIAL_LINE_FAULTS
 
-# issue 18's case: a spurious zero reference this long (s) before each real one, 1.2 % of a 0.1 s turn
+# the case seen: a spurious zero reference this long (s) before each real one, 1.2 % of a 0.1 s turn
 SPURIOUS_ZERO_EARLY_S = 1.2e-3
 # (x, y, theta) of the robot at a host time (s), or None while unknown
 PoseAtHost = Callable[[float], tuple[float, float, float] | None]

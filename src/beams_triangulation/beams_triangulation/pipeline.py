@@ -31,7 +31,7 @@ class TriangulationSettings:
     use_odometry: bool = True
     odometry_history_s: float = 2.0
     max_odometry_extrapolation_s: float = 0.05
-    # the robot's maximum speed and yaw rate: an odometry increment beyond them is a jump (issue 18)
+    # the robot's maximum speed and yaw rate: an odometry increment beyond them is a jump
     motion_limits: MotionLimits = field(default_factory=MotionLimits)
 
 

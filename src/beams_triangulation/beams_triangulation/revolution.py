@@ -5,7 +5,7 @@ with odometry, or the motion seen between revolutions in the variances), the cov
 (remembering the last pose for the motion); `pipeline.TriangulationPipeline` adds the odometry and the
 wait for it. The intake (`beams_common.bearing_intake`) is the EKF's too; ToTal's policy on it: a
 revolution with a beacon seen twice at one instant or an invalid measurement gives no pose (bad input);
-a repeated sighting, and a bearing of a beacon not on the map (another team's beacon in view, issue 18:
+a repeated sighting, and a bearing of a beacon not on the map (another team's beacon in view:
 1 pose in 8 s when it made the revolution bad input), are set aside (counted by the intake) and the
 revolution's other bearings still count.
 """

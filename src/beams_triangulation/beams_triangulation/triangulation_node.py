@@ -13,7 +13,7 @@ Bad input (NaN bearing, duplicated beacon, fewer than three beacons) gives a log
 bearing of a beacon not on the map (another team's) is counted and left out, the others still count.
 The beacon map and turret offset come from the calibration file when one is given.
 
-Plausibility (issue 18, `beams_common.plausibility`): a revolution whose newest bearing, or an odometry
+Plausibility (`beams_common.plausibility`): a revolution whose newest bearing, or an odometry
 message, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s` ahead of the node's clock
 is refused with the reason; an odometry increment beyond `max_speed_m_per_s` or
 `max_yaw_rate_rad_per_s` restarts the odometry history (no revolution compensated across it). The

@@ -1,4 +1,4 @@
-"""Nothing escapes a callback (issue 18): one guard at the boundary of every ROS callback of a node.
+"""Nothing escapes a callback: one guard at the boundary of every ROS callback of a node.
 
 `GuardedCallbacks` is a mixin for rclpy's Node and LifecycleNode (first among the bases:
 `class EkfNode(GuardedCallbacks, Node)`). Every callback given to `create_subscription`,

@@ -1,4 +1,4 @@
-"""A second publisher on a node's input is said on /diagnostics at ERROR, naming the publishers (issue 18).
+"""A second publisher on a node's input is said on /diagnostics at ERROR, naming the publishers.
 
 Two driver_nodes (or two sim_world_nodes) in one namespace interleave their revolutions and odometry:
 fused twice, lost detections, re-initialisations, every status OK. `WatchedInputs`, a mixin for rclpy's

@@ -68,7 +68,7 @@ def run_node(
     callbacks passes events_executor=False: Jazzy's EventsExecutor does not run them. The environment
     variable BEAMS_EXECUTOR=single_threaded puts every node back on rclpy's SingleThreadedExecutor.
 
-    Hot standby (issue 18, beams_common.standby): the process first takes its node's role (ROS_DOMAIN_ID
+    Hot standby (beams_common.standby): the process first takes its node's role (ROS_DOMAIN_ID
     and the fully qualified name its remaps give to the node's own name, which is its executable's in
     this suite: test/static/test_node_names.py). Started with `--standby` before --ros-args, it waits,
     its modules imported but no rclpy context or DDS participant made, until the role is free, and only

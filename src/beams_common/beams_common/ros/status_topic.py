@@ -1,4 +1,4 @@
-"""A localisation node's status on a topic of its own, beside its estimates (issue 18, docs/status.md).
+"""A localisation node's status on a topic of its own, beside its estimates (docs/status.md).
 
 The estimates' messages (nav_msgs/Odometry, geometry_msgs/PoseWithCovarianceStamped) have no field for
 a status, and /diagnostics is one array for every node at 1 Hz: a consumer that must not use an
