@@ -152,14 +152,14 @@ def rows() -> list[Row]:
                     f"median of {RESTARTS}",
                     float(np.median(delays)),
                     "s",
-                    "issue 7: recovery within 2 s",
+                    "recovery within 2 s",
                 ),
                 (
                     f"plain subscriber restarted after kill -9, user data in {transport}: first message, "
                     f"max of {RESTARTS}",
                     max(delays),
                     "s",
-                    "issue 7: recovery within 2 s",
+                    "recovery within 2 s",
                 ),
             ]
     return result

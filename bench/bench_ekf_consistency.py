@@ -3,7 +3,7 @@ Cramer-Rao bound (PCRB) from the simulator's true noise models, the odometry err
 beacons hidden for 10 s) and the lost detection.
 
 Filters compared: "white odometry noise" (BearingEkf's own ProcessNoise defaults, no odometry error
-states: the filter before issue 13), "error states" (ekf_node's defaults, FilterSettings: the
+states), "error states" (ekf_node's defaults, FilterSettings: the
 odometry's systematic errors as states, the wheels' random noise as process noise) and "wheel noise, no
 error states" (that process noise without the states: the systematic errors are then unmodelled).
 Every replay gets ToTal's motion-compensated fixes, as ekf_node does (they only matter to a lost or

@@ -1,4 +1,4 @@
-"""The fault campaign of issue 18 over its full length: a seeded schedule of faults from every class
+"""The fault campaign over its full length: a seeded schedule of faults from every class
 against the whole running suite, the driver on a simulated serial sensor and on a host of its own (a
 network namespace whose link to the rest the link_down faults cut; skipped, and said in the report,
 where namespaces cannot be made: root and iproute2) (beams_tools.campaign_command;

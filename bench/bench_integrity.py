@@ -211,7 +211,7 @@ def rows() -> list[Row]:
             if name in standby_nodes
             else f"{RESPAWN_DELAY_S:g} s respawn delay + start-up"
         )
-        goal = f"issue 18 goal 2 s ({how})"
+        goal = f"goal 2 s ({how})"
         result.append(
             (f"EKF output again after kill -9 of {name}, worst of {KILL_ROUNDS}", max(delays), "s", goal)
         )
@@ -226,7 +226,7 @@ def rows() -> list[Row]:
             f"second driver_node said ERROR (ekf and triangulation), worst of {len(second)}",
             max(second),
             "s",
-            "issue 18 goal 1 s",
+            "goal 1 s",
         )
     )
     return result

@@ -73,13 +73,13 @@ def rows() -> list[Row]:
     # Bearings restamped 0.3-1 s late or 0.5 s early are all gated by the EKF alone here (its worst error
     # stays at the no-fault figure with the stamp check off too): the live hazard of the issue came
     # through ToTal's fixes of those revolutions, which test_system_plausibility.py shows over DDS.
-    faults = (("odometry +100 m", {"odometry_offset_m": 100.0}, "issue 18: 35 m then 77 m, 'tracking'"),)
+    faults = (("odometry +100 m", {"odometry_offset_m": 100.0}, "35 m then 77 m, 'tracking'"),)
     for name, fault, reference in faults:
         result.append((f"EKF worst error, {name}, checks on", _worst_error_m(**fault), "m", reference))
         result.append(
             (f"EKF worst error, {name}, checks off", _worst_error_m(**fault, checks=False), "m", reference)
         )
-    result.append(("EKF worst error, no fault", _worst_error_m(), "m", "issue 5: ~1 cm RMS"))
+    result.append(("EKF worst error, no fault", _worst_error_m(), "m", "~1 cm RMS"))
     tolerance, limits = StampTolerance(), MotionLimits()
     result.append(
         (

@@ -2,8 +2,8 @@
 hardware as the nodes run with their own defaults, uncalibrated or perfectly calibrated.
 
 Runs, each over the same seeds (trajectory, sensor and odometry noise):
-- "uncalibrated, bias as white noise": ekf_node's defaults with power_bias_states 'off' (the filter before
-  issue 19);
+- "uncalibrated, bias as white noise": ekf_node's defaults with power_bias_states 'off' (no bias
+  states);
 - "uncalibrated, bias considered": power_bias_states 'consider' (Schmidt-Kalman: the bias's prior carried
   in the covariance, never estimated);
 - "uncalibrated, self-calibrating": ekf_node's defaults (power_bias_states 'estimate'), its figures over
@@ -22,7 +22,7 @@ mean over the period).
 Each run's 30 s windows (six in 180 s, the first from SETTLE_S) are also held to the band a consistent
 filter's window mean falls in with 95 % probability (beams_ekf.nees_band: the NEES's autocorrelation pooled
 over the seeds, the window means of a Gaussian error of that correlation; beside it N_eff = 30 s / tau and
-the chi-square band chi2(3 N_eff) / N_eff), and to issue 19's 2.0-4.5: how many of the seeds x windows
+the chi-square band chi2(3 N_eff) / N_eff), and to the 2.0-4.5 target: how many of the seeds x windows
 fall outside each.
 
 Usage: python bench/bench_self_calibration.py [--seeds N] [--duration S]
@@ -51,7 +51,7 @@ SETTLE_S = 1.0
 # the figures of each period: from the start, after 30 s, 60 s and 120 s of self-calibration
 PERIODS_S = ((SETTLE_S, 30.0), (30.0, 60.0), (60.0, 120.0), (120.0, 180.0))
 SENSOR_MODEL = "thesis_hardware"
-# one seed's 30 s windows of the match, each held to the consistent band and to issue 19's
+# one seed's 30 s windows of the match, each held to the consistent band and to the target's
 WINDOW_S = 30.0
 ISSUE_NEES_BAND = (2.0, 4.5)
 
@@ -175,7 +175,7 @@ class Pool:
 
     def window_rows(self, name: str, duration_s: float) -> list[tuple[str, float, str, str]]:
         """The 30 s windows of every seed against the consistent band (from the NEES's correlation pooled
-        over the seeds) and against issue 19's band."""
+        over the seeds) and against the target's band."""
         correlation, means, bands = windows_against_band(self.series, duration_s)
         below, above = (means < bands[:, 0]).sum(), (means > bands[:, 1]).sum()
         chi_square = np.array([correlation.band(end - start) for start, end in windows_of(duration_s)])

@@ -341,13 +341,13 @@ def restart_rows(probe: Probe, processes: dict[str, subprocess.Popen], launcher:
                     f"restart after {how}: {executable} ready -> first output, median of {RESTARTS}",
                     float(np.median(from_ready)),
                     "s",
-                    "issue 7: recovery within 2 s",
+                    "recovery within 2 s",
                 ),
                 (
                     f"restart after {how}: {executable} ready -> first output, max of {RESTARTS}",
                     max(from_ready),
                     "s",
-                    "issue 7: recovery within 2 s",
+                    "recovery within 2 s",
                 ),
                 (
                     f"restart after {how}: {executable} process start -> first output, max of {RESTARTS}",

@@ -47,7 +47,7 @@ def scalar_rows() -> list[Row]:
             "ToTal scalar call: pose + covariance + gate",
             _best_per_call_s(full_call, 20_000) * 1e6,
             "us",
-            "issue 4: under 10 us in CPython",
+            "under 10 us in CPython",
         ),
         (
             "ToTal scalar call: pose only (triangulate)",
@@ -76,7 +76,7 @@ def vector_rows() -> list[Row]:
             "ToTal vectorised, 10^6 triplets, one core",
             best_total / VECTOR_COUNT * 1e9,
             "ns/pose",
-            "issue 4: <= 60 ns; thesis table 6.1: 163 ns in C (i7 920)",
+            "<= 60 ns; thesis table 6.1: 163 ns in C (i7 920)",
         ),
         ("pose covariance vectorised, 10^6 poses", best_covariance / VECTOR_COUNT * 1e9, "ns/pose", "-"),
     ]
@@ -92,8 +92,8 @@ def match_rows(seed: int = DEFAULT_SEED) -> list[Row]:
 
     rows: list[Row] = []
     targets = {
-        "with odometry": ("issue 4: >= 90%", "issue 4: < 20 mm", "issue 4: < 0.5 deg"),
-        "without odometry": ("issue 4: measured and recorded",) * 3,
+        "with odometry": (">= 90%", "< 20 mm", "< 0.5 deg"),
+        "without odometry": ("measured and recorded",) * 3,
     }
     for label, source in (("with odometry", odometry_at), ("without odometry", None)):
         estimator = RevolutionEstimator(match.beacon_map, turret_offset_m=match.turret_offset_m)

@@ -65,11 +65,11 @@ def rows() -> list[Row]:
             "-",
         ),
         (
-            f"EKF on a {FLOOD_BEARINGS}-bearing revolution, every bearing filtered, as before issue 15 "
+            f"EKF on a {FLOOD_BEARINGS}-bearing revolution, every bearing filtered, without the intake "
             "(filter set-up included)",
             all_through * 1e3,
             "ms",
-            "issue 15: 0.5 s without output over DDS",
+            "0.5 s without output over DDS",
         ),
         (
             f"EKF on a {FLOOD_BEARINGS}-bearing revolution, refused whole, now (filter set-up included)",

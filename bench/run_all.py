@@ -1,8 +1,9 @@
-"""Run every benchmark under bench/ and print one table: the table BENCHMARKS.md records.
+"""Run the benchmarks under bench/ and print one table per area: the tables BENCHMARKS.md records.
 
 Each bench/bench_<area>.py module has `rows() -> list[(figure, value, unit, compared with)]`.
 Usage (through `make bench`): python bench/run_all.py [--only AREA ...] [--record BENCHMARKS.md]
-With --record, the table replaces what stands between the file's two "make bench: table" markers.
+With --record, each area run replaces its own section of the file (between its "bench: <area>" markers,
+added at the end when new), so the file holds the latest figure of each row with its date and command.
 """
 
 import argparse
@@ -27,37 +28,52 @@ def format_value(value: float) -> str:
     return f"{value:.4g}" if isinstance(value, float) else str(value)
 
 
-BEGIN_MARK = "<!-- make bench: table begins -->"
-END_MARK = "<!-- make bench: table ends -->"
+def markers(area: str) -> tuple[str, str]:
+    return f"<!-- bench: {area} begins -->", f"<!-- bench: {area} ends -->"
 
 
-def record_table(path: pathlib.Path, table: str) -> None:
-    """Replace the table between the markers of a Markdown file, keeping the text around it."""
+def area_section(area: str, rows: list[tuple]) -> str:
+    """One area's table, headed by when, where and with what command it was measured."""
+    lines = [
+        f"## {area}",
+        "",
+        f"Measured {datetime.date.today().isoformat()} on {platform.node()} "
+        f"({platform.processor() or platform.machine()}, Python {platform.python_version()}) with "
+        f"`python bench/bench_{area}.py`.",
+        "",
+        "| figure | value | unit | compared with |",
+        "|---|---|---|---|",
+    ]
+    lines += [
+        f"| {figure} | {format_value(value)} | {unit} | {compared} |"
+        for figure, value, unit, compared in rows
+    ]
+    return "\n".join(lines)
+
+
+def record_section(path: pathlib.Path, area: str, section: str) -> None:
+    """Replace an area's section of a Markdown file (or append it), keeping everything else."""
+    begin, end = markers(area)
     text = path.read_text()
-    if BEGIN_MARK not in text or END_MARK not in text:
-        raise SystemExit(f"{path} has no {BEGIN_MARK} / {END_MARK} markers")
-    head, rest = text.split(BEGIN_MARK, 1)
-    _, tail = rest.split(END_MARK, 1)
-    path.write_text(f"{head}{BEGIN_MARK}\n{table}\n{END_MARK}{tail}")
+    if begin in text and end in text:
+        head, rest = text.split(begin, 1)
+        _, tail = rest.split(end, 1)
+    else:
+        head, tail = text.rstrip("\n") + "\n\n", "\n"
+    path.write_text(f"{head}{begin}\n{section}\n{end}{tail}")
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--only", nargs="*", default=None, help="areas to run (bench_<area>.py)")
-    parser.add_argument("--record", type=pathlib.Path, help="also put the table into this file (its markers)")
+    parser.add_argument("--record", type=pathlib.Path, help="also put each area's table into this file")
     options = parser.parse_args()
     paths = sorted(BENCH_DIR.glob("bench_*.py"))
     if options.only:
         paths = [p for p in paths if p.stem.removeprefix("bench_") in options.only]
-    lines = [
-        f"Measured {datetime.date.today().isoformat()} on {platform.node()} "
-        f"({platform.processor() or platform.machine()}, Python {platform.python_version()}).",
-        "",
-        "| figure | value | unit | compared with | command |",
-        "|---|---|---|---|---|",
-    ]
     failures = 0
     for path in paths:
+        area = path.stem.removeprefix("bench_")
         started = time.monotonic()
         print(f"running {path.name} ...", file=sys.stderr, flush=True)
         try:
@@ -66,14 +82,11 @@ def main() -> int:
             print(f"{path.name} failed: {error!r}", file=sys.stderr)
             failures += 1
             continue
-        for figure, value, unit, compared_with in rows:
-            command = f"`python bench/{path.name}`"
-            lines.append(f"| {figure} | {format_value(value)} | {unit} | {compared_with} | {command} |")
+        section = area_section(area, rows)
+        print(section + "\n")
+        if options.record:
+            record_section(options.record, area, section)
         print(f"{path.name}: {len(rows)} figures in {time.monotonic() - started:.1f} s", file=sys.stderr)
-    table = "\n".join(lines)
-    print(table)
-    if options.record:
-        record_table(options.record, table)
     return 1 if failures else 0
 
 
