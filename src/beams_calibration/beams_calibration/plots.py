@@ -28,11 +28,6 @@ def _new_figure(width_in: float, height_in: float):
     return figure
 
 
-def plot_positions(result: CalibrationResult, path: str | os.PathLike) -> Path:
-    """Figure 7.13 (`positions_figure`) to a PNG file."""
-    return _save(positions_figure(result), path)
-
-
 def positions_figure(result: CalibrationResult):
     """Figure 7.13: around each reference position (cross), the computed positions before (stars)
     and after (circles) calibration; panels 15 mm square, 2 mm graduations, mm offsets."""
@@ -73,11 +68,6 @@ def positions_figure(result: CalibrationResult):
     return figure
 
 
-def plot_corrections(result: CalibrationResult, path: str | os.PathLike) -> Path:
-    """Figures 7.11 and 7.12 (`corrections_figure`) to a PNG file."""
-    return _save(corrections_figure(result), path)
-
-
 def corrections_figure(result: CalibrationResult):
     """Figures 7.11 and 7.12: the power-bias correction against the window and the rotation-bias
     correction against the turret angle (deg), with the dataset's windows and bearings marked."""
@@ -112,23 +102,11 @@ def corrections_figure(result: CalibrationResult):
     return figure
 
 
-def _save(figure, path: str | os.PathLike) -> Path:
-    target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(target)
-    return target
-
-
 # The figures of a calibration and their file names in the plots directory.
 FIGURES = (
     ("calibration_positions.png", positions_figure),
     ("calibration_corrections.png", corrections_figure),
 )
-
-
-def plot_all(result: CalibrationResult, directory: str | os.PathLike) -> list[Path]:
-    """Both figures into a directory: calibration_positions.png and calibration_corrections.png."""
-    return [_save(draw(result), Path(directory) / name) for name, draw in FIGURES]
 
 
 def stage_plots(result: CalibrationResult, directory: str | os.PathLike) -> list[StagedFile]:
