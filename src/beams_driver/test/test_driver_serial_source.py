@@ -19,7 +19,6 @@ from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver import serial_source
 from beams_driver.decoder import BearingDecoder
 from beams_driver.edges import RevolutionEdges
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_driver.serial_protocol import (
     FRAME_SIZE,
     HELLO_SIZE,
@@ -40,6 +39,7 @@ from beams_driver.serial_source import (
     SerialSource,
 )
 from beams_driver.variance import VarianceModel
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 
 HALF_TICK_RAD = math.pi / TICKS_PER_REVOLUTION
 WAIT_S = 10.0

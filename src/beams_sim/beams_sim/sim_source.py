@@ -19,8 +19,8 @@ from beams_driver.codes import BeaconCode
 from beams_driver.edge_source import EdgeSourceKind, SourceHealth, SourceHost, SourcePoll
 from beams_driver.edges import TURRET_PERIOD_S
 from beams_driver.receiver import ReceiverModel
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
 from beams_sim.occlusion import TRUTH_MAX_EXTRAPOLATION_S, OtherRobots, truth_buffer, truth_covers
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
 
 GROUND_TRUTH_TOPIC = topics.GROUND_TRUTH
 # A clock that jumped this far ahead (s) restarts the simulation from now instead of catching up.
