@@ -1,7 +1,7 @@
-"""The simulated edge source (`source: sim`): the edge-level simulation of the sensor (sensor_sim.py)
-following the robot's true pose as it arrives (beams/sim/ground_truth) or a static pose, with beacons
-hidden by a schedule or by the other robots' bodies (occlusion.py). Pure: the driver's SourceHost feeds it
-the pose streams.
+"""The simulated edge source (`source: sim`, declared to the driver by setup.py's beams_driver.edge_sources
+entry point): the edge-level simulation of the sensor (sensor_sim.py) following the robot's true pose as
+it arrives (beams/sim/ground_truth) or a static pose, with beacons hidden by a schedule or by the other
+robots' bodies (occlusion.py). Pure: the driver's SourceHost feeds it the pose streams.
 """
 
 from collections.abc import Mapping, Sequence
