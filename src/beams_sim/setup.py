@@ -24,7 +24,6 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": ["sim_world_node = beams_sim.sim_world_node:main"],
-        # the driver's simulated edge source (`source: sim`), found by beams_driver.edge_source
         "beams_driver.edge_sources": ["sim = beams_sim.sim_source:EDGE_SOURCE"],
     },
 )

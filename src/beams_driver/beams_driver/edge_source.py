@@ -5,10 +5,11 @@ variance model. A source is a kind (`EdgeSourceKind`): its parameters (Parameter
 driver only when that source is chosen) and a factory building the source from their validated values,
 the code list and a `SourceHost` (what the source may ask of the node: subscribe to a pose stream, a
 topic name, a log, the clock). This package's own kind is `serial` (serial_source.py); the installed
-packages name theirs in the `beams_driver.edge_sources` entry-point group of their setup.py (`sim`, the
-simulated sensor, is declared by the package of the simulated world, which stands on this one). A source
-of no package's declaration is chosen with `source:=package.module:EDGE_SOURCE`, with no edit to the
-driver (test/dds/test_edge_source_plugin.py plugs in a replay of recorded edges that way).
+packages name theirs in ENTRY_POINT_GROUP (`beams_driver.edge_sources`) of their setup.py's entry_points,
+`name = package.module:ATTRIBUTE` (`sim`, the simulated sensor, is declared by the package of the simulated
+world, which stands on this one: the driver names nothing of it). Any other source is chosen with
+`source:=package.module:EDGE_SOURCE`, with no edit to the driver (test/dds/test_edge_source_plugin.py
+plugs in a replay of recorded edges that way).
 """
 
 import importlib
@@ -105,15 +106,12 @@ class EdgeSourceKind:
     )
 
 
-# Where an installed package names its sources (setup.py: entry_points={ENTRY_POINT_GROUP: ["name =
-# package.module:ATTRIBUTE"]}), so that the driver imports nothing of the packages standing on it.
 ENTRY_POINT_GROUP = "beams_driver.edge_sources"
 OWN_SOURCES = {"serial": "beams_driver.serial_source:EDGE_SOURCE"}
 
 
 def named_sources() -> dict[str, str]:
-    """Every source name and its `package.module:ATTRIBUTE`: the installed packages' entry points, and
-    this package's own (which no entry point replaces)."""
+    """Every source name and its `package.module:ATTRIBUTE`: the installed packages' entry points, ours."""
     declared = {point.name: point.value for point in entry_points(group=ENTRY_POINT_GROUP)}
     return declared | OWN_SOURCES
 

@@ -36,8 +36,7 @@ THESIS_RISING_VARIANCE_DEG2 = (0.0018, 0.0137)
 THESIS_FALLING_VARIANCE_DEG2 = (0.000066, 0.0023)
 # Section 5.7: the bias fluctuates with the received power within 0.23 deg.
 THESIS_POWER_BIAS_RANGE_DEG = 0.23
-# The windows (rad) the experiment of section 5.3 spans (4-150 mW at 1 m: 6 m to 1 m), fig. 5.3's
-# abscissa: 2.18 deg and 8.0 deg, the thesis device's beam at those distances (the simulated sensor's beam).
+# Fig. 5.3's windows (rad): section 5.3's experiment, 6 m to 1 m (2.18 to 8.0 deg; the device's beam).
 THESIS_WINDOW_RANGE_RAD = (0.03804832377144775, 0.13957318546672076)
 
 
@@ -135,8 +134,7 @@ class HardwareNoise:
     @classmethod
     def thesis_hardware(cls) -> "HardwareNoise":
         """The receiver noise the thesis measured over section 5.3's windows: fig. 5.3's edge noise, table
-        5.1's shortening, and a power bias fluctuating within section 5.7's 0.23 deg
-        (`thesis_power_bias_coefficients`)."""
+        5.1's shortening, a power bias within section 5.7's 0.23 deg (`thesis_power_bias_coefficients`)."""
         bias_range_rad = math.radians(THESIS_POWER_BIAS_RANGE_DEG)
         return cls(
             THESIS_WINDOW_RANGE_RAD, thesis_power_bias_coefficients(THESIS_WINDOW_RANGE_RAD, bias_range_rad)
@@ -182,9 +180,8 @@ class HardwareNoise:
         return (rising**2 + falling**2) / 4.0
 
     def natural_variance_line(self) -> tuple[float, float, float]:
-        """(natural variance at the smallest window (rad^2), its slope (rad^2 per rad), that window (rad)):
-        the edge noise (sigma_r^2 + sigma_f^2) / 4, linear in the window over the experiment's windows
-        (fig. 5.3, section 5.6), as the driver's variance model takes it (C_k)."""
+        """(natural variance (rad^2) at the smallest window, its slope (rad^2 per rad), that window (rad)):
+        the edge noise (eq. 3.13), linear over the experiment's windows (fig. 5.3), as the driver takes it."""
         low, high = self.window_range_rad
         at_low, at_high = (float(self.natural_variance_rad2(w, None)) for w in (low, high))
         return at_low, (at_high - at_low) / (high - low), low

@@ -94,13 +94,8 @@ class SensorSimConfig:
         extra shortening of modulated windows reproduces table 5.1's experiment column; the power bias is a
         cubic fluctuating over the 0.23 deg range of section 5.7 (`thesis_power_bias_coefficients`).
         """
-        base = cls(
-            rising_noise_rad=0.0,
-            falling_noise_rad=0.0,
-            min_burst_gap_exponent=THESIS_MIN_BURST_GAP_EXPONENT,
-            hardware=HardwareNoise.thesis_hardware(),
-        )
-        return replace(base, **overrides)
+        base = cls(rising_noise_rad=0.0, falling_noise_rad=0.0, hardware=HardwareNoise.thesis_hardware())
+        return replace(base, **{"min_burst_gap_exponent": THESIS_MIN_BURST_GAP_EXPONENT, **overrides})
 
     @property
     def receiver(self) -> ReceiverModel:

@@ -274,11 +274,8 @@ def simulated_bearings(
     model's variances) gives on the simulated sensor: the recording of a rehearsal (tests, bench)."""
     simulator = SensorSimulator(config, beacons, np.random.default_rng(seed))
     decoder = BearingDecoder(config.codes, model, receiver=config.receiver)
-    rows = []
-    for n in range(revolutions):
-        decoded = decoder.decode(simulator.revolution(pose_at, n * config.period_s))
-        rows += [(b.beacon_id, b.bearing, b.variance, b.angular_window) for b in decoded.bearings]
-    return rows
+    runs, _ = _run_sensor(simulator, decoder, pose_at, revolutions * config.period_s, config.period_s, False)
+    return [(b.beacon_id, b.bearing, b.variance, b.angular_window) for r in runs for b in r.bearings]
 
 
 def _run_sensor(
