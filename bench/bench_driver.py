@@ -14,13 +14,13 @@ import numpy as np
 
 from beams_driver.codes import BeaconCode, code_family
 from beams_driver.decoder import BearingDecoder
-from beams_driver.sensor_sim import (
+from beams_driver.variance import VarianceModel
+from beams_sim.sensor_sim import (
     SensorSimConfig,
     SensorSimulator,
     SimulatedBeacon,
     fixed_window_bearing_errors,
 )
-from beams_driver.variance import VarianceModel
 from beams_thesis.receiver_experiment import window_experiment
 
 REVOLUTIONS = 200

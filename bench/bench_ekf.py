@@ -23,10 +23,10 @@ import numpy as np
 from beams_common.angles import wrap_to_pi
 from beams_common.bearing import Bearing
 from beams_common.pose2d import compose
-from beams_driver.sensor_sim import SensorSimConfig
 from beams_driver.variance import VarianceModel
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
+from beams_sim.sensor_sim import SensorSimConfig
 from beams_sim.simulated_match import (
     SENSOR_MODELS,
     SimulatedMatch,

@@ -42,11 +42,10 @@ import numpy as np
 from scipy.stats import chi2
 
 from beams_common.pose2d import between
-from beams_driver.sensor_sim import SensorSimConfig
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
 from beams_ekf.odometry_errors import OdometryErrorStates
-from beams_ekf.pcrb import PcrbTrack, WheelNoiseModel, trajectory_pcrb
+from beams_sim.sensor_sim import SensorSimConfig
 from beams_sim.simulated_match import (
     SENSOR_MODELS,
     SimulatedMatch,
@@ -56,6 +55,7 @@ from beams_sim.simulated_match import (
 )
 from beams_sim.world import OdometryDrift
 from beams_thesis.match_replay import match_fixes, match_odometry, replay_match
+from beams_thesis.pcrb import PcrbTrack, WheelNoiseModel, trajectory_pcrb
 from beams_thesis.replay import PoseEvent, ReplayResult
 
 DEFAULT_SEEDS = 10

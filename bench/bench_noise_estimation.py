@@ -13,9 +13,10 @@ import numpy as np
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.estimate_noise import estimate
-from beams_driver.noise_estimation import beacon_spread, recordings_from_bearings, simulated_bearings
+from beams_driver.noise_estimation import beacon_spread, recordings_from_bearings
 from beams_driver.parameters import DRIVER_PARAMETERS, codes_of, variance_model_of
-from beams_driver.sensor_sim import SensorSimConfig, beacons_from_map
+from beams_sim.sensor_sim import SensorSimConfig, beacons_from_map
+from beams_sim.simulated_match import simulated_bearings
 
 HARDWARE = SensorSimConfig.thesis_hardware()
 POSES = [(1.5, 1.0, 0.0), (0.9, 1.2, 1.0), (2.0, 0.5, -2.0), (2.0, 1.6, 2.5)]

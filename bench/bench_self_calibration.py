@@ -20,7 +20,7 @@ windows of (estimated - true bias). Each mean NEES comes with its range over the
 mean over the period).
 
 Each run's 30 s windows (six in 180 s, the first from SETTLE_S) are also held to the band a consistent
-filter's window mean falls in with 95 % probability (beams_ekf.nees_band: the NEES's autocorrelation pooled
+filter's window mean falls in with 95 % probability (beams_thesis.nees_band: the NEES's autocorrelation pooled
 over the seeds, the window means of a Gaussian error of that correlation; beside it N_eff = 30 s / tau and
 the chi-square band chi2(3 N_eff) / N_eff), and to the 2.0-4.5 target: how many of the seeds x windows
 fall outside each.
@@ -39,10 +39,10 @@ from bench_ekf_consistency import START_SIGMA, match_bound
 
 from beams_driver.parameters import SENSOR_PARAMETERS, corrected_variance_of, variance_model_of
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
-from beams_ekf.nees_band import NeesCorrelation, gaussian_window_band, nees_correlation, window_means
 from beams_ekf.power_bias_states import PowerBiasStates
 from beams_sim.simulated_match import SimulatedMatch, calibration_of, sensor_config_of, simulate_match
 from beams_thesis.match_replay import match_fixes, replay_match
+from beams_thesis.nees_band import NeesCorrelation, gaussian_window_band, nees_correlation, window_means
 from beams_thesis.replay import ReplayResult
 
 DEFAULT_SEEDS = 10

@@ -16,7 +16,6 @@ from rows_table import print_rows
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.decoder import BearingDecoder
 from beams_driver.edges import RevolutionEdges
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_driver.serial_protocol import (
     DEFAULT_BAUDRATE,
     FRAME_SIZE,
@@ -28,6 +27,7 @@ from beams_driver.serial_protocol import (
     RevolutionAssembler,
 )
 from beams_driver.variance import VarianceModel
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_sim.simulated_match import simulate_match
 from beams_sim.world import EurobotTrajectory, OdometrySimulator
 

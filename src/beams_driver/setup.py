@@ -18,13 +18,12 @@ setup(
     maintainer="BeAMS ROS maintainers",
     maintainer_email="maintainers@beams-ros.org",
     description=(
-        "The BeAMS sensor: codes, exact variance, decoder, edge sources (simulated, serial), driver_node."
+        "The BeAMS sensor: codes, exact variance, decoder, edge sources (serial, or a plugin), driver_node."
     ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "driver_node = beams_driver.driver_node:main",
-            "variance_plot = beams_driver.variance_plot:main",
             "estimate_noise = beams_driver.estimate_noise:entry_point",
         ]
     },

@@ -22,5 +22,8 @@ setup(
         "simulated matches, sim_world_node."
     ),
     license="Apache-2.0",
-    entry_points={"console_scripts": ["sim_world_node = beams_sim.sim_world_node:main"]},
+    entry_points={
+        "console_scripts": ["sim_world_node = beams_sim.sim_world_node:main"],
+        "beams_driver.edge_sources": ["sim = beams_sim.sim_source:EDGE_SOURCE"],
+    },
 )

@@ -19,6 +19,7 @@ setup(
     entry_points={
         "console_scripts": [
             "simulate_thesis_dataset = beams_thesis.thesis_setup:entry_point",
+            "variance_plot = beams_thesis.variance_plot:main",
         ]
     },
 )

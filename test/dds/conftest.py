@@ -9,7 +9,7 @@ from contextlib import AbstractContextManager
 
 import pytest
 
-from beams_driver.sensor_sim import SensorSimConfig
+from beams_sim.sensor_sim import SensorSimConfig
 
 
 @contextlib.contextmanager

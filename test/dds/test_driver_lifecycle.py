@@ -93,8 +93,8 @@ def stamp_s(msg) -> float:
 def sensor_pty() -> Iterator[tuple[str, threading.Event]]:
     """A pty streaming the simulated sensor's frames at 10 revolutions per second, as the sensor's
     microcontroller does; bytes nobody reads are dropped when the pty's buffer is full."""
-    from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
     from beams_driver.serial_protocol import FrameEncoder
+    from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 
     master, slave = os.openpty()
     os.set_blocking(master, False)

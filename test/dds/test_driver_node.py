@@ -93,8 +93,8 @@ def test_serial_source_through_a_pseudo_terminal(rclpy_node, start_node, tmp_pat
 
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
     from beams_driver.serial_protocol import FrameEncoder
+    from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 
     master, slave = os.openpty()
     config = SensorSimConfig()
@@ -188,7 +188,7 @@ def test_driver_publishes_with_the_natural_variance_estimate_noise_writes(rclpy_
 
     from beams_driver.noise_estimation import NATURAL_REFERENCE_WINDOW, NATURAL_SLOPE, NATURAL_VARIANCE
     from beams_driver.parameters import DRIVER_PARAMETERS, codes_of, variance_model_of
-    from beams_driver.sensor_sim import SensorSimConfig
+    from beams_sim.sensor_sim import SensorSimConfig
 
     fitted = {NATURAL_VARIANCE: 9.7e-7, NATURAL_SLOPE: 1.0e-5, NATURAL_REFERENCE_WINDOW: 0.115}
     lines = ["/**/driver_node:", "  ros__parameters:"] + [f"    {k}: {v:.6e}" for k, v in fitted.items()]

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_driver.serial_protocol import TIMER_HZ, EventKind, FrameEncoder
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 
 pytestmark = pytest.mark.dds
 

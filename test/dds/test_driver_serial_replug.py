@@ -15,8 +15,8 @@ import time
 import numpy as np
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_driver.serial_protocol import FrameEncoder
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 
 WAIT_S = 20.0
 GONE_S = 3.5  # past the 4th failed attempt at ~3.1 s: the back-off alone would wait until ~6.3 s

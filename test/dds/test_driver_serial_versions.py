@@ -5,7 +5,6 @@ on /diagnostics, and the bearings keep coming from the revolutions they spared."
 import numpy as np
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_driver.serial_protocol import (
     TICKS_PER_REVOLUTION,
     TIMER_HZ,
@@ -14,6 +13,7 @@ from beams_driver.serial_protocol import (
     FrameEncoder,
     encode_v1_frame,
 )
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 
 WAIT_S = 20.0
 POSE = (1.2, 0.8, 0.3)

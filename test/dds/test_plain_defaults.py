@@ -11,7 +11,7 @@ driver_node with its defaults) run at once, each node its own process:
   white noise before issue 19 gave 37-42 over 30 s). One run's 30 s mean averages correlated samples:
   the self-calibrating filter's NEES has an integrated autocorrelation time of 3.2 s (pooled over 10
   matches, bench_self_calibration.py), 10.6 independent samples per 30 s, so the band is
-  chi2(3 x 10.6) / 10.6's 1.41-5.29 (beams_ekf.nees_band; issue 19's 2.0-4.5 holds 91.5 % of a
+  chi2(3 x 10.6) / 10.6's 1.41-5.29 (beams_thesis.nees_band; issue 19's 2.0-4.5 holds 91.5 % of a
   consistent filter's windows, too tight for one window tested in every `make test`). Runs on the
   loaded machine gave 2.10, 2.48, 2.58, 1.91 (a CPU-heavy replay beside it), 3.33, 4.25, 1.94.
   The first 30 s (for 10 s the power bias is not modelled yet: those bearings update the pose alone)
@@ -59,8 +59,8 @@ def test_plain_defaults_are_honest(start_node, rclpy_node):
     from beams_bringup.demo import nees_against_truth
     from beams_common.ros.messages import planar_covariance
     from beams_common.ros.node_support import BEARINGS_QOS
-    from beams_ekf.nees_band import chi_square_mean_band
     from beams_msgs.msg import BeaconBearingArray
+    from beams_thesis.nees_band import chi_square_mean_band
 
     graph = rclpy_node
     truth, ekf, covariances = [], [], []

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from beams_driver.edges import RevolutionEdges
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_driver.serial_protocol import EventKind
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 FIRMWARE_ELF = ROOT / "firmware" / "build" / "turret.elf"

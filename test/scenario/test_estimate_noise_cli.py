@@ -10,7 +10,7 @@ import pytest
 
 from beams_common.parameters import ParameterTable, load_parameter_file
 from beams_driver.parameters import DRIVER_PARAMETERS
-from beams_driver.sensor_sim import SensorSimConfig
+from beams_sim.sensor_sim import SensorSimConfig
 from beams_sim.sim_source import PARAMETERS as SIM_PARAMETERS
 from beams_sim.simulated_match import simulate_match
 from beams_sim.world import EurobotTrajectory

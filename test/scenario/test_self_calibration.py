@@ -133,7 +133,7 @@ def test_default_filter_is_consistent_uncalibrated_and_calibrated(replays, perio
 
 def test_every_30_s_window_is_within_the_consistent_band(replays):
     """Each seed's mean NEES over each 30 s window against the band a consistent filter's would fall in,
-    the band from the NEES's autocorrelation pooled over the seeds (beams_ekf.nees_band, Gaussian
+    the band from the NEES's autocorrelation pooled over the seeds (beams_thesis.nees_band, Gaussian
     Monte-Carlo: tau 3.0 s, N_eff 11 per window), not from the window itself. All 9 windows at once: each
     band holds 1 - 0.05 / 9 (Bonferroni), so that a consistent filter passes with 95 % probability (each at
     95 %, one would fail 1 - 0.95^9 = 37 % of the time).

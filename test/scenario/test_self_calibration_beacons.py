@@ -17,13 +17,13 @@ import pytest
 from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_common.calibration_file import load_calibration
 from beams_driver.parameters import SENSOR_PARAMETERS, variance_model_of
-from beams_driver.sensor_sim import SimulatedBeacon, beacons_from_map
 from beams_ekf.beacon_states import BeaconStates, beacon_states_of
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import FilterSettings, build_localiser
 from beams_ekf.parameters import filter_settings
 from beams_ekf.power_bias_states import PowerBiasStates
 from beams_ekf.self_calibration import save_self_calibration
+from beams_sim.sensor_sim import SimulatedBeacon, beacons_from_map
 from beams_sim.simulated_match import sensor_config_of, simulate_match
 from beams_thesis.match_replay import match_fixes, replay_match
 

@@ -1,7 +1,7 @@
 """The observability analysis of docs/self_calibration.md (issue 19), checked: which sensor parameters the
 bearings and odometry of a 60 s Eurobot match can learn, with three beacons and with a fourth.
 
-`beams_ekf.observability.parameter_information`: the batch Fisher information of the parameters with the
+`beams_thesis.observability.parameter_information`: the batch Fisher information of the parameters with the
 robot's poses (one per revolution) marginalised out, each parameter scaled by its prior (the power bias's
 half 0.23 deg per coefficient, 1 cm for the turret offset and a beacon), so an eigenvalue is how many times
 the data outweigh the prior in that direction.
@@ -12,10 +12,10 @@ import pytest
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_ekf.bearing_ekf import ProcessNoise
-from beams_ekf.observability import parameter_information
 from beams_ekf.settings import WHEEL_BASE_M, WHEEL_VARIANCE_M2_PER_M
 from beams_sim.simulated_match import sensor_config_of
 from beams_sim.world import EurobotTrajectory
+from beams_thesis.observability import parameter_information
 
 CONFIG = sensor_config_of("thesis_hardware")
 NOISE = ProcessNoise.wheel_noise(WHEEL_VARIANCE_M2_PER_M, WHEEL_BASE_M)

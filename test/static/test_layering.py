@@ -1,6 +1,8 @@
 """The layout's rules, checked on the source (DEVELOPING.md): a package imports only from the packages
 drawn above it (no cycle), and rclpy only in the ROS wiring (the `*_node.py` modules, the ROS clients
-`*_command.py`, beams_common.ros, the demo, the picture generator)."""
+`*_command.py`, beams_common.ros, the demo, the picture generator). Entry points are imports too: a
+package's (setup.py) point into itself, and a package declares entries only in a group that a package
+drawn above it consumes (beams_sim's `sim` edge source in beams_driver's `beams_driver.edge_sources`)."""
 
 import ast
 import pathlib
@@ -92,4 +94,39 @@ def test_rclpy_only_in_the_ros_wiring(package):
         for path in _modules(package)
         if not ros_side(path) and _imports(path) & set(ROS_MODULES)
     ]
+    assert not wrong, wrong
+
+
+def _entry_points(package: str) -> dict[str, list[str]]:
+    """The entry_points setup.py declares: {group: ["name = module:attribute", ...]}."""
+    for node in ast.walk(ast.parse((SRC / package / "setup.py").read_text())):
+        if isinstance(node, ast.keyword) and node.arg == "entry_points":
+            return ast.literal_eval(node.value)
+    return {}
+
+
+def _string_constants(package: str) -> set[str]:
+    return {
+        node.value
+        for path in _modules(package)
+        for node in ast.walk(ast.parse(path.read_text()))
+        if isinstance(node, ast.Constant) and isinstance(node.value, str)
+    }
+
+
+@pytest.mark.parametrize("package", sorted(ALLOWED))
+def test_a_package_declares_entry_points_into_itself_in_groups_consumed_above_it(package):
+    wrong = []
+    for group, entries in _entry_points(package).items():
+        wrong += [
+            f"{group}: {entry}" for entry in entries if entry.split("=")[1].strip().split(".")[0] != package
+        ]
+        if group == "console_scripts":
+            continue
+        # the consumer holds the group's name (importlib.metadata.entry_points(group=...))
+        consumers = [other for other in sorted(ALLOWED) if group in _string_constants(other)]
+        wrong += [f"{group}: no package consumes it"] if not consumers else []
+        wrong += [
+            f"{group}: consumed by {c}, not above {package}" for c in consumers if c not in ALLOWED[package]
+        ]
     assert not wrong, wrong

@@ -4,9 +4,10 @@ Every source delivers RevolutionEdges (edges.py), one per turret revolution, to 
 variance model. A source is a kind (`EdgeSourceKind`): its parameters (ParameterSpecs, declared by the
 driver only when that source is chosen) and a factory building the source from their validated values,
 the code list and a `SourceHost` (what the source may ask of the node: subscribe to a pose stream, a
-topic name, a log, the clock). The built-in kinds are `sim` (beams_sim.sim_source: the simulated sensor
-is the simulated world's, found by name at run time since beams_sim stands on this package) and `serial`
-(serial_source.py); a new source is a new module with an EDGE_SOURCE kind, chosen with
+topic name, a log, the clock). This package's own kind is `serial` (serial_source.py); the installed
+packages name theirs in ENTRY_POINT_GROUP (`beams_driver.edge_sources`) of their setup.py's entry_points,
+`name = package.module:ATTRIBUTE` (`sim`, the simulated sensor, is declared by the package of the simulated
+world, which stands on this one: the driver names nothing of it). Any other source is chosen with
 `source:=package.module:EDGE_SOURCE`, with no edit to the driver (test/dds/test_edge_source_plugin.py
 plugs in a replay of recorded edges that way).
 """
@@ -14,6 +15,7 @@ plugs in a replay of recorded edges that way).
 import importlib
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
+from importlib.metadata import entry_points
 from typing import Any, Protocol
 
 from beams_common.parameters import ParameterSpec
@@ -104,22 +106,27 @@ class EdgeSourceKind:
     )
 
 
-BUILT_IN_SOURCES = {
-    "sim": "beams_sim.sim_source:EDGE_SOURCE",
-    "serial": "beams_driver.serial_source:EDGE_SOURCE",
-}
+ENTRY_POINT_GROUP = "beams_driver.edge_sources"
+OWN_SOURCES = {"serial": "beams_driver.serial_source:EDGE_SOURCE"}
+
+
+def named_sources() -> dict[str, str]:
+    """Every source name and its `package.module:ATTRIBUTE`: the installed packages' entry points, ours."""
+    declared = {point.name: point.value for point in entry_points(group=ENTRY_POINT_GROUP)}
+    return declared | OWN_SOURCES
 
 
 def source_kind(name: str) -> EdgeSourceKind:
-    """The kind named by the driver's `source` parameter: a built-in name or `package.module:ATTRIBUTE`.
+    """The kind named by the driver's `source` parameter: a named source or `package.module:ATTRIBUTE`.
 
     Raises ValueError with the reason when it cannot be found.
     """
-    target = BUILT_IN_SOURCES.get(name, name)
+    sources = named_sources()
+    target = sources.get(name, name)
     module_name, _, attribute = target.partition(":")
     if not module_name or not attribute:
         raise ValueError(
-            f"source must be one of {sorted(BUILT_IN_SOURCES)} or 'package.module:ATTRIBUTE', got {name!r}"
+            f"source must be one of {sorted(sources)} or 'package.module:ATTRIBUTE', got {name!r}"
         )
     try:
         kind = getattr(importlib.import_module(module_name), attribute)

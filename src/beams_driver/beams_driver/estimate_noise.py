@@ -24,7 +24,7 @@ from typing import Any
 
 from beams_common.calibration_file import atomic_write_text
 from beams_common.parameters import ParameterError, ParameterTable, load_parameter_file
-from beams_driver.edge_source import BUILT_IN_SOURCES, source_kind
+from beams_driver.edge_source import named_sources, source_kind
 from beams_driver.noise_estimation import (
     MAX_DRIFT_RAD,
     MAX_STD_RAD,
@@ -86,9 +86,9 @@ def driver_values(path: pathlib.Path | None) -> dict[str, Any]:
 
 
 def _all_source_parameters() -> ParameterTable:
-    """Every built-in source's parameters, so that a driver file for any of them reads."""
+    """Every named source's parameters, so that a driver file for any of them reads."""
     specs: dict[str, Any] = {}
-    for name in BUILT_IN_SOURCES:
+    for name in named_sources():
         for spec in source_kind(name).parameters:
             specs.setdefault(spec.name, spec)
     return ParameterTable("driver_node", tuple(specs.values()))

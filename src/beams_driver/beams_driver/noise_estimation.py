@@ -23,8 +23,6 @@ import numpy as np
 from scipy import stats
 
 from beams_common.angles import wrap_to_pi
-from beams_driver.decoder import BearingDecoder
-from beams_driver.sensor_sim import PoseAt, SensorSimConfig, SensorSimulator, SimulatedBeacon
 from beams_driver.variance import VarianceModel
 
 DEG = math.radians(1.0)
@@ -124,25 +122,6 @@ class NaturalVarianceFit:
             NATURAL_SLOPE: self.slope_rad2_per_rad,
             NATURAL_REFERENCE_WINDOW: self.reference_window_rad,
         }
-
-
-def simulated_bearings(
-    config: SensorSimConfig,
-    model: VarianceModel,
-    beacons: Sequence[SimulatedBeacon],
-    pose_at: PoseAt,
-    revolutions: int,
-    seed: int,
-) -> list[tuple[int, float, float, float]]:
-    """(beacon id, bearing, published variance, window) a driver decoder (the config's receiver, the
-    model's variances) gives on the simulated sensor: the recording of a rehearsal (tests, bench)."""
-    simulator = SensorSimulator(config, beacons, np.random.default_rng(seed))
-    decoder = BearingDecoder(config.codes, model, receiver=config.receiver)
-    rows = []
-    for n in range(revolutions):
-        decoded = decoder.decode(simulator.revolution(pose_at, n * config.period_s))
-        rows += [(b.beacon_id, b.bearing, b.variance, b.angular_window) for b in decoded.bearings]
-    return rows
 
 
 def recordings_from_bearings(

@@ -15,28 +15,13 @@ from beams_common.geometry_parameters import CALIBRATION_FILE
 from beams_common.parameters import ParameterSpec, ParameterTable
 from beams_driver.codes import BIT_TIME_S, BeaconCode, code_family, codes_from_strings, validate_codes
 from beams_driver.decoder import MIN_CODES_SEEN
-from beams_driver.receiver import ReceiverModel
-from beams_driver.sensor_sim import SensorSimConfig
+from beams_driver.receiver import HardwareNoise, ReceiverModel
 from beams_driver.variance import VARIANCE_MODES, CorrectedVariance, VarianceModel, split_natural_variance
 
-# The defaults describe the receiver the simulated sensor emulates by default (sim_noise_model
-# thesis_hardware, sections 5.5-5.7), so that the nodes run with no parameter publish honest variances.
-_THESIS_HARDWARE = SensorSimConfig.thesis_hardware()
-
-
-def hardware_natural_variance_line(config: SensorSimConfig) -> tuple[float, float, float]:
-    """(natural variance at the smallest window (rad^2), its slope (rad^2 per rad), that window (rad)):
-    the receiver's edge noise (sigma_r^2 + sigma_f^2) / 4, linear in the window over the experiment's
-    windows (fig. 5.3, section 5.6), as the driver's variance model takes it; constant for a receiver
-    without hardware noise."""
-    if config.hardware is None:
-        return config.natural_variance_rad2, 0.0, 0.0
-    low, high = config.hardware.window_range_rad
-    at_low, at_high = (float(config.hardware.natural_variance_rad2(w, None)) for w in (low, high))
-    return at_low, (at_high - at_low) / (high - low), low
-
-
-_NATURAL_AT_LOW, _NATURAL_SLOPE, _NATURAL_LOW_WINDOW = hardware_natural_variance_line(_THESIS_HARDWARE)
+# The defaults describe the receiver the thesis measured (sections 5.5-5.7, what the simulated sensor
+# emulates by default), so that the nodes run with no parameter publish honest variances.
+_THESIS_NOISE = HardwareNoise.thesis_hardware()
+_NATURAL_AT_LOW, _NATURAL_SLOPE, _NATURAL_LOW_WINDOW = _THESIS_NOISE.natural_variance_line()
 
 
 def codes_of(values: Mapping[str, Any]) -> tuple[BeaconCode, ...]:
@@ -93,9 +78,7 @@ def corrected_variance_of(model: VarianceModel, correction: BearingCorrection) -
     power-bias correction at the noisy decoded window adds (eq. 7.18-7.19 to first order,
     `CorrectedVariance`), the model's natural variance split between the two edges as the thesis
     hardware's receiver splits it (fig. 5.3: its AGC makes the rising edge the noisier)."""
-    return CorrectedVariance(
-        model, correction, split_natural_variance(model, _THESIS_HARDWARE.hardware.rising_share)
-    )
+    return CorrectedVariance(model, correction, split_natural_variance(model, _THESIS_NOISE.rising_share))
 
 
 AUTOSTART = ParameterSpec(

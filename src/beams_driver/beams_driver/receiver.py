@@ -4,12 +4,13 @@
   that triggers the receiver (the "AND hypothesis", section 5.6) and the mean window shortening it
   causes (eq. 5.2 generalised), plus any inward shift of the window's outer edges. The driver describes
   the receiver its edges come through with it (`ReceiverModel.thesis_hardware()`: the receiver the thesis
-  measured, the real one's default); the simulator's `SensorSimConfig.receiver` derives it from its noise.
+  measured, the real one's default); the simulated sensor derives it from its noise.
 - `HardwareNoise`: the thesis hardware's receiver noise as chapter 5 measured it: asymmetric edge noise
   growing with the window (fig. 5.3), a natural noise growing with the code's OFF periods (the AGC,
   section 5.6), a small extra window shortening of modulated signals (table 5.1), and a power bias of
   the bearing against the window fluctuating within 0.23 deg (section 5.7, fig. 5.6), a cubic
-  (eq. 7.19) so that the chapter-7 calibration can remove it.
+  (eq. 7.19) so that the chapter-7 calibration can remove it; `HardwareNoise.thesis_hardware()` is the
+  thesis's, the driver's default variances and the simulator's `thesis_hardware` noise.
 """
 
 import math
@@ -35,8 +36,8 @@ THESIS_RISING_VARIANCE_DEG2 = (0.0018, 0.0137)
 THESIS_FALLING_VARIANCE_DEG2 = (0.000066, 0.0023)
 # Section 5.7: the bias fluctuates with the received power within 0.23 deg.
 THESIS_POWER_BIAS_RANGE_DEG = 0.23
-# Distances whose windows the experiment of section 5.3 spans (4-150 mW at 1 m: 1 m to 6 m).
-EXPERIMENT_DISTANCES_M = (6.0, 1.0)
+# Fig. 5.3's windows (rad): section 5.3's experiment, 6 m to 1 m (2.18 to 8.0 deg; the device's beam).
+THESIS_WINDOW_RANGE_RAD = (0.03804832377144775, 0.13957318546672076)
 
 
 @dataclass(frozen=True)
@@ -63,7 +64,7 @@ class ReceiverModel:
         """The receiver the thesis measured (sections 5.5-5.7), on a turret of this period (s): the minimum
         burst of 56% of T0 falling as sqrt(T_b / G), and table 5.1's extra shortening of modulated
         windows as turret time. What the driver assumes of real hardware (serial sources) and what
-        `SensorSimConfig.thesis_hardware()` simulates."""
+        the simulator's `thesis_hardware` noise model emulates."""
         turret_speed_rad_s = 2.0 * np.pi / period_s
         return cls(
             THESIS_MIN_BURST_FRACTION,
@@ -130,6 +131,15 @@ class HardwareNoise:
         if min(*self.rising_variance_deg2, *self.falling_variance_deg2, self.off_noise_gain) < 0.0:
             raise ValueError("hardware noise: variances and off_noise_gain must be >= 0")
 
+    @classmethod
+    def thesis_hardware(cls) -> "HardwareNoise":
+        """The receiver noise the thesis measured over section 5.3's windows: fig. 5.3's edge noise, table
+        5.1's shortening, a power bias within section 5.7's 0.23 deg (`thesis_power_bias_coefficients`)."""
+        bias_range_rad = math.radians(THESIS_POWER_BIAS_RANGE_DEG)
+        return cls(
+            THESIS_WINDOW_RANGE_RAD, thesis_power_bias_coefficients(THESIS_WINDOW_RANGE_RAD, bias_range_rad)
+        )
+
     def edge_std_rad(self, window_rad: ArrayLike, code: BeaconCode | None) -> tuple[np.ndarray, np.ndarray]:
         """(rising, falling) standard deviations (rad) of the window boundaries; code None is C_k."""
         low, high = self.window_range_rad
@@ -168,6 +178,13 @@ class HardwareNoise:
         (eq. 3.13 with independent edges)."""
         rising, falling = self.edge_std_rad(window_rad, code)
         return (rising**2 + falling**2) / 4.0
+
+    def natural_variance_line(self) -> tuple[float, float, float]:
+        """(natural variance (rad^2) at the smallest window, its slope (rad^2 per rad), that window (rad)):
+        the edge noise (eq. 3.13), linear over the experiment's windows (fig. 5.3), as the driver takes it."""
+        low, high = self.window_range_rad
+        at_low, at_high = (float(self.natural_variance_rad2(w, None)) for w in (low, high))
+        return at_low, (at_high - at_low) / (high - low), low
 
 
 def thesis_power_bias_coefficients(

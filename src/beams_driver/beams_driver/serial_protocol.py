@@ -74,7 +74,7 @@ import itertools
 import math
 import struct
 from collections import Counter, deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import NamedTuple
@@ -314,6 +314,19 @@ def seconds_to_ticks(time_s: float, tick_rate_hz: float = TIMER_HZ) -> int:
     return round(time_s * tick_rate_hz)
 
 
+class Drops(Counter[str]):
+    """Drops counted by reason; every listener(reason, count) hears of each drop as it is counted."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.listeners: list[Callable[[str, int], None]] = []
+
+    def add(self, reason: str, count: int = 1) -> None:
+        self[reason] += count
+        for listener in self.listeners:
+            listener(reason, count)
+
+
 class FrameParser:
     """Incremental stream parser: `feed(bytes)` returns the events of every complete, valid frame.
 
@@ -334,7 +347,7 @@ class FrameParser:
     """
 
     def __init__(self) -> None:
-        self.drops: Counter[str] = Counter()
+        self.drops = Drops()
         self.frames_ok = 0
         self.event_frames = 0
         self.hellos = 0
@@ -402,7 +415,7 @@ class FrameParser:
         """Drop a pending partial frame at the end of a stream (a truncated frame); returns its bytes."""
         pending = len(self._buffer)
         if pending >= len(SYNC) and self._buffer[:2] == SYNC:
-            self.drops["truncated"] += 1
+            self.drops.add("truncated")
             self._skip(pending - len(SYNC))
         else:
             self._skip(pending)
@@ -412,7 +425,7 @@ class FrameParser:
 
     def _skip(self, n_bytes: int) -> None:
         if n_bytes > 0:
-            self.drops["garbage_bytes"] += n_bytes
+            self.drops.add("garbage_bytes", n_bytes)
 
     def _v1_candidate(self, buffer: bytearray, start: int, end: int) -> int:
         """Bytes consumed by a version-1 frame at start, 0 if incomplete, -1 if it is not one."""
@@ -421,7 +434,7 @@ class FrameParser:
         body = bytes(buffer[start + 2 : start + 6])
         if body[0] not in _V1_KINDS or crc16(body) != _CRC.unpack_from(buffer, start + 6)[0]:
             return -1
-        self.drops["protocol_v1_frames"] += 1
+        self.drops.add("protocol_v1_frames")
         self._v1_run += 1
         if self._v1_run >= V1_FRAMES_BEFORE_PROBLEM:
             self.problem = V1_STREAM_PROBLEM
@@ -435,7 +448,7 @@ class FrameParser:
         body = bytes(buffer[start + 2 : start + size - 2])
         if crc16(body) != _CRC.unpack_from(buffer, start + size - 2)[0]:
             truncated = buffer.find(SYNC, start + 1, start + size) >= 0
-            self.drops["truncated" if truncated else "bad_crc"] += 1
+            self.drops.add("truncated" if truncated else "bad_crc")
             self._gap = True
             return len(SYNC)
         self._v1_run = 0
@@ -448,7 +461,7 @@ class FrameParser:
             self.event_frames += 1
             event_kind = _EVENT_KIND_OF.get(kind)
             if event_kind is None:
-                self.drops["unknown_kind"] += 1
+                self.drops.add("unknown_kind")
                 return size
             event = self._accept(event_kind, sequence, timer)
         if event is not None:
@@ -478,7 +491,7 @@ class FrameParser:
         if self._last_sequence is not None:
             lost = (sequence - self._last_sequence - 1) & 0xFF
             if lost:
-                self.drops["lost_frames"] += lost
+                self.drops.add("lost_frames", lost)
                 self._gap = True
         self._last_sequence = sequence
         # 32-bit counts, taken as a signed difference: frames are less than 2^31 ticks apart (heartbeats)
@@ -487,7 +500,7 @@ class FrameParser:
             self._ticks += (timer - self._last_timer + _HALF_MODULUS) % TIMER_MODULUS - _HALF_MODULUS
         self._last_timer = timer
         if self.device is None:
-            self.drops["incompatible_device" if self.problem else "before_hello"] += 1
+            self.drops.add("incompatible_device" if self.problem else "before_hello")
             return None
         event = FrameEvent(kind, self._ticks, sequence, self._gap, hello)
         self._gap = False
@@ -568,7 +581,7 @@ class RevolutionAssembler:
         if tick_rate_hz is not None or ticks_per_revolution is not None:
             self.set_clock(tick_rate_hz, ticks_per_revolution)
         self.time_offset_s = float(time_offset_s)
-        self.drops: Counter[str] = Counter()
+        self.drops = Drops()
         self.revolutions_ok = 0
         self._zero_ticks: int | None = None
         self._open_revolution = 0
@@ -637,12 +650,12 @@ class RevolutionAssembler:
                 self._hello(event.hello)
             elif self.tick_rate_hz is None:
                 if kind in (EventKind.RISING, EventKind.FALLING):
-                    self.drops["edges_before_hello"] += 1
+                    self.drops.add("edges_before_hello")
             elif kind == EventKind.ZERO_REFERENCE:
                 completed += self._zero_reference(event.ticks)
             elif kind != EventKind.HEARTBEAT:
                 if self._zero_ticks is None:
-                    self.drops["edges_before_zero_reference"] += 1
+                    self.drops.add("edges_before_zero_reference")
                     continue
                 self._edge_ticks.append(event.ticks)
                 self._edge_rising.append(kind == EventKind.RISING)
@@ -658,7 +671,7 @@ class RevolutionAssembler:
         elif not hello.boot:
             return
         if self._zero_ticks is not None:
-            self.drops["revolution_with_gap"] += 1
+            self.drops.add("revolution_with_gap")
         self.reset()
 
     def _zero_reference(self, zero_ticks: int) -> list[RevolutionEdges]:
@@ -672,11 +685,11 @@ class RevolutionAssembler:
         expected, tolerance = self.expected_span()
         span = zero_ticks - self._zero_ticks
         if span < expected - self._tolerance_ticks:
-            self.drops["zero_reference_too_early"] += 1  # a bounce or noise on the switch's line
+            self.drops.add("zero_reference_too_early")  # a bounce or noise on the switch's line
             return []
         if abs(span - expected) <= tolerance:
             if self._pending is not None:
-                self.drops["zero_reference_too_early"] += 1  # the held one was spurious
+                self.drops.add("zero_reference_too_early")  # the held one was spurious
             return self._close(zero_ticks, len(self._edge_ticks), plausible=True)
         if span < expected and self._pending is None:
             self._pending = (zero_ticks, len(self._edge_ticks))  # spurious or a faster turret: wait
@@ -701,14 +714,14 @@ class RevolutionAssembler:
             plausible = False
         result = []
         if not plausible:
-            self.drops["bad_revolution_period"] += 1
+            self.drops.add("bad_revolution_period")
         elif self._gap and (self.lost_frames_cost == "revolution" or self._unplaced_gap):
-            self.drops["revolution_with_gap"] += 1
+            self.drops.add("revolution_with_gap")
         elif any(b < a for a, b in itertools.pairwise(self._edge_ticks[:n_edges])):
-            self.drops["edges_out_of_order"] += 1  # a forged frame (noise that passed the CRC)
+            self.drops.add("edges_out_of_order")  # a forged frame (noise that passed the CRC)
         else:
             if self._gap:
-                self.drops["revolution_with_lost_frames"] += 1
+                self.drops.add("revolution_with_lost_frames")
             result.append(self._build(span_ticks, n_edges))
         # Revolutions lost in a gap still advance the count, so numbers follow the turret.
         self._open_revolution += max(1, round(span_ticks / expected))

@@ -54,6 +54,9 @@ UNREADABLE_STREAM_BYTES = 64 * FRAME_SIZE
 UNREADABLE_STREAM_S = 0.5
 # Frames without a hello for this long (the firmware sends four a second): the device does not say its clock.
 HELLO_WAIT_S = 3.0 * HELLO_PERIOD_S
+# /diagnostics warns this long after the turret last lost frames, or after a refused zero reference or
+# revolution length.
+RECENT_DROPS_WARN_S = 5.0
 
 
 class DeviceNotFoundError(FileNotFoundError):
@@ -98,6 +101,8 @@ class SerialEdgeSource:
         self.drop_log_period_s = float(drop_log_period_s)
         self.parser = FrameParser()
         self.assembler = assembler or RevolutionAssembler()
+        self.parser.drops.listeners.append(self._dropped)
+        self.assembler.drops.listeners.append(self._dropped)
         self.disconnections = 0
         self.reconnections = 0
         self.failed_reconnections = 0
@@ -112,7 +117,8 @@ class SerialEdgeSource:
         self._next_attempt_s = 0.0
         self._offset_s: float | None = None
         self._last_arrival_s = 0.0
-        self._logged_drops: Counter[str] = Counter()
+        self._unlogged_drops: Counter[str] = Counter()  # since the last line about drops
+        self._recent_drops: deque[tuple[float, str, int]] = deque()  # (monotonic s, reason, count)
         self._next_drop_log_s = 0.0
         self._device_missing = False
         self._bytes_since_frame = 0
@@ -309,18 +315,28 @@ class SerialEdgeSource:
         self._log(f"serial device {self.device} reconnected")
         return True
 
+    def _dropped(self, reason: str, count: int) -> None:
+        """The parser or the assembler dropped something: kept for the next log line and the recent drops."""
+        now = self._monotonic()
+        self._unlogged_drops[reason] += count
+        self._recent_drops.append((now, reason, count))
+        while now - self._recent_drops[0][0] > RECENT_DROPS_WARN_S:
+            self._recent_drops.popleft()
+
+    def recent_drops(self) -> Counter[str]:
+        """The drops of the last RECENT_DROPS_WARN_S seconds, by reason (for a warning that clears itself)."""
+        since = self._monotonic() - RECENT_DROPS_WARN_S
+        return sum((Counter({reason: n}) for s, reason, n in self._recent_drops if s >= since), Counter())
+
     def _log_new_drops(self) -> None:
         """One line per drop_log_period_s at most, with the drops counted since the previous line."""
         now = time.monotonic()
-        if now < self._next_drop_log_s:
+        if now < self._next_drop_log_s or not self._unlogged_drops:
             return
-        drops = self.drops
-        new = drops - self._logged_drops
-        if new:
-            summary = ", ".join(f"{reason} {count}" for reason, count in sorted(new.items()))
-            self._log(f"serial device {self.device}: dropped {summary}")
-            self._logged_drops = drops
-            self._next_drop_log_s = now + self.drop_log_period_s
+        summary = ", ".join(f"{reason} {count}" for reason, count in sorted(self._unlogged_drops.items()))
+        self._log(f"serial device {self.device}: dropped {summary}")
+        self._unlogged_drops.clear()
+        self._next_drop_log_s = now + self.drop_log_period_s
 
     def _update_clock(self, events: list[FrameEvent], arrival_s: float) -> None:
         """Map device ticks onto the host clock with the least-delayed arrival seen so far."""
@@ -392,9 +408,6 @@ SERIAL_PARAMETERS = (
     LOST_FRAMES_COST,
 )
 SERIAL_POLL_PERIOD_S = 0.01
-# /diagnostics warns this long after the turret last lost frames, or after a refused zero reference or
-# revolution length.
-RECENT_DROPS_WARN_S = 5.0
 # The drops /diagnostics warns about while recent, and what each means for the operator.
 WARNED_DROPS = (
     (
@@ -413,26 +426,6 @@ WARNED_DROPS = (
         "stalled or changed speed, or a zero reference was missed): refused",
     ),
 )
-
-
-class RecentCount:
-    """How much a growing counter grew in the last window_s seconds (for a warning that clears itself)."""
-
-    def __init__(self, window_s: float, monotonic: Callable[[], float] = time.monotonic) -> None:
-        self.window_s = float(window_s)
-        self._monotonic = monotonic
-        self._total = 0
-        self._history: deque[tuple[float, int]] = deque()
-
-    def update(self, total: int) -> int:
-        """The counter's growth over the last window_s, given its current total."""
-        now = self._monotonic()
-        if total != self._total:
-            self._history.append((now, total - self._total))
-            self._total = total
-        while self._history and now - self._history[0][0] > self.window_s:
-            self._history.popleft()
-        return sum(count for _, count in self._history)
 
 
 class SerialSource:
@@ -459,7 +452,6 @@ class SerialSource:
         self.serial.open()
         self._log_info = host.log_info
         self._reconnections = 0
-        self._recent = {reason: RecentCount(RECENT_DROPS_WARN_S) for reason, _ in WARNED_DROPS}
 
     def poll(self, now_s: float) -> SourcePoll:
         revolutions = self.serial.read()
@@ -487,7 +479,7 @@ class SerialSource:
                 serial_turret_period_s=expected_ticks / device.timer_hz,
                 serial_turret_period_tolerance_s=tolerance_ticks / device.timer_hz,
             )
-        recent = {reason: counter.update(serial.drops[reason]) for reason, counter in self._recent.items()}
+        recent = serial.recent_drops()
         if not serial.connected:
             why = f" ({serial.last_error})" if serial.last_error else ""
             return SourceHealth("error", f"serial device {serial.device} lost, reconnecting{why}", values)

@@ -11,8 +11,8 @@ from beams_common.angles import wrap_to_pi
 from beams_driver.codes import code_family
 from beams_driver.decoder import BearingDecoder, DecodedRevolution
 from beams_driver.edges import RevolutionEdges
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, SimulatedBeacon
 from beams_driver.variance import VarianceModel
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator, SimulatedBeacon
 
 CODES = code_family()
 REJECTION_KINDS = {

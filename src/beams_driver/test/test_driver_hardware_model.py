@@ -17,8 +17,8 @@ from beams_driver.codes import BeaconCode, code_family, codes_from_strings, fami
 from beams_driver.decoder import BearingDecoder
 from beams_driver.edges import RevolutionEdges
 from beams_driver.receiver import IDEAL_RECEIVER, ReceiverModel
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, SimulatedBeacon
 from beams_driver.variance import VarianceModel
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator, SimulatedBeacon
 from beams_thesis.receiver_experiment import window_experiment
 
 HARDWARE = SensorSimConfig.thesis_hardware()

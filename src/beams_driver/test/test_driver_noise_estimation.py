@@ -18,11 +18,11 @@ from beams_driver.noise_estimation import (
     StaticRecording,
     beacon_spread,
     recordings_from_bearings,
-    simulated_bearings,
 )
 from beams_driver.parameters import DRIVER_PARAMETERS, codes_of, variance_model_of
-from beams_driver.sensor_sim import SensorSimConfig, beacons_from_map
 from beams_driver.variance import VarianceModel
+from beams_sim.sensor_sim import SensorSimConfig, beacons_from_map
+from beams_sim.simulated_match import simulated_bearings
 
 HARDWARE = SensorSimConfig.thesis_hardware()
 DEFAULTS = DRIVER_PARAMETERS.defaults()

@@ -7,7 +7,7 @@ import pytest
 from beams_driver.codes import code_family, codes_from_strings
 from beams_driver.edge_source import source_kind
 from beams_driver.receiver import THESIS_MIN_BURST_FRACTION, ReceiverModel
-from beams_driver.sensor_sim import SensorSimConfig
+from beams_sim.sensor_sim import SensorSimConfig
 
 
 def test_the_thesis_receiver_is_the_one_the_simulator_emulates():

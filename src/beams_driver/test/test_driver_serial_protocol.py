@@ -19,7 +19,6 @@ from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver import serial_protocol
 from beams_driver.decoder import BearingDecoder
 from beams_driver.edges import RevolutionEdges
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_driver.serial_protocol import (
     FRAME_SIZE,
     HELLO_SIZE,
@@ -42,6 +41,7 @@ from beams_driver.serial_protocol import (
     encode_v1_frame,
 )
 from beams_driver.variance import VarianceModel
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 
 PERIOD_S = TICKS_PER_REVOLUTION / TIMER_HZ
 HALF_TICK_RAD = math.pi / TICKS_PER_REVOLUTION

@@ -19,7 +19,6 @@ from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver import serial_source
 from beams_driver.decoder import BearingDecoder
 from beams_driver.edges import RevolutionEdges
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_driver.serial_protocol import (
     FRAME_SIZE,
     HELLO_SIZE,
@@ -40,6 +39,7 @@ from beams_driver.serial_source import (
     SerialSource,
 )
 from beams_driver.variance import VarianceModel
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 
 HALF_TICK_RAD = math.pi / TICKS_PER_REVOLUTION
 WAIT_S = 10.0
@@ -556,3 +556,20 @@ def test_a_forged_frame_out_of_time_order_refuses_its_revolution() -> None:
     ]
     assert [r.revolution for r in assembler.feed(events)] == [1]
     assert assembler.drops["edges_out_of_order"] == 1
+
+
+def test_the_source_hears_of_each_drop_and_its_recent_drops_clear_themselves():
+    """The parser and the assembler report every drop as it happens (no totals compared): the log line and
+    /diagnostics' recent drops (RECENT_DROPS_WARN_S) come from those reports."""
+    now = [100.0]
+    logged: list[str] = []
+    source = SerialEdgeSource("/dev/beams-none", monotonic=lambda: now[0], log=logged.append)
+    source.parser.drops.add("lost_frames", 3)
+    source.assembler.drops.add("bad_revolution_period")
+    assert source.recent_drops() == {"lost_frames": 3, "bad_revolution_period": 1}
+    source._log_new_drops()
+    assert logged == ["serial device /dev/beams-none: dropped bad_revolution_period 1, lost_frames 3"]
+    now[0] += serial_source.RECENT_DROPS_WARN_S + 0.1
+    source.parser.drops.add("lost_frames")
+    assert source.recent_drops() == {"lost_frames": 1}
+    assert source.drops == {"lost_frames": 4, "bad_revolution_period": 1}

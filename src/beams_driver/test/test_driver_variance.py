@@ -3,15 +3,8 @@
 import numpy as np
 import pytest
 
-from beams_driver import variance_plot
 from beams_driver.codes import code_family, codes_from_strings, family_code
 from beams_driver.edges import TURRET_SPEED_RAD_S
-from beams_driver.sensor_sim import (
-    SensorSimConfig,
-    SensorSimulator,
-    SimulatedBeacon,
-    fixed_window_bearing_errors,
-)
 from beams_driver.variance import (
     MEASURED_VARIANCE_RAD2,
     VarianceModel,
@@ -20,6 +13,12 @@ from beams_driver.variance import (
     family_minimum_windows_over_phi0,
     family_normalized_variance,
     variance_bound_rad2,
+)
+from beams_sim.sensor_sim import (
+    SensorSimConfig,
+    SensorSimulator,
+    SimulatedBeacon,
+    fixed_window_bearing_errors,
 )
 
 CODES = code_family()
@@ -176,19 +175,3 @@ def test_minimum_burst_raises_the_variance_as_section_5_6_says():
     assert receiver.bound_rad2(5) == pytest.approx(1.56**3 * ideal.bound_rad2(5))
     assert receiver.variance(5, windows).max() == pytest.approx(receiver.bound_rad2(5), rel=1e-6)
     assert receiver.variance(5, windows).mean() > 2.0 * ideal.variance(5, windows).mean()
-
-
-def test_variance_plot_command_writes_a_png_and_refuses_bad_codes(tmp_path, capsys):
-    output = tmp_path / "variance.png"
-    assert variance_plot.main(["--codes", "111110111110", "11111001111100", "--output", str(output)]) == 0
-    assert output.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert output.stat().st_size > 10_000
-    assert variance_plot.main(["--codes", "1010", "10", "--output", str(tmp_path / "bad.png")]) == 2
-    assert "rotation of code 1" in capsys.readouterr().err
-    assert not (tmp_path / "bad.png").exists()
-    # What the panels show: the coprime simulation on the theory, for a custom code too.
-    code = codes_from_strings(["11111001111100"])[0]
-    windows_s = np.round(np.linspace(0.1, 20.0, 60) * 2 * code.bit_time_s / TICK_S) * TICK_S
-    simulated = variance_plot.simulated_normalized_variance(code, windows_s, 998401)
-    theory = enumerated_variance_s2(code, windows_s)[0] / code.variance_bound_s2
-    assert simulated == pytest.approx(theory, abs=0.02)

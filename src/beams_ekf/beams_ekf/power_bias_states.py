@@ -29,7 +29,7 @@ from beams_common.parameters import ParameterSpec
 # Section 5.7: the bias fluctuates with the received power within 0.23 deg.
 THESIS_POWER_BIAS_RANGE_RAD = radians(0.23)
 # The angular windows (rad) of the section-5.3 experiment, 6 m and 1 m from a beacon, with the beam of the
-# simulated thesis sensor (beams_driver.sensor_sim, checked by test_power_bias_states): where the thesis
+# simulated thesis sensor (beams_sim.sensor_sim, checked by test_power_bias_states): where the thesis
 # measured the power bias, and where the chapter-7 correction holds it.
 THESIS_EXPERIMENT_WINDOWS_RAD = (0.038048, 0.139573)
 POWER_BIAS_MODES = ("estimate", "consider", "off")

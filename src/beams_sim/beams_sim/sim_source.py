@@ -1,7 +1,7 @@
-"""The simulated edge source (`source: sim`): the edge-level simulation of the sensor (sensor_sim.py)
-following the robot's true pose as it arrives (beams/sim/ground_truth) or a static pose, with beacons
-hidden by a schedule or by the other robots' bodies (occlusion.py). Pure: the driver's SourceHost feeds it
-the pose streams.
+"""The simulated edge source (`source: sim`, declared to the driver by setup.py's beams_driver.edge_sources
+entry point): the edge-level simulation of the sensor (sensor_sim.py) following the robot's true pose as
+it arrives (beams/sim/ground_truth) or a static pose, with beacons hidden by a schedule or by the other
+robots' bodies (occlusion.py). Pure: the driver's SourceHost feeds it the pose streams.
 """
 
 from collections.abc import Mapping, Sequence
@@ -19,8 +19,8 @@ from beams_driver.codes import BeaconCode
 from beams_driver.edge_source import EdgeSourceKind, SourceHealth, SourceHost, SourcePoll
 from beams_driver.edges import TURRET_PERIOD_S
 from beams_driver.receiver import ReceiverModel
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
 from beams_sim.occlusion import TRUTH_MAX_EXTRAPOLATION_S, OtherRobots, truth_buffer, truth_covers
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator, beacons_from_map
 
 GROUND_TRUTH_TOPIC = topics.GROUND_TRUTH
 # A clock that jumped this far ahead (s) restarts the simulation from now instead of catching up.

@@ -30,7 +30,8 @@ from beams_common.bearing_correction import BearingCorrection
 from beams_driver.codes import BeaconCode
 from beams_driver.decoder import BearingDecoder, DecodedRevolution, VarianceSource
 from beams_driver.edges import RevolutionEdges
-from beams_driver.sensor_sim import (
+from beams_driver.variance import CorrectedVariance, EdgeVariances, VarianceModel
+from beams_sim.sensor_sim import (
     BiasFunction,
     Occlusion,
     PoseAt,
@@ -39,7 +40,6 @@ from beams_driver.sensor_sim import (
     SimulatedBeacon,
     beacons_from_map,
 )
-from beams_driver.variance import CorrectedVariance, EdgeVariances, VarianceModel
 from beams_sim.sim_source import SIM_NOISE_MODELS
 from beams_sim.world import (
     MATCH_DURATION_S,
@@ -260,6 +260,22 @@ def calibrated_match(
     )
     match = simulate_match(duration_s, seed, sensor_config=config, variance_model=variance, **options)  # type: ignore[arg-type]
     return match if correction.is_identity else match.corrected(correction)
+
+
+def simulated_bearings(
+    config: SensorSimConfig,
+    model: VarianceModel,
+    beacons: Sequence[SimulatedBeacon],
+    pose_at: PoseAt,
+    revolutions: int,
+    seed: int,
+) -> list[tuple[int, float, float, float]]:
+    """(beacon id, bearing, published variance, window) a driver decoder (the config's receiver, the
+    model's variances) gives on the simulated sensor: the recording of a rehearsal (tests, bench)."""
+    simulator = SensorSimulator(config, beacons, np.random.default_rng(seed))
+    decoder = BearingDecoder(config.codes, model, receiver=config.receiver)
+    runs, _ = _run_sensor(simulator, decoder, pose_at, revolutions * config.period_s, config.period_s, False)
+    return [(b.beacon_id, b.bearing, b.variance, b.angular_window) for r in runs for b in r.bearings]
 
 
 def _run_sensor(

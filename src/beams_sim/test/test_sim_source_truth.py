@@ -8,8 +8,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from beams_driver.edge_source import ENTRY_POINT_GROUP, source_kind
 from beams_driver.edges import TURRET_PERIOD_S
 from beams_driver.parameters import DRIVER_PARAMETERS, codes_of
+from beams_sim import sim_source
 from beams_sim.sim_source import PARAMETERS, SimulatedSource
 
 
@@ -68,3 +70,14 @@ def test_past_the_truths_reach_the_pose_holds_at_the_reach():
     host.callbacks["beams/sim/ground_truth"](1.0, (0.2, 0.3, 0.4), (0.1, 0.0))
     assert source.ground_truth.pose_at(1.5) is None
     assert source._pose_at(1.5) == pytest.approx(source.ground_truth.pose_at(1.25))
+
+
+def test_the_driver_finds_the_simulated_source_by_the_entry_point_this_package_declares():
+    """`source: sim` is beams_sim's declaration in the driver's group (setup.py, installed by colcon), the
+    driver naming nothing of beams_sim."""
+    from importlib.metadata import entry_points
+
+    (point,) = [p for p in entry_points(group=ENTRY_POINT_GROUP) if p.name == "sim"]
+    assert point.load() is sim_source.EDGE_SOURCE
+    assert source_kind("sim") is sim_source.EDGE_SOURCE
+    assert source_kind("beams_sim.sim_source:EDGE_SOURCE") is sim_source.EDGE_SOURCE

@@ -6,7 +6,6 @@ import numpy as np
 import pytest
 
 from beams_common.angles import wrap_to_pi
-from beams_driver.sensor_sim import SensorSimConfig, SimulatedBeacon
 from beams_sim.occlusion import (
     TRUTH_LEAD_S,
     TRUTH_MAX_EXTRAPOLATION_S,
@@ -15,6 +14,7 @@ from beams_sim.occlusion import (
     truth_buffer,
     truth_covers,
 )
+from beams_sim.sensor_sim import SensorSimConfig, SimulatedBeacon
 from beams_sim.simulated_match import SimulatedMatch, simulate_match
 from beams_sim.world import (
     TABLE_LENGTH_M,

@@ -1,12 +1,12 @@
 """The receiver experiment of section 5.3 on the simulated receiver (thesis fig. 5.3, table 5.1): one
 beacon, fixed true windows, the first rising and last falling edges against the window's boundaries.
-A reproduction of the thesis's measurement, moved out of beams_driver.sensor_sim (the runtime simulator)."""
+A reproduction of the thesis's measurement, moved out of beams_sim.sensor_sim (the runtime simulator)."""
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from beams_driver.codes import BeaconCode, first_last_edges
-from beams_driver.sensor_sim import SensorSimConfig
+from beams_sim.sensor_sim import SensorSimConfig
 
 
 def window_experiment(

@@ -31,7 +31,7 @@ from beams_common.bearing_correction import (
 )
 from beams_driver.codes import BeaconCode
 from beams_driver.decoder import BearingDecoder
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_triangulation.total import expected_bearings
 
 # Table 7.3 (after calibration): where the beacons really were (m).

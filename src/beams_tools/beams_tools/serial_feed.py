@@ -20,8 +20,8 @@ from collections.abc import Callable
 import numpy as np
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_driver.serial_protocol import EventKind, FrameEncoder, seconds_to_ticks
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_tools.fault_schedule import SERIAL_LINE_FAULTS
 
 # the case seen: a spurious zero reference this long (s) before each real one, 1.2 % of a 0.1 s turn

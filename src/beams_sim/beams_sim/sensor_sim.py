@@ -31,13 +31,10 @@ from numpy.typing import ArrayLike
 from beams_driver.codes import BeaconCode, bursts_in_window, code_family, first_last_edges
 from beams_driver.edges import TIMER_HZ, TURRET_PERIOD_S, RevolutionEdges
 from beams_driver.receiver import (
-    EXPERIMENT_DISTANCES_M,
     THESIS_MIN_BURST_FRACTION,
     THESIS_MIN_BURST_GAP_EXPONENT,
-    THESIS_POWER_BIAS_RANGE_DEG,
     HardwareNoise,
     ReceiverModel,
-    thesis_power_bias_coefficients,
 )
 
 PoseAt = Callable[[float], tuple[float, float, float]]
@@ -91,27 +88,14 @@ class SensorSimConfig:
     def thesis_hardware(cls, **overrides: object) -> "SensorSimConfig":
         """The receiver the thesis measured (sections 5.5-5.7; driver_node's default `thesis_hardware`).
 
-        The edge noise is the window-dependent jitter of `HardwareNoise` (over the windows of 1-6 m,
-        section 5.3) instead of the constant outer-edge noise; the minimum burst is 56% of T0 for the
-        family codes and falls as sqrt(T_b / G) for longer gaps G, which with the AGC's extra
-        shortening of modulated windows reproduces table 5.1's experiment column; the power bias is a
+        The edge noise is the window-dependent jitter of `HardwareNoise.thesis_hardware()` (over the
+        windows of 1-6 m, section 5.3) instead of the constant outer-edge noise; the minimum burst is 56%
+        of T0 for the family codes and falls as sqrt(T_b / G) for longer gaps G, which with the AGC's
+        extra shortening of modulated windows reproduces table 5.1's experiment column; the power bias is a
         cubic fluctuating over the 0.23 deg range of section 5.7 (`thesis_power_bias_coefficients`).
         """
-        base = cls(
-            rising_noise_rad=0.0, falling_noise_rad=0.0, min_burst_gap_exponent=THESIS_MIN_BURST_GAP_EXPONENT
-        )
-        base = replace(base, **{k: v for k, v in overrides.items() if k != "hardware"})
-        window_range = (
-            float(base.window_rad(EXPERIMENT_DISTANCES_M[0])),
-            float(base.window_rad(EXPERIMENT_DISTANCES_M[1])),
-        )
-        hardware = overrides.get("hardware") or HardwareNoise(
-            window_range_rad=window_range,
-            power_bias_coefficients=thesis_power_bias_coefficients(
-                window_range, math.radians(THESIS_POWER_BIAS_RANGE_DEG)
-            ),
-        )
-        return replace(base, hardware=hardware)
+        base = cls(rising_noise_rad=0.0, falling_noise_rad=0.0, hardware=HardwareNoise.thesis_hardware())
+        return replace(base, **{"min_burst_gap_exponent": THESIS_MIN_BURST_GAP_EXPONENT, **overrides})
 
     @property
     def receiver(self) -> ReceiverModel:

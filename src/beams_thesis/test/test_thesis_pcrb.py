@@ -19,7 +19,8 @@ from beams_ekf.odometry_errors import (
     arc_of_increment,
     corrected_increment,
 )
-from beams_ekf.pcrb import (
+from beams_sim.world import EurobotTrajectory, OdometryDrift, OdometrySimulator
+from beams_thesis.pcrb import (
     WheelNoiseModel,
     bearing_information,
     gaussian_information_step,
@@ -27,7 +28,6 @@ from beams_ekf.pcrb import (
     odometry_step,
     trajectory_pcrb,
 )
-from beams_sim.world import EurobotTrajectory, OdometryDrift, OdometrySimulator
 
 
 def _spd(rng: np.random.Generator, n: int, scale: float = 1.0) -> np.ndarray:

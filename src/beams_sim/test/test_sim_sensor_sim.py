@@ -5,7 +5,8 @@ import pytest
 
 from beams_driver.codes import code_family
 from beams_driver.edges import STEPS_PER_TURN, TURRET_PERIOD_S, RevolutionEdges
-from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator, SimulatedBeacon, beacons_from_map
+from beams_driver.receiver import THESIS_WINDOW_RANGE_RAD, HardwareNoise
+from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator, SimulatedBeacon, beacons_from_map
 
 CODES = code_family()
 PHI0_RAD = CODES[0].bit_time_s * 2.0 * np.pi / TURRET_PERIOD_S
@@ -136,3 +137,10 @@ def test_invalid_configuration_and_unknown_beacon_are_refused():
         _one_beacon(SensorSimConfig(), beacon_id=7)
     with pytest.raises(ValueError, match="must match"):
         RevolutionEdges(0, 0.0, 0.1, np.zeros(2), np.zeros(3), np.zeros(2, dtype=bool))
+
+
+def test_the_thesis_hardware_noise_is_the_drivers_over_the_default_beams_windows():
+    """The simulator emulates the receiver the driver assumes by default (beams_driver.receiver): fig.
+    5.3's windows are those of the default beam at 6 m and 1 m, exactly."""
+    assert (SensorSimConfig().window_rad(6.0), SensorSimConfig().window_rad(1.0)) == THESIS_WINDOW_RANGE_RAD
+    assert SensorSimConfig.thesis_hardware().hardware == HardwareNoise.thesis_hardware()

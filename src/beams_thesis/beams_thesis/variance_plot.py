@@ -4,8 +4,8 @@ Theory (closed form for the family, exact enumeration otherwise) as a line, the 
 (one beacon, fixed window, a turret period coprime with the code) as circles, both normalised by the
 bound p0 phi0^2 / 6 against phi_W / phi0: the tool to design or extend a code family.
 
-    ros2 run beams_driver variance_plot --codes 101111111110 111110111110 --output variance.png
-    ros2 run beams_driver variance_plot --family 5 --period-ticks 998400   # the real, non-coprime period
+    ros2 run beams_thesis variance_plot --codes 101111111110 111110111110 --output variance.png
+    ros2 run beams_thesis variance_plot --family 5 --period-ticks 998400   # the real, non-coprime period
 """
 
 import argparse
@@ -17,8 +17,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from beams_driver.codes import BIT_TIME_S, BeaconCode, code_family, codes_from_strings
-from beams_driver.sensor_sim import fixed_window_bearing_errors
 from beams_driver.variance import VarianceModel
+from beams_sim.sensor_sim import fixed_window_bearing_errors
 
 TICK_S = 100e-9
 COPRIME_PERIOD_TICKS = 998401

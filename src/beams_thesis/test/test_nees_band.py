@@ -1,4 +1,4 @@
-"""The consistent bands of a window's mean NEES (beams_ekf.nees_band: chi-square and Gaussian
+"""The consistent bands of a window's mean NEES (beams_thesis.nees_band: chi-square and Gaussian
 Monte-Carlo) on synthetic errors whose answer is known: independent chi-square samples, an AR(1)
 Gaussian error of known correlation, an error with a fast and a slow part (where the chi-square band's
 skew is too small), a filter overconfident by a factor 2 in its covariance."""
@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.signal import lfilter
 
-from beams_ekf.nees_band import chi_square_mean_band, gaussian_window_band, nees_correlation, window_means
+from beams_thesis.nees_band import chi_square_mean_band, gaussian_window_band, nees_correlation, window_means
 
 SAMPLE_INTERVAL_S = 0.1
 WINDOWS = 400  # synthetic windows per example: the coverage's binomial sd is 1.1 %
