@@ -5,7 +5,7 @@ environments without launch (the PyPI wheels): a node that exits while the super
 started again, with the same command, RESPAWN_DELAY_S later; its log file gets a line saying so and the
 output of the new process. A node that refused its parameters at start-up (exit status 2, run_node's
 EXIT_INVALID_PARAMETERS) is not restarted: it would refuse them again. A node with a hot standby is two
-processes (beams_bringup.system.RobotNode.processes), each restarted alike; `active` names the one that
+processes (beams_tools.robot_processes.RobotNode.processes), each restarted alike; `active` names the one that
 holds the node's role.
 """
 
@@ -17,7 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
-from beams_bringup.system import RESPAWN_DELAY_S
+from beams_tools.robot_processes import RESPAWN_DELAY_S
 from beams_common.standby import role_holder_pid
 
 EXIT_INVALID_PARAMETERS = 2  # run_node's start-up refusal (beams_common.ros.node_support)

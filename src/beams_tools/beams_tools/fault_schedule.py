@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from beams_tools.robot_processes import ROBOT_NODES
+
 # The fault classes the campaign plays everywhere (the serial line's and the hosts' link below need
 # a serial sensor and network namespaces).
 FAULT_CLASSES = (
@@ -32,11 +34,11 @@ FAULT_CLASSES = (
 SERIAL_CLASS = "serial_line"
 SERIAL_LINE_FAULTS = ("noise", "spurious_zero", "silence", "unplug")
 # a link down between two network namespaces (hosts): driver_node on the sensor's host, the rest of the
-# robot on the main computer's, joined by one veth link (campaign_command.Hosts; root and iproute2)
+# robot on the main computer's, joined by one veth link (campaign_hosts.Hosts; root and iproute2)
 LINK_CLASS = "link_down"
 LINKS = ("sensor_link",)
-# The robot's nodes, each its own process (a kill or a duplicate picks among them).
-ROBOT_NODE_NAMES = ("sim_world", "driver", "triangulation", "ekf")
+# The robot's nodes, each its own process (a kill picks among them).
+ROBOT_NODE_NAMES = tuple(node.name for node in ROBOT_NODES)
 # After a fault ends, its effects still count as its own for this long (s): a killed node's restart and
 # the EKF's re-initialisation take a few seconds on a loaded 2-core machine; a second sim_world's
 # odometry leaves the filter off until a ToTal pose brings it back.

@@ -17,13 +17,12 @@ from beams_ekf.settings import FilterSettings
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
 from beams_triangulation.pipeline import TriangulationSettings
 
-# beams_bringup's parameter file (beams_bringup.system.PARAMS_FILE), the replay's default; found by its
-# install location, not imported: beams_bringup stands on this package
-PARAMS_FILE = "beams_params.yaml"
+from beams_tools.robot_processes import PARAMS_FILE
 
 
 def installed_params_file() -> pathlib.Path | None:
-    """beams_bringup's installed parameter file (ament index, or BEAMS_INSTALL_BASE), None when absent."""
+    """beams_bringup's installed parameter file, the replay's default (ament index, or BEAMS_INSTALL_BASE),
+    None when absent."""
     candidates = []
     try:
         from ament_index_python.packages import get_package_share_directory
