@@ -184,7 +184,10 @@ def node_commands(duration_s: float, sensor: SensorSetup, standby: bool = True) 
     params_file = installed_params_file()
     if params_file is None:
         raise FileNotFoundError(f"{PARAMS_FILE} of beams_bringup is not installed: run `make build`")
-    overrides = {"sim_world_node": ["-p", f"duration_s:={duration_s}"], "driver_node": sensor.driver_arguments}
+    overrides = {
+        "sim_world_node": ["-p", f"duration_s:={duration_s}"],
+        "driver_node": sensor.driver_arguments,
+    }
     ros_arguments = {
         node.executable: ["--params-file", str(params_file), *overrides.get(node.executable, ())]
         for node in ROBOT_NODES

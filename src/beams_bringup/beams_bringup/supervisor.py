@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
-from beams_tools.robot_processes import RESPAWN_DELAY_S
 from beams_common.standby import role_holder_pid
+from beams_tools.robot_processes import RESPAWN_DELAY_S
 
 EXIT_INVALID_PARAMETERS = 2  # run_node's start-up refusal (beams_common.ros.node_support)
 STOP_TIMEOUT_S = 15.0

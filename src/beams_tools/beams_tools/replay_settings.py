@@ -14,10 +14,9 @@ from beams_common.geometry_parameters import geometry_of
 from beams_common.parameters import ROS_NODE_PARAMETERS, ParameterTable, load_parameter_file
 from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
 from beams_ekf.settings import FilterSettings
+from beams_tools.robot_processes import PARAMS_FILE
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
 from beams_triangulation.pipeline import TriangulationSettings
-
-from beams_tools.robot_processes import PARAMS_FILE
 
 
 def installed_params_file() -> pathlib.Path | None:

@@ -84,7 +84,12 @@ def process_commands(
     """The command of each process of `nodes` by process name (RobotNode.processes): the installed
     executable, its arguments, then --ros-args and `ros_arguments` of its node (by executable)."""
     return {
-        name: [node.installed(install_base), *arguments, "--ros-args", *ros_arguments.get(node.executable, ())]
+        name: [
+            node.installed(install_base),
+            *arguments,
+            "--ros-args",
+            *ros_arguments.get(node.executable, ()),
+        ]
         for node in nodes
         for name, arguments in node.processes(standby).items()
     }
