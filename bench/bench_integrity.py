@@ -1,7 +1,7 @@
 """Node-level integrity: how fast the EKF is back after a node dies, and how fast a second
 publisher is said.
 
-The robot's four nodes run under the demo's supervisor (beams_bringup.supervisor, respawn after
+The robot's four nodes run under the demo's supervisor (beams_tools.supervisor, respawn after
 RESPAWN_DELAY_S, as beams.launch.py does), ekf_node as its hot standby pair (beams_common.standby); each
 node in turn is killed with SIGKILL, KILL_ROUNDS times (of the EKF's pair, the active process), and the
 delay from the kill to the EKF's next beams/ekf/odometry message is timed (the EKF goes on predicting on
@@ -178,9 +178,9 @@ def rows() -> list[Row]:
     os.environ.setdefault("ROS_DOMAIN_ID", DEFAULT_DOMAIN_ID)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     from beams_bringup.demo import node_commands, sensor_setup
-    from beams_bringup.supervisor import NodeSupervisor
-    from beams_bringup.system import RESPAWN_DELAY_S, ROBOT_NODES
     from beams_sim.simulated_match import SENSOR_MODELS
+    from beams_tools.robot_processes import RESPAWN_DELAY_S, ROBOT_NODES
+    from beams_tools.supervisor import NodeSupervisor
 
     env = dict(os.environ)
     with tempfile.TemporaryDirectory() as directory:

@@ -38,7 +38,6 @@ from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, Qo
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
-from beams_bringup.supervisor import NodeSupervisor
 from beams_common import topics
 from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
@@ -51,6 +50,7 @@ from beams_tools.bag_events import stamp_ns
 from beams_tools.bag_io import BagRecorder, beams_typestore, fully_qualified
 from beams_tools.replay_settings import installed_params_file
 from beams_tools.robot_processes import PARAMS_FILE, ROBOT_NODES, process_commands
+from beams_tools.supervisor import NodeSupervisor
 from beams_tools.trajectory_metrics import (
     RunTracks,
     errors_against_truth,

@@ -33,7 +33,7 @@ import numpy as np
 import yaml
 
 from beams_tools.campaign_faults import FaultPlan
-from beams_tools.campaign_hosts import SENSOR_HOST_PROCESSES, Hosts, hosts_problem
+from beams_tools.campaign_hosts import Hosts, hosts_problem
 from beams_tools.campaign_metrics import CampaignResult, campaign_figures
 from beams_tools.campaign_probe_node import CALL_TIMEOUT_S, Probe
 from beams_tools.campaign_processes import CampaignProcesses
@@ -93,7 +93,7 @@ def node_parameters(config: CampaignConfig, serial_link: pathlib.Path) -> dict[s
         ),
         "triangulation": {"publish_markers": False},
         "ekf": {},
-        "relay": {},
+        "fault_relay": {},
     }
     for name, values in config.overrides.items():
         parameters[name].update(values)
@@ -137,17 +137,12 @@ class Campaign:
             self.log_dir,
             env,
             node_parameters(config, self.serial_link),
-            self._host_prefix,
+            self.hosts.exec_prefix if self.hosts is not None else lambda process: [],
+            self.campaign_s,
+            self.current_fault,
         )
         self.t0_s = math.nan
         self.probe: Probe | None = None
-
-    def _host_prefix(self, name: str) -> list[str]:
-        """`ip netns exec` onto the sensor's host for its nodes' processes (the others inherit the main
-        host's namespace from the campaign's main thread)."""
-        if self.hosts is None or name not in SENSOR_HOST_PROCESSES:
-            return []
-        return self.hosts.exec_prefix("sensor")
 
     # timing
     def campaign_s(self) -> float:
@@ -200,7 +195,7 @@ class Campaign:
                 now = self.campaign_s()
                 faults.run_due(now)
                 probe.poll_calls()
-                processes.supervise(self.campaign_s(), self.current_fault)
+                processes.poll()
                 if now >= next_rss_s:
                     processes.sample_rss(now)
                     next_rss_s += RSS_PERIOD_S
@@ -208,7 +203,7 @@ class Campaign:
             while probe.pending and probe.now_s() < end_s + CALL_TIMEOUT_S:  # the last calls' answers
                 probe.spin(0.05)
                 probe.poll_calls()
-            processes.supervise(self.campaign_s(), self.current_fault)
+            processes.poll()
         finally:
             processes.stop()
             if self.feed is not None:

@@ -22,7 +22,7 @@ from beams_tools.campaign_probe_node import (
     bad_message_topic,
     operator_pose,
 )
-from beams_tools.campaign_processes import NODES, CampaignProcesses, ManagedProcess
+from beams_tools.campaign_processes import NODES, CampaignProcesses
 from beams_tools.fault_schedule import LINK_CLASS, SERIAL_CLASS, Fault
 from beams_tools.serial_feed import SerialFeed
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
@@ -118,11 +118,11 @@ class FaultPlan:
         elif fault.kind in RELAY_FAULTS:
             name, value_name = RELAY_FAULTS[fault.kind]
             amount = float(fault.value(value_name))
-            self.at(start, label, lambda: probe.set_parameter(label, "relay", name, amount, True))
-            self.at(end, label, lambda: probe.set_parameter(label, "relay", name, 0.0, True))
+            self.at(start, label, lambda: probe.set_parameter(label, "fault_relay", name, amount, True))
+            self.at(end, label, lambda: probe.set_parameter(label, "fault_relay", name, 0.0, True))
         elif fault.kind == "duplicate_publisher":
             self.at(start, label, lambda: self._start_duplicate(fault))
-            self.at(end, label, lambda: self.processes.stop_duplicate(fault.variant))
+            self.at(end, label, lambda: self.processes.remove(f"duplicate_{fault.variant}"))
         elif fault.kind == SERIAL_CLASS:
             self.at(start, label, lambda: self.feed.set_fault(fault.variant))
             self.at(end, label, lambda: self.feed.set_fault(None))
@@ -130,14 +130,14 @@ class FaultPlan:
             self.at(start, label, lambda: self.hosts.set_link(False))
             self.at(end, label, lambda: self.hosts.set_link(True))
         elif fault.kind == "node_kill":
-            killed: list[ManagedProcess] = []
+            killed: list[str] = []
 
             def kill(name: str = fault.variant) -> None:
-                killed.append(self.processes.active(name))
-                killed[-1].signal(signal.SIGKILL)
+                killed.append(self.processes.active_of(name))
+                self.processes.signal(killed[-1], signal.SIGKILL)
 
             self.at(start, label, kill)
-            self.at(end, label, lambda: killed and killed.pop().start(self.processes.env))
+            self.at(end, label, lambda: killed and self.processes.resume(killed.pop()))
         else:
             raise ValueError(f"no plan for fault class {fault.kind!r}")
 
@@ -270,4 +270,4 @@ class FaultPlan:
             parameters.update(trajectory_seed=seed, odometry_seed=seed + 1)
         else:  # a second ekf_node: the same parameters (the same launch twice) but its child frame
             parameters["base_frame"] = DUPLICATE_EKF_FRAME
-        self.processes.start_duplicate(fault.variant, parameters)
+        self.processes.duplicate(fault.variant, parameters)

@@ -76,8 +76,10 @@ class Hosts:
             _ip("-n", name, "link", "set", HOST_LINK, "multicast", "on", "up")
             _ip("-n", name, "route", "add", MULTICAST_RANGE, "dev", HOST_LINK)
 
-    def exec_prefix(self, host: str) -> list[str]:
-        return ["ip", "netns", "exec", self.namespaces[host]]
+    def exec_prefix(self, process: str) -> list[str]:
+        """`ip netns exec` onto the sensor's host for its processes (the others inherit the main host's
+        namespace from the campaign's main thread)."""
+        return ["ip", "netns", "exec", self.namespaces["sensor"]] if process in SENSOR_HOST_PROCESSES else []
 
     def enter(self) -> None:
         self._home = os.open("/proc/self/ns/net", os.O_RDONLY)
