@@ -8,11 +8,15 @@ import signal
 from collections.abc import Callable
 from typing import Any
 
+from lifecycle_msgs.msg import Transition
+from std_srvs.srv import Trigger
+
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.bearing_correction import BearingCorrection
 from beams_common.calibration_file import SensorCalibration, save_calibration
 from beams_driver.parameters import DRIVER_PARAMETERS
 from beams_ekf.parameters import EKF_PARAMETERS
+from beams_msgs.srv import SetPose
 from beams_tools.campaign_hosts import Hosts
 from beams_tools.campaign_probe_node import (
     DUPLICATE_EKF_FRAME,
@@ -177,15 +181,11 @@ class FaultPlan:
         self.probe.publishers[publisher].publish(message)
 
     def _reload(self, label: str, node: str, expected: bool | None) -> None:
-        from std_srvs.srv import Trigger
-
         self.probe.call(
             label, Trigger, f"/{NODES[node].executable}/reload_calibration", Trigger.Request(), expected
         )
 
     def _set_pose(self, label: str, pose, expected: bool) -> None:
-        from beams_msgs.srv import SetPose
-
         self.probe.call(
             label, SetPose, f"/{NODES['ekf'].executable}/set_pose", SetPose.Request(pose=pose), expected
         )
@@ -235,8 +235,6 @@ class FaultPlan:
             raise ValueError(f"unknown service call fault {variant!r}")
 
     def _plan_lifecycle(self, fault: Fault, label: str) -> None:
-        from lifecycle_msgs.msg import Transition
-
         probe, start, end = self.probe, fault.start_s, fault.end_s
         steps = {
             "deactivate_activate": [

@@ -10,7 +10,16 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
+from geometry_msgs.msg import PoseWithCovarianceStamped
+from lifecycle_msgs.msg import Transition
+from lifecycle_msgs.srv import ChangeState
+from nav_msgs.msg import Odometry
+from rcl_interfaces.srv import SetParameters
 
+from beams_common import topics
+from beams_common.ros.messages import seconds_to_stamp, stamp_to_seconds
+from beams_msgs.msg import BeaconBearing, BeaconBearingArray
 from beams_tools.campaign_metrics import CallRecord
 from beams_tools.campaign_processes import NODES
 
@@ -28,15 +37,12 @@ class Probe:
     """The campaign's rclpy node: records, publishes the bad messages, calls the services."""
 
     def __init__(self, domain_id: int) -> None:
+        # rclpy loads the middleware: imported as the probe starts, after a campaign on two hosts has
+        # entered the main host's namespace
         import rclpy
-        from diagnostic_msgs.msg import DiagnosticArray
-        from geometry_msgs.msg import PoseWithCovarianceStamped
-        from nav_msgs.msg import Odometry
         from rclpy.executors import SingleThreadedExecutor
 
-        from beams_common import topics
         from beams_common.ros.node_support import BEARINGS_QOS
-        from beams_msgs.msg import BeaconBearingArray
 
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)
@@ -102,8 +108,6 @@ class Probe:
 
     # recording
     def _on_truth(self, msg) -> None:
-        from beams_common.ros.messages import stamp_to_seconds
-
         row = (stamp_to_seconds(msg.header.stamp), msg.pose.pose.position.x, msg.pose.pose.position.y)
         if all(math.isfinite(v) for v in row):
             self.truth.append(row)
@@ -113,8 +117,6 @@ class Probe:
                 self._recent_poses.append((*row, heading))
 
     def _on_ekf(self, msg) -> None:
-        from beams_common.ros.messages import stamp_to_seconds
-
         if msg.child_frame_id == DUPLICATE_EKF_FRAME:
             self.duplicate_estimates += 1
             return
@@ -124,10 +126,6 @@ class Probe:
         self.ekf.append((stamp_to_seconds(msg.header.stamp), p.x, p.y, c[0], c[1], c[7]))
 
     def _on_diagnostics(self, msg) -> None:
-        from diagnostic_msgs.msg import DiagnosticStatus
-
-        from beams_common.ros.messages import stamp_to_seconds
-
         for status in msg.status:
             if status.name == f"/{NODES['ekf'].executable}: ekf":
                 tracking = status.level == DiagnosticStatus.OK and status.message.startswith("tracking")
@@ -204,7 +202,6 @@ class Probe:
         self.pending = still
 
     def set_parameter(self, fault: str, node: str, name: str, value: Any, expected: bool | None) -> None:
-        from rcl_interfaces.srv import SetParameters
         from rclpy.parameter import Parameter
 
         request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
@@ -216,9 +213,6 @@ class Probe:
         self.call(fault, SetParameters, f"/{NODES[node].executable}/set_parameters", request, expected, judge)
 
     def change_state(self, fault: str, transition_id: int, expected: bool) -> None:
-        from lifecycle_msgs.msg import Transition
-        from lifecycle_msgs.srv import ChangeState
-
         request = ChangeState.Request(transition=Transition(id=transition_id))
         self.call(
             fault,
@@ -232,9 +226,6 @@ class Probe:
 
 # -- bad messages ---------------------------------------------------------------------------------------
 def _revolution(stamp_s: float, bearings: list[tuple[int, float, float]]):
-    from beams_common.ros.messages import seconds_to_stamp
-    from beams_msgs.msg import BeaconBearing, BeaconBearingArray
-
     msg = BeaconBearingArray(period=0.1)
     msg.header.stamp, msg.header.frame_id = seconds_to_stamp(stamp_s), "beams_sensor"
     for beacon_id, bearing, variance in bearings:
@@ -245,10 +236,6 @@ def _revolution(stamp_s: float, bearings: list[tuple[int, float, float]]):
 
 
 def operator_pose(stamp_s: float, xy: tuple[float, float], variance: float, frame: str = "map"):
-    from geometry_msgs.msg import PoseWithCovarianceStamped
-
-    from beams_common.ros.messages import seconds_to_stamp
-
     msg = PoseWithCovarianceStamped()
     msg.header.stamp, msg.header.frame_id = seconds_to_stamp(stamp_s), frame
     msg.pose.pose.position.x, msg.pose.pose.position.y = xy
@@ -267,10 +254,6 @@ def bad_message_topic(variant: str) -> str:
 
 def bad_message(variant: str, probe: Probe) -> tuple[str, Any]:
     """(publisher, message) of one bad message, stamped now."""
-    from nav_msgs.msg import Odometry
-
-    from beams_common.ros.messages import seconds_to_stamp
-
     now_s = probe.now_s()
     if variant == "nan_bearings":
         return "bearings", _revolution(now_s, [(1, math.nan, 1e-6), (2, 0.5, math.nan), (3, 1.0, 1e-6)])
