@@ -1,14 +1,11 @@
 """`fault_campaign`: plays a seeded schedule of faults against the whole running suite and
 prints what it measured.
 
-The robot's four nodes (sim_world_node, driver_node, triangulation_node, ekf_node) run as separate
-processes over DDS, with fault_relay_node between the publishers and the filters (sim_world's odometry
-and truth and the driver's bearings go to raw topics; the relay republishes them, wrong on request). A
-probe node in this process records and acts (beams_tools.campaign_probe_node), the faults are timed
-actions (campaign_faults), and the campaign kills (kill -9), restarts, duplicates and supervises the
-processes (campaign_processes: the robot's process set of beams_tools.robot_processes): a node that exits
-without being killed is counted dead and respawned after RESPAWN_DELAY_S, as the launch file's respawn
-would. The figures and the report come from beams_tools.campaign_metrics.
+The robot's processes (beams_tools.robot_processes) run over DDS with fault_relay_node between the
+publishers and the filters, wrong on request (beams_tools.campaign_processes: a node that exits without
+being killed is counted dead and respawned, as the launch file's respawn would); a probe node in this
+process records and acts (campaign_probe_node), the faults are its and the processes' timed actions
+(campaign_faults); the figures and the report are campaign_metrics'.
 
 With --hosts, the driver runs on a second host (a network namespace joined to the main computer's by one
 link, which the link_down faults cut); where namespaces cannot be made (root, iproute2) the class is
@@ -125,8 +122,8 @@ class Campaign:
         )
         self.serial_link = self.log_dir / "beams_sensor"
         self.feed: SerialFeed | None = None
-        env = dict(os.environ)
-        env.update(
+        env = dict(
+            os.environ,
             ROS_DOMAIN_ID=str(config.domain_id),
             # across the hosts' link; the subnet exists only inside the campaign's namespaces
             ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST" if self.hosts is None else "SUBNET",
@@ -144,7 +141,6 @@ class Campaign:
         self.t0_s = math.nan
         self.probe: Probe | None = None
 
-    # timing
     def campaign_s(self) -> float:
         return self.probe.now_s() - self.t0_s
 

@@ -35,10 +35,9 @@ def _ip(*args: str) -> None:
         raise RuntimeError(f"`ip {' '.join(args)}` failed: {result.stderr.strip()}")
 
 
-def _setns(path: str) -> None:
+def _setns(fd: int, path: str) -> None:
     """This thread (the main one: the probe's DDS participant and the processes it starts) into the
-    network namespace at path (Python 3.11 has no os.setns)."""
-    fd = os.open(path, os.O_RDONLY)
+    network namespace of fd, opened at path, which it closes (Python 3.11 has no os.setns)."""
     try:
         if ctypes.CDLL(None, use_errno=True).setns(fd, CLONE_NEWNET) != 0:
             raise OSError(ctypes.get_errno(), f"setns({path})")
@@ -83,16 +82,13 @@ class Hosts:
 
     def enter(self) -> None:
         self._home = os.open("/proc/self/ns/net", os.O_RDONLY)
-        _setns(f"/var/run/netns/{self.namespaces['main']}")
+        path = f"/var/run/netns/{self.namespaces['main']}"
+        _setns(os.open(path, os.O_RDONLY), path)
 
     def leave(self) -> None:
         if self._home is not None:
-            try:
-                if ctypes.CDLL(None, use_errno=True).setns(self._home, CLONE_NEWNET) != 0:
-                    raise OSError(ctypes.get_errno(), "setns back")
-            finally:
-                os.close(self._home)
-                self._home = None
+            home, self._home = self._home, None
+            _setns(home, "/proc/self/ns/net")
 
     def set_link(self, up: bool) -> None:
         _ip("-n", self.namespaces["main"], "link", "set", HOST_LINK, "up" if up else "down")

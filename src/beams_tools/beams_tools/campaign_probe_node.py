@@ -18,8 +18,9 @@ from nav_msgs.msg import Odometry
 from rcl_interfaces.srv import SetParameters
 
 from beams_common import topics
-from beams_common.ros.messages import seconds_to_stamp, stamp_to_seconds
-from beams_msgs.msg import BeaconBearing, BeaconBearingArray
+from beams_common.bearing_messages import BearingFields, nanoseconds
+from beams_common.ros.messages import bearing_array, pose2d_of, seconds_to_stamp, stamp_to_seconds
+from beams_msgs.msg import BeaconBearingArray
 from beams_tools.campaign_metrics import CallRecord
 from beams_tools.campaign_processes import NODES
 
@@ -52,9 +53,7 @@ class Probe:
         self.truth: list[tuple[float, float, float]] = []
         self.truth_orientation = None  # the newest true orientation (a quaternion message)
         # the recent true poses (t, x, y, theta), for the serial feed's thread
-        self._recent_poses: collections.deque[tuple[float, float, float, float]] = collections.deque(
-            maxlen=200
-        )
+        self._recent_poses: collections.deque[tuple[float, ...]] = collections.deque(maxlen=200)
         self._recent_lock = threading.Lock()
         self.ekf: list[tuple[float, ...]] = []
         self.duplicate_estimates = 0  # received from a second ekf_node (duplicate_publisher/ekf)
@@ -108,11 +107,11 @@ class Probe:
 
     # recording
     def _on_truth(self, msg) -> None:
-        row = (stamp_to_seconds(msg.header.stamp), msg.pose.pose.position.x, msg.pose.pose.position.y)
+        x, y, heading = pose2d_of(msg.pose.pose)
+        row = (stamp_to_seconds(msg.header.stamp), x, y)
         if all(math.isfinite(v) for v in row):
             self.truth.append(row)
-            q = self.truth_orientation = msg.pose.pose.orientation
-            heading = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+            self.truth_orientation = msg.pose.pose.orientation
             with self._recent_lock:
                 self._recent_poses.append((*row, heading))
 
@@ -224,15 +223,12 @@ class Probe:
         )
 
 
-# -- bad messages ---------------------------------------------------------------------------------------
+# the bad messages
 def _revolution(stamp_s: float, bearings: list[tuple[int, float, float]]):
-    msg = BeaconBearingArray(period=0.1)
-    msg.header.stamp, msg.header.frame_id = seconds_to_stamp(stamp_s), "beams_sensor"
-    for beacon_id, bearing, variance in bearings:
-        item = BeaconBearing(beacon_id=beacon_id, bearing=bearing, variance=variance)
-        item.header.stamp = msg.header.stamp
-        msg.bearings.append(item)
-    return msg
+    """A revolution of (beacon, bearing, variance) stamped stamp_s, flagged uncalibrated."""
+    stamp_ns = nanoseconds(stamp_s)
+    fields = [BearingFields(stamp_ns, *bearing) for bearing in bearings]
+    return bearing_array(stamp_ns, fields, period_s=0.1, calibrated=False)
 
 
 def operator_pose(stamp_s: float, xy: tuple[float, float], variance: float, frame: str = "map"):
@@ -264,12 +260,8 @@ def bad_message(variant: str, probe: Probe) -> tuple[str, Any]:
     if variant == "oversized_revolution":
         return "bearings", _revolution(now_s, [(1, 0.01 * k, 1e-6) for k in range(65)])
     if variant == "nan_odometry":
-        msg = Odometry()
-        msg.header.stamp, msg.header.frame_id, msg.child_frame_id = (
-            seconds_to_stamp(now_s),
-            "odom",
-            "base_link",
-        )
+        msg = Odometry(child_frame_id="base_link")
+        msg.header.stamp, msg.header.frame_id = seconds_to_stamp(now_s), "odom"
         msg.pose.pose.position.x = msg.pose.pose.orientation.w = math.nan
         return "odom", msg
     if variant == "initialpose_huge_covariance":

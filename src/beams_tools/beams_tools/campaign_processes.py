@@ -72,9 +72,7 @@ class CampaignProcesses(NodeSupervisor):
         """The process that is the node `name` now: of a hot standby pair, the one holding the node's role
         (beams_common.standby), else the first of the pair still running."""
         node = NODES[name]
-        if not node.hot_standby:
-            return name
-        pair = [name, node.standby_argument]
+        pair = [process for process in (name, node.standby_argument) if process in self.nodes]
         running = [process for process in pair if self.pid(process) is not None]
         return self.active(node.executable, pair) or (running or pair)[0]
 

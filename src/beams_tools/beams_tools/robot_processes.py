@@ -76,20 +76,15 @@ ROBOT_NODES = (
 
 
 def process_commands(
-    install_base: pathlib.Path,
+    base: pathlib.Path,
     ros_arguments: Mapping[str, Sequence[str]],
     nodes: Sequence[RobotNode] = ROBOT_NODES,
     standby: bool = True,
 ) -> dict[str, list[str]]:
-    """The command of each process of `nodes` by process name (RobotNode.processes): the installed
-    executable, its arguments, then --ros-args and `ros_arguments` of its node (by executable)."""
+    """The command of each process of `nodes` by process name (RobotNode.processes): the executable
+    installed under `base`, its arguments, then --ros-args and `ros_arguments` of its node (by executable)."""
     return {
-        name: [
-            node.installed(install_base),
-            *arguments,
-            "--ros-args",
-            *ros_arguments.get(node.executable, ()),
-        ]
+        name: [node.installed(base), *arguments, "--ros-args", *ros_arguments.get(node.executable, ())]
         for node in nodes
         for name, arguments in node.processes(standby).items()
     }

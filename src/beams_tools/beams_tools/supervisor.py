@@ -1,15 +1,11 @@
-"""The process runner of the demo and the fault campaign: processes started from their commands, each
-restarted when it dies.
-
-What `ros2 launch` does with `respawn=True, respawn_delay=RESPAWN_DELAY_S` (beams.launch.py), for the
-environments without launch (the PyPI wheels): a process that exits while the supervisor is not stopping
-is started again, with the same command, RESPAWN_DELAY_S later; its log file gets a line saying so and the
-output of the new process. A node that refused its parameters at start-up (exit status 2, run_node's
-EXIT_INVALID_PARAMETERS) is not restarted: it would refuse them again. A node with a hot standby is two
-processes (beams_tools.robot_processes.RobotNode.processes), each restarted alike; `active` names the one
-that holds the node's role. The fault campaign also signals processes itself (`signal`: held, neither a
-death nor restarted until `resume`), adds and removes processes while the others run, and hears of each
-death (`on_exit`).
+"""The process runner of the demo, the fault campaign and the benches, for the environments without launch
+(the PyPI wheels): what `ros2 launch` does with `respawn=True, respawn_delay=RESPAWN_DELAY_S`. A process
+that exits while the supervisor is not stopping is started again, with the same command, RESPAWN_DELAY_S
+later; its log file gets a line saying so and the output of the new process. A node that refused its
+parameters at start-up (exit status 2, run_node's EXIT_INVALID_PARAMETERS) is not restarted: it would
+refuse them again. A node with a hot standby is two processes (robot_processes.RobotNode.processes), each
+restarted alike; `active` names the one that holds the node's role. A caller's own kill (`signal`) holds
+a process: neither a death nor restarted until `resume`.
 """
 
 import signal
@@ -63,16 +59,16 @@ class NodeSupervisor:
         on_exit: Callable[[SupervisedNode, int], None] = lambda node, status: None,
     ) -> None:
         self._log_dir = log_dir
-        self.nodes = {name: self._node(name, command) for name, command in commands.items()}
+        self.nodes = {
+            name: SupervisedNode(name, list(command), log_dir / f"{name}.log")
+            for name, command in commands.items()
+        }
         self.env = dict(env)
         self.respawn_delay_s = respawn_delay_s
         self.clock = clock
         self._on_exit = on_exit
         self._stopping = False
         self._removed: list[tuple[SupervisedNode, float]] = []  # SIGINT sent, not yet exited; deadline
-
-    def _node(self, name: str, command: Sequence[str]) -> SupervisedNode:
-        return SupervisedNode(name, list(command), self._log_dir / f"{name}.log")
 
     def start(self) -> None:
         for node in self.nodes.values():
@@ -81,7 +77,7 @@ class NodeSupervisor:
 
     def add(self, name: str, command: Sequence[str]) -> None:
         """Start one more process, supervised alike (a duplicated node)."""
-        self.nodes[name] = self._node(name, command)
+        self.nodes[name] = SupervisedNode(name, list(command), self._log_dir / f"{name}.log")
         self._launch(self.nodes[name])
 
     def remove(self, name: str) -> None:
