@@ -1,7 +1,7 @@
 """Node-level integrity: how fast the EKF is back after a node dies, and how fast a second
 publisher is said.
 
-The robot's four nodes run under the demo's supervisor (beams_bringup.supervisor, respawn after
+The robot's four nodes run under the demo's supervisor (beams_tools.supervisor, respawn after
 RESPAWN_DELAY_S, as beams.launch.py does), ekf_node as its hot standby pair (beams_common.standby); each
 node in turn is killed with SIGKILL, KILL_ROUNDS times (of the EKF's pair, the active process), and the
 delay from the kill to the EKF's next beams/ekf/odometry message is timed (the EKF goes on predicting on
@@ -20,7 +20,6 @@ import itertools
 import os
 import pathlib
 import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -139,7 +138,7 @@ def process_cpu_s(pid: int) -> float:
     return total_ns * 1e-9
 
 
-def second_driver_delays(probe: Probe, supervisor, command: list[str], env: dict[str, str]) -> list[float]:
+def second_driver_delays(probe: Probe, supervisor, command: list[str]) -> list[float]:
     """Start a second driver, time ERROR naming both on each watcher's /diagnostics, stop it."""
     from diagnostic_msgs.msg import DiagnosticStatus
 
@@ -152,7 +151,7 @@ def second_driver_delays(probe: Probe, supervisor, command: list[str], env: dict
         probe.spin_until(
             lambda: all(s and not says_two(s[-1][1]) for s in probe.statuses.values()), 15.0, supervisor.poll
         )
-        second = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        supervisor.add("second_driver", command)
         try:
             if not probe.spin_until(
                 lambda: probe.node.count_publishers("/beams/bearings") == 2, UP_TIMEOUT_S, supervisor.poll
@@ -169,8 +168,7 @@ def second_driver_delays(probe: Probe, supervisor, command: list[str], env: dict
                 raise RuntimeError("the second driver was not said at ERROR within 10 s")
             delays += [said_after(n) - appeared for n in probe.statuses]
         finally:
-            second.send_signal(signal.SIGINT)
-            second.wait(timeout=15)
+            supervisor.remove("second_driver")
     return delays
 
 
@@ -178,9 +176,9 @@ def rows() -> list[Row]:
     os.environ.setdefault("ROS_DOMAIN_ID", DEFAULT_DOMAIN_ID)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     from beams_bringup.demo import node_commands, sensor_setup
-    from beams_bringup.supervisor import NodeSupervisor
-    from beams_bringup.system import RESPAWN_DELAY_S, ROBOT_NODES
     from beams_sim.simulated_match import SENSOR_MODELS
+    from beams_tools.robot_processes import RESPAWN_DELAY_S, ROBOT_NODES
+    from beams_tools.supervisor import NodeSupervisor
 
     env = dict(os.environ)
     with tempfile.TemporaryDirectory() as directory:
@@ -196,7 +194,7 @@ def rows() -> list[Row]:
                 raise RuntimeError(f"no EKF output within {UP_TIMEOUT_S} s:\n{logs}")
             kills, silences = kill_delays(probe, supervisor, [node.executable for node in ROBOT_NODES])
             standby_mib, standby_cpu_percent = standby_figures(probe, supervisor, "ekf_node")
-            second = second_driver_delays(probe, supervisor, commands["driver_node"], env)
+            second = second_driver_delays(probe, supervisor, commands["driver_node"])
         finally:
             supervisor.stop()
             probe.close()

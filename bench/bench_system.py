@@ -17,7 +17,6 @@ import argparse
 import os
 import pathlib
 import signal
-import subprocess
 import sys
 import tempfile
 import time
@@ -27,11 +26,10 @@ import numpy as np
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
-NODES = {
-    "sim_world_node": ("beams_sim", ["-p", "duration_s:=300.0"]),
-    "driver_node": ("beams_driver", []),
-    "triangulation_node": ("beams_triangulation", ["-p", "publish_markers:=false"]),
-    "ekf_node": ("beams_ekf", []),
+# the robot's nodes (beams_tools.robot_processes), one process each (no hot standby), with these overrides
+ROS_ARGUMENTS = {
+    "sim_world_node": ["-p", "duration_s:=300.0"],
+    "triangulation_node": ["-p", "publish_markers:=false"],
 }
 DEFAULT_DOMAIN_ID = "68"  # 61-69 are the developers' (test/conftest.py); the tests never use it
 START_TIMEOUT_S = 60.0
@@ -57,37 +55,6 @@ class Arrivals:
     total: list[float] = field(default_factory=list)
     total_stamps: list[float] = field(default_factory=list)
     last_bearings: object = None
-
-
-@dataclass
-class Launcher:
-    """Starts the installed executables, each logging to its own file in log_dir."""
-
-    log_dir: pathlib.Path
-    env: dict[str, str]
-
-    def log_path(self, executable: str) -> pathlib.Path:
-        return self.log_dir / f"{executable}.log"
-
-    def start(self, executable: str) -> subprocess.Popen:
-        package, extra = NODES[executable]
-        command = [str(INSTALL_BASE / package / "lib" / package / executable), "--ros-args", *extra]
-        log = open(self.log_path(executable), "w")  # noqa: SIM115 (kept open while the node runs)
-        return subprocess.Popen(
-            command, env=self.env, stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL
-        )
-
-
-def stop_nodes(processes: dict[str, subprocess.Popen]) -> None:
-    for process in processes.values():
-        if process.poll() is None:
-            process.send_signal(signal.SIGINT)
-    for process in processes.values():
-        try:
-            process.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait(timeout=15)
 
 
 def cpu_seconds(pid: int) -> float:
@@ -225,36 +192,38 @@ def restamped(msg, now_ns: int):
 def measure(flood_s: float) -> list[Row]:
     os.environ.setdefault("ROS_DOMAIN_ID", DEFAULT_DOMAIN_ID)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    from beams_tools.robot_processes import process_commands
+    from beams_tools.supervisor import NodeSupervisor
+
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     with tempfile.TemporaryDirectory(prefix="beams_bench_system_") as log_dir:
         probe = Probe()
-        launcher = Launcher(pathlib.Path(log_dir), env)
-        processes = {executable: launcher.start(executable) for executable in NODES}
+        commands = process_commands(INSTALL_BASE, ROS_ARGUMENTS, standby=False)
+        # the bench restarts a node itself (restart_rows): it never polls the supervisor
+        supervisor = NodeSupervisor(commands, env, pathlib.Path(log_dir))
+        supervisor.start()
         try:
             if not probe.spin_until(lambda: len(probe.arrivals.ekf) > 50, START_TIMEOUT_S):
                 raise RuntimeError(f"no EKF output within {START_TIMEOUT_S} s; logs in {log_dir}")
-            rows = run_measurements(probe, processes, flood_s)
-            return rows + restart_rows(probe, processes, launcher)
+            rows = latency_and_cpu_rows(probe, supervisor) + flood_rows(probe, supervisor, flood_s)
+            return rows + restart_rows(probe, supervisor)
         finally:
-            stop_nodes(processes)
+            supervisor.stop()
             probe.close()
 
 
-def run_measurements(probe: Probe, processes: dict[str, subprocess.Popen], flood_s: float) -> list[Row]:
-    return latency_and_cpu_rows(probe, processes) + flood_rows(probe, processes, flood_s)
-
-
-def latency_and_cpu_rows(probe: Probe, processes: dict[str, subprocess.Popen]) -> list[Row]:
+def latency_and_cpu_rows(probe: Probe, supervisor) -> list[Row]:
     """Latencies over LATENCY_WINDOW_S at the nominal rate, and each node's CPU share over that window."""
     rows = []
+    pids = {name: supervisor.pid(name) for name in supervisor.nodes}
     arrivals = probe.arrivals
     # latency, with the CPU window inside it
     first = len(arrivals.bearings)
-    cpu_before = {name: cpu_seconds(p.pid) for name, p in processes.items()}
+    cpu_before = {name: cpu_seconds(pid) for name, pid in pids.items()}
     window_start = time.monotonic()
     probe.spin_for(LATENCY_WINDOW_S)
     window_s = time.monotonic() - window_start
-    cpu_after = {name: cpu_seconds(p.pid) for name, p in processes.items()}
+    cpu_after = {name: cpu_seconds(pid) for name, pid in pids.items()}
     causes = arrivals.bearings[first:-2]
     target = f"target p99 < {LATENCY_TARGET_MS:g} ms"
     for what, delays, compared in (
@@ -271,19 +240,20 @@ def latency_and_cpu_rows(probe: Probe, processes: dict[str, subprocess.Popen]) -
             f"nominal {REVOLUTION_RATE_HZ:g}",
         )
     )
-    for name in processes:
+    for name in pids:
         share = 100.0 * (cpu_after[name] - cpu_before[name]) / window_s
         rows.append((f"CPU {name} at 10 revolutions/s", share, "% of one core", "2-core machine"))
     return rows
 
 
-def flood_rows(probe: Probe, processes: dict[str, subprocess.Popen], flood_s: float) -> list[Row]:
+def flood_rows(probe: Probe, supervisor, flood_s: float) -> list[Row]:
     """10x the revolutions for flood_s: each node's CPU share, peak RSS and RSS growth."""
     rows = []
-    rss_before = {name: memory_kb(p.pid)["VmRSS"] for name, p in processes.items()}
-    cpu_before = {name: cpu_seconds(p.pid) for name, p in processes.items()}
+    pids = {name: supervisor.pid(name) for name in supervisor.nodes}
+    rss_before = {name: memory_kb(pid)["VmRSS"] for name, pid in pids.items()}
+    cpu_before = {name: cpu_seconds(pid) for name, pid in pids.items()}
     published = probe.flood(flood_s, FLOOD_RATE_FACTOR * REVOLUTION_RATE_HZ)
-    cpu_after = {name: cpu_seconds(p.pid) for name, p in processes.items() if p.poll() is None}
+    cpu_after = {name: cpu_seconds(pid) for name, pid in pids.items() if supervisor.pid(name) is not None}
     probe.spin_for(1.0)
     rows.append(
         (
@@ -293,9 +263,9 @@ def flood_rows(probe: Probe, processes: dict[str, subprocess.Popen], flood_s: fl
             f"{FLOOD_RATE_FACTOR}x nominal, on top of the driver's",
         )
     )
-    for name, process in processes.items():
-        alive = process.poll() is None
-        memory = memory_kb(process.pid) if alive else {"VmHWM": float("nan"), "VmRSS": float("nan")}
+    for name, pid in pids.items():
+        alive = supervisor.pid(name) is not None
+        memory = memory_kb(pid) if alive else {"VmHWM": float("nan"), "VmRSS": float("nan")}
         rows.append(
             (
                 f"flood: {name} peak RSS (VmHWM)",
@@ -311,7 +281,7 @@ def flood_rows(probe: Probe, processes: dict[str, subprocess.Popen], flood_s: fl
     return rows
 
 
-def restart_rows(probe: Probe, processes: dict[str, subprocess.Popen], launcher: Launcher) -> list[Row]:
+def restart_rows(probe: Probe, supervisor) -> list[Row]:
     """Stop and restart the triangulation and the EKF RESTARTS times each, by kill -9 and by SIGTERM: the
     delay from the new process's "ready" log line to its first output at the probe (DDS discovery
     included), and from its start (Python and rclpy start-up included)."""
@@ -321,14 +291,12 @@ def restart_rows(probe: Probe, processes: dict[str, subprocess.Popen], launcher:
         for executable, arrivals in outputs.items():
             from_ready, from_start = [], []
             for _ in range(RESTARTS):
-                processes[executable].send_signal(stop_signal)
-                processes[executable].wait(timeout=15)
+                node = supervisor.nodes[executable]
+                supervisor.signal(executable, stop_signal)
+                node.process.wait(timeout=15)
                 started = time.monotonic()
-                processes[executable] = launcher.start(executable)
-                log = launcher.log_path(executable)
-                if not probe.spin_until(
-                    lambda log=log: "ready" in log.read_text(errors="replace"), START_TIMEOUT_S
-                ):
+                supervisor.resume(executable)
+                if not probe.spin_until(lambda node=node: "ready" in node.log_tail(1000), START_TIMEOUT_S):
                     raise RuntimeError(f"{executable} not ready {START_TIMEOUT_S} s after its restart")
                 ready = time.monotonic()
                 probe.spin_until(lambda ready=ready, arrivals=arrivals: arrivals[-1] > ready, START_TIMEOUT_S)

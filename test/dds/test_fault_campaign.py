@@ -63,7 +63,8 @@ def test_two_minute_campaign_holds(ros_env, ros_domain_id, tmp_path):
 
 
 def test_the_campaign_fails_when_the_lost_detection_is_off(ros_env, ros_domain_id, tmp_path):
-    from beams_tools.campaign_command import WRONG_PLACE_M, run_campaign
+    from beams_tools.campaign_command import run_campaign
+    from beams_tools.campaign_faults import WRONG_PLACE_M
     from beams_tools.campaign_metrics import judge
     from beams_tools.fault_schedule import fixed_schedule
 

@@ -44,8 +44,8 @@ STANDBY_WAITING = "standby: waiting for the role"
 @pytest.fixture
 def supervised_robot(ros_env, tmp_path):
     from beams_bringup.demo import node_commands, sensor_setup
-    from beams_bringup.supervisor import NodeSupervisor
     from beams_sim.simulated_match import SENSOR_MODELS
+    from beams_tools.supervisor import NodeSupervisor
 
     sensor = sensor_setup(SENSOR_MODELS[0], tmp_path, calibrated=True)
     supervisor = NodeSupervisor(node_commands(600.0, sensor), ros_env, tmp_path)
@@ -64,12 +64,12 @@ def test_each_node_killed_in_turn_and_the_ekf_twice_the_ekf_output_is_back_withi
 ):
     from nav_msgs.msg import Odometry
 
-    from beams_bringup.system import RESPAWN_DELAY_S
     from beams_common.ros.node_support import BEARINGS_QOS
     from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
+    from beams_tools.robot_processes import RESPAWN_DELAY_S
 
     supervisor = supervised_robot
-    assert sorted(supervisor.nodes) == sorted([*KILLED[:3], "ekf_node", "ekf_node_2"])
+    assert sorted(supervisor.nodes) == sorted([*KILLED[:3], "ekf_node", "ekf_standby"])
     arrivals: dict[str, list[float]] = {}
 
     def record(topic: str, msg_type, qos=10) -> None:
@@ -164,7 +164,7 @@ def longest_silence(arrivals: list[float], start: float, end: float) -> float:
 
 def test_a_node_refusing_its_parameters_is_not_restarted(ros_env, tmp_path):
     """Exit status 2 (run_node's start-up refusal) would come again at every start: given up, said."""
-    from beams_bringup.supervisor import NodeSupervisor
+    from beams_tools.supervisor import NodeSupervisor
 
     script = ["python", "-c", "import sys; sys.exit(2)"]
     crash = ["python", "-c", "import os; os.kill(os.getpid(), 9)"]

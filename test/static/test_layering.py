@@ -30,7 +30,9 @@ ALLOWED = {
         "beams_msgs",
     },
     # the tools (issue 18's fault campaign, the offline bag replay and its bag and trajectory tooling, the
-    # node reference's generator): stand on the robot's packages
+    # node reference's generator) and the robot's process set with its runner (robot_processes,
+    # supervisor: read by beams_bringup's launch file and demo and by the campaign, so they live below
+    # both): stand on the robot's packages
     "beams_tools": {
         "beams_common",
         "beams_driver",

@@ -3,9 +3,9 @@
     python -m beams_bringup.architecture_docs                    # print the Mermaid diagrams
     python -m beams_bringup.architecture_docs --write README.md  # replace the block between the markers
 
-Each node of the robot (beams_bringup.system.ROBOT_NODES) and the calibration node is created in this
-process with its default parameters, and asked what it publishes, subscribes to and serves (the ROS
-graph of its own participant: nothing is declared twice); the frames are the nodes' frame parameters.
+Each node of the robot (beams_tools.robot_processes.ROBOT_NODES) and the calibration node is created
+in this process with its default parameters, and asked what it publishes, subscribes to and serves (the
+ROS graph of its own participant: nothing is declared twice); the frames are the nodes' frame parameters.
 The picture sits in README.md between `<!-- architecture -->` and `<!-- /architecture -->`;
 test/static/test_docs_in_sync.py fails when it differs from what this module writes. Run it in a
 ROS_DOMAIN_ID of its own (the test claims one): nodes of the same names elsewhere in the domain would
@@ -22,8 +22,8 @@ import re
 import sys
 from dataclasses import dataclass, field
 
-from beams_bringup.system import ROBOT_NODES, RobotNode
 from beams_common import topics
+from beams_tools.robot_processes import ROBOT_NODES, RobotNode
 
 # Started by hand while calibrating (README, docs/calibration.md), not by the launch file.
 HAND_STARTED = (RobotNode("beams_calibration", "calibration_node"),)

@@ -38,8 +38,6 @@ from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, Qo
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
-from beams_bringup.supervisor import NodeSupervisor
-from beams_bringup.system import PARAMS_FILE, ROBOT_NODES
 from beams_common import topics
 from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
@@ -51,6 +49,8 @@ from beams_sim.simulated_match import SENSOR_MODELS, calibration_of, sensor_conf
 from beams_tools.bag_events import stamp_ns
 from beams_tools.bag_io import BagRecorder, beams_typestore, fully_qualified
 from beams_tools.replay_settings import installed_params_file
+from beams_tools.robot_processes import PARAMS_FILE, ROBOT_NODES, process_commands
+from beams_tools.supervisor import NodeSupervisor
 from beams_tools.trajectory_metrics import (
     RunTracks,
     errors_against_truth,
@@ -184,21 +184,15 @@ def node_commands(duration_s: float, sensor: SensorSetup, standby: bool = True) 
     params_file = installed_params_file()
     if params_file is None:
         raise FileNotFoundError(f"{PARAMS_FILE} of beams_bringup is not installed: run `make build`")
-    commands = {}
-    for node in ROBOT_NODES:
-        package, executable = node.package, node.executable
-        ros_arguments = ["--ros-args", "--params-file", str(params_file)]
-        if executable == "sim_world_node":
-            ros_arguments += ["-p", f"duration_s:={duration_s}"]
-        if executable == "driver_node":
-            ros_arguments += list(sensor.driver_arguments)
-        for name, arguments in node.processes(standby).items():
-            commands[name] = [
-                str(INSTALL_BASE / package / "lib" / package / executable),
-                *arguments,
-                *ros_arguments,
-            ]
-    return commands
+    overrides = {
+        "sim_world_node": ["-p", f"duration_s:={duration_s}"],
+        "driver_node": sensor.driver_arguments,
+    }
+    ros_arguments = {
+        node.executable: ["--params-file", str(params_file), *overrides.get(node.executable, ())]
+        for node in ROBOT_NODES
+    }
+    return process_commands(INSTALL_BASE, ros_arguments, standby=standby)
 
 
 def progress_line(record: MatchRecord, elapsed_s: float, bearings_per_s: float) -> str:

@@ -33,7 +33,13 @@ from launch.substitutions import (
 from launch_ros.actions import Node
 from launch_ros.substitutions import FindPackageShare
 
-from beams_bringup.system import DISCOVERY_PROFILE, PARAMS_FILE, RESPAWN_DELAY_S, ROBOT_NODES, RobotNode
+from beams_tools.robot_processes import (
+    DISCOVERY_PROFILE,
+    PARAMS_FILE,
+    RESPAWN_DELAY_S,
+    ROBOT_NODES,
+    RobotNode,
+)
 
 ARGUMENTS = (
     ("namespace", "", "namespace of this robot's nodes"),

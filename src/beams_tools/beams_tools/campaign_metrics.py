@@ -1,4 +1,5 @@
-"""The fault campaign's figures from recorded series: pure, so they are tested on synthetic data.
+"""The fault campaign's figures from recorded series and its result's report: pure, so they are tested on
+synthetic data.
 
 Every time is a ROS stamp in seconds (the nodes' clocks: system time, one machine). The series:
 - the EKF's published estimates: rows (stamp, x, y, var_xx, cov_xy, var_yy), position and its covariance;
@@ -18,11 +19,15 @@ Availability: the fraction of a span's time in which the newest estimate is at m
 status a user sees then (the EKF's last report at or before that time) says tracking.
 """
 
+import math
+import pathlib
 import re
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from beams_tools.fault_schedule import Fault
 
 MISLEADING_FLOOR_M = 0.05
 MISLEADING_SIGMAS = 5.0
@@ -272,3 +277,85 @@ def campaign_figures(
 def rss_growth_mb(samples: Sequence[tuple[float, float]]) -> float:
     """Growth (MB) of a process's resident set from its first to its last (time, RSS MB) sample."""
     return samples[-1][1] - samples[0][1] if len(samples) >= 2 else 0.0
+
+
+@dataclass
+class CallRecord:
+    """One service call (or parameter change, or lifecycle transition) and its answer."""
+
+    fault: str
+    service: str
+    answered: bool = False
+    success: bool | None = None
+    expected_success: bool | None = None
+    detail: str = ""
+    latency_s: float = math.nan
+
+
+@dataclass
+class Death:
+    """A process that exited without the campaign killing it."""
+
+    name: str
+    campaign_s: float
+    status: int
+    fault: str
+    log_tail: str
+
+
+@dataclass
+class CampaignResult:
+    schedule: tuple[Fault, ...]
+    figures: CampaignFigures
+    calls: list[CallRecord]
+    deaths: list[Death]
+    rss_growth_mb: dict[str, float]
+    output_dir: pathlib.Path
+    notes: tuple[str, ...] = ()  # what the campaign left out, and why (a class it could not play here)
+
+    @property
+    def unanswered(self) -> list[CallRecord]:
+        return [call for call in self.calls if not call.answered]
+
+    @property
+    def unexpected_answers(self) -> list[CallRecord]:
+        """Answered, but not as expected: a bad change accepted, a good one refused."""
+        return [c for c in self.calls if c.answered and c.expected_success not in (None, c.success)]
+
+    def report(self) -> str:
+        f = self.figures
+        lines = [
+            f"fault campaign: {len(self.schedule)} faults over {f.span_s:.0f} s measured "
+            f"(logs in {self.output_dir})",
+            f"misleading time {f.misleading_s:.2f} s (outside fault windows {f.misleading_outside_s:.2f} s, "
+            f"largest misleading error {f.max_misleading_error_m:.3g} m)",
+            f"availability {100 * f.availability:.1f} % (outside fault windows "
+            f"{100 * f.availability_outside:.1f} % of {f.outside_s:.0f} s)",
+            f"nodes dead {len(self.deaths)}, service calls {len(self.calls)}, unanswered "
+            f"{len(self.unanswered)}, answered against expectation {len(self.unexpected_answers)}",
+            "RSS growth (MB): " + ", ".join(f"{k} {v:+.1f}" for k, v in self.rss_growth_mb.items()),
+            *self.notes,
+            "per class: class | faults | window s | misleading s | availability % | "
+            "largest misleading error m",
+        ]
+        for figures in f.per_class.values():
+            lines.append(
+                f"  {figures.kind} | {figures.faults} | {figures.window_s:.1f} | "
+                f"{figures.misleading_s:.2f} | {100 * figures.availability:.1f} | "
+                f"{figures.max_misleading_error_m:.3g}"
+            )
+        if f.unavailable_outside_by_reason:
+            lines.append("unavailable outside fault windows, by the EKF's status: seconds | reason")
+            lines += [
+                f"  {seconds:.2f} | {reason}" for reason, seconds in f.unavailable_outside_by_reason.items()
+            ]
+        lines += [
+            f"  dead: {d.name} at {d.campaign_s:.1f} s (exit {d.status}) during {d.fault}"
+            for d in self.deaths
+        ]
+        lines += [f"  unanswered: {c.service} during {c.fault} ({c.detail})" for c in self.unanswered]
+        lines += [
+            f"  unexpected answer: {c.service} during {c.fault}: success={c.success} ({c.detail})"
+            for c in self.unexpected_answers
+        ]
+        return "\n".join(lines)

@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from beams_tools.robot_processes import ROBOT_NODES
+
 # The fault classes the campaign plays everywhere (the serial line's and the hosts' link below need
 # a serial sensor and network namespaces).
 FAULT_CLASSES = (
@@ -32,11 +34,9 @@ FAULT_CLASSES = (
 SERIAL_CLASS = "serial_line"
 SERIAL_LINE_FAULTS = ("noise", "spurious_zero", "silence", "unplug")
 # a link down between two network namespaces (hosts): driver_node on the sensor's host, the rest of the
-# robot on the main computer's, joined by one veth link (campaign_command.Hosts; root and iproute2)
+# robot on the main computer's, joined by one veth link (campaign_hosts.Hosts; root and iproute2)
 LINK_CLASS = "link_down"
 LINKS = ("sensor_link",)
-# The robot's nodes, each its own process (a kill or a duplicate picks among them).
-ROBOT_NODE_NAMES = ("sim_world", "driver", "triangulation", "ekf")
 # After a fault ends, its effects still count as its own for this long (s): a killed node's restart and
 # the EKF's re-initialisation take a few seconds on a loaded 2-core machine; a second sim_world's
 # odometry leaves the filter off until a ToTal pose brings it back.
@@ -161,8 +161,8 @@ def _draw(kind: str, rng: np.random.Generator) -> tuple[str, float, dict[str, An
         # a Wi-Fi or cable drop shorter than the DDS lease (5 s): the participants stay matched
         return _pick(rng, LINKS), float(rng.uniform(1.5, 4.0)), {}
     if kind == "node_kill":
-        # kill -9, restarted after this delay as a launch respawn would
-        return _pick(rng, ROBOT_NODE_NAMES), float(rng.uniform(0.5, 2.0)), {}
+        # one of the robot's nodes: kill -9, restarted after this delay as a launch respawn would
+        return _pick(rng, tuple(node.name for node in ROBOT_NODES)), float(rng.uniform(0.5, 2.0)), {}
     known = (*FAULT_CLASSES, SERIAL_CLASS, LINK_CLASS)
     raise ValueError(f"unknown fault class {kind!r}; expected one of {known}")
 

@@ -14,16 +14,14 @@ from beams_common.geometry_parameters import geometry_of
 from beams_common.parameters import ROS_NODE_PARAMETERS, ParameterTable, load_parameter_file
 from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
 from beams_ekf.settings import FilterSettings
+from beams_tools.robot_processes import PARAMS_FILE
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
 from beams_triangulation.pipeline import TriangulationSettings
 
-# beams_bringup's parameter file (beams_bringup.system.PARAMS_FILE), the replay's default; found by its
-# install location, not imported: beams_bringup stands on this package
-PARAMS_FILE = "beams_params.yaml"
-
 
 def installed_params_file() -> pathlib.Path | None:
-    """beams_bringup's installed parameter file (ament index, or BEAMS_INSTALL_BASE), None when absent."""
+    """beams_bringup's installed parameter file, the replay's default (ament index, or BEAMS_INSTALL_BASE),
+    None when absent."""
     candidates = []
     try:
         from ament_index_python.packages import get_package_share_directory

@@ -82,20 +82,20 @@ def test_twenty_minutes_draw_every_variant_of_issue_18s_last_classes():
 
 
 def test_the_classes_a_campaign_draws_and_why_the_hosts_link_is_skipped(monkeypatch, tmp_path):
-    from beams_tools import campaign_command
+    from beams_tools import campaign_command, campaign_hosts
 
     assert campaign_command.campaign_classes(False) == FAULT_CLASSES
     assert campaign_command.campaign_classes(True, hosts=True) == (*FAULT_CLASSES, SERIAL_CLASS, LINK_CLASS)
     assert campaign_command.campaign_classes(False, hosts=True) == (*FAULT_CLASSES, LINK_CLASS)
-    monkeypatch.setattr(campaign_command.os, "geteuid", lambda: 1000)
-    assert "need root" in campaign_command.hosts_problem()
-    monkeypatch.setattr(campaign_command.os, "geteuid", lambda: 0)
-    monkeypatch.setattr(campaign_command.shutil, "which", lambda _name: None)
-    assert "`ip` is missing" in campaign_command.hosts_problem()
-    monkeypatch.setattr(campaign_command.shutil, "which", lambda _name: "/usr/sbin/ip")
-    assert campaign_command.hosts_problem() == ""
+    monkeypatch.setattr(campaign_hosts.os, "geteuid", lambda: 1000)
+    assert "need root" in campaign_hosts.hosts_problem()
+    monkeypatch.setattr(campaign_hosts.os, "geteuid", lambda: 0)
+    monkeypatch.setattr(campaign_hosts.shutil, "which", lambda _name: None)
+    assert "`ip` is missing" in campaign_hosts.hosts_problem()
+    monkeypatch.setattr(campaign_hosts.shutil, "which", lambda _name: "/usr/sbin/ip")
+    assert campaign_hosts.hosts_problem() == ""
     # a campaign asked for hosts where they cannot be made says so in its notes and draws no link fault
-    monkeypatch.setattr(campaign_command.os, "geteuid", lambda: 1000)
+    monkeypatch.setattr(campaign_hosts.os, "geteuid", lambda: 1000)
     campaign = campaign_command.Campaign(
         campaign_command.CampaignConfig(
             hosts=True, install_base=_fake_install(monkeypatch), output_dir=tmp_path
@@ -112,9 +112,9 @@ def _fake_install(monkeypatch):
     """An install base whose executables 'exist' (the campaign only builds their commands here)."""
     import pathlib
 
-    from beams_tools import campaign_command
+    from beams_tools.robot_processes import RobotNode
 
-    monkeypatch.setattr(campaign_command, "_executable", lambda base, package, executable: executable)
+    monkeypatch.setattr(RobotNode, "installed", lambda node, base: node.executable)
     return pathlib.Path("/nonexistent")
 
 

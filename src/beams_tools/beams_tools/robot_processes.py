@@ -1,10 +1,15 @@
-"""The robot's nodes and where their parameters live: one list for the launch file and the demo (the
-installed parameter file is found by beams_tools.replay_settings.installed_params_file)."""
+"""The robot's process set, described once: which nodes (package, executable), which run only with the
+simulated sensor, which read the calibration file, which run as a hot standby pair, the respawn delay,
+the parameter file and the Fast DDS profile. beams_bringup's launch file and the demo's supervisor, and
+the fault campaign, build their processes from it (test/unit/test_process_set.py)."""
 
+import pathlib
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 from beams_common.standby import STANDBY_FLAG
 
+# beams_bringup's share/config files (the installed parameter file: replay_settings.installed_params_file)
 PARAMS_FILE = "beams_params.yaml"
 DISCOVERY_PROFILE = "fastdds_fast_discovery.xml"
 # A node that dies is started again this long after (s): `ros2 launch` (respawn_delay), the demo's
@@ -34,9 +39,15 @@ class RobotNode:
     hot_standby: bool = False
 
     @property
+    def name(self) -> str:
+        """The node's short name (the fault campaign's, its schedule's): `ekf` for ekf_node."""
+        return self.executable.removesuffix("_node")
+
+    @property
     def standby_argument(self) -> str:
-        """The launch argument that turns its standby off (`ekf_standby:=false`)."""
-        return f"{self.executable.removesuffix('_node')}_standby"
+        """The launch argument that turns its standby off (`ekf_standby:=false`), also the name of the
+        pair's second process."""
+        return f"{self.name}_standby"
 
     def processes(self, standby: bool = True) -> dict[str, list[str]]:
         """Its processes: a name for each (the supervisor's, its log's) and its arguments before --ros-args.
@@ -44,7 +55,14 @@ class RobotNode:
         it at once, and whichever dies is respawned into a role held by the other, so it waits."""
         if not (self.hot_standby and standby):
             return {self.executable: []}
-        return {self.executable: [STANDBY_FLAG], f"{self.executable}_2": [STANDBY_FLAG]}
+        return {self.executable: [STANDBY_FLAG], self.standby_argument: [STANDBY_FLAG]}
+
+    def installed(self, install_base: pathlib.Path) -> str:
+        """Its installed executable (what `ros2 run` starts)."""
+        path = install_base / self.package / "lib" / self.package / self.executable
+        if not path.exists():
+            raise FileNotFoundError(f"{path} is not installed: run `make build`")
+        return str(path)
 
 
 ROBOT_NODES = (
@@ -55,3 +73,18 @@ ROBOT_NODES = (
     # 2.2-2.7 s after a kill under a load of 4-6; its standby takes over in 0.41-0.50 s (BENCHMARKS.md)
     RobotNode("beams_ekf", "ekf_node", hot_standby=True),
 )
+
+
+def process_commands(
+    base: pathlib.Path,
+    ros_arguments: Mapping[str, Sequence[str]],
+    nodes: Sequence[RobotNode] = ROBOT_NODES,
+    standby: bool = True,
+) -> dict[str, list[str]]:
+    """The command of each process of `nodes` by process name (RobotNode.processes): the executable
+    installed under `base`, its arguments, then --ros-args and `ros_arguments` of its node (by executable)."""
+    return {
+        name: [node.installed(base), *arguments, "--ros-args", *ros_arguments.get(node.executable, ())]
+        for node in nodes
+        for name, arguments in node.processes(standby).items()
+    }

@@ -1,0 +1,149 @@
+"""The robot's process set is described once (beams_tools.robot_processes): the launch file, the demo's
+supervisor and the fault campaign start exactly the processes it lists, with its hot standby pairs and its
+respawn delay. The launch file is run on stand-ins for launch and launch_ros (the PyPI wheels lack them;
+test_ros2_cli.py runs the real tool where it is installed); the demo's and the campaign's command lines
+are built as they run them."""
+
+import importlib.util
+import pathlib
+import sys
+import types
+
+import pytest
+
+from beams_tools.robot_processes import (
+    DISCOVERY_PROFILE,
+    PARAMS_FILE,
+    RESPAWN_DELAY_S,
+    ROBOT_NODES,
+    RobotNode,
+)
+
+LAUNCH_FILE = pathlib.Path(__file__).resolve().parents[2] / "src/beams_bringup/launch/beams.launch.py"
+
+
+def described(standby: bool) -> dict[str, list[list[str]]]:
+    """executable -> the arguments (before --ros-args) of each of its processes."""
+    return {node.executable: sorted(node.processes(standby).values()) for node in ROBOT_NODES}
+
+
+def started(commands: dict[str, list[str]]) -> dict[str, list[list[str]]]:
+    processes: dict[str, list[list[str]]] = {}
+    for command in commands.values():
+        processes.setdefault(pathlib.Path(command[0]).name, []).append(
+            command[1 : command.index("--ros-args")]
+        )
+    return {executable: sorted(arguments) for executable, arguments in processes.items()}
+
+
+@pytest.fixture
+def fake_install(monkeypatch):
+    """Installed executables named by their path (only the command lines are built)."""
+    monkeypatch.setattr(RobotNode, "installed", lambda node, base: f"{base}/{node.package}/{node.executable}")
+    return pathlib.Path("/nonexistent")
+
+
+class _Recorded:
+    """A launch action or substitution: what it was given."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        self.args, self.kwargs = args, kwargs
+
+
+def _launch_stand_ins(monkeypatch) -> None:
+    names = {
+        "launch": ("Condition", "LaunchDescription"),
+        "launch.actions": ("DeclareLaunchArgument", "SetEnvironmentVariable"),
+        "launch.conditions": ("IfCondition", "UnlessCondition"),
+        "launch.substitutions": (
+            "EnvironmentVariable",
+            "EqualsSubstitution",
+            "LaunchConfiguration",
+            "PathJoinSubstitution",
+        ),
+        "launch_ros.actions": ("Node",),
+        "launch_ros.substitutions": ("FindPackageShare",),
+    }
+    for module_name, classes in names.items():
+        module = types.ModuleType(module_name)
+        for name in classes:
+            setattr(module, name, type(name, (_Recorded,), {}))
+        monkeypatch.setitem(sys.modules, module_name, module)
+    monkeypatch.setitem(sys.modules, "launch_ros", types.ModuleType("launch_ros"))
+
+
+def _runs(node_action, standby: bool, source: str) -> bool:
+    """Whether a Node action runs with its standby argument `standby` and the source `source`."""
+    condition = node_action.kwargs["condition"]
+    if condition is None:
+        return True
+    kind, (value,) = type(condition).__name__, condition.args
+    if type(value).__name__ == "EqualsSubstitution":  # the simulated robot's
+        return source == value.args[1]
+    return standby if kind == "IfCondition" else not standby
+
+
+@pytest.mark.parametrize("standby", [True, False])
+@pytest.mark.parametrize("source", ["sim", "serial"])
+def test_the_launch_file_starts_the_described_processes(monkeypatch, standby, source):
+    _launch_stand_ins(monkeypatch)
+    spec = importlib.util.spec_from_file_location("beams_launch", LAUNCH_FILE)
+    launch = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(launch)
+    actions = launch.generate_launch_description().args[0]
+    nodes = [action for action in actions if type(action).__name__ == "Node"]
+    assert {(n.kwargs["package"], n.kwargs["executable"]) for n in nodes} == {
+        (node.package, node.executable) for node in ROBOT_NODES
+    }
+    assert all(n.kwargs["respawn"] and n.kwargs["respawn_delay"] == RESPAWN_DELAY_S for n in nodes)
+    assert all(n.kwargs["parameters"][0].args[0][-1] == PARAMS_FILE for n in nodes)
+    running: dict[str, list[list[str]]] = {}
+    for n in nodes:
+        if _runs(n, standby, source):
+            running.setdefault(n.kwargs["executable"], []).append(n.kwargs["arguments"])
+    expected = {
+        executable: arguments
+        for executable, arguments in described(standby).items()
+        if source == "sim" or not next(n for n in ROBOT_NODES if n.executable == executable).simulation_only
+    }
+    assert {executable: sorted(arguments) for executable, arguments in running.items()} == expected
+    standby_arguments = {a.args[0] for a in actions if type(a).__name__ == "DeclareLaunchArgument"}
+    assert {node.standby_argument for node in ROBOT_NODES if node.hot_standby} <= standby_arguments
+    profile = next(a for a in actions if type(a).__name__ == "SetEnvironmentVariable")
+    assert profile.args[1].kwargs["default_value"].args[0][-1] == DISCOVERY_PROFILE
+    # the docstring says the delay
+    assert f"({RESPAWN_DELAY_S:g} s)" in LAUNCH_FILE.read_text()
+
+
+@pytest.mark.parametrize("standby", [True, False])
+def test_the_demo_supervises_the_described_processes(monkeypatch, tmp_path, fake_install, standby):
+    from beams_bringup import demo
+    from beams_sim.simulated_match import SENSOR_MODELS
+    from beams_tools.supervisor import NodeSupervisor
+
+    monkeypatch.setattr(demo, "installed_params_file", lambda: tmp_path / PARAMS_FILE)
+    monkeypatch.setattr(demo, "INSTALL_BASE", fake_install)
+    commands = demo.node_commands(90.0, demo.sensor_setup(SENSOR_MODELS[0], tmp_path, False), standby)
+    assert started(commands) == described(standby)
+    assert set(commands) == {name for node in ROBOT_NODES for name in node.processes(standby)}
+    assert all(
+        command[command.index("--ros-args") + 2] == str(tmp_path / PARAMS_FILE)
+        for command in commands.values()
+    )
+    assert NodeSupervisor(commands, {}, tmp_path).respawn_delay_s == RESPAWN_DELAY_S
+
+
+def test_the_campaign_runs_the_described_processes_and_its_relay(tmp_path, fake_install):
+    from beams_tools.campaign_command import Campaign, CampaignConfig
+
+    campaign = Campaign(CampaignConfig(install_base=fake_install, output_dir=tmp_path))
+    commands = {name: node.command for name, node in campaign.processes.nodes.items()}
+    assert started(commands) == {**described(True), "fault_relay_node": [[]]}
+    assert campaign.processes.respawn_delay_s == RESPAWN_DELAY_S
+    # a node's first process is named as the schedule names the node (a kill's, a duplicate's)
+    assert {node.name for node in ROBOT_NODES} <= set(commands)
+
+
+def test_the_respawn_delay_is_short_but_not_zero():
+    # short enough for issue 18's 2 s (a node's start-up takes the rest), not zero (a crash loop idles)
+    assert 0.1 <= RESPAWN_DELAY_S <= 0.5
