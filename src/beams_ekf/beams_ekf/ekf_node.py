@@ -54,7 +54,7 @@ from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import BeaconGeometry, geometry_of_calibration, runtime_geometry
 from beams_common.health import Status
 from beams_common.plausibility import StampCheck, stamp_tolerance_of
-from beams_common.pose_intake import PoseIntake, PoseSource, RefusedPose, pose_message_intake
+from beams_common.pose_intake import KeptPose, PoseIntake, PoseSource, RefusedPose, pose_message_intake
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import (
@@ -212,7 +212,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         newest_s = _newest_stamp_s(intake)
         if self._implausible_stamp("bearings", f"revolution {msg.revolution}", newest_s, now_s):
             return  # a bearing applied at the wrong instant is confidently wrong
-        self.localiser.on_intake(intake)  # counts the bearings and revolutions refused, applies those kept
+        self.localiser.on_bearings(intake)  # counts the bearings and revolutions refused, applies those kept
         for key, reason in intake.revolution_refusals():  # the localiser's count, with the reason
             counted = self.localiser.stats.counts[key]
             self.diagnostics.refuse(key, f"revolution {msg.revolution}: {reason}", counted=counted)
@@ -226,12 +226,11 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         if not (self.settings.use_total_pose and msg.accepted):
             return
         intake = self._pose_intake(PoseSource.TOTAL, msg.header, msg.pose)
-        if isinstance(intake, RefusedPose):
-            return
-        what = f"ToTal pose at {intake.stamp_s:.3f} s"
-        if self._implausible_stamp("total_pose", what, intake.stamp_s, self._now_s()):
-            return  # a fix taken at the wrong instant is brought to the filter's instant wrongly
-        if self.localiser.offer_pose(intake, self.settings.default_pose_covariance).taken:
+        if isinstance(intake, KeptPose):
+            what = f"ToTal pose at {intake.stamp_s:.3f} s"
+            if self._implausible_stamp("total_pose", what, intake.stamp_s, self._now_s()):
+                return  # a fix taken at the wrong instant is brought to the filter's instant wrongly
+        if self._take_pose(intake).taken:
             self._status_now()
 
     def _status_now(self) -> None:
@@ -248,23 +247,26 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         return response
 
     def _pose_intake(self, source: PoseSource, header, pose_with_covariance) -> PoseIntake:
-        """The pose intake (`beams_common.pose_intake`); a refusal counted by the localiser (as in the
-        offline replay), shown with its reason."""
+        """The pose intake (`beams_common.pose_intake`) of a message, as the offline replay's."""
         stamp_s = stamp_to_seconds(header.stamp)
-        intake = pose_message_intake(source, header.frame_id, self.map_frame, stamp_s, pose_with_covariance)
+        return pose_message_intake(source, header.frame_id, self.map_frame, stamp_s, pose_with_covariance)
+
+    def _take_pose(self, intake: PoseIntake) -> PoseOutcome:
+        """A pose through the localiser's pose door; a refusal (counted there, as in the offline replay)
+        shown with its reason."""
+        outcome = self.localiser.on_pose(intake)
         if isinstance(intake, RefusedPose):
-            self.localiser.offer_pose(intake, self.settings.default_pose_covariance)
             counted = self.localiser.stats.counts[intake.counter_key]
             self.diagnostics.refuse(intake.counter_key, intake.reason, counted=counted)
-        return intake
+        return outcome
 
     def _operator_pose(self, msg: PoseWithCovarianceStamped) -> tuple[bool, str]:
         """An operator's pose (RViz /initialpose or the set_pose service): (taken, what happened); taken
         only when the filter was initialised from it."""
         intake = self._pose_intake(PoseSource.OPERATOR, msg.header, msg.pose)
+        what = self._take_pose(intake)
         if isinstance(intake, RefusedPose):
             return False, f"refused: {intake.reason}"
-        what = self.localiser.offer_pose(intake, self.settings.default_pose_covariance)
         if what is not PoseOutcome.INITIALISED:
             self.diagnostics.refuse("operator_poses_not_taken", f"the filter did not take it: {what}")
             return False, f"operator pose refused by the filter: {what}"
