@@ -156,11 +156,7 @@ def timings_us() -> dict[str, float]:
             clock["pose"] = compose(clock["pose"], (0.008, 0.0, 0.01))
             localiser.on_odometry(clock["t"], clock["pose"])
         t = clock["t"]
-        bearings = [
-            Bearing(t - 0.09, 1, 0.0, 1e-6),
-            Bearing(t - 0.05, 2, 0.0, 1e-6),
-            Bearing(t - 0.01, 3, 0.0, 1e-6),
-        ]
+        bearings = [Bearing(t - ago, beacon, 0.0, 1e-6) for beacon, ago in ((1, 0.09), (2, 0.05), (3, 0.01))]
         localiser.on_bearings(revolution_of(localiser, bearings))
 
     timers = (

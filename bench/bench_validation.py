@@ -12,10 +12,10 @@ import numpy as np
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.bearing import Bearing
-from beams_common.bearing_intake import RevolutionIntake
+from beams_common.bearing_intake import RevolutionIntake, revolution_intake
 from beams_common.pose_intake import PoseSource, planar_pose_intake
 from beams_common.validation import bearing_problem, one_sighting_per_beacon, planar_estimate_problem
-from beams_ekf.localiser import FilterSettings, build_localiser, revolution_of
+from beams_ekf.localiser import FilterSettings, build_localiser
 from beams_triangulation.total import expected_bearings
 
 Row = tuple[str, float, str, str]
@@ -51,15 +51,8 @@ def rows() -> list[Row]:
 
     flood = _revolution(FLOOD_BEARINGS)
     # what the EKF did without the intake's size rule (every bearing of the message kept) and does now
-    all_through = _best_per_call_s(
-        lambda: _localiser().on_bearings(RevolutionIntake(kept=flood)), 1, repeat=3
-    )
-
-    def through_the_intake() -> None:
-        localiser = _localiser()
-        localiser.on_bearings(revolution_of(localiser, flood))
-
-    refused = _best_per_call_s(through_the_intake, 5, repeat=3)
+    all_through = _best_per_call_s(lambda: _localiser().on_bearings(RevolutionIntake(flood)), 1, repeat=3)
+    refused = _best_per_call_s(lambda: _localiser().on_bearings(revolution_intake(flood, ids)), 5, repeat=3)
     return [
         (
             "input checks of a 3-bearing revolution (bearing rule, one sighting per beacon)",

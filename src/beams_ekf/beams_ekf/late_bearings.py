@@ -98,11 +98,9 @@ class LateBearings:
         the given order."""
         if not self.ekf.initialised:
             return [self._count(rejected(BearingReason.UNINITIALISED)) for _ in bearings]
-        outcomes: dict[int, BearingOutcome] = {}
         if len(self.history) == 0:  # no odometry: the robot is taken as still
-            for n, bearing in enumerate(bearings):
-                outcomes[n] = self._count(self._apply(bearing, (0.0, 0.0, 0.0)))
-            return [outcomes[n] for n in range(len(bearings))]
+            return [self._count(self._apply(bearing, (0.0, 0.0, 0.0))) for bearing in bearings]
+        outcomes: dict[int, BearingOutcome] = {}
         scheduled: dict[int, list[tuple[Bearing, int]]] = {}  # history index -> (bearing, input index)
         first_state = self._first_state_index()
         for n, bearing in enumerate(bearings):

@@ -3,28 +3,23 @@ ToTal (or an operator) to initialise it.
 
 `Localiser` has one door per input, each answering an outcome: `on_odometry(stamp_s, pose)` (checked by
 `validation.odometry_problem`), `on_bearings(intake)` (a revolution through `beams_common.bearing_intake`)
-and `on_pose(intake)` (ToTal's fix or an operator's through `beams_common.pose_intake`); ekf_node and every
-offline driver (`beams_thesis.replay`, `beams_tools.replay_pipelines`, the benches) go through them, so
-the offline figures are the node's. It keeps the EKF state at the newest odometry instant; a bearing is
-applied at its own stamp (`late_bearings`); a pose initialises the filter, brought to the filter's instant
-by the odometry motion since its stamp (a ToTal fix is stamped at its revolution, ~0.1-0.2 s before it
-arrives, so a fix the odometry history does not cover is refused: taken as current, it put the live filter
-0.2 m and 7 deg off, confidently), and re-initialises it when the robot was kidnapped (most of the recent
-bearings gated out while ToTal is confident of a pose inconsistent with the estimate: identified beacons
-make this possible, thesis ch. 8 "System deployment") or the filter is lost (`NisMonitor`: the bearings'
-innovations, over a sliding window, too large for the covariance: the next ToTal fix restarts it).
-Time going backwards (a rosbag played in a loop: consecutive odometry messages in the past, not one
-stray; `beams_common.time_jumps`) resets everything, what the filter learnt of the sensor included
-(the data start again); odometry gaps inflate the covariance instead of freezing the filter; an odometry
-increment beyond the robot's speed or yaw rate (a +100 m jump, `beams_common.plausibility`)
-is never predicted with: the sample becomes the new reference and the covariance grows by the most the
-robot could have moved (`Localiser._rereference`).
-After any event that breaks the estimate's continuity (an operator's pose, an odometry jump, an odometry
+and `on_pose(intake)` (ToTal's fix or an operator's through `beams_common.pose_intake`). ekf_node and every
+offline driver (`beams_thesis.replay`, `beams_tools.replay_pipelines`, the benches) use these, so the
+offline figures are the node's. The EKF state is kept at the newest odometry instant, a bearing applied
+at its own stamp (`late_bearings`). A pose initialises the filter, brought to the filter's instant by the
+odometry since its stamp (a ToTal fix, stamped at its revolution ~0.1-0.2 s before it arrives, is refused
+when the odometry history does not cover it: taken as current, it put the live filter 0.2 m and 7 deg
+off, confidently), and re-initialises it when the robot was kidnapped (most recent bearings gated out
+while ToTal is confident of a pose inconsistent with the estimate: identified beacons make this
+possible, thesis ch. 8 "System deployment") or the filter is lost (`NisMonitor`). Time going backwards
+(a bag played in a loop; `beams_common.time_jumps`) resets everything, what the filter learnt of the
+sensor included; odometry gaps inflate the covariance; an odometry increment beyond the robot's speed or
+yaw rate (`beams_common.plausibility`) is never predicted with: the sample becomes the new reference and
+the covariance grows by the most the robot could have moved (`Localiser._rereference`).
+After an event that breaks the estimate's continuity (an operator's pose, an odometry jump, an odometry
 silence of ODOMETRY_SILENCE_S, a time jump, a re-initialisation from ToTal after a kidnap or a lost test)
-the estimate is unconfirmed until its bearings confirm it (`consistency.PoseConfirmation`,
-`Localiser.unconfirmed`: ekf_node's status is degraded meanwhile); the first initialisation from ToTal
-is the bearings' own pose and needs none. The consistency monitors are in `consistency`, the settings in
-`settings` (built by `parameters.filter_settings`), the answers in `outcomes`.
+the estimate is unconfirmed until its bearings confirm it (`consistency.PoseConfirmation`; ekf_node's
+status is degraded meanwhile); the first initialisation from ToTal is the bearings' own pose.
 """
 
 from collections import Counter
@@ -256,16 +251,6 @@ class Localiser:
                 self.stats.counts["pose_confirmations"] += 1
             if self.nis_monitor.add(outcome.nis):
                 self.stats.counts["lost_detections"] += 1
-
-    @property
-    def recent_gated_bearings(self) -> int:
-        """Gated bearings among the last kidnap_window_bearings new ones (a diagnostic)."""
-        return self.kidnap.recent_gated_bearings
-
-    @property
-    def kidnap_suspected(self) -> bool:
-        """True when at least kidnap_gated_bearings of the last kidnap_window_bearings were gated out."""
-        return self.kidnap.suspected
 
     # -- poses ----------------------------------------------------------------------------------------
     def on_pose(self, intake: PoseIntake) -> PoseOutcome:

@@ -181,6 +181,6 @@ def test_wrong_fixes_do_not_pull_a_filter_whose_bearings_agree(match):
             else:
                 feed(localiser, [arrival], 3.0)
     assert localiser.stats.counts["kidnap_reinitialisations"] == 0
-    assert not localiser.kidnap_suspected
+    assert not localiser.kidnap.suspected
     estimate = localiser.estimate()
     assert _error(estimate.pose, match.truth_at(estimate.stamp_s))[0] < 0.005

@@ -119,7 +119,7 @@ class Drive:
             now_s,
             initialised=estimate is not None,
             nis_lost=self.localiser.nis_monitor.lost,
-            kidnap_suspected=self.localiser.kidnap_suspected,
+            kidnap_suspected=self.localiser.kidnap.suspected,
             bearing_silence_s=float("inf") if estimate is None or last is None else estimate.stamp_s - last,
             unconfirmed=self.localiser.unconfirmed if estimate is not None else "",
         )
