@@ -23,9 +23,10 @@ import numpy as np
 from beams_common.angles import wrap_to_pi
 from beams_common.bearing import Bearing
 from beams_common.pose2d import compose
+from beams_common.pose_intake import PoseSource, planar_pose_intake
 from beams_driver.variance import VarianceModel
 from beams_ekf.bearing_ekf import BearingEkf
-from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
+from beams_ekf.localiser import FilterSettings, Localiser, build_localiser, revolution_of
 from beams_sim.sensor_sim import SensorSimConfig
 from beams_sim.simulated_match import (
     SENSOR_MODELS,
@@ -145,7 +146,7 @@ def timings_us() -> dict[str, float]:
     assert ekf.update_bearing(2, expected + 1e-4, 1e-6).accepted
 
     localiser = Localiser(BearingEkf(beacons, (0.02, 0.0)))
-    localiser.on_pose(0.0, (1.0, 1.0, 0.3), np.diag([1e-4, 1e-4, 1e-4]), operator=True)
+    localiser.on_pose(planar_pose_intake(PoseSource.OPERATOR, 0.0, (1.0, 1.0, 0.3), np.diag([1e-4] * 3)))
     clock = {"t": 0.0, "pose": (0.0, 0.0, 0.0)}
 
     def revolution() -> None:
@@ -155,13 +156,8 @@ def timings_us() -> dict[str, float]:
             clock["pose"] = compose(clock["pose"], (0.008, 0.0, 0.01))
             localiser.on_odometry(clock["t"], clock["pose"])
         t = clock["t"]
-        localiser.on_bearings(
-            [
-                Bearing(t - 0.09, 1, 0.0, 1e-6),
-                Bearing(t - 0.05, 2, 0.0, 1e-6),
-                Bearing(t - 0.01, 3, 0.0, 1e-6),
-            ]
-        )
+        bearings = [Bearing(t - ago, beacon, 0.0, 1e-6) for beacon, ago in ((1, 0.09), (2, 0.05), (3, 0.01))]
+        localiser.on_bearings(revolution_of(localiser, bearings))
 
     timers = (
         ("predict", predict, 2000),

@@ -23,7 +23,8 @@ import numpy as np
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.bearing import Bearing
 from beams_common.plausibility import MotionLimits, StampTolerance, odometry_step_problem, stamp_problem
-from beams_ekf.localiser import build_localiser
+from beams_common.pose_intake import PoseSource, planar_pose_intake
+from beams_ekf.localiser import build_localiser, revolution_of
 from beams_ekf.settings import FilterSettings
 from beams_thesis.synthetic import synthetic_match
 
@@ -45,7 +46,9 @@ def _worst_error_m(
     tolerance = StampTolerance()
     start = float(match.times_s[0])
     localiser.on_odometry(start, tuple(match.odometry[0]))
-    localiser.on_pose(start, tuple(match.truth_at(start)), np.diag([1e-4] * 3), operator=True)
+    localiser.on_pose(
+        planar_pose_intake(PoseSource.OPERATOR, start, match.truth_at(start), np.diag([1e-4] * 3))
+    )
     worst, k = 0.0, 1
     for arrival_s, group in groupby(match.bearings, key=lambda b: b.arrival_s):
         while k < len(match.times_s) and match.times_s[k] <= arrival_s:
@@ -57,7 +60,7 @@ def _worst_error_m(
         bearings = [Bearing(b.stamp_s + offset, b.beacon_id, b.bearing_rad, b.variance_rad2) for b in group]
         newest_s = max(b.stamp_s for b in bearings)
         if not (checks and stamp_problem("revolution", newest_s, arrival_s, tolerance)):
-            localiser.on_bearings(bearings)
+            localiser.on_bearings(revolution_of(localiser, bearings))
         estimate = localiser.estimate()
         truth = match.truth_at(estimate.stamp_s)
         worst = max(worst, hypot(estimate.pose[0] - truth[0], estimate.pose[1] - truth[1]))

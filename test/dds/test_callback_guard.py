@@ -117,7 +117,7 @@ def test_ekf_subscription_fault_is_counted_shown_and_resets_the_filter(make_node
     node = make_node(EkfNode)
     assert set_pose(node).success
     assert node.localiser.estimate() is not None
-    monkeypatch.setattr(node.localiser, "on_intake", fail)
+    monkeypatch.setattr(node.localiser, "on_bearings", fail)
     subscription(node, "beams/bearings").callback(revolution_message(node))  # no exception escapes
     assert_fault_shown(node, "subscription /beams/bearings")
     assert node.localiser.estimate() is None, "the filter re-initialises from the next fix"
@@ -230,7 +230,7 @@ def test_a_fault_in_a_dds_delivered_message_leaves_the_spinning_node_serving(mak
     from beams_msgs.srv import SetPose
 
     node = make_node(EkfNode)
-    monkeypatch.setattr(node.localiser, "on_intake", fail)
+    monkeypatch.setattr(node.localiser, "on_bearings", fail)
     probe = rclpy.create_node("guard_probe")
     executor = EventsExecutor()
     executor.add_node(node)

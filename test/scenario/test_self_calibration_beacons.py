@@ -16,6 +16,7 @@ import pytest
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_common.calibration_file import load_calibration
+from beams_common.pose_intake import PoseSource, planar_pose_intake
 from beams_driver.parameters import SENSOR_PARAMETERS, variance_model_of
 from beams_ekf.beacon_states import BeaconStates, beacon_states_of
 from beams_ekf.bearing_ekf import BearingEkf
@@ -120,7 +121,7 @@ def test_a_reinitialisation_keeps_what_was_learnt_of_the_sensor():
         if how == "reset":
             localiser.reset("resets_after_callback_exception")
             assert not localiser.initialised
-        localiser.on_pose(stamp_s, pose, covariance, operator=True)
+        localiser.on_pose(planar_pose_intake(PoseSource.OPERATOR, stamp_s, pose, covariance))
         assert localiser.initialised
         assert np.allclose(ekf.pose, pose) and np.allclose(ekf.covariance, covariance)
         x, p = ekf.state()

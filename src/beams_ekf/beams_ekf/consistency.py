@@ -131,10 +131,11 @@ CONFIRMING_BEARINGS = 9
 # ... from at least this many beacons: the bearings of a single beacon leave the position free along
 # the line to it.
 CONFIRMING_BEACONS = 2
-# An odometry silence (s, data time) this long breaks the estimate's continuity: ekf_health's lost test
-# says "no odometry" beyond the same 0.5 s (25 samples of 50 Hz odometry; a restarted odometry source
-# that jumped within its speed limit over the silence, a simulator's new match, is not refused as a jump).
-CONTINUITY_GAP_S = 0.5
+# Odometry silent this long (s) leaves the estimate behind a moving robot (25 samples of 50 Hz odometry,
+# 0.25 m at 0.5 m/s): in data time it breaks the estimate's continuity (a restarted odometry source that
+# jumped within its speed limit over the silence, a simulator's new match, is not refused as a jump); on
+# the receiving clock it is ekf_health's "no odometry" (lost).
+ODOMETRY_SILENCE_S = 0.5
 
 
 class PoseConfirmation:

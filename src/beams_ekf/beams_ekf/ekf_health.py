@@ -3,7 +3,7 @@
 - waiting: no pose has initialised the filter (or it was reset).
 - lost: the bearings' innovations contradict the estimate (`NisMonitor`'s chi-square test over its
   window), most recent bearings are gated out (kidnapped), or odometry stopped for longer than
-  MAX_ODOMETRY_SILENCE_S (the estimate no longer follows the robot). The next ToTal fix re-initialises.
+  ODOMETRY_SILENCE_S (the estimate no longer follows the robot). The next ToTal fix re-initialises.
 - degraded: an input rate out of its range (bearings ~10 Hz, odometry at its rate, like
   diagnostic_updater's frequency status), inputs refused as implausible within the last FAULT_HOLD_S
   (stamps late or early against the receiving clock, odometry jumps, a calibration that made the
@@ -27,10 +27,8 @@ from beams_common.health import (
     judge,
     odometry_rate_monitor,
 )
+from beams_ekf.consistency import ODOMETRY_SILENCE_S
 
-# Odometry silent this long (s, receiving clock) leaves the estimate behind a moving robot: lost
-# (0.5 s is 25 samples of 50 Hz odometry, 0.25 m at 0.5 m/s).
-MAX_ODOMETRY_SILENCE_S = 0.5
 # No bearing accepted for this long (s, data time): odometry alone carries the estimate.
 MAX_BEARING_SILENCE_S = 1.0
 WAITING_FOR_POSE = "waiting for an initial pose (beams/pose, /initialpose or the set_pose service)"
@@ -94,7 +92,7 @@ class EkfHealth:
             lost.append("innovations too large for the covariance (NIS test): waiting for a ToTal pose")
         if kidnap_suspected:
             lost.append("most recent bearings gated out (robot moved?): waiting for a ToTal pose")
-        if self._last_odometry_s is not None and now_s - self._last_odometry_s > MAX_ODOMETRY_SILENCE_S:
+        if self._last_odometry_s is not None and now_s - self._last_odometry_s > ODOMETRY_SILENCE_S:
             lost.append(f"no odometry for {now_s - self._last_odometry_s:.1f} s: the estimate stands still")
         degraded = [unconfirmed] if unconfirmed else []
         degraded += [p for p in (self.bearing_rate.problem(now_s), self._odometry_rate_problem(now_s)) if p]

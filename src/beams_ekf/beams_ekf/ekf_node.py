@@ -54,7 +54,7 @@ from beams_common.calibration_file import SensorCalibration
 from beams_common.geometry_parameters import BeaconGeometry, geometry_of_calibration, runtime_geometry
 from beams_common.health import Status
 from beams_common.plausibility import StampCheck, stamp_tolerance_of
-from beams_common.pose_intake import PoseIntake, PoseSource, RefusedPose, pose_message_intake
+from beams_common.pose_intake import KeptPose, PoseIntake, PoseSource, RefusedPose, pose_message_intake
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import (
@@ -212,7 +212,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         newest_s = _newest_stamp_s(intake)
         if self._implausible_stamp("bearings", f"revolution {msg.revolution}", newest_s, now_s):
             return  # a bearing applied at the wrong instant is confidently wrong
-        self.localiser.on_intake(intake)  # counts the bearings and revolutions refused, applies those kept
+        self.localiser.on_bearings(intake)  # counts the bearings and revolutions refused, applies those kept
         for key, reason in intake.revolution_refusals():  # the localiser's count, with the reason
             counted = self.localiser.stats.counts[key]
             self.diagnostics.refuse(key, f"revolution {msg.revolution}: {reason}", counted=counted)
@@ -223,16 +223,10 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         self._publish()  # at once: the end-to-end latency from a revolution to the estimate stays small
 
     def _on_total_pose(self, msg: TriangulatedPose) -> None:
-        if not (self.settings.use_total_pose and msg.accepted):
-            return
-        intake = self._pose_intake(PoseSource.TOTAL, msg.header, msg.pose)
-        if isinstance(intake, RefusedPose):
-            return
-        what = f"ToTal pose at {intake.stamp_s:.3f} s"
-        if self._implausible_stamp("total_pose", what, intake.stamp_s, self._now_s()):
-            return  # a fix taken at the wrong instant is brought to the filter's instant wrongly
-        if self.localiser.offer_pose(intake, self.settings.default_pose_covariance).taken:
-            self._status_now()
+        if self.settings.use_total_pose and msg.accepted:
+            _, outcome = self._take_pose(PoseSource.TOTAL, msg.header, msg.pose)
+            if outcome is not None and outcome.taken:
+                self._status_now()
 
     def _status_now(self) -> None:
         """The estimate broke its continuity (or was re-initialised): publish it with its status now, so
@@ -247,24 +241,32 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         response.success, response.message = self._operator_pose(request.pose)
         return response
 
-    def _pose_intake(self, source: PoseSource, header, pose_with_covariance) -> PoseIntake:
-        """The pose intake (`beams_common.pose_intake`); a refusal counted by the localiser (as in the
-        offline replay), shown with its reason."""
+    def _take_pose(
+        self, source: PoseSource, header, pose_with_covariance
+    ) -> tuple[PoseIntake, PoseOutcome | None]:
+        """A pose message through the pose intake (`beams_common.pose_intake`, as the offline replay's) and
+        the localiser's pose door, which counts a refusal (shown here with its reason). None: a ToTal pose
+        stamped beyond the tolerance against the node's clock (it would be brought to the filter's instant
+        wrongly), refused before the door."""
         stamp_s = stamp_to_seconds(header.stamp)
         intake = pose_message_intake(source, header.frame_id, self.map_frame, stamp_s, pose_with_covariance)
+        kept_total = source is PoseSource.TOTAL and isinstance(intake, KeptPose)
+        if kept_total and self._implausible_stamp(
+            "total_pose", f"ToTal pose at {stamp_s:.3f} s", stamp_s, self._now_s()
+        ):
+            return intake, None
+        outcome = self.localiser.on_pose(intake)
         if isinstance(intake, RefusedPose):
-            self.localiser.offer_pose(intake, self.settings.default_pose_covariance)
             counted = self.localiser.stats.counts[intake.counter_key]
             self.diagnostics.refuse(intake.counter_key, intake.reason, counted=counted)
-        return intake
+        return intake, outcome
 
     def _operator_pose(self, msg: PoseWithCovarianceStamped) -> tuple[bool, str]:
         """An operator's pose (RViz /initialpose or the set_pose service): (taken, what happened); taken
         only when the filter was initialised from it."""
-        intake = self._pose_intake(PoseSource.OPERATOR, msg.header, msg.pose)
+        intake, what = self._take_pose(PoseSource.OPERATOR, msg.header, msg.pose)
         if isinstance(intake, RefusedPose):
             return False, f"refused: {intake.reason}"
-        what = self.localiser.offer_pose(intake, self.settings.default_pose_covariance)
         if what is not PoseOutcome.INITIALISED:
             self.diagnostics.refuse("operator_poses_not_taken", f"the filter did not take it: {what}")
             return False, f"operator pose refused by the filter: {what}"
@@ -358,7 +360,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         since_s = float("inf")
         if estimate is not None:
             self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
-            self.diagnostics.set("recent_gated_bearings", self.localiser.recent_gated_bearings)
+            self.diagnostics.set("recent_gated_bearings", self.localiser.kidnap.recent_gated_bearings)
             self.diagnostics.set("lost_nis_window_sum", self.localiser.nis_monitor.window_sum)
             if stats.last_bearing_stamp_s is not None:
                 since_s = estimate.stamp_s - stats.last_bearing_stamp_s
@@ -368,7 +370,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
             now_s,
             initialised=estimate is not None,
             nis_lost=self.localiser.nis_monitor.lost,
-            kidnap_suspected=self.localiser.kidnap_suspected,
+            kidnap_suspected=self.localiser.kidnap.suspected,
             bearing_silence_s=since_s,
             unconfirmed=self.localiser.unconfirmed if estimate is not None else "",
         )

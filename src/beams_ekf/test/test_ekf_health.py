@@ -32,7 +32,7 @@ def test_a_match_goes_waiting_tracking_degraded_lost_and_back():
     # the filter's NIS test fails: lost whatever the rest says
     assert health.verdict(6.0, **{**HEALTHY, "nis_lost": True}).status is Status.LOST
     assert health.verdict(6.0, **{**HEALTHY, "kidnap_suspected": True}).level == "error"
-    # the odometry stops: lost within MAX_ODOMETRY_SILENCE_S
+    # the odometry stops: lost within ODOMETRY_SILENCE_S
     _run(health, 6.0, 7.0, odometry=False)
     verdict = health.verdict(7.0, **HEALTHY)
     assert verdict.status is Status.LOST and "no odometry for 1.0 s" in verdict.message

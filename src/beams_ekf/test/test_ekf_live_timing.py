@@ -15,8 +15,9 @@ from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.bearing import Bearing
 from beams_common.pose2d import Pose2D
+from beams_common.pose_intake import PoseIntake, PoseSource, planar_pose_intake
 from beams_ekf.bearing_ekf import BearingEkf
-from beams_ekf.localiser import Localiser, LocaliserConfig
+from beams_ekf.localiser import Localiser, LocaliserConfig, revolution_of
 from beams_thesis.synthetic import SyntheticMatch, synthetic_match
 
 EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
@@ -78,14 +79,19 @@ def feed(
         if arrival.kind == "odometry":
             localiser.on_odometry(*arrival.payload)
         elif arrival.kind == "bearings":
-            localiser.on_bearings(arrival.payload)
+            localiser.on_bearings(revolution_of(localiser, arrival.payload))
         else:
-            localiser.on_pose(*arrival.payload, TOTAL_COVARIANCE, operator=False)
+            localiser.on_pose(_fix(*arrival.payload))
         estimate = localiser.estimate()
         if truth_at is not None and arrival.kind == "odometry" and estimate is not None:
             error = _error(estimate.pose, truth_at(estimate.stamp_s))
             errors.append((estimate.stamp_s, *error))
     return errors
+
+
+def _fix(stamp_s: float, pose: Pose2D, source: PoseSource = PoseSource.TOTAL) -> PoseIntake:
+    """A pose with ToTal's covariance through the pose intake (an operator's with `source`)."""
+    return planar_pose_intake(source, stamp_s, pose, TOTAL_COVARIANCE)
 
 
 def _error(pose: Pose2D, truth: Pose2D) -> tuple[float, float]:
@@ -131,12 +137,12 @@ def test_node_started_mid_match_initialises_at_the_right_place(match, start_s):
 
 def test_fix_older_than_the_odometry_history_does_not_initialise(match):
     localiser = _localiser()
-    assert localiser.on_pose(1.0, match.truth_at(1.0), TOTAL_COVARIANCE, operator=False) == "outside_history"
+    assert localiser.on_pose(_fix(1.0, match.truth_at(1.0))) == "outside_history"
     localiser.on_odometry(1.1, (0.0, 0.0, 0.0))
-    assert localiser.on_pose(1.0, match.truth_at(1.0), TOTAL_COVARIANCE, operator=False) == "outside_history"
+    assert localiser.on_pose(_fix(1.0, match.truth_at(1.0))) == "outside_history"
     assert localiser.stats.counts["poses_outside_history"] == 2 and localiser.estimate() is None
     # an operator's pose has no meaningful stamp: it is taken as current
-    assert localiser.on_pose(1.0, (1.0, 1.0, 0.0), TOTAL_COVARIANCE, operator=True) == "initialisations"
+    assert localiser.on_pose(_fix(1.0, (1.0, 1.0, 0.0), PoseSource.OPERATOR)) == "initialisations"
     assert localiser.estimate().pose == (1.0, 1.0, 0.0)
 
 
@@ -149,7 +155,7 @@ def test_lost_filter_is_reinitialised_by_a_confident_fix(match, wrong):
     localiser = _localiser()
     feed(localiser, [a for a in stream if a.kind == "odometry"], 0.0, 1.0)
     stamp_s = localiser.history.latest[0]
-    localiser.on_pose(stamp_s, tuple(np.add(match.truth_at(stamp_s), wrong)), TOTAL_COVARIANCE, operator=True)
+    localiser.on_pose(_fix(stamp_s, tuple(np.add(match.truth_at(stamp_s), wrong)), PoseSource.OPERATOR))
     errors = feed(localiser, stream, 1.0, 4.0, truth_at=match.truth_at)
     counts = localiser.stats.counts
     # one restart, by whichever test fires first: the kidnap test or the lost (NIS) test
@@ -171,10 +177,10 @@ def test_wrong_fixes_do_not_pull_a_filter_whose_bearings_agree(match):
         if 3.0 <= arrival.arrival_s < 6.0:
             if arrival.kind == "pose":
                 stamp_s, fix = arrival.payload
-                localiser.on_pose(stamp_s, (fix[0] + 0.5, fix[1], fix[2]), TOTAL_COVARIANCE, operator=False)
+                localiser.on_pose(_fix(stamp_s, (fix[0] + 0.5, fix[1], fix[2])))
             else:
                 feed(localiser, [arrival], 3.0)
     assert localiser.stats.counts["kidnap_reinitialisations"] == 0
-    assert not localiser.kidnap_suspected
+    assert not localiser.kidnap.suspected
     estimate = localiser.estimate()
     assert _error(estimate.pose, match.truth_at(estimate.stamp_s))[0] < 0.005

@@ -12,10 +12,11 @@ from hypothesis import strategies as st
 from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.bearing import Bearing
+from beams_common.bearing_intake import BearingRefusal
 from beams_common.pose2d import compose
+from beams_common.pose_intake import PoseSource, planar_pose_intake
 from beams_ekf.bearing_ekf import BearingEkf
-from beams_ekf.localiser import Localiser, LocaliserConfig
-from beams_ekf.pose_filter import BearingReason
+from beams_ekf.localiser import Localiser, LocaliserConfig, revolution_of
 from beams_thesis.replay import accuracy, replay
 from beams_thesis.synthetic import SyntheticMatch, synthetic_match
 
@@ -32,6 +33,17 @@ def match() -> SyntheticMatch:
 
 def _localiser(config: LocaliserConfig | None = None) -> Localiser:
     return Localiser(BearingEkf(EUROBOT_BEACONS, OFFSET), config)
+
+
+def _bearings(localiser: Localiser, bearings: list[Bearing]):
+    """Bearings through the localiser's bearing door (the intake's rules, as ekf_node's)."""
+    return localiser.on_bearings(revolution_of(localiser, bearings))
+
+
+def _pose(localiser: Localiser, stamp_s: float, pose, covariance, *, operator: bool):
+    """A pose through the localiser's pose door (the pose intake, as ekf_node's)."""
+    source = PoseSource.OPERATOR if operator else PoseSource.TOTAL
+    return localiser.on_pose(planar_pose_intake(source, stamp_s, pose, covariance))
 
 
 def _revolutions(match: SyntheticMatch):
@@ -60,10 +72,10 @@ def _drive(
             if not skip_odometry(times[k]):
                 localiser.on_odometry(float(times[k]), tuple(match.odometry[k]))
             k += 1
-        localiser.on_bearings(revolution)
+        _bearings(localiser, revolution)
         if pose_source is not None:
             stamp_s = revolution[-1].stamp_s
-            localiser.on_pose(stamp_s, pose_source(stamp_s), np.diag([1e-4, 1e-4, 1e-3]), operator=False)
+            _pose(localiser, stamp_s, pose_source(stamp_s), np.diag([1e-4, 1e-4, 1e-3]), operator=False)
 
 
 def _position_error(localiser: Localiser, truth) -> float:
@@ -100,7 +112,7 @@ def test_odometry_alone_drifts_far_more_than_the_filter(match):
 def test_arrival_order_of_bearings_does_not_change_the_estimate(match):
     batched, one_by_one = _localiser(), _localiser()
     for localiser in (batched, one_by_one):
-        localiser.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
+        _pose(localiser, 0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
     k = 0
     for arrival_s, revolution in _revolutions(match):
         if arrival_s > 3.0:
@@ -109,9 +121,9 @@ def test_arrival_order_of_bearings_does_not_change_the_estimate(match):
             for localiser in (batched, one_by_one):
                 localiser.on_odometry(float(match.times_s[k]), tuple(match.odometry[k]))
             k += 1
-        batched.on_bearings(revolution)
+        _bearings(batched, revolution)
         for bearing in reversed(revolution):
-            one_by_one.on_bearings([bearing])
+            _bearings(one_by_one, [bearing])
     np.testing.assert_allclose(batched.estimate().pose, one_by_one.estimate().pose, atol=1e-12)
     np.testing.assert_allclose(batched.estimate().covariance, one_by_one.estimate().covariance, atol=1e-15)
 
@@ -134,7 +146,7 @@ def test_kidnapped_robot_is_reinitialised_from_a_confident_far_fix(match):
     carried = lambda t: tuple(np.add(match.truth_at(t), (*shift, 0.0)))  # noqa: E731
 
     localiser = _localiser()
-    localiser.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
+    _pose(localiser, 0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
     _drive(localiser, match, 0.0, 8.0, pose_source=match.truth_at)
     assert localiser.stats.counts["kidnap_reinitialisations"] == 0
     assert _position_error(localiser, match.truth_at) < 0.005
@@ -147,7 +159,7 @@ def test_kidnapped_robot_is_reinitialised_from_a_confident_far_fix(match):
 
 def test_near_fix_does_not_reinitialise(match):
     localiser = _localiser()
-    localiser.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
+    _pose(localiser, 0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
     _drive(localiser, match, 0.0, 3.0, pose_source=lambda t: tuple(np.add(match.truth_at(t), (0.02, 0, 0))))
     assert localiser.stats.counts["initialisations"] == 1
     assert localiser.stats.counts["kidnap_reinitialisations"] == 0
@@ -155,15 +167,15 @@ def test_near_fix_does_not_reinitialise(match):
 
 def test_operator_pose_always_reinitialises(match):
     localiser = _localiser()
-    localiser.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
+    _pose(localiser, 0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
     _drive(localiser, match, 0.0, 2.0)
-    assert localiser.on_pose(2.0, (0.5, 0.5, 1.0), np.eye(3) * 1e-4, operator=True) == "initialisations"
+    assert _pose(localiser, 2.0, (0.5, 0.5, 1.0), np.eye(3) * 1e-4, operator=True) == "initialisations"
     assert localiser.estimate().pose[:2] != pytest.approx(match.truth_at(2.0)[:2], abs=0.1)
 
 
 def test_time_going_backwards_resets_cleanly(match):
     localiser = _localiser()
-    localiser.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
+    _pose(localiser, 0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
     _drive(localiser, match, 0.0, 5.0)
     # the bag loops: odometry starts again at t = 0 (the first message back is held: it may be a stray)
     assert localiser.on_odometry(0.0, tuple(match.odometry[0])) == "held"
@@ -183,7 +195,7 @@ def test_map_to_odom_puts_the_odometry_pose_on_the_estimate(match):
     from beams_common.pose2d import compose
 
     localiser = _localiser()
-    localiser.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
+    _pose(localiser, 0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
     assert localiser.estimate().map_to_odom is None  # no odometry yet
     _drive(localiser, match, 0.0, 4.0)
     estimate = localiser.estimate()
@@ -198,7 +210,7 @@ def test_one_stray_odometry_message_from_the_past_changes_nothing(match):
     is dropped and counted; the estimate goes on as if it had never come."""
     localiser, undisturbed = _localiser(), _localiser()
     for each in (localiser, undisturbed):
-        each.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
+        _pose(each, 0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
         _drive(each, match, 0.0, 5.0)
     assert localiser.on_odometry(2.0, (9.0, 9.0, 3.0)) == "held"
     for each in (localiser, undisturbed):
@@ -211,7 +223,7 @@ def test_one_stray_odometry_message_from_the_past_changes_nothing(match):
 
 def test_odometry_gap_inflates_the_covariance_and_the_filter_recovers(match):
     localiser = _localiser()
-    localiser.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
+    _pose(localiser, 0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
     _drive(localiser, match, 0.0, 5.0)
     before = np.trace(localiser.estimate().covariance[:2, :2])
     in_gap = lambda t: 5.0 <= t < 7.0  # noqa: E731
@@ -228,12 +240,15 @@ def test_odometry_gap_inflates_the_covariance_and_the_filter_recovers(match):
 @pytest.mark.parametrize("bad", [(float("nan"), 0.0, 0.0), (0.0, float("inf"), 0.0)])
 def test_non_finite_inputs_never_reach_the_state(match, bad):
     localiser = _localiser()
-    localiser.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
+    _pose(localiser, 0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
     _drive(localiser, match, 0.0, 1.0)
     before = localiser.estimate().pose
     assert localiser.on_odometry(1.5, bad) == "invalid"
-    assert localiser.on_pose(1.5, bad, np.eye(3), operator=True) == "invalid"
-    assert localiser.on_bearing(0.95, 1, float("nan"), 1e-6).reason == BearingReason.INVALID_MEASUREMENT
+    assert _pose(localiser, 1.5, bad, np.eye(3), operator=True) == "invalid"
+    intake = revolution_of(localiser, [Bearing(0.95, 1, float("nan"), 1e-6)])
+    assert [r.refusal for r in intake.refused] == [BearingRefusal.INVALID_MEASUREMENT]
+    assert localiser.on_bearings(intake) == []
+    assert localiser.stats.counts["bearings_invalid_measurement"] == 1
     assert localiser.estimate().pose == before
 
 
@@ -277,9 +292,9 @@ def test_any_sequence_of_inputs_keeps_the_estimate_finite(events):
             odometry = compose(odometry, (b, 0.0, c))
             localiser.on_odometry(clock_s, odometry)
         elif kind == "bearing":
-            localiser.on_bearing(clock_s - 0.05 * a, b, c, 1e-6)
+            _bearings(localiser, [Bearing(clock_s - 0.05 * a, b, c, 1e-6)])
         elif kind == "pose":
-            localiser.on_pose(clock_s - 0.1 * a, (b, 1.0, c), np.diag([1e-4, 1e-4, 1e-3]), operator=a > 2.5)
+            _pose(localiser, clock_s - 0.1 * a, (b, 1.0, c), np.diag([1e-4, 1e-4, 1e-3]), operator=a > 2.5)
         else:
             clock_s += a
         estimate = localiser.estimate()
@@ -293,7 +308,7 @@ def test_bearings_ahead_of_odometry_wait_for_it(match):
     # no extrapolation: every bearing ahead of the odometry has to wait
     in_order, early = (_localiser(LocaliserConfig(max_odometry_extrapolation_s=0.0)) for _ in range(2))
     for localiser in (in_order, early):
-        localiser.on_pose(0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
+        _pose(localiser, 0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)
     revolutions = [r for a, r in _revolutions(match) if a < 2.0]
     k = r = 0
     outcomes = []
@@ -302,12 +317,12 @@ def test_bearings_ahead_of_odometry_wait_for_it(match):
             break
         # `early` gets each revolution as soon as its first bearing's instant is reached
         while r < len(revolutions) and min(b.stamp_s for b in revolutions[r]) <= t:
-            outcomes += early.on_bearings(revolutions[r])
+            outcomes += _bearings(early, revolutions[r])
             r += 1
         in_order.on_odometry(float(t), tuple(pose))
         early.on_odometry(float(t), tuple(pose))
         while k < len(revolutions) and max(b.stamp_s for b in revolutions[k]) <= t:
-            in_order.on_bearings(revolutions[k])
+            _bearings(in_order, revolutions[k])
             k += 1
     deferred = sum(o.reason == "deferred" for o in outcomes)
     assert deferred > 20 and early.stats.counts["bearings_deferred"] == deferred
@@ -331,13 +346,13 @@ def test_a_bearing_kept_from_before_the_first_state_leaves_once_the_history_no_l
     stamps = np.round(np.arange(0.0, 0.52, 0.02), 6)
     for stamp_s in stamps:
         localiser.on_odometry(float(stamp_s), pose)
-    localiser.on_pose(0.5, pose, START_COVARIANCE, operator=True)
-    first = localiser.on_bearings([bearing(0.1, 1)])  # before the first state: applied there
+    _pose(localiser, 0.5, pose, START_COVARIANCE, operator=True)
+    first = _bearings(localiser, [bearing(0.1, 1)])  # before the first state: applied there
     assert first[0].accepted
     for stamp_s in np.round(np.arange(0.52, 0.9, 0.02), 6):  # the history now starts after 0.1 s
         localiser.on_odometry(float(stamp_s), pose)
     assert localiser.pose_at(0.1) is None
-    late = localiser.on_bearings([bearing(0.51, 2)])  # the slot of 0.5 s is filtered again
+    late = _bearings(localiser, [bearing(0.51, 2)])  # the slot of 0.5 s is filtered again
     assert late[0].accepted, late[0].reason
     estimate = localiser.estimate()
     assert estimate is not None and hypot(estimate.pose[0] - pose[0], estimate.pose[1] - pose[1]) < 1e-3

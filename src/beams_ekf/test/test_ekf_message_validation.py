@@ -17,14 +17,15 @@ from hypothesis import strategies as st
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.bearing import Bearing
+from beams_common.bearing_intake import BearingRefusal, RevolutionIntake
+from beams_common.pose_intake import PoseSource, planar_pose_intake
 from beams_common.validation import (
     MAX_BEARINGS_PER_REVOLUTION,
     MIN_BEARING_VARIANCE_RAD2,
     bearing_problem,
     planar_estimate_problem,
 )
-from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
-from beams_ekf.pose_filter import BearingReason
+from beams_ekf.localiser import FilterSettings, Localiser, build_localiser, revolution_of
 from beams_triangulation.gating import NoPose, PoseEstimate
 from beams_triangulation.pipeline import RevolutionEstimator
 from beams_triangulation.total import expected_bearings
@@ -79,8 +80,15 @@ def revolutions(draw) -> list[Bearing]:
 
 def _localiser() -> Localiser:
     localiser = build_localiser(EUROBOT_BEACON_MAP.as_dict(), (0.0, 0.0), FilterSettings())
-    localiser.on_pose(10.0, TRUE_POSE, np.diag([1e-4, 1e-4, 1e-3]), operator=True)
+    localiser.on_pose(planar_pose_intake(PoseSource.OPERATOR, 10.0, TRUE_POSE, np.diag([1e-4, 1e-4, 1e-3])))
     return localiser
+
+
+def _through_the_door(localiser: Localiser, bearings: list[Bearing]) -> RevolutionIntake:
+    """A revolution through the bearing intake and the localiser's bearing door, as ekf_node takes it."""
+    intake = revolution_of(localiser, bearings)
+    localiser.on_bearings(intake)
+    return intake
 
 
 @SEARCH
@@ -108,7 +116,7 @@ def test_the_triangulation_refuses_what_the_rule_refuses_and_publishes_only_vali
 @given(revolutions())
 def test_the_ekf_takes_only_bearings_the_rule_accepts_and_its_estimate_stays_valid(bearings):
     localiser = _localiser()
-    localiser.on_revolution(bearings)
+    _through_the_door(localiser, bearings)
     counts = localiser.stats.counts
     valid = [
         b
@@ -135,8 +143,9 @@ def test_one_bearing_is_refused_by_both_or_by_neither(beacon_id, angle, variance
     assert (isinstance(total, NoPose) and total.bad_input) == (refused and not unknown)
     assert not (unknown and isinstance(total, PoseEstimate))
     localiser = _localiser()
-    outcome = localiser.on_bearings(bearings)[2]
-    assert (outcome.reason in (BearingReason.INVALID_MEASUREMENT, BearingReason.UNKNOWN_BEACON)) == refused
+    intake = _through_the_door(localiser, bearings)
+    kinds = {BearingRefusal.INVALID_MEASUREMENT, BearingRefusal.UNKNOWN_BEACON}
+    assert any(r.bearing is bearings[2] and r.refusal in kinds for r in intake.refused) == refused
 
 
 def test_a_zero_or_tiny_variance_is_refused_by_both():
@@ -146,7 +155,9 @@ def test_a_zero_or_tiny_variance_is_refused_by_both():
         total = RevolutionEstimator(EUROBOT_BEACON_MAP).update(bearings).result
         assert isinstance(total, NoPose) and total.bad_input and "invalid bearing variance" in total.reason
         localiser = _localiser()
-        assert {o.reason for o in localiser.on_bearings(bearings)} == {BearingReason.INVALID_MEASUREMENT}
+        intake = _through_the_door(localiser, bearings)
+        assert [r.refusal for r in intake.refused] == [BearingRefusal.INVALID_MEASUREMENT] * 3
+        assert localiser.stats.counts["bearings_invalid_measurement"] == 3
     at_floor = [
         Bearing(b.stamp_s, b.beacon_id, b.bearing_rad, MIN_BEARING_VARIANCE_RAD2) for b in _true_revolution()
     ]
@@ -162,12 +173,12 @@ def test_a_revolution_over_the_limit_is_refused_before_any_per_bearing_work():
     assert isinstance(total, NoPose) and total.bad_input
     assert f"more than the limit {MAX_BEARINGS_PER_REVOLUTION}" in total.reason and len(total.reason) < 100
     localiser = _localiser()
-    assert "more than the limit" in localiser.on_revolution(flood).too_many
+    assert "more than the limit" in _through_the_door(localiser, flood).too_many
     counts = localiser.stats.counts
     assert counts["revolutions_too_many_bearings"] == 1
     assert sum(v for k, v in counts.items() if k.startswith("bearings_")) == 0  # not one bearing looked at
     at_limit = (_true_revolution() * 22)[:MAX_BEARINGS_PER_REVOLUTION]
-    assert localiser.on_revolution(at_limit).too_many == ""
+    assert _through_the_door(localiser, at_limit).too_many == ""
     assert counts["revolutions_too_many_bearings"] == 1
 
 
@@ -178,13 +189,13 @@ def test_the_ekf_counts_a_beacon_seen_twice_and_uses_one_sighting():
     revolution = _true_revolution()
     again = Bearing(revolution[0].stamp_s + 0.09, 1, revolution[0].bearing_rad + 0.5, VARIANCE_RAD2)
     localiser = _localiser()
-    intake = localiser.on_revolution([*revolution, again])
+    intake = _through_the_door(localiser, [*revolution, again])
     assert intake.revolution_refusals() == [] and len(intake.kept) == 3  # handled, not refused
     assert localiser.stats.counts["bearings_repeated_beacon"] == 1
     assert localiser.stats.counts["bearings_accepted"] == 3
     same_instant = Bearing(revolution[0].stamp_s, 1, revolution[0].bearing_rad + 0.5, VARIANCE_RAD2)
     localiser = _localiser()
-    intake = localiser.on_revolution([*revolution, same_instant])
+    intake = _through_the_door(localiser, [*revolution, same_instant])
     assert intake.conflicting_ids == [1]
     ((key, reason),) = intake.revolution_refusals()
     assert key == "revolutions_conflicting_beacon" and "beacon(s) [1] seen twice at one instant" in reason
@@ -192,6 +203,6 @@ def test_the_ekf_counts_a_beacon_seen_twice_and_uses_one_sighting():
     assert localiser.stats.counts["bearings_accepted"] == 2
     # the revolution's refusal counted once, by the localiser (ekf_node shows this count: one writer)
     assert localiser.stats.counts["revolutions_conflicting_beacon"] == 1
-    localiser.on_revolution([*revolution, same_instant])
-    localiser.on_revolution(revolution)
+    _through_the_door(localiser, [*revolution, same_instant])
+    _through_the_door(localiser, revolution)
     assert localiser.stats.counts["revolutions_conflicting_beacon"] == 2

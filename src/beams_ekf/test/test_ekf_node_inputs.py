@@ -21,6 +21,7 @@ from beams_ekf.localiser import (
     LocaliserConfig,
     build_localiser,
     operator_pose_stamp_s,
+    revolution_of,
 )
 from beams_ekf.parameters import EKF_PARAMETERS, FILTER_SPECS, filter_settings
 from beams_thesis.synthetic import SyntheticMatch, synthetic_match
@@ -49,15 +50,16 @@ def _run(match: SyntheticMatch, spoil: bool) -> tuple[Localiser, list[tuple]]:
     was applied with extrapolated odometry). Returns the localiser and its estimate (stamp, pose,
     covariance) after every revolution."""
     localiser = build_localiser(EUROBOT_BEACONS, OFFSET, FilterSettings())
-    localiser.on_pose(0.0, tuple(match.truth[0]), np.diag([1e-6, 1e-6, 1e-6]), operator=True)
+    localiser.on_pose(planar_pose_intake(PoseSource.OPERATOR, 0.0, match.truth[0], np.diag([1e-6] * 3)))
     trace, k, previous_s = [], 0, None
     for n, (arrival_s, group) in enumerate(groupby(match.bearings, key=lambda b: b.arrival_s)):
         while k < len(match.times_s) and match.times_s[k] <= arrival_s - ODOMETRY_LAG_S:
             localiser.on_odometry(float(match.times_s[k]), tuple(match.odometry[k]))
             k += 1
         revolution = [Bearing(b.stamp_s, b.beacon_id, b.bearing_rad, b.variance_rad2) for b in group]
-        bad = _bad_bearings(previous_s - 0.001) if spoil and n % 3 == 1 else []
-        localiser.on_bearings([*bad, *revolution])
+        if spoil and n % 3 == 1:  # a message of bad bearings just before the revolution's
+            localiser.on_bearings(revolution_of(localiser, _bad_bearings(previous_s - 0.001)))
+        localiser.on_bearings(revolution_of(localiser, revolution))
         previous_s = revolution[-1].stamp_s
         estimate = localiser.estimate()
         trace.append((estimate.stamp_s, estimate.pose, estimate.covariance.tobytes()))
@@ -75,7 +77,7 @@ def _bad_bearings(stamp_s: float) -> list[Bearing]:
 
 
 def test_bad_bearings_change_nothing_bit_for_bit(match):
-    """Refused before scheduling, a bad bearing does not make the filter go back and filter again from its
+    """Refused by the intake, a bad bearing does not make the filter go back and filter again from its
     stamp (which re-applied the later bearings with newer odometry: up to 0.46 mm off in a replay)."""
     clean, clean_trace = _run(match, spoil=False)
     spoilt, spoilt_trace = _run(match, spoil=True)
@@ -100,7 +102,7 @@ def test_operator_pose_stamp_rule(stamp_s, newest_s, expected):
     assert operator_pose_stamp_s(stamp_s, newest_s) == expected
 
 
-def test_offer_pose_counts_the_intake_s_refusals_and_applies_both_rules():
+def test_the_pose_door_counts_the_intake_s_refusals_and_applies_both_rules():
     """A sequence of poses through the pose intake: the refused ones counted under their keys and never
     reaching the filter; an unstamped operator pose with a zero covariance initialises at the newest
     odometry instant with the default covariance; ToTal's pose keeps its stamp (refused here: older than
@@ -114,16 +116,16 @@ def test_offer_pose_counts_the_intake_s_refusals_and_applies_both_rules():
         planar_pose_intake(PoseSource.OPERATOR, 0.0, (1.0, 1.0, 0.0), np.diag([1e12, 1e12, 0.01])),
         planar_pose_intake(PoseSource.TOTAL, 5.1, (1.0, 1.0, 0.0), np.diag([1e-4, 1e-4, 1e300])),
     ]
-    assert [localiser.offer_pose(intake, DEFAULT) for intake in refused] == ["invalid"] * 4
+    assert [localiser.on_pose(intake) for intake in refused] == ["invalid"] * 4
     assert not localiser.ekf.initialised
     counts = localiser.stats.counts
     assert (counts["total_poses_invalid"], counts["total_poses_covariance"]) == (1, 2)
     assert counts["operator_poses_covariance"] == 1
     total = planar_pose_intake(PoseSource.TOTAL, 4.0, (1.0, 1.0, 0.0), np.eye(3))
-    assert localiser.offer_pose(total, DEFAULT) == "outside_history"
+    assert localiser.on_pose(total) == "outside_history"
     operator = planar_pose_intake(PoseSource.OPERATOR, 0.0, (1.0, 1.0, 0.0), np.zeros((3, 3)))
     assert operator.covariance is None  # no information: the default replaces it
-    assert localiser.offer_pose(operator, DEFAULT) == "initialisations"
+    assert localiser.on_pose(operator) == "initialisations"
     estimate = localiser.estimate()
     assert estimate.stamp_s == 5.18
     np.testing.assert_array_equal(estimate.covariance, DEFAULT)

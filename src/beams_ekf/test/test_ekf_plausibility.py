@@ -12,9 +12,9 @@ from hypothesis import strategies as st
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.bearing import Bearing
 from beams_common.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD
-from beams_common.pose_intake import pose_covariance_problem
+from beams_common.pose_intake import PoseSource, planar_pose_intake, pose_covariance_problem
 from beams_common.validation import planar_estimate_problem
-from beams_ekf.localiser import Localiser, build_localiser
+from beams_ekf.localiser import Localiser, build_localiser, revolution_of
 from beams_ekf.outcomes import OdometryOutcome
 from beams_ekf.settings import FilterSettings
 from beams_thesis.synthetic import SyntheticMatch, synthetic_match
@@ -37,7 +37,9 @@ def _run(localiser: Localiser, match: SyntheticMatch, odometry_of, *, initial_co
     start = float(match.times_s[0])
     localiser.on_odometry(start, tuple(match.odometry[0]))
     if initial_covariance is not None:
-        localiser.on_pose(start, tuple(match.truth_at(start)), initial_covariance, operator=True)
+        localiser.on_pose(
+            planar_pose_intake(PoseSource.OPERATOR, start, match.truth_at(start), initial_covariance)
+        )
     errors, outcomes, invalid = [], [], 0
     k = 1
     for arrival_s, group in groupby(match.bearings, key=lambda b: b.arrival_s):
@@ -45,9 +47,8 @@ def _run(localiser: Localiser, match: SyntheticMatch, odometry_of, *, initial_co
             t = float(match.times_s[k])
             outcomes.append(localiser.on_odometry(t, tuple(odometry_of(t, np.array(match.odometry[k])))))
             k += 1
-        localiser.on_bearings(
-            [Bearing(b.stamp_s, b.beacon_id, b.bearing_rad, b.variance_rad2) for b in group]
-        )
+        revolution = [Bearing(b.stamp_s, b.beacon_id, b.bearing_rad, b.variance_rad2) for b in group]
+        localiser.on_bearings(revolution_of(localiser, revolution))
         estimate = localiser.estimate()
         if estimate is None:
             continue
@@ -85,7 +86,7 @@ def test_a_total_fix_across_a_jump_is_not_carried_by_it(match):
     for t, pose in zip(match.times_s[:200], match.odometry[:200], strict=True):
         localiser.on_odometry(float(t), tuple(_shifted(float(t), np.array(pose))))
     fix_s = float(match.times_s[148])  # 0.04 s before the jump
-    localiser.on_pose(fix_s, tuple(match.truth_at(fix_s)), np.diag([1e-4] * 3), operator=False)
+    localiser.on_pose(planar_pose_intake(PoseSource.TOTAL, fix_s, match.truth_at(fix_s), np.diag([1e-4] * 3)))
     estimate = localiser.estimate()
     assert (
         estimate is None or hypot(*np.subtract(estimate.pose[:2], match.truth_at(estimate.stamp_s)[:2])) < 0.1

@@ -15,9 +15,10 @@ import pytest
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.bearing import Bearing
 from beams_common.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
+from beams_common.pose_intake import PoseSource, planar_pose_intake
 from beams_ekf.consistency import CONFIRMING_BEARINGS, PoseConfirmation
 from beams_ekf.ekf_health import EkfHealth
-from beams_ekf.localiser import Localiser, build_localiser
+from beams_ekf.localiser import Localiser, build_localiser, revolution_of
 from beams_ekf.outcomes import OdometryOutcome, PoseOutcome
 from beams_ekf.settings import FilterSettings
 from beams_thesis.synthetic import SyntheticMatch, synthetic_match
@@ -80,13 +81,13 @@ class Drive:
             if self._silent(arrival_s):
                 continue
             self.health.on_bearings(arrival_s)
-            self.localiser.on_revolution(
-                [Bearing(b.stamp_s, b.beacon_id, b.bearing_rad, b.variance_rad2) for b in group]
-            )
+            revolution = [Bearing(b.stamp_s, b.beacon_id, b.bearing_rad, b.variance_rad2) for b in group]
+            self.localiser.on_bearings(revolution_of(self.localiser, revolution))
             steps.append(self.step(arrival_s))
             if fixes:
                 stamp_s = arrival_s - 0.05
-                fix = self.localiser.on_pose(stamp_s, self.match.truth_at(stamp_s), ONE_CM, operator=False)
+                truth = self.match.truth_at(stamp_s)
+                fix = self.localiser.on_pose(planar_pose_intake(PoseSource.TOTAL, stamp_s, truth, ONE_CM))
                 if fix.taken:
                     steps.append(self.step(arrival_s))
         return steps
@@ -108,8 +109,7 @@ class Drive:
 
     def operator_pose(self, pose) -> PoseOutcome:
         """An operator's pose taken "now" (the newest odometry), as ~/set_pose with a zero stamp."""
-        latest_s = self.localiser.history.latest[0]
-        return self.localiser.on_pose(latest_s, pose, ONE_CM, operator=True)
+        return self.localiser.on_pose(planar_pose_intake(PoseSource.OPERATOR, 0.0, pose, ONE_CM))
 
     def step(self, now_s: float) -> Step:
         """The verdict as ekf_node's _update_diagnostics forms it, with the estimate's error."""
@@ -119,7 +119,7 @@ class Drive:
             now_s,
             initialised=estimate is not None,
             nis_lost=self.localiser.nis_monitor.lost,
-            kidnap_suspected=self.localiser.kidnap_suspected,
+            kidnap_suspected=self.localiser.kidnap.suspected,
             bearing_silence_s=float("inf") if estimate is None or last is None else estimate.stamp_s - last,
             unconfirmed=self.localiser.unconfirmed if estimate is not None else "",
         )

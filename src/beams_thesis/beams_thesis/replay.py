@@ -1,5 +1,7 @@
 """Offline replay of odometry and bearings through a `Localiser`, in arrival order, against ground truth:
-the accuracy and consistency figures of the EKF (RMS errors, NEES against its chi-square band).
+the accuracy and consistency figures of the EKF (RMS errors, NEES against its chi-square band). Every
+input goes through the Localiser's doors as ekf_node's do: a revolution (the bearings arriving together:
+one beams/bearings message) through the bearing intake, a pose through the pose intake.
 """
 
 from collections.abc import Callable, Iterable
@@ -13,7 +15,7 @@ from beams_common.angles import wrap_to_pi
 from beams_common.bearing import Bearing
 from beams_common.pose2d import Pose2D
 from beams_common.pose_intake import PoseSource, planar_pose_intake
-from beams_ekf.localiser import Localiser
+from beams_ekf.localiser import Localiser, revolution_of
 from beams_thesis.synthetic import BearingEvent
 
 
@@ -68,8 +70,12 @@ def replay(
     fixes: Iterable[PoseEvent] = (),
 ) -> ReplayResult:
     """Feed odometry (arriving at its stamp), bearings and ToTal's fixes (arriving at `arrival_s`; at
-    one instant the bearings first) in arrival order."""
-    localiser.on_pose(float(odometry_times_s[0]), initial_pose, initial_covariance, operator=True)
+    one instant the bearings first, as one revolution) in arrival order, after an operator's
+    `initial_pose` at the first odometry stamp."""
+    start = planar_pose_intake(
+        PoseSource.OPERATOR, float(odometry_times_s[0]), initial_pose, initial_covariance
+    )
+    localiser.on_pose(start)
     events = [(b.arrival_s, 0, b) for b in bearings] + [(f.arrival_s, 1, f) for f in fixes]
     events.sort(key=lambda event: event[:2])
     by_arrival = [(a, [event[2] for event in group]) for a, group in groupby(events, key=lambda e: e[0])]
@@ -79,23 +85,17 @@ def replay(
         while k < len(odometry_times_s) and odometry_times_s[k] <= arrival_s:
             localiser.on_odometry(float(odometry_times_s[k]), tuple(odometry_poses[k]))
             k += 1
-        for event in arrived:
-            if isinstance(event, PoseEvent):  # through the pose intake, as ekf_node takes beams/pose
-                intake = planar_pose_intake(PoseSource.TOTAL, event.stamp_s, event.pose, event.covariance)
-                localiser.offer_pose(intake, initial_covariance)
-            else:
-                localiser.on_bearings(
-                    [
-                        Bearing(
-                            event.stamp_s,
-                            event.beacon_id,
-                            event.bearing_rad,
-                            event.variance_rad2,
-                            event.angular_window_rad,
-                            event.calibrated,
-                        )
-                    ]
-                )
+        revolution = [
+            Bearing(
+                b.stamp_s, b.beacon_id, b.bearing_rad, b.variance_rad2, b.angular_window_rad, b.calibrated
+            )
+            for b in arrived
+            if isinstance(b, BearingEvent)
+        ]
+        if revolution:
+            localiser.on_bearings(revolution_of(localiser, revolution))
+        for fix in (f for f in arrived if isinstance(f, PoseEvent)):  # as ekf_node takes beams/pose
+            localiser.on_pose(planar_pose_intake(PoseSource.TOTAL, fix.stamp_s, fix.pose, fix.covariance))
         estimate = localiser.estimate()
         if estimate is not None:
             times.append(estimate.stamp_s)

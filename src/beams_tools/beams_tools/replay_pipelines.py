@@ -96,7 +96,9 @@ class ReplayPipelines:
         outcome = self.localiser.on_odometry(stamp_s, pose)
         start = None if self.live_start is None else self.live_start.get(stamp_ns(message.header.stamp))
         if start is not None and outcome.used:
-            self.localiser.on_pose(stamp_s, start.pose, start.covariance, operator=True)
+            self.localiser.on_pose(
+                planar_pose_intake(PoseSource.OPERATOR, stamp_s, start.pose, start.covariance)
+            )
             self.live_start = None
         estimate = self.localiser.estimate()
         poses = self._total_poses(completed)  # after the odometry, as ekf_node receives them
@@ -124,7 +126,7 @@ class ReplayPipelines:
         completed = self.triangulation.on_intake(
             None, bearings_message_intake(message, stamp_to_seconds, known_ids)
         )
-        self.localiser.on_intake(
+        self.localiser.on_bearings(
             bearings_message_intake(message, stamp_to_seconds, self.localiser.ekf.beacons_xy)
         )
         return self._total_poses(completed)
@@ -140,7 +142,7 @@ class ReplayPipelines:
                 message_stamp_s = stamp_to_seconds(seconds_to_stamp(outcome.stamp_s))
                 pose = (result.x, result.y, result.heading)
                 intake = planar_pose_intake(PoseSource.TOTAL, message_stamp_s, pose, result.covariance)
-                self.localiser.offer_pose(intake, self.settings.ekf.default_pose_covariance)
+                self.localiser.on_pose(intake)
         return [outcome for _, outcome in completed]
 
     def _count_total(self, result: PoseEstimate | NoPose) -> None:
