@@ -228,8 +228,8 @@ static void setup(void)
     DDRD = _BV(DDD4) | _BV(DDD5) | _BV(DDD1);
     PORTD = 0; /* DIR and ENABLE low; no pull-ups: the receiver and the switch drive their pins */
 
+    UCSR0A = _BV(U2X0); /* before UBRR0: simavr computes the link's speed when UBRR0 is written */
     UBRR0 = UBRR_VALUE;
-    UCSR0A = _BV(U2X0);
     UCSR0C = _BV(UCSZ01) | _BV(UCSZ00); /* 8N1 */
     UCSR0B = _BV(TXEN0);
 

@@ -169,11 +169,11 @@ def test_bearings_from_the_firmware_equal_the_simulated_sources(nominal: Run) ->
 
 
 def test_overload_is_lost_frames_never_wrong_bearings(tmp_path: pathlib.Path) -> None:
-    """Windows so wide (a 5.5 deg beam: about 240 edges a revolution, bursts of 100 in 10 ms) that the
-    500000 baud link cannot keep up: the firmware's queue overflows, the host counts the lost frames
+    """Windows so wide (a 10.25 deg beam: about 437 edges a revolution, more than the 500000 baud link
+    carries on average) that the firmware's queue overflows: the host counts the lost frames
     (sequence gaps, and the hello's dropped-event count), drops the revolutions they fall in, and every
     revolution it keeps is the simulator's, edge for edge, with the same bearings."""
-    run = emulate(tmp_path, 6.0, seed=9, beam_sigma_rad=math.radians(5.5))
+    run = emulate(tmp_path, 6.0, seed=9, beam_sigma_rad=math.radians(10.25))
     lost = run.parser.drops["lost_frames"]
     assert lost > 100 and run.parser.device.dropped_events > 100
     assert sum(v for k, v in run.parser.drops.items() if k != "lost_frames") == 0  # nothing else went wrong
@@ -182,16 +182,30 @@ def test_overload_is_lost_frames_never_wrong_bearings(tmp_path: pathlib.Path) ->
     assert assembler.drops["revolution_with_gap"] >= len(run.revolutions) // 2
     assert 1 <= len(kept) < len(run.revolutions)
     simulated = decode(run.revolutions)
+    # an edge within the zero reference's delay of it may be queued on either side of it (the zero
+    # reference's interrupt comes first): the edges away from both ends are compared one for one
+    margin_rad = BEARING_TOLERANCE_RAD
+
+    def inner(revolution: RevolutionEdges) -> np.ndarray:
+        angles = revolution.edge_angles_rad
+        return (angles > margin_rad) & (angles < 2.0 * math.pi - margin_rad)
+
     for edges in kept:
         original = run.revolutions[edges.revolution]
-        np.testing.assert_array_equal(edges.edge_rising, original.edge_rising)
-        assert np.max(np.abs(edges.edge_angles_rad - original.edge_angles_rad)) <= BEARING_TOLERANCE_RAD
+        assert abs(edges.n_edges - original.n_edges) <= 1
+        np.testing.assert_array_equal(edges.edge_rising[inner(edges)], original.edge_rising[inner(original)])
+        error = edges.edge_angles_rad[inner(edges)] - original.edge_angles_rad[inner(original)]
+        assert np.max(np.abs(error)) <= BEARING_TOLERANCE_RAD
+    kept_numbers = {edges.revolution for edges in kept}
     for device, edges in zip(decode(kept), kept, strict=True):
-        want = sorted((b.beacon_id, b.bearing) for b in simulated[edges.revolution].bearings)
-        got = sorted((b.beacon_id, b.bearing) for b in device.bearings)
-        assert [i for i, _ in got] == [i for i, _ in want]
-        for (_, bearing), (_, expected) in zip(got, want, strict=True):
-            assert abs(math.remainder(bearing - expected, 2.0 * math.pi)) <= BEARING_TOLERANCE_RAD
+        want = dict(sorted((b.beacon_id, b.bearing) for b in simulated[edges.revolution].bearings))
+        got = dict(sorted((b.beacon_id, b.bearing) for b in device.bearings))
+        if edges.revolution - 1 in kept_numbers or edges.revolution == 0:
+            assert list(got) == list(want)
+        else:  # a window that began in the dropped revolution before gives no bearing
+            assert set(got) <= set(want) and len(got) >= len(want) - 1
+        for beacon, bearing in got.items():
+            assert abs(math.remainder(bearing - want[beacon], 2.0 * math.pi)) <= BEARING_TOLERANCE_RAD
 
 
 @pytest.mark.parametrize(
