@@ -20,6 +20,9 @@ from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.decoder import BearingDecoder, DecodedRevolution
 from beams_driver.edges import RevolutionEdges
 from beams_driver.serial_protocol import (
+    FIRMWARE_TICKS_PER_REVOLUTION,
+    FIRMWARE_TIMER_HZ,
+    HELLO_PERIOD_S,
     PROTOCOL_VERSION,
     EventKind,
     FrameEvent,
@@ -86,14 +89,14 @@ def test_every_capture_arrives_once_in_order_with_the_boards_clock(nominal: Run)
     assert nominal.parser.device is not None
     assert nominal.parser.device.version == PROTOCOL_VERSION
     assert (nominal.parser.device.timer_hz, nominal.parser.device.ticks_per_revolution) == (
-        2_000_000,
-        200_000,
+        FIRMWARE_TIMER_HZ,
+        FIRMWARE_TICKS_PER_REVOLUTION,
     )
     assert nominal.parser.device.dropped_events == 0
     assert sum(nominal.parser.drops.values()) == 0, nominal.parser.drops
     assert [e.kind for e in nominal.captures()] == nominal.schedule.kinds
     hellos = [e for e in nominal.events if e.kind == EventKind.HELLO]
-    assert len(hellos) >= TURRET_TIME_S / (8 * 65536 / 2e6)  # one at boot, then every 8th heartbeat
+    assert len(hellos) >= TURRET_TIME_S / HELLO_PERIOD_S  # one at boot, then every 8th heartbeat
     assert hellos[0].hello.boot and not any(h.hello.boot for h in hellos[1:])
 
 

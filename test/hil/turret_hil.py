@@ -16,15 +16,15 @@ import numpy as np
 
 from beams_driver.edges import RevolutionEdges
 from beams_driver.sensor_sim import SensorSimConfig, SensorSimulator
-from beams_driver.serial_protocol import EventKind
+from beams_driver.serial_protocol import FIRMWARE_TICKS_PER_REVOLUTION, FIRMWARE_TIMER_HZ, EventKind
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 FIRMWARE_ELF = ROOT / "firmware" / "build" / "turret.elf"
 HARNESS = pathlib.Path(os.environ.get("BEAMS_HIL_HARNESS", ROOT / "build" / "hil" / "turret_hil"))
 CPU_HZ = 16_000_000
-TIMER_HZ = 2_000_000  # the firmware's Timer1 (config.h): what its hello says
+TIMER_HZ = FIRMWARE_TIMER_HZ  # what its hello says
 CYCLES_PER_TICK = CPU_HZ // TIMER_HZ
-TICKS_PER_REVOLUTION = 200_000  # 800 microsteps x 2 x 125 ticks: 10 turn/s
+TICKS_PER_REVOLUTION = FIRMWARE_TICKS_PER_REVOLUTION  # 800 microsteps x 2 x 125 ticks: 10 turn/s
 PERIOD_S = TICKS_PER_REVOLUTION / TIMER_HZ
 # The firmware's boot (set-up, the boot hello) is over long before the first injected level.
 START_CYCLE = CPU_HZ // 20

@@ -10,7 +10,7 @@ firmware/turret/ (docs/firmware.md).
 Version 2: the host assumes neither a timer rate nor a baud rate. The thesis's PIC ran a 625 kHz timer
 (62400 ticks per revolution at 10.016 turn/s); the reference board, an ATmega328P at 16 MHz, cannot make
 625 kHz, and its timer runs at 2 MHz (200000 ticks per revolution at 10 turn/s). The device says which
-in a hello frame, sent at start-up and four times a second; the host converts ticks to seconds with it
+in a hello frame, sent at start-up and every 262 ms; the host converts ticks to seconds with it
 and refuses a device of another protocol version with the reason. Every capture carries its 32-bit
 timer count (overflow-extended on the device; it wraps after 2^32 ticks, 35 min at 2 MHz), so the host
 never has to guess how many 16-bit wraps passed, even across lost frames. Frames leave the device in
@@ -89,13 +89,19 @@ FRAME_SIZE = 10  # an event frame; a hello is HELLO_SIZE
 HELLO_SIZE = 24
 TIMER_MODULUS = 1 << 32
 _HALF_MODULUS = TIMER_MODULUS // 2
+# The firmware's link, clock and periodic frames (firmware/turret/config.h; test/static/
+# test_firmware_constants.py keeps them equal): a heartbeat once per wrap of its 16-bit timer, every 8th
+# of them a hello. The host learns the clock from the hello; the simulated device keeps these periods.
 DEFAULT_BAUDRATE = 500_000
+FIRMWARE_TIMER_HZ = 2_000_000
+FIRMWARE_TICKS_PER_REVOLUTION = 200_000
+HEARTBEAT_TICKS = 1 << 16
+HEARTBEATS_PER_HELLO = 8
+HEARTBEAT_PERIOD_S = HEARTBEAT_TICKS / FIRMWARE_TIMER_HZ  # 32.768 ms
+HELLO_PERIOD_S = HEARTBEATS_PER_HELLO * HEARTBEAT_PERIOD_S  # 262.144 ms
 # The simulated device's clock (FrameEncoder's defaults): the thesis's PIC timer (section 2.4.2).
 TIMER_HZ = 625_000
 TICKS_PER_REVOLUTION = 62_400
-# The firmware's hello and heartbeat periods (seconds of device time).
-HELLO_PERIOD_S = 0.25
-HEARTBEAT_PERIOD_S = 0.025
 V1_SYNC = b"\xa5\x5a"
 V1_FRAME_SIZE = 8
 # Valid version-1 frames, with no version-2 frame among them, after which the stream is called v1.
@@ -237,7 +243,7 @@ class FrameEncoder:
         self.version = version
         self.dropped_events = 0
         self._heartbeat_ticks = max(1, round(HEARTBEAT_PERIOD_S * timer_hz))
-        self._heartbeats_per_hello = max(1, round(HELLO_PERIOD_S / HEARTBEAT_PERIOD_S))
+        self._heartbeats_per_hello = HEARTBEATS_PER_HELLO
         self._next_periodic: int | None = None
         self._periodic_count = 0
         self._booted = False

@@ -52,7 +52,7 @@ from beams_driver.serial_protocol import (
 # line noise (even 1 % of the bytes) or a burst of it on plugging in leaves frames whole within both.
 UNREADABLE_STREAM_BYTES = 64 * FRAME_SIZE
 UNREADABLE_STREAM_S = 0.5
-# Frames without a hello for this long (the firmware sends four a second): the device does not say its clock.
+# Frames without a hello for this long (the firmware sends one every 262 ms): the device hides its clock.
 HELLO_WAIT_S = 3.0 * HELLO_PERIOD_S
 
 

@@ -173,9 +173,9 @@ def test_hellos_and_heartbeats_come_periodically_and_ticks_cross_the_32_bit_wrap
     ticks = np.array([e.ticks for e in events])
     kinds = [e.kind for e in events]
     assert np.all(np.diff(ticks) >= 0)
-    assert kinds.count(EventKind.HELLO) == 1 + 11  # the boot hello, then one every 0.25 s over 3 s
-    # a periodic frame every 25 ms over the 2.9952 s, every tenth a hello
-    assert kinds.count(EventKind.HEARTBEAT) + kinds.count(EventKind.HELLO) - 1 == 119
+    assert kinds.count(EventKind.HELLO) == 1 + 11  # the boot hello, then one every 0.262 s over 3 s
+    # a periodic frame every 32.768 ms (the firmware's) over the 2.9952 s, every eighth a hello
+    assert kinds.count(EventKind.HEARTBEAT) + kinds.count(EventKind.HELLO) - 1 == 91
     zero_ticks = ticks[[k == EventKind.ZERO_REFERENCE for k in kinds]]
     np.testing.assert_array_equal(np.diff(zero_ticks), TICKS_PER_REVOLUTION)  # across the wrap too
     assembled = RevolutionAssembler().feed(events)
@@ -342,13 +342,13 @@ def test_edges_before_the_first_zero_reference_are_dropped() -> None:
 
 def test_a_host_joining_mid_stream_waits_for_the_next_hello() -> None:
     """Frames before the first hello are counted, not used: the device's clock is not known yet."""
-    data = FrameEncoder().revolutions(make_revolutions(25, seed=12))  # 2.5 s: a hello every 0.25 s
+    data = FrameEncoder().revolutions(make_revolutions(25, seed=12))  # 2.5 s: a hello every 0.262 s
     hello_offsets = [o for o, s in frame_spans(data) if s == HELLO_SIZE]
     joined = data[hello_offsets[0] + 7 :]  # the host opened the port just after the boot hello began
     received, parser, _ = assemble(joined)
     assert parser.drops["before_hello"] > 20
     assert parser.device is not None and not parser.device.boot
-    assert received and received[0].start_time_s >= 0.25 - PERIOD_S
+    assert received and received[0].start_time_s >= 0.262 - PERIOD_S
 
 
 def test_a_device_reset_restarts_its_count_without_a_jump() -> None:
