@@ -460,6 +460,7 @@ class SerialSource:
         self._log_info = host.log_info
         self._reconnections = 0
         self._recent = {reason: RecentCount(RECENT_DROPS_WARN_S) for reason, _ in WARNED_DROPS}
+        self._recent_missed_edges = RecentCount(RECENT_DROPS_WARN_S)
 
     def poll(self, now_s: float) -> SourcePoll:
         revolutions = self.serial.read()
@@ -475,6 +476,7 @@ class SerialSource:
             serial_connected=serial.connected,
             serial_disconnections=serial.disconnections,
             serial_reconnections=serial.reconnections,
+            serial_missed_edges=serial.parser.missed_edges,
         )
         device = serial.parser.device
         if device is not None:
@@ -513,6 +515,12 @@ class SerialSource:
             for reason, text in WARNED_DROPS
             if recent[reason]
         ]
+        if missed := self._recent_missed_edges.update(serial.parser.missed_edges):
+            warnings.append(
+                f"the turret missed {missed} receiver edges in the last {RECENT_DROPS_WARN_S:.0f} s (pulses "
+                f"or gaps of a few us: a glitching receiver); the {self.lost_frames_cost}s they touched "
+                f"were dropped"
+            )
         if warnings:
             return SourceHealth("warn", "; ".join(warnings), values)
         return SourceHealth("ok", None, values)
