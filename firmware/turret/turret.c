@@ -16,13 +16,8 @@
  * USART data register empty (the transmitter). The main loop encodes queued events into frames and
  * sleeps when there is nothing to do.
  *
- * No edge is lost silently. The capture interrupt reads ICR1 and arms the other edge first thing (a naked
- * head of a few instructions), then reads the pin: a pin that already left the captured edge's level
- * means the next edge came before it was armed for, and was not captured. The tail reports the edge and
- * a missed-edge event (docs/firmware.md), and arms for what the pin now allows. The datasheet asks to
- * clear ICF1 after changing the edge select: the chip may latch the edge already on the pin then; ICF1 is
- * cleared only in that case (on the chip writing ICF1 alone clears only it; simavr 1.6 clears every
- * pending Timer1 flag on any TIFR1 write, so the firmware never writes TIFR1 otherwise).
+ * No edge is lost silently: an edge that comes before the capture is armed for it is reported missing
+ * (the capture interrupt below; docs/firmware.md).
  */
 #include <stdbool.h>
 #include <stdint.h>
@@ -102,13 +97,13 @@ static inline __attribute__((always_inline)) uint16_t high_of(uint16_t low)
     return high;
 }
 
-/* What the capture interrupt's head latched for its tail: ICR1, and the pin just after the toggle; and
- * what the head writes to TCCR1B: the other edge's select, kept ready by the tail. */
+/* The head's ICR1 and pin just after the toggle, for the tail; the TCCR1B the head writes (the tail's). */
 static volatile uint16_t capture_count;
 static volatile uint8_t capture_pin;
 static volatile uint8_t next_control;
 
-/* The head: 14 cycles from the vector to the toggle; no instruction of it changes SREG. */
+/* The head reads ICR1, then arms the other edge (14 cycles after the vector) and samples the pin. None
+ * of its instructions changes SREG. */
 ISR(TIMER1_CAPT_vect, ISR_NAKED)
 {
     asm volatile("push r24\n\t"
@@ -126,7 +121,11 @@ ISR(TIMER1_CAPT_vect, ISR_NAKED)
                  [pin] "i"(_SFR_IO_ADDR(PINB)));
 }
 
-/* The tail, an interrupt handler only the head jumps to: reports the edge, and the edges it missed. */
+/* The tail, an interrupt handler only the head jumps to: a pin that already left the captured edge's
+ * level means the next edge came before it was armed for. It reports the edge, then one missed-edge
+ * event per edge missed, and arms for the edge the pin now allows. The datasheet asks to clear ICF1
+ * after a change of the edge select, which may latch the edge already on the pin: the missed case, the
+ * only one where ICF1 is cleared (simavr 1.6 clears every pending Timer1 flag on any TIFR1 write). */
 ISR(__vector_capture_tail)
 {
     uint8_t control = TCCR1B;
