@@ -29,7 +29,7 @@ LATENCY_TURRET_S = 5.0
 # simavr 1.6 times a byte as 11 bits (it counts a parity bit even with none); the chip sends 10 (8N1).
 EMULATED_BITS_PER_BYTE = 11
 BAUD = 500_000
-BEAM_SIGMAS_DEG = np.arange(4.0, 6.01, 0.25)
+BEAM_SIGMAS_DEG = np.arange(5.0, 14.01, 0.25)
 
 
 def _revolutions(duration_s: float, seed: int, **config: object):

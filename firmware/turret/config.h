@@ -53,9 +53,9 @@
 #define HELLO_EVERY_HEARTBEATS 8U
 
 /* Cycles from the switch's edge to INT0's read of TCNT1 (the interrupt response, the jump and the ISR's
- * prologue: 40 cycles, 5 ticks), taken off the zero reference's count; another interrupt running when the
- * switch fires delays it further (docs/firmware.md: at most the longest ISR). */
-#define ZERO_REFERENCE_LATENCY_TICKS 5U
+ * prologue: 37 cycles, 4.6 ticks), taken off the zero reference's count; another interrupt running when
+ * the switch fires delays it further (docs/firmware.md: at most the longest ISR, 20 ticks). */
+#define ZERO_REFERENCE_LATENCY_TICKS 4U
 
 #define PROTOCOL_VERSION 2U
 

@@ -4,7 +4,7 @@
  * to the host in the frames of BeAMS serial protocol v2 (src/beams_driver/beams_driver/serial_protocol.py).
  *
  * Pins (Arduino Uno / Nano names in brackets; docs/firmware.md has the wiring):
- *   PB0 (D8)  ICP1  receiver output, Timer1 input capture, edge select toggled after every edge
+ *   PB0 (D8)  ICP1  receiver output, Timer1 input capture, edge select toggled at every edge
  *   PD2 (D2)  INT0  optical switch's logic output, zero reference on its rising edge
  *   PB3 (D11) OC2A  stepper driver STEP (Timer2 toggles it in hardware)
  *   PD4 (D4)        stepper driver DIR (low)
@@ -16,10 +16,8 @@
  * USART data register empty (the transmitter). The main loop encodes queued events into frames and
  * sleeps when there is nothing to do.
  *
- * TIFR1 is never written: on the chip, writing a one to ICF1 alone clears only ICF1, but simavr 1.6
- * clears every pending Timer1 flag on any TIFR1 write (a pending overflow would be lost). The capture
- * that a change of the edge select may cause on the chip (the reason the datasheet asks to clear ICF1)
- * is recognised instead by the pin level: an edge whose pin does not show its new level is not counted.
+ * No edge is lost silently: an edge that comes before the capture is armed for it is reported missing
+ * (the capture interrupt below; docs/firmware.md).
  */
 #include <stdbool.h>
 #include <stdint.h>
@@ -44,6 +42,7 @@ enum event_kind {
     KIND_FALLING = 0x02,
     KIND_ZERO_REFERENCE = 0x03,
     KIND_HEARTBEAT = 0x04,
+    KIND_MISSED_EDGE = 0x05,
     KIND_HELLO = 0x10,
 };
 
@@ -54,7 +53,7 @@ enum event_kind {
 struct event {
     uint8_t kind;
     uint8_t sequence;
-    uint32_t ticks;
+    uint16_t low, high; /* the 32-bit count in halves: the interrupts need no 32-bit arithmetic */
 };
 
 /* ---- the event queue: filled by the interrupts, emptied by the main loop ---- */
@@ -68,7 +67,7 @@ static volatile uint16_t timer_high; /* Timer1 overflows: the high half of the 3
 static uint8_t heartbeats;
 
 /* Called with interrupts disabled (from an ISR). */
-static inline __attribute__((always_inline)) void push_event(uint8_t kind, uint32_t ticks)
+static inline __attribute__((always_inline)) void push_event(uint8_t kind, uint16_t low, uint16_t high)
 {
     uint8_t head = event_head;
     uint8_t next = (uint8_t)((head + 1U) & (EVENT_QUEUE_LENGTH - 1U));
@@ -79,45 +78,96 @@ static inline __attribute__((always_inline)) void push_event(uint8_t kind, uint3
     }
     event_queue[head].kind = kind;
     event_queue[head].sequence = sequence;
-    event_queue[head].ticks = ticks;
+    event_queue[head].low = low;
+    event_queue[head].high = high;
     event_head = next;
 }
 
 /*
- * The 32-bit count of a 16-bit Timer1 value latched in this ISR. An overflow may be pending (TOV1 set,
- * its ISR not run yet because this one runs first): it happened before the latch when the latched value
- * is small (the counter wrapped, then latched), after it when large (latched near the top, then wrapped).
+ * The high half of the 32-bit count of a 16-bit Timer1 value latched in this ISR. An overflow may be
+ * pending (TOV1 set, its ISR not run yet because this one runs first): it happened before the latch when
+ * the latched value is small (the counter wrapped, then latched), after it when large (latched near the
+ * top, then wrapped).
  */
-static inline __attribute__((always_inline)) uint32_t extend_ticks(uint16_t low)
+static inline __attribute__((always_inline)) uint16_t high_of(uint16_t low)
 {
     uint16_t high = timer_high;
     if ((TIFR1 & _BV(TOV1)) && low < 0x8000U)
         high++;
-    return ((uint32_t)high << 16) | low;
+    return high;
 }
 
-ISR(TIMER1_CAPT_vect)
+/* The head's ICR1 and pin just after the toggle, for the tail; the TCCR1B the head writes (the tail's). */
+static volatile uint16_t capture_count;
+static volatile uint8_t capture_pin;
+static volatile uint8_t next_control;
+
+/* The head reads ICR1, then arms the other edge (14 cycles after the vector) and samples the pin. None
+ * of its instructions changes SREG. */
+ISR(TIMER1_CAPT_vect, ISR_NAKED)
 {
-    uint16_t captured = ICR1;
-    bool rising = TCCR1B & _BV(ICES1);
-    bool level = PINB & _BV(PINB0);
-    if (rising != level)
-        return; /* not this edge: a capture caused by the edge-select change, or a glitch too short */
-    TCCR1B ^= _BV(ICES1);
-    push_event(rising ? KIND_RISING : KIND_FALLING, extend_ticks(captured));
+    asm volatile("push r24\n\t"
+                 "lds r24, %[icr_low]\n\t" /* the low byte first: it latches the high byte */
+                 "sts capture_count, r24\n\t"
+                 "lds r24, %[icr_high]\n\t"
+                 "sts capture_count + 1, r24\n\t"
+                 "lds r24, next_control\n\t"
+                 "sts %[control], r24\n\t"
+                 "in r24, %[pin]\n\t"
+                 "sts capture_pin, r24\n\t"
+                 "pop r24\n\t"
+                 "jmp __vector_capture_tail" ::[icr_low] "i"(_SFR_MEM_ADDR(ICR1L)),
+                 [icr_high] "i"(_SFR_MEM_ADDR(ICR1H)), [control] "i"(_SFR_MEM_ADDR(TCCR1B)),
+                 [pin] "i"(_SFR_IO_ADDR(PINB)));
+}
+
+/* The tail, an interrupt handler only the head jumps to: a pin that already left the captured edge's
+ * level means the next edge came before it was armed for. It reports the edge, then one missed-edge
+ * event per edge missed, and arms for the edge the pin now allows. The datasheet asks to clear ICF1
+ * after a change of the edge select, which may latch the edge already on the pin: the missed case, the
+ * only one where ICF1 is cleared (simavr 1.6 clears every pending Timer1 flag on any TIFR1 write). */
+ISR(__vector_capture_tail)
+{
+    uint8_t control = TCCR1B;
+    bool level = !(control & _BV(ICES1)); /* armed for the falling edge: the captured one rose */
+    bool rising = level;
+    uint8_t missed = 0;
+    if ((bool)(capture_pin & _BV(PINB0)) != level) {
+        if (TIFR1 & _BV(ICF1))
+            TIFR1 = _BV(ICF1); /* the chip's latch of the edge on the pin as the edge select changed */
+        do { /* an edge came before the edge select was armed for it: arm for the one after */
+            level = !level;
+            control ^= _BV(ICES1);
+            TCCR1B = control;
+            missed++;
+        } while ((bool)(PINB & _BV(PINB0)) != level && !(TIFR1 & _BV(ICF1)));
+    }
+    next_control = control ^ _BV(ICES1);
+    uint16_t count = capture_count;
+    push_event(rising ? KIND_RISING : KIND_FALLING, count, high_of(count));
+    while (missed--) {
+        count = TCNT1;
+        push_event(KIND_MISSED_EDGE, count, high_of(count));
+    }
 }
 
 ISR(INT0_vect)
 {
     uint16_t now = TCNT1; /* as early as the ISR allows: its latency is the zero reference's delay */
-    push_event(KIND_ZERO_REFERENCE, extend_ticks(now) - ZERO_REFERENCE_LATENCY_TICKS);
+    uint16_t high = high_of(now);
+    if (now < ZERO_REFERENCE_LATENCY_TICKS)
+        high--;
+    push_event(KIND_ZERO_REFERENCE, now - ZERO_REFERENCE_LATENCY_TICKS, high);
 }
 
-ISR(TIMER1_COMPB_vect)
+/* Interruptible but for the queue: a capture waits for no more than push_event. OCR1B never changes:
+ * once per 65536 ticks, at a count 32768 ticks from any overflow, so timer_high is steady meanwhile. */
+ISR(TIMER1_COMPB_vect, ISR_NOBLOCK)
 {
-    /* OCR1B never changes: once per 65536 ticks, at a count that is never near the overflow */
     uint8_t kind = (++heartbeats % HELLO_EVERY_HEARTBEATS) == 0 ? KIND_HELLO : KIND_HEARTBEAT;
-    push_event(kind, extend_ticks(HEARTBEAT_COMPARE));
+    uint16_t high = timer_high;
+    cli();
+    push_event(kind, HEARTBEAT_COMPARE, high);
 }
 
 ISR(TIMER1_OVF_vect)
@@ -201,7 +251,7 @@ static void send_frame(const struct event *event)
     tx_byte(SYNC_2, false);
     tx_byte(event->kind, true);
     tx_byte(event->sequence, true);
-    tx_u32(event->ticks);
+    tx_u32(((uint32_t)event->high << 16) | event->low);
     if (event->kind == KIND_HELLO) {
         cli();
         uint32_t dropped = dropped_events;
@@ -228,8 +278,8 @@ static void setup(void)
     DDRD = _BV(DDD4) | _BV(DDD5) | _BV(DDD1);
     PORTD = 0; /* DIR and ENABLE low; no pull-ups: the receiver and the switch drive their pins */
 
+    UCSR0A = _BV(U2X0); /* before UBRR0: simavr computes the link's speed when UBRR0 is written */
     UBRR0 = UBRR_VALUE;
-    UCSR0A = _BV(U2X0);
     UCSR0C = _BV(UCSZ01) | _BV(UCSZ00); /* 8N1 */
     UCSR0B = _BV(TXEN0);
 
@@ -246,8 +296,9 @@ static void setup(void)
     OCR1B = HEARTBEAT_COMPARE;
     TIMSK1 = _BV(ICIE1) | _BV(OCIE1B) | _BV(TOIE1);
     TCCR1B = ((PINB & _BV(PINB0)) ? 0U : _BV(ICES1)) | _BV(CS11);
+    next_control = TCCR1B ^ _BV(ICES1);
 
-    push_event(KIND_HELLO, 0); /* the boot hello, before any capture */
+    push_event(KIND_HELLO, 0, 0); /* the boot hello, before any capture */
     set_sleep_mode(SLEEP_MODE_IDLE);
 }
 

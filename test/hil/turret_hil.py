@@ -15,16 +15,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from beams_driver.edges import RevolutionEdges
-from beams_driver.serial_protocol import EventKind
+from beams_driver.serial_protocol import FIRMWARE_TICKS_PER_REVOLUTION, FIRMWARE_TIMER_HZ, EventKind
 from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 FIRMWARE_ELF = ROOT / "firmware" / "build" / "turret.elf"
 HARNESS = pathlib.Path(os.environ.get("BEAMS_HIL_HARNESS", ROOT / "build" / "hil" / "turret_hil"))
 CPU_HZ = 16_000_000
-TIMER_HZ = 2_000_000  # the firmware's Timer1 (config.h): what its hello says
+TIMER_HZ = FIRMWARE_TIMER_HZ  # what its hello says
 CYCLES_PER_TICK = CPU_HZ // TIMER_HZ
-TICKS_PER_REVOLUTION = 200_000  # 800 microsteps x 2 x 125 ticks: 10 turn/s
+TICKS_PER_REVOLUTION = FIRMWARE_TICKS_PER_REVOLUTION  # 800 microsteps x 2 x 125 ticks: 10 turn/s
 PERIOD_S = TICKS_PER_REVOLUTION / TIMER_HZ
 # The firmware's boot (set-up, the boot hello) is over long before the first injected level.
 START_CYCLE = CPU_HZ // 20
@@ -114,16 +114,31 @@ def schedule_of(revolutions: Sequence[RevolutionEdges]) -> Schedule:
     )
 
 
-def receiver_schedule(cycles: np.ndarray, rising: np.ndarray) -> Schedule:
-    """Levels on the receiver's pin only (no zero reference), at these cycles; the pin starts low."""
+def receiver_schedule(cycles: np.ndarray, rising: np.ndarray, zero_cycles: Sequence[int] = ()) -> Schedule:
+    """Levels on the receiver's pin at these cycles (it starts low), and zero references (pulses on the
+    switch's pin) opening at zero_cycles."""
     order = np.argsort(cycles, kind="stable")
     cycles, rising = np.asarray(cycles, dtype=np.int64)[order], np.asarray(rising, dtype=bool)[order]
-    records = np.zeros(cycles.size + 1, _RECORD)
-    records["cycle"] = np.concatenate([[START_CYCLE // 2], cycles])
-    records["pin"] = PIN_RECEIVER
-    records["level"] = np.concatenate([[0], rising])
+    zero_cycles = np.asarray(zero_cycles, dtype=np.int64)
+    pins = np.concatenate([[PIN_RECEIVER, PIN_ZERO_REFERENCE], np.full(cycles.size, PIN_RECEIVER)])
+    pins = np.concatenate([pins, np.full(2 * zero_cycles.size, PIN_ZERO_REFERENCE)])
+    pulse = round(ZERO_PULSE_S * CPU_HZ)
+    at = np.concatenate([[START_CYCLE // 2] * 2, cycles, zero_cycles, zero_cycles + pulse])
+    levels = np.concatenate([[0, 0], rising, np.ones(zero_cycles.size), np.zeros(zero_cycles.size)])
+    records = np.zeros(at.size, _RECORD)
+    records_order = np.argsort(at, kind="stable")
+    records["cycle"], records["pin"], records["level"] = (
+        at[records_order],
+        pins[records_order],
+        levels[records_order],
+    )
+    captures = np.concatenate([cycles, zero_cycles])
     kinds = [EventKind.RISING if r else EventKind.FALLING for r in rising.tolist()]
-    return Schedule(records, kinds, cycles, int(cycles.max()) + CPU_HZ // 20)
+    kinds += [EventKind.ZERO_REFERENCE] * zero_cycles.size
+    capture_order = np.argsort(captures, kind="stable")
+    return Schedule(
+        records, [kinds[i] for i in capture_order], captures[capture_order], int(at.max()) + CPU_HZ // 20
+    )
 
 
 def harness_command(

@@ -10,7 +10,7 @@ firmware/turret/ (docs/firmware.md).
 Version 2: the host assumes neither a timer rate nor a baud rate. The thesis's PIC ran a 625 kHz timer
 (62400 ticks per revolution at 10.016 turn/s); the reference board, an ATmega328P at 16 MHz, cannot make
 625 kHz, and its timer runs at 2 MHz (200000 ticks per revolution at 10 turn/s). The device says which
-in a hello frame, sent at start-up and four times a second; the host converts ticks to seconds with it
+in a hello frame, sent at start-up and every 262 ms; the host converts ticks to seconds with it
 and refuses a device of another protocol version with the reason. Every capture carries its 32-bit
 timer count (overflow-extended on the device; it wraps after 2^32 ticks, 35 min at 2 MHz), so the host
 never has to guess how many 16-bit wraps passed, even across lost frames. Frames leave the device in
@@ -22,7 +22,8 @@ Frame layout (multi-byte fields little-endian)::
     offset  size  field
     0       1     sync 1 = 0xA5
     1       1     sync 2 = 0x5B (protocol v1 used 0x5A: the two protocols never share a frame)
-    2       1     kind: 0x01 rising edge, 0x02 falling edge, 0x03 zero reference, 0x04 heartbeat, 0x10 hello
+    2       1     kind: 0x01 rising edge, 0x02 falling edge, 0x03 zero reference, 0x04 heartbeat,
+                  0x05 missed edge, 0x10 hello
     3       1     sequence number, +1 per event captured (modulo 256), numbered at capture time
     4       4     timer count at the event (uint32, device ticks)
     8       14    hello only: version (uint8), flags (uint8; bit 0: first hello since the device's reset),
@@ -37,6 +38,10 @@ An event frame is 10 bytes, a hello 24. The CRC is the one `binascii.crc_hqx(dat
 Kinds:
 - rising / falling edge: the receiver output went 0 -> 1 / 1 -> 0 (section 2.4.3, phi_R and phi_F);
 - zero reference: the turret passed the optical switch (section 2.4.2); it opens a revolution;
+- missed edge: the receiver's pin changed again before the firmware armed the capture for it (a pulse
+  or gap of a few us, docs/firmware.md), so an edge after the previous event and before this frame's
+  count was not captured; the host drops what it touches as it does lost frames (a host that does not
+  know the kind sees a lost frame: the gap in the sequence numbers);
 - heartbeat: sent periodically (every 32.8 ms by the firmware: once per wrap of its 16-bit timer), so
   that a live device is never silent (no beacon in sight, the turret stopped) and consecutive frames are
   always far less than 2^31 ticks apart;
@@ -89,13 +94,19 @@ FRAME_SIZE = 10  # an event frame; a hello is HELLO_SIZE
 HELLO_SIZE = 24
 TIMER_MODULUS = 1 << 32
 _HALF_MODULUS = TIMER_MODULUS // 2
+# The firmware's link, clock and periodic frames (firmware/turret/config.h; test/static/
+# test_firmware_constants.py keeps them equal): a heartbeat once per wrap of its 16-bit timer, every 8th
+# of them a hello. The host learns the clock from the hello; the simulated device keeps these periods.
 DEFAULT_BAUDRATE = 500_000
+FIRMWARE_TIMER_HZ = 2_000_000
+FIRMWARE_TICKS_PER_REVOLUTION = 200_000
+HEARTBEAT_TICKS = 1 << 16
+HEARTBEATS_PER_HELLO = 8
+HEARTBEAT_PERIOD_S = HEARTBEAT_TICKS / FIRMWARE_TIMER_HZ  # 32.768 ms
+HELLO_PERIOD_S = HEARTBEATS_PER_HELLO * HEARTBEAT_PERIOD_S  # 262.144 ms
 # The simulated device's clock (FrameEncoder's defaults): the thesis's PIC timer (section 2.4.2).
 TIMER_HZ = 625_000
 TICKS_PER_REVOLUTION = 62_400
-# The firmware's hello and heartbeat periods (seconds of device time).
-HELLO_PERIOD_S = 0.25
-HEARTBEAT_PERIOD_S = 0.025
 V1_SYNC = b"\xa5\x5a"
 V1_FRAME_SIZE = 8
 # Valid version-1 frames, with no version-2 frame among them, after which the stream is called v1.
@@ -109,7 +120,7 @@ _HELLO_BOOT_FLAG = 0x01
 _TWO_PI = 2.0 * math.pi
 # The measured turret speed (RevolutionAssembler): revolution lengths kept, lengths needed before they are
 # used instead of the nominal, spread multiple of the tolerance, and its floor (s): the firmware's zero
-# reference is up to 8 us late (docs/firmware.md), so two of them bound a length within +-8 us.
+# reference is up to 10 us late (docs/firmware.md), so two of them bound a length within +-10 us.
 MEASURED_SPANS = 9
 MIN_MEASURED_SPANS = 3
 SPAN_SIGMAS = 5.0
@@ -128,6 +139,7 @@ class EventKind(IntEnum):
     FALLING = 0x02
     ZERO_REFERENCE = 0x03
     HEARTBEAT = 0x04
+    MISSED_EDGE = 0x05
     HELLO = 0x10
 
 
@@ -237,7 +249,7 @@ class FrameEncoder:
         self.version = version
         self.dropped_events = 0
         self._heartbeat_ticks = max(1, round(HEARTBEAT_PERIOD_S * timer_hz))
-        self._heartbeats_per_hello = max(1, round(HELLO_PERIOD_S / HEARTBEAT_PERIOD_S))
+        self._heartbeats_per_hello = HEARTBEATS_PER_HELLO
         self._next_periodic: int | None = None
         self._periodic_count = 0
         self._booted = False
@@ -339,6 +351,7 @@ class FrameParser:
     - "before_hello": events before the device's first hello (its clock is not known yet);
     - "incompatible_device": events from a device whose hello this host refuses (`problem` says why);
     - "protocol_v1_frames": well-formed frames of protocol version 1 (the old firmware).
+    `missed_edges` counts the device's missed-edge frames (not a drop: the frame says an edge is missing).
     Byte accounting: bytes fed = FRAME_SIZE * event_frames + HELLO_SIZE * hellos + V1_FRAME_SIZE *
     protocol_v1_frames + 2 * (bad_crc + truncated) + garbage_bytes + pending bytes, where `event_frames`
     counts the well-formed event frames (used, dropped or of an unknown kind) and `hellos` the hello
@@ -349,6 +362,7 @@ class FrameParser:
     def __init__(self) -> None:
         self.drops = Drops()
         self.frames_ok = 0
+        self.missed_edges = 0
         self.event_frames = 0
         self.hellos = 0
         self.bytes_fed = 0
@@ -505,6 +519,10 @@ class FrameParser:
         event = FrameEvent(kind, self._ticks, sequence, self._gap, hello)
         self._gap = False
         self.frames_ok += 1
+        if kind == EventKind.MISSED_EDGE:
+            self.missed_edges += 1
+            for listener in self.drops.listeners:  # heard as a drop: the windows it touches are dropped
+                listener("missed_edges", 1)
         return event
 
 
@@ -531,8 +549,9 @@ class RevolutionAssembler:
     - "revolution_with_gap": a revolution during which frames were lost or rejected (lost_frames_cost
       "revolution", or where the loss cannot be placed);
     - "revolution_with_lost_frames": published all the same (lost_frames_cost "window"): the interval
-      between the received events around each loss is in `lost_angles_rad`, and the decoder rejects the
-      windows it touches (an edge lost inside a window never gives a bearing);
+      between the received events around each loss (or before a missed-edge event: the same) is in
+      `lost_angles_rad`, and the decoder rejects the windows it touches (an edge lost inside a window
+      never gives a bearing);
     - "bad_revolution_period": a revolution whose length is implausible against the measured turret speed
       (below), or off the nominal by more than `period_tolerance` (the turret stalled or sped up, a zero
       reference was missed or a spurious one closed it);
@@ -637,7 +656,7 @@ class RevolutionAssembler:
         """Consume events; returns the revolutions they completed."""
         completed: list[RevolutionEdges] = []
         for event in events:
-            if event.after_gap:
+            if event.after_gap or event.kind == EventKind.MISSED_EDGE:
                 self._gap = True
                 if self._last_event_ticks is None:
                     self._unplaced_gap = True
@@ -653,7 +672,7 @@ class RevolutionAssembler:
                     self.drops.add("edges_before_hello")
             elif kind == EventKind.ZERO_REFERENCE:
                 completed += self._zero_reference(event.ticks)
-            elif kind != EventKind.HEARTBEAT:
+            elif kind in (EventKind.RISING, EventKind.FALLING):
                 if self._zero_ticks is None:
                     self.drops.add("edges_before_zero_reference")
                     continue

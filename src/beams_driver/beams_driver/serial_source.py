@@ -52,7 +52,7 @@ from beams_driver.serial_protocol import (
 # line noise (even 1 % of the bytes) or a burst of it on plugging in leaves frames whole within both.
 UNREADABLE_STREAM_BYTES = 64 * FRAME_SIZE
 UNREADABLE_STREAM_S = 0.5
-# Frames without a hello for this long (the firmware sends four a second): the device does not say its clock.
+# Frames without a hello for this long (the firmware sends one every 262 ms): the device hides its clock.
 HELLO_WAIT_S = 3.0 * HELLO_PERIOD_S
 # /diagnostics warns this long after the turret last lost frames, or after a refused zero reference or
 # revolution length.
@@ -421,6 +421,11 @@ WARNED_DROPS = (
         "noise on its line): ignored",
     ),
     (
+        "missed_edges",
+        "the turret missed {count} receiver edges in the last {window} s (pulses or gaps of a few us: a "
+        "glitching receiver); the {cost}s they touched were dropped",
+    ),
+    (
         "bad_revolution_period",
         "{count} revolutions of implausible length in the last {window} s (the turret "
         "stalled or changed speed, or a zero reference was missed): refused",
@@ -467,6 +472,7 @@ class SerialSource:
             serial_connected=serial.connected,
             serial_disconnections=serial.disconnections,
             serial_reconnections=serial.reconnections,
+            serial_missed_edges=serial.parser.missed_edges,
         )
         device = serial.parser.device
         if device is not None:

@@ -173,9 +173,9 @@ def test_hellos_and_heartbeats_come_periodically_and_ticks_cross_the_32_bit_wrap
     ticks = np.array([e.ticks for e in events])
     kinds = [e.kind for e in events]
     assert np.all(np.diff(ticks) >= 0)
-    assert kinds.count(EventKind.HELLO) == 1 + 11  # the boot hello, then one every 0.25 s over 3 s
-    # a periodic frame every 25 ms over the 2.9952 s, every tenth a hello
-    assert kinds.count(EventKind.HEARTBEAT) + kinds.count(EventKind.HELLO) - 1 == 119
+    assert kinds.count(EventKind.HELLO) == 1 + 11  # the boot hello, then one every 0.262 s over 3 s
+    # a periodic frame every 32.768 ms (the firmware's) over the 2.9952 s, every eighth a hello
+    assert kinds.count(EventKind.HEARTBEAT) + kinds.count(EventKind.HELLO) - 1 == 91
     zero_ticks = ticks[[k == EventKind.ZERO_REFERENCE for k in kinds]]
     np.testing.assert_array_equal(np.diff(zero_ticks), TICKS_PER_REVOLUTION)  # across the wrap too
     assembled = RevolutionAssembler().feed(events)
@@ -342,13 +342,13 @@ def test_edges_before_the_first_zero_reference_are_dropped() -> None:
 
 def test_a_host_joining_mid_stream_waits_for_the_next_hello() -> None:
     """Frames before the first hello are counted, not used: the device's clock is not known yet."""
-    data = FrameEncoder().revolutions(make_revolutions(25, seed=12))  # 2.5 s: a hello every 0.25 s
+    data = FrameEncoder().revolutions(make_revolutions(25, seed=12))  # 2.5 s: a hello every 0.262 s
     hello_offsets = [o for o, s in frame_spans(data) if s == HELLO_SIZE]
     joined = data[hello_offsets[0] + 7 :]  # the host opened the port just after the boot hello began
     received, parser, _ = assemble(joined)
     assert parser.drops["before_hello"] > 20
     assert parser.device is not None and not parser.device.boot
-    assert received and received[0].start_time_s >= 0.25 - PERIOD_S
+    assert received and received[0].start_time_s >= 0.262 - PERIOD_S
 
 
 def test_a_device_reset_restarts_its_count_without_a_jump() -> None:
@@ -779,12 +779,15 @@ def test_line_noise_costs_only_the_windows_it_touches(byte_error_rate: float, le
     assert assembler.drops["revolution_with_lost_frames"] > 0
 
 
-def test_an_edge_the_firmware_lost_rejects_its_window_only() -> None:
-    """Five edges of one window lost in the firmware's queue: that window is rejected with the reason,
-    the revolution's other windows give the clean stream's bearings."""
+@pytest.mark.parametrize("how", ["lost", "missed"])
+def test_an_edge_the_firmware_lost_rejects_its_window_only(how: str) -> None:
+    """Five edges of one window lost in the firmware's queue, or one edge its capture missed (a
+    missed-edge frame instead: the edges on either side have the same direction, a phantom pulse):
+    that window is rejected with the reason, the revolution's other windows give the clean stream's
+    bearings."""
     config, sent = simulated(6, seed=54)
     target = sent[3]
-    lost = set(range(3, 8))  # edges of the revolution's first window
+    lost = set(range(3, 8)) if how == "lost" else {5}  # edges of the revolution's first window
     encoder = FrameEncoder()
     data = bytearray()
     for revolution in sent:
@@ -793,10 +796,16 @@ def test_an_edge_the_firmware_lost_rejects_its_window_only() -> None:
             zip(revolution.edge_times_s, revolution.edge_rising, strict=True)
         ):
             kind = EventKind.RISING if rising else EventKind.FALLING
-            data += encoder.event(kind, round(time_s * TIMER_HZ), lost=revolution is target and index in lost)
+            if how == "missed" and revolution is target and index in lost:
+                kind = EventKind.MISSED_EDGE  # the firmware's count when it saw the pin: a little later
+                time_s += 2.0 / TIMER_HZ
+            data += encoder.event(
+                kind, round(time_s * TIMER_HZ), lost=how == "lost" and revolution is target and index in lost
+            )
     data += encoder.event(ZERO, round((sent[-1].start_time_s + PERIOD_S) * TIMER_HZ))
     received, parser, assembler = assemble(bytes(data), lost_frames_cost="window")
-    assert parser.drops["lost_frames"] == 5
+    assert (parser.drops["lost_frames"], parser.missed_edges) == ((5, 0) if how == "lost" else (0, 1))
+    assert sum(r.n_edges for r in received) == sum(r.n_edges for r in sent) - len(lost)
     assert [r.revolution for r in received] == list(range(6))
     assert assembler.drops["revolution_with_lost_frames"] == 1
     decoder = BearingDecoder(config.codes, VarianceModel(config.codes))

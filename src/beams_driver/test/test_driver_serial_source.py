@@ -436,6 +436,38 @@ def test_frames_the_turret_lost_are_counted_and_warned(
     assert health.values["serial_device_timer_hz"] == TIMER_HZ
 
 
+def test_edges_the_turret_missed_are_counted_and_warned(device: FakeDevice, link: pathlib.Path) -> None:
+    """The firmware's capture missed an edge (a pulse of a few us) and said so: /diagnostics counts it
+    (serial_missed_edges) and warns, and the revolution is published with where it was missed."""
+    sent = simulated_revolutions(4, seed=32)
+    encoder = FrameEncoder()
+    data = bytearray()
+    for revolution in sent:
+        data += encoder.event(EventKind.ZERO_REFERENCE, round(revolution.start_time_s * TIMER_HZ))
+        for index, (time_s, rising) in enumerate(
+            zip(revolution.edge_times_s, revolution.edge_rising, strict=True)
+        ):
+            missed = revolution.revolution == 2 and index == 3
+            kind = EventKind.MISSED_EDGE if missed else EventKind.RISING if rising else EventKind.FALLING
+            data += encoder.event(kind, round(time_s * TIMER_HZ))
+    data += encoder.event(
+        EventKind.ZERO_REFERENCE, round((sent[-1].start_time_s + sent[-1].period_s) * TIMER_HZ)
+    )
+    source = SerialSource({"device": str(link), "baud_rate": 500_000}, (), FakeHost())
+    try:
+        device.write_in_background(bytes(data))
+        received = poll_until(source, lambda got: len(got) >= len(sent))
+        health = source.health()
+    finally:
+        source.close()
+    assert [r.revolution for r in received] == [0, 1, 2, 3]
+    (lost,) = received[2].lost_angles_rad
+    assert lost == pytest.approx(sent[2].edge_angles_rad[2:4], abs=HALF_TICK_RAD * 1.0001)
+    assert received[2].n_edges == sent[2].n_edges - 1
+    assert health.values["serial_missed_edges"] == 1 and "serial_drops_lost_frames" not in health.values
+    assert health.level == "warn" and "the turret missed 1 receiver edges" in health.message
+
+
 def test_frames_without_a_hello_are_an_error(
     device: FakeDevice, link: pathlib.Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
