@@ -147,6 +147,14 @@ class ParameterTable:
         """One parameter's default: for the settings classes whose fields are parameters."""
         return self[name].default
 
+    def require(self, **values: Any) -> None:
+        """Raise ParameterError with the reason when one of these values is not valid: the range check
+        of a settings class whose fields are parameters, when built without the table."""
+        for name, value in values.items():
+            problem = self[name].reason(value)
+            if problem:
+                raise ParameterError(problem)
+
     def validate(self, values: Mapping[str, Any], *, ignore: Iterable[str] = ()) -> dict[str, Any]:
         """Every parameter's value (values over the defaults), checked one by one and together.
 

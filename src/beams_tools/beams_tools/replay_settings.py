@@ -14,8 +14,8 @@ from beams_common.geometry_parameters import geometry_of
 from beams_common.parameters import ROS_NODE_PARAMETERS, ParameterTable, load_parameter_file
 from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
 from beams_ekf.settings import FilterSettings
-from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
-from beams_triangulation.pipeline import TriangulationSettings
+from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
+from beams_triangulation.pipeline import TriangulationSettings, triangulation_settings
 
 # beams_bringup's parameter file (beams_bringup.system.PARAMS_FILE), the replay's default; found by its
 # install location, not imported: beams_bringup stands on this package
