@@ -36,6 +36,7 @@ from beams_calibration.calibrate import (
     CalibrationRefusedError,
     CalibrationResult,
     calibrate,
+    coverage_requirements,
 )
 from beams_calibration.dataset import (
     Configuration,
@@ -49,7 +50,7 @@ from beams_calibration.dataset import (
     save_dataset,
 )
 from beams_calibration.outputs import rms_regression, write_outputs
-from beams_calibration.parameters import CALIBRATION_PARAMETERS, coverage_requirements
+from beams_calibration.parameters import CALIBRATION_PARAMETERS
 from beams_common import topics
 from beams_common.beacon_map import BeaconMap
 from beams_common.geometry_parameters import beacon_map_of
