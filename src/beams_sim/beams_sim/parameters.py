@@ -5,16 +5,17 @@ from collections.abc import Mapping
 from typing import Any
 
 from beams_common.parameters import ParameterSpec, ParameterTable
-from beams_sim.world import EurobotTrajectory, MotionLimits, OdometryDrift, Pose2D
+from beams_sim.world import MATCH_DURATION_S, EurobotTrajectory, MotionLimits, OdometryDrift, Pose2D
 
 TRAJECTORY_KINDS = ("random", "waypoints", "static")
-_DRIFT = OdometryDrift()
-_DRIFT_DESCRIPTIONS = {
-    "left_scale_error": "Left wheel: reported / travelled distance - 1.",
-    "right_scale_error": "Right wheel: reported / travelled distance - 1.",
-    "wheel_base_error": "Nominal / true wheel base - 1.",
-    "slip_std": "Per-sample wheel slip, fraction of the wheel's travel (half-normal sigma).",
-    "noise_m_per_sqrt_m": "Random-walk noise of each wheel's distance (m per sqrt(m)).",
+# the world's classes hold the simulated robot's defaults (the specs read them) and check their ranges
+_DRIFT, _LIMITS = OdometryDrift(), MotionLimits()
+_DRIFT_DESCRIPTIONS = {  # name: (description, minimum): OdometryDrift refuses a negative slip or noise
+    "left_scale_error": ("Left wheel: reported / travelled distance - 1.", -0.49),
+    "right_scale_error": ("Right wheel: reported / travelled distance - 1.", -0.49),
+    "wheel_base_error": ("Nominal / true wheel base - 1.", -0.49),
+    "slip_std": ("Per-sample wheel slip, fraction of the wheel's travel (half-normal sigma).", 0.0),
+    "noise_m_per_sqrt_m": ("Random-walk noise of each wheel's distance (m per sqrt(m)).", 0.0),
 }
 
 
@@ -44,7 +45,7 @@ SIM_WORLD_PARAMETERS = ParameterTable(
         ParameterSpec("trajectory", "random", "Robot motion.", choices=TRAJECTORY_KINDS),
         ParameterSpec(
             "duration_s",
-            90.0,
+            MATCH_DURATION_S,
             "Length of the match (s); the robot then stands still.",
             minimum=1.0,
             maximum=600.0,
@@ -82,14 +83,24 @@ SIM_WORLD_PARAMETERS = ParameterTable(
             maximum=100.0,
             length=(2, 1000),
         ),
-        ParameterSpec("max_speed_mps", 0.5, "Top speed (m/s).", minimum=0.01, maximum=5.0),
-        ParameterSpec("max_yaw_rate_radps", 2.0, "Top yaw rate (rad/s).", minimum=0.01, maximum=20.0),
+        ParameterSpec("max_speed_mps", _LIMITS.max_speed_mps, "Top speed (m/s).", minimum=0.01, maximum=5.0),
         ParameterSpec(
-            "robot_radius_m", 0.15, "Robot footprint radius kept on the table (m).", minimum=0.0, maximum=0.9
+            "max_yaw_rate_radps",
+            _LIMITS.max_yaw_rate_radps,
+            "Top yaw rate (rad/s).",
+            minimum=0.01,
+            maximum=20.0,
+        ),
+        ParameterSpec(
+            "robot_radius_m",
+            _LIMITS.robot_radius_m,
+            "Robot footprint radius kept on the table (m).",
+            minimum=0.0,
+            maximum=0.9,
         ),
         *(
-            ParameterSpec(f"odometry_{name}", getattr(_DRIFT, name), description, minimum=-0.49, maximum=0.49)
-            for name, description in _DRIFT_DESCRIPTIONS.items()
+            ParameterSpec(f"odometry_{name}", getattr(_DRIFT, name), description, minimum=low, maximum=0.49)
+            for name, (description, low) in _DRIFT_DESCRIPTIONS.items()
         ),
         ParameterSpec("odometry_seed", 2, "Seed of the odometry's slip and noise.", minimum=0, maximum=2**31),
         ParameterSpec("wheel_base_m", 0.3, "Nominal wheel base of the robot (m).", minimum=0.05, maximum=2.0),
