@@ -40,6 +40,7 @@ from beams_driver.sensor_sim import (
     beacons_from_map,
 )
 from beams_driver.variance import CorrectedVariance, EdgeVariances, VarianceModel
+from beams_sim.parameters import SIM_WORLD_PARAMETERS
 from beams_sim.sim_source import SIM_NOISE_MODELS
 from beams_sim.world import (
     MATCH_DURATION_S,
@@ -122,7 +123,7 @@ def simulate_match(
     occlusion: Occlusion | None = None,
     odometry_drift: OdometryDrift | None = None,
     odometry_rate_hz: float = ODOMETRY_RATE_HZ,
-    wheel_base_m: float = 0.3,
+    wheel_base_m: float = SIM_WORLD_PARAMETERS.default("wheel_base_m"),
     keep_edges: bool = False,
 ) -> SimulatedMatch:
     """Run a match offline (see the module docstring).

@@ -81,22 +81,17 @@ def _yaml_value(value: object) -> str:
 
 
 PARAMETER_FILE_HEADER = """\
-# The BeAMS suite's parameters, one section per node (as navigation2's nav2_params.yaml), each at its
-# default. GENERATED from the nodes' specs (<package>/parameters.py): edit a spec, then run
+# The BeAMS suite's parameters at their defaults, one section per node (`/**/<node>`: in any namespace),
+# read by `ros2 launch beams_bringup beams.launch.py`. GENERATED from the nodes' specs: edit a spec, then
 #   python -m beams_tools.parameter_docs --write src/beams_bringup/config/beams_params.yaml
-# A robot's own values go in a copy of this file (or a launch override); docs/nodes.md describes them.
-#   ros2 launch beams_bringup beams.launch.py            (every robot node reads this file)
-#   ros2 run beams_driver driver_node --ros-args --params-file \\
-#       $(ros2 pkg prefix beams_bringup)/share/beams_bringup/config/beams_params.yaml
-# The keys `/**/<node>` match the node in any namespace (one robot per namespace).
-"""
+# A robot's own values go in a copy of this file (--params-file) or a launch override (docs/nodes.md)."""
 
 
 def parameter_file() -> str:
     """beams_bringup's parameter file: a section per node of TABLES (a table named `<node> <part>`, such
     as an edge source's parameters, joins its node's section), every parameter at its default under its
     full description (range, choices, length, read-only or runtime)."""
-    lines = [PARAMETER_FILE_HEADER.rstrip("\n")]
+    lines = [PARAMETER_FILE_HEADER]
     for name, specs in TABLES.items():
         node, _, part = name.partition(" ")
         if part:
