@@ -37,7 +37,7 @@ def test_every_parameter_table_in_the_node_reference_is_the_nodes_spec():
 
 def test_the_table_says_which_parameters_change_at_runtime():
     table = markdown_table(TABLES["triangulation_node"])
-    assert "| `max_position_std_m` | `0.05` | [1e-09, 1000.0] | applied |" in table
+    assert "| `max_position_std_m` | `0.05` | [1.0e-09, 1000.0] | applied |" in table
     assert "| `use_odometry` | `true` |  | read-only |" in table
 
 

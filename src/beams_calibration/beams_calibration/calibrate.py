@@ -15,9 +15,8 @@ and the power-bias cubic in mrad on the window normalised to [-1, 1] over the da
 """
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
 from numpy.polynomial import Polynomial
@@ -64,11 +63,6 @@ class CoverageRequirements:
     min_positions: int = 4
     min_window_span_rad: float = math.radians(1.0)
     angle_sectors: int = 8  # every sector of the turret circle needs a bearing
-
-
-def coverage_requirements(values: Mapping[str, Any]) -> CoverageRequirements:
-    """What the calibration demands of a dataset, from the validated parameters."""
-    return CoverageRequirements(min_configurations=values["min_configurations"])
 
 
 @dataclass(frozen=True)

@@ -35,8 +35,8 @@ from std_srvs.srv import Trigger
 from beams_calibration.calibrate import (
     CalibrationRefusedError,
     CalibrationResult,
+    CoverageRequirements,
     calibrate,
-    coverage_requirements,
 )
 from beams_calibration.dataset import (
     Configuration,
@@ -127,7 +127,7 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
         self.threshold = values["threshold"]
         self.max_iterations = values["max_iterations"]
         self.leave_one_out = values["leave_one_out"]
-        self.requirements = coverage_requirements(values)
+        self.requirements = CoverageRequirements(min_configurations=values["min_configurations"])
 
     def _check_dataset_file(self) -> None:
         """An existing but unreadable dataset is a start-up error, not something to overwrite later."""

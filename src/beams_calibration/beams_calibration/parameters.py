@@ -51,12 +51,7 @@ CALIBRATION_PARAMETERS = ParameterTable(
             runtime=True,
         ),
         ParameterSpec(
-            "threshold",
-            0.1,
-            "t of Algorithm 7.1 (section 7.3.5: 0.1).",
-            minimum=1e-6,
-            maximum=1.0,
-            runtime=True,
+            "threshold", 0.1, "t of Algorithm 7.1 (section 7.3.5).", minimum=1e-6, maximum=1.0, runtime=True
         ),
         ParameterSpec(
             "max_iterations", 10, "Bound on the loop of Algorithm 7.1.", minimum=1, maximum=100, runtime=True

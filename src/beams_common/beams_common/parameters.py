@@ -148,8 +148,8 @@ class ParameterTable:
         return self[name].default
 
     def require(self, **values: Any) -> None:
-        """Raise ParameterError with the reason when one of these values is not valid: the range check
-        of a settings class whose fields are parameters, when built without the table."""
+        """Raise ParameterError with the reason when one of these values is not valid (a settings class's
+        range check, for one built without the table)."""
         for name, value in values.items():
             problem = self[name].reason(value)
             if problem:

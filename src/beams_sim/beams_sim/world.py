@@ -467,27 +467,20 @@ class OdometrySimulator:
         return 0.5 * (left + right), (right - left) / self.wheel_base_m
 
 
-def _pose(values: list[float]) -> Pose2D:
-    return (float(values[0]), float(values[1]), float(values[2]))
-
-
 def trajectory_of(values: Mapping[str, Any]) -> EurobotTrajectory:
     """The match the validated parameters describe; ValueError or RuntimeError when it cannot be built
     (waypoints off the table, a start pose too close to the border)."""
     limits = MotionLimits(
-        max_speed_mps=values["max_speed_mps"],
-        max_yaw_rate_radps=values["max_yaw_rate_radps"],
-        robot_radius_m=values["robot_radius_m"],
+        **{name: values[name] for name in ("max_speed_mps", "max_yaw_rate_radps", "robot_radius_m")}
     )
     duration_s = values["duration_s"]
     if values["trajectory"] == "static":
-        return EurobotTrajectory.static(_pose(values["static_pose"]), duration_s)
+        return EurobotTrajectory.static(values["static_pose"], duration_s)
     if values["trajectory"] == "waypoints":
         points = list(zip(values["waypoints_x"], values["waypoints_y"], strict=True))
         return EurobotTrajectory.through_waypoints(points, duration_s, limits)
-    return EurobotTrajectory.random(
-        values["trajectory_seed"], duration_s, limits, _pose(values["start_pose"])
-    )
+    start_pose = tuple(map(float, values["start_pose"]))
+    return EurobotTrajectory.random(values["trajectory_seed"], duration_s, limits, start_pose)
 
 
 def drift_of(values: Mapping[str, Any]) -> OdometryDrift:

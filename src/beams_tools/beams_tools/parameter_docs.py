@@ -39,13 +39,15 @@ _BLOCK = re.compile(r"(<!-- parameters: (?P<name>[^>]+?) -->\n)(?P<body>.*?)(<!-
 
 
 def _value(value: object) -> str:
+    """A value as YAML 1.1 (PyYAML) and rcl both read it back: a float's exponent needs a dot."""
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, str):
         return f'"{value}"'
     if isinstance(value, list):
         return "[" + ", ".join(_value(v) for v in value) + "]"
-    return repr(value) if isinstance(value, float) else str(value)
+    text = repr(value) if isinstance(value, float) else str(value)
+    return text.replace("e", ".0e") if "e" in text and "." not in text else text
 
 
 def _limits(spec: ParameterSpec) -> str:
@@ -72,14 +74,6 @@ def markdown_table(specs: tuple[ParameterSpec, ...]) -> str:
     return "\n".join(rows) + "\n"
 
 
-def _yaml_value(value: object) -> str:
-    """A value as YAML 1.1 (PyYAML) and rcl both read it back: a float's exponent needs a dot."""
-    if isinstance(value, list):
-        return "[" + ", ".join(_yaml_value(v) for v in value) + "]"
-    text = _value(value)
-    return text.replace("e", ".0e") if isinstance(value, float) and "e" in text and "." not in text else text
-
-
 PARAMETER_FILE_HEADER = """\
 # The BeAMS suite's parameters at their defaults, one section per node (`/**/<node>`: in any namespace),
 # read by `ros2 launch beams_bringup beams.launch.py`. GENERATED from the nodes' specs: edit a spec, then
@@ -87,10 +81,14 @@ PARAMETER_FILE_HEADER = """\
 # A robot's own values go in a copy of this file (--params-file) or a launch override (docs/nodes.md)."""
 
 
+_COMMENT = textwrap.TextWrapper(
+    110, initial_indent="    # ", subsequent_indent="    # ", break_on_hyphens=False
+)
+
+
 def parameter_file() -> str:
-    """beams_bringup's parameter file: a section per node of TABLES (a table named `<node> <part>`, such
-    as an edge source's parameters, joins its node's section), every parameter at its default under its
-    full description (range, choices, length, read-only or runtime)."""
+    """beams_bringup's parameter file: a section per node of TABLES (a table `<node> <part>`, an edge
+    source's, joins its node's), every parameter at its default under its full description."""
     lines = [PARAMETER_FILE_HEADER]
     for name, specs in TABLES.items():
         node, _, part = name.partition(" ")
@@ -99,10 +97,8 @@ def parameter_file() -> str:
         else:
             lines += ["", f"# ---- {node} ----", f"/**/{node}:", "  ros__parameters:"]
         for spec in specs:
-            lines += textwrap.wrap(
-                spec.full_description(), 110, initial_indent="    # ", subsequent_indent="    # "
-            )
-            lines.append(f"    {spec.name}: {_yaml_value(spec.default)}")
+            lines += _COMMENT.wrap(spec.full_description())
+            lines.append(f"    {spec.name}: {_value(spec.default)}")
     return "\n".join(lines) + "\n"
 
 
@@ -125,11 +121,7 @@ def tables_in(document: str) -> dict[str, str]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument(
-        "--write",
-        type=pathlib.Path,
-        help="docs/nodes.md to update in place, or a .yaml parameter file to write",
-    )
+    parser.add_argument("--write", type=pathlib.Path, help="docs/nodes.md or beams_params.yaml to write")
     options = parser.parse_args(argv)
     if options.write:
         yaml_file = options.write.suffix == ".yaml"

@@ -40,9 +40,7 @@ class GateConfig:
     max_position_std_m: float = TRIANGULATION_PARAMETERS.default("max_position_std_m")
 
     def __post_init__(self) -> None:
-        TRIANGULATION_PARAMETERS.require(
-            max_inverse_abs_d=self.max_inverse_abs_d, max_position_std_m=self.max_position_std_m
-        )
+        TRIANGULATION_PARAMETERS.require(**vars(self))  # its fields are the two gate parameters
 
 
 @dataclass(slots=True)
