@@ -1,17 +1,26 @@
-"""The generated documentation is the code's: the node reference's parameter tables are the nodes' specs
-(one spec per parameter, documented where declared), and the README's picture is the nodes' own graph."""
+"""The generated documentation is the code's: the node reference's parameter tables and beams_bringup's
+parameter file are the nodes' specs (one spec per parameter, documented where declared), and the README's
+picture is the nodes' own graph."""
 
 import os
 import pathlib
 import subprocess
 import sys
 
+import yaml
+
 from beams_bringup.architecture_docs import picture_in
-from beams_tools.parameter_docs import TABLES, markdown_table, tables_in
+from beams_bringup.system import PARAMS_FILE as PARAMS_FILE_NAME
+from beams_bringup.system import ROBOT_NODES
+from beams_common.parameters import load_parameter_file, node_section
+from beams_ekf.parameters import EKF_PARAMETERS
+from beams_tools.parameter_docs import TABLES, markdown_table, parameter_file, tables_in
+from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 NODES_DOC = ROOT / "docs" / "nodes.md"
 README = ROOT / "README.md"
+PARAMS_FILE = ROOT / "src" / "beams_bringup" / "config" / PARAMS_FILE_NAME
 GENERATOR_TIMEOUT_S = 120.0
 
 
@@ -28,7 +37,7 @@ def test_every_parameter_table_in_the_node_reference_is_the_nodes_spec():
 
 def test_the_table_says_which_parameters_change_at_runtime():
     table = markdown_table(TABLES["triangulation_node"])
-    assert "| `max_position_std_m` | `0.05` | [1e-09, 1000.0] | applied |" in table
+    assert "| `max_position_std_m` | `0.05` | [1.0e-09, 1000.0] | applied |" in table
     assert "| `use_odometry` | `true` |  | read-only |" in table
 
 
@@ -60,3 +69,25 @@ def test_the_readme_picture_is_the_nodes_graph(ros_env, tmp_path):
         "README's picture differs from the nodes' graph: run `python -m beams_bringup.architecture_docs "
         "--write README.md` (in a ROS domain of its own)"
     )
+
+
+def test_the_parameter_file_is_the_nodes_specs():
+    assert PARAMS_FILE.read_text() == parameter_file(), (
+        "beams_bringup's beams_params.yaml differs from the specs: run `python -m beams_tools.parameter_docs "
+        "--write src/beams_bringup/config/beams_params.yaml`"
+    )
+
+
+def test_the_parameter_file_has_every_robot_node_and_the_nodes_take_it():
+    """A section per node the launch file starts (and calibration_node), each one valid for its table as
+    the nodes and replay_bag read it (a float written so that YAML reads a string would fail here)."""
+    document = yaml.safe_load(PARAMS_FILE.read_text())
+    nodes = {node.executable for node in ROBOT_NODES} | {"calibration_node"}
+    assert {key.removeprefix("/**/") for key in document} == nodes
+    for name, specs in TABLES.items():
+        section = node_section(document, name.split()[0])
+        assert {spec.name: section[spec.name] for spec in specs} == {
+            spec.name: spec.default for spec in specs
+        }
+    for table in (TRIANGULATION_PARAMETERS, EKF_PARAMETERS):
+        assert load_parameter_file(PARAMS_FILE, table) == table.defaults()

@@ -10,7 +10,7 @@ import pytest
 from scipy.stats import spearmanr
 
 from beams_triangulation.error_map import grid, monte_carlo_maps, predicted_maps
-from beams_triangulation.gating import DEFAULT_MAX_INVERSE_ABS_D
+from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 
 BEACONS = np.array([[0.0, 1.0], [-0.866, -0.5], [0.866, -0.5]])
 SIGMAS_DEG = (0.01, 0.1, 1.0)
@@ -27,7 +27,7 @@ def maps():
 
 
 def _under_gate(predicted):
-    return predicted.inverse_abs_d.ravel() < DEFAULT_MAX_INVERSE_ABS_D
+    return predicted.inverse_abs_d.ravel() < TRIANGULATION_PARAMETERS.default("max_inverse_abs_d")
 
 
 def test_position_error_grows_linearly_with_sigma(maps):

@@ -23,6 +23,7 @@ from numpy.polynomial import Polynomial
 from scipy.optimize import minimize
 
 from beams_calibration.dataset import CalibrationArrays, Dataset, to_arrays
+from beams_calibration.parameters import CALIBRATION_PARAMETERS
 from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import BeaconMap
 from beams_common.bearing_correction import BearingCorrection
@@ -45,8 +46,9 @@ UNSOLVABLE_ERROR_M = 1.0
 
 # err_RMS (m) below which Algorithm 7.1's loop stops whatever its relative criterion says.
 NEGLIGIBLE_ERROR_M = 1e-6
-DEFAULT_ETA_M_PER_RAD = 1.0  # section 7.3.1: eta = 1 m/rad
-DEFAULT_THRESHOLD = 0.1  # section 7.3.5: t = 0.1
+DEFAULT_ETA_M_PER_RAD = CALIBRATION_PARAMETERS.default("eta_m_per_rad")
+DEFAULT_THRESHOLD = CALIBRATION_PARAMETERS.default("threshold")
+DEFAULT_MAX_ITERATIONS = CALIBRATION_PARAMETERS.default("max_iterations")
 
 
 class CalibrationRefusedError(ValueError):
@@ -57,7 +59,7 @@ class CalibrationRefusedError(ValueError):
 class CoverageRequirements:
     """What a dataset must cover before Algorithm 7.1 runs (section 7.3.6: windows, angles, positions)."""
 
-    min_configurations: int = 12
+    min_configurations: int = CALIBRATION_PARAMETERS.default("min_configurations")
     min_positions: int = 4
     min_window_span_rad: float = math.radians(1.0)
     angle_sectors: int = 8  # every sector of the turret circle needs a bearing
@@ -366,7 +368,7 @@ def run_algorithm_7_1(
     problem: Problem,
     *,
     threshold: float = DEFAULT_THRESHOLD,
-    max_iterations: int = 10,
+    max_iterations: int = DEFAULT_MAX_ITERATIONS,
     initial: np.ndarray | None = None,
     options: SolverOptions = SolverOptions(),
     progress: Progress | None = None,
@@ -432,7 +434,7 @@ def table_7_5(
     stages: Sequence[RmsFigures],
     *,
     threshold: float = DEFAULT_THRESHOLD,
-    max_iterations: int = 10,
+    max_iterations: int = DEFAULT_MAX_ITERATIONS,
     options: SolverOptions = SolverOptions(),
     progress: Progress | None = None,
 ) -> list[RmsFigures]:
@@ -532,7 +534,7 @@ def calibrate(
     *,
     eta_m_per_rad: float = DEFAULT_ETA_M_PER_RAD,
     threshold: float = DEFAULT_THRESHOLD,
-    max_iterations: int = 10,
+    max_iterations: int = DEFAULT_MAX_ITERATIONS,
     leave_one_out: bool = True,
     with_table_7_5: bool = False,
     requirements: CoverageRequirements = CoverageRequirements(),

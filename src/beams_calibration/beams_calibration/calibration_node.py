@@ -35,6 +35,7 @@ from std_srvs.srv import Trigger
 from beams_calibration.calibrate import (
     CalibrationRefusedError,
     CalibrationResult,
+    CoverageRequirements,
     calibrate,
 )
 from beams_calibration.dataset import (
@@ -49,7 +50,7 @@ from beams_calibration.dataset import (
     save_dataset,
 )
 from beams_calibration.outputs import rms_regression, write_outputs
-from beams_calibration.parameters import CALIBRATION_PARAMETERS, coverage_requirements
+from beams_calibration.parameters import CALIBRATION_PARAMETERS
 from beams_common import topics
 from beams_common.beacon_map import BeaconMap
 from beams_common.geometry_parameters import beacon_map_of
@@ -126,7 +127,7 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
         self.threshold = values["threshold"]
         self.max_iterations = values["max_iterations"]
         self.leave_one_out = values["leave_one_out"]
-        self.requirements = coverage_requirements(values)
+        self.requirements = CoverageRequirements(min_configurations=values["min_configurations"])
 
     def _check_dataset_file(self) -> None:
         """An existing but unreadable dataset is a start-up error, not something to overwrite later."""

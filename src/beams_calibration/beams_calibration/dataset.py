@@ -34,6 +34,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from beams_calibration.parameters import CALIBRATION_PARAMETERS
 from beams_common import file_schema
 from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import BeaconMap
@@ -41,10 +42,6 @@ from beams_common.calibration_file import SensorCalibration, atomic_write_text
 
 DATASET_FORMAT = "beams-calibration-dataset"
 DATASET_VERSION = 1
-# A beacon decoded in fewer than this fraction of the revolutions is treated as missing.
-DEFAULT_MIN_SEEN_FRACTION = 0.8
-# Single-revolution bearing spread above which the robot is deemed to have moved (0.3 deg).
-DEFAULT_MAX_SPREAD_RAD = math.radians(0.3)
 
 
 class DatasetError(ValueError):
@@ -187,8 +184,8 @@ def average_capture(
     revolutions: Sequence[Mapping[int, tuple[float, float]]],
     required_ids: Iterable[int],
     *,
-    min_seen_fraction: float = DEFAULT_MIN_SEEN_FRACTION,
-    max_spread_rad: float = DEFAULT_MAX_SPREAD_RAD,
+    min_seen_fraction: float = CALIBRATION_PARAMETERS.default("min_seen_fraction"),
+    max_spread_rad: float = math.radians(CALIBRATION_PARAMETERS.default("max_spread_deg")),
 ) -> tuple[BeaconObservation, ...]:
     """Average single revolutions {beacon_id: (bearing_rad, window_rad)} into observations.
 

@@ -1,13 +1,8 @@
 """calibration_node's parameters: one spec each. The capture and fit settings are read by each service
 call, so they may change at runtime; the dataset file and the a-priori beacon map are checked against each
-other at start-up and stay read-only."""
+other at start-up and stay read-only. The capture (`dataset`) and Algorithm 7.1 (`calibrate`) take their
+defaults from here."""
 
-import math
-from collections.abc import Mapping
-from typing import Any
-
-from beams_calibration.calibrate import DEFAULT_ETA_M_PER_RAD, DEFAULT_THRESHOLD, CoverageRequirements
-from beams_calibration.dataset import DEFAULT_MAX_SPREAD_RAD, DEFAULT_MIN_SEEN_FRACTION
 from beams_common.geometry_parameters import beacon_map_check, beacon_map_specs
 from beams_common.parameters import ParameterSpec, ParameterTable
 
@@ -33,7 +28,7 @@ CALIBRATION_PARAMETERS = ParameterTable(
         ),
         ParameterSpec(
             "min_seen_fraction",
-            DEFAULT_MIN_SEEN_FRACTION,
+            0.8,
             "A beacon decoded in fewer revolutions than this fraction counts as missing.",
             minimum=0.01,
             maximum=1.0,
@@ -41,7 +36,7 @@ CALIBRATION_PARAMETERS = ParameterTable(
         ),
         ParameterSpec(
             "max_spread_deg",
-            math.degrees(DEFAULT_MAX_SPREAD_RAD),
+            0.3,
             "Bearing spread (deg, one revolution) above which the robot is deemed to have moved.",
             minimum=1e-3,
             maximum=10.0,
@@ -49,14 +44,14 @@ CALIBRATION_PARAMETERS = ParameterTable(
         ),
         ParameterSpec(
             "eta_m_per_rad",
-            DEFAULT_ETA_M_PER_RAD,
-            "eta of eq. 7.12 (m/rad).",
+            1.0,
+            "eta of eq. 7.12 (m/rad; section 7.3.1: 1 m/rad).",
             minimum=1e-3,
             maximum=1e3,
             runtime=True,
         ),
         ParameterSpec(
-            "threshold", DEFAULT_THRESHOLD, "t of Algorithm 7.1.", minimum=1e-6, maximum=1.0, runtime=True
+            "threshold", 0.1, "t of Algorithm 7.1 (section 7.3.5).", minimum=1e-6, maximum=1.0, runtime=True
         ),
         ParameterSpec(
             "max_iterations", 10, "Bound on the loop of Algorithm 7.1.", minimum=1, maximum=100, runtime=True
@@ -66,7 +61,7 @@ CALIBRATION_PARAMETERS = ParameterTable(
         ),
         ParameterSpec(
             "min_configurations",
-            CoverageRequirements().min_configurations,
+            12,
             "Fewest configurations a calibration accepts.",
             minimum=3,
             maximum=100000,
@@ -75,8 +70,3 @@ CALIBRATION_PARAMETERS = ParameterTable(
     ),
     (beacon_map_check(),),
 )
-
-
-def coverage_requirements(values: Mapping[str, Any]) -> CoverageRequirements:
-    """What the calibration demands of a dataset, from the validated parameters."""
-    return CoverageRequirements(min_configurations=values["min_configurations"])

@@ -28,33 +28,22 @@ def beacon_map_specs(
     prefix: str = "beacon_", what: str = "Beacon", runtime: bool = True
 ) -> tuple[ParameterSpec, ...]:
     """The parameters <prefix>ids, <prefix>x, <prefix>y (map frame, m; the Eurobot table by default)."""
+    ids = list(EUROBOT_BEACON_MAP.ids)
     return (
         ParameterSpec(
-            f"{prefix}ids",
-            list(EUROBOT_BEACON_MAP.ids),
-            f"{what} ids (their codes).",
-            minimum=0,
-            maximum=255,
-            length=(3, 64),
-            runtime=runtime,
+            f"{prefix}ids", ids, f"{what} ids (their codes).", 0, 255, length=(3, 64), runtime=runtime
         ),
-        ParameterSpec(
-            f"{prefix}x",
-            EUROBOT_BEACON_MAP.xy[:, 0].tolist(),
-            f"{what} x, map frame (m).",
-            minimum=-100.0,
-            maximum=100.0,
-            length=(3, 64),
-            runtime=runtime,
-        ),
-        ParameterSpec(
-            f"{prefix}y",
-            EUROBOT_BEACON_MAP.xy[:, 1].tolist(),
-            f"{what} y, map frame (m).",
-            minimum=-100.0,
-            maximum=100.0,
-            length=(3, 64),
-            runtime=runtime,
+        *(
+            ParameterSpec(
+                f"{prefix}{axis}",
+                EUROBOT_BEACON_MAP.xy[:, column].tolist(),
+                f"{what} {axis}, map frame (m).",
+                -100.0,
+                100.0,
+                length=(3, 64),
+                runtime=runtime,
+            )
+            for column, axis in enumerate("xy")
         ),
     )
 

@@ -34,8 +34,6 @@ from beams_common.validation import bounded
 # keeps the status degraded after it happened.
 RATE_WINDOW_S = 2.0
 FAULT_HOLD_S = 2.0
-# A BeAMS turret turns at ~10 Hz (thesis ch. 2), one bearings message per revolution.
-NOMINAL_BEARING_RATE_HZ = 10.0
 
 
 class Status(StrEnum):
@@ -168,11 +166,12 @@ class RecentFaults:
         return [reason for at_s, hold_s, reason in self._faults.values() if now_s - at_s < hold_s]
 
 
-# The expected input rates of the localisation nodes (changeable at runtime).
+# The expected input rates of the localisation nodes (changeable at runtime): a BeAMS turret turns at
+# ~10 Hz (thesis ch. 2), one bearings message per revolution; half and one and a half times that.
 BEARING_RATE_SPECS = (
     ParameterSpec(
         "min_bearing_rate_hz",
-        NOMINAL_BEARING_RATE_HZ / 2.0,
+        5.0,
         "Fewest beams/bearings messages (revolutions) per second, over 2 s, for the status to be tracking "
         "(the turret turns at ~10 Hz); 0 switches the check off.",
         minimum=0.0,
@@ -181,7 +180,7 @@ BEARING_RATE_SPECS = (
     ),
     ParameterSpec(
         "max_bearing_rate_hz",
-        NOMINAL_BEARING_RATE_HZ * 1.5,
+        15.0,
         "Most beams/bearings messages per second, over 2 s, for the status to be tracking (two drivers in "
         "one namespace double the rate); 0 switches the check off.",
         minimum=0.0,

@@ -47,6 +47,11 @@ class ParameterSpec:
             return type(self.default[0]) if self.default else str
         return type(self.default)
 
+    @property
+    def lengths(self) -> tuple[int, int] | None:
+        """The fewest and most items of a list whose length is fixed, None otherwise."""
+        return (self.length, self.length) if isinstance(self.length, int) else self.length
+
     def full_description(self) -> str:
         """The description with the range, choices and length, as `ros2 param describe` shows it."""
         parts = [self.description]
@@ -54,8 +59,9 @@ class ParameterSpec:
             parts.append(f"One of {list(self.choices)}.")
         if self.minimum is not None or self.maximum is not None:
             parts.append(f"Range [{self.minimum}, {self.maximum}].")
-        if self.length is not None:
-            parts.append(f"Length {self.length}.")
+        if self.lengths:
+            low, high = self.lengths
+            parts.append(f"Length {low}." if low == high else f"Length {low} to {high}.")
         parts.append("Changeable at runtime." if self.runtime else "Read-only: set at start-up.")
         return " ".join(parts)
 
@@ -67,10 +73,10 @@ class ParameterSpec:
             if not isinstance(value, list | tuple):
                 return f"{self.name} must be a list, got {value!r}"
             items = list(value)
-            if isinstance(self.length, int) and len(items) != self.length:
-                return f"{self.name} needs {self.length} values, got {len(items)}"
-            if isinstance(self.length, tuple) and not self.length[0] <= len(items) <= self.length[1]:
-                return f"{self.name} needs {self.length[0]} to {self.length[1]} values, got {len(items)}"
+            low, high = self.lengths or (0, len(items))
+            if not low <= len(items) <= high:
+                needs = f"{low}" if low == high else f"{low} to {high}"
+                return f"{self.name} needs {needs} values, got {len(items)}"
         else:
             items = [value]
         for item in items:
@@ -81,9 +87,7 @@ class ParameterSpec:
 
     def _expected(self) -> str:
         if isinstance(self.default, list):
-            low, high = (
-                (self.length, self.length) if isinstance(self.length, int) else (self.length or (1, "n"))
-            )
+            low, high = self.lengths or (1, "n")
             return f"give {low}" + ("" if low == high else f" to {high}") + f" values, e.g. {self.default}"
         return f"give a value, e.g. {self.default!r}"
 
@@ -138,6 +142,18 @@ class ParameterTable:
 
     def defaults(self) -> dict[str, Any]:
         return {spec.name: spec.default for spec in self.specs}
+
+    def default(self, name: str) -> Any:
+        """One parameter's default: for the settings classes whose fields are parameters."""
+        return self[name].default
+
+    def require(self, **values: Any) -> None:
+        """Raise ParameterError with the reason when one of these values is not valid (a settings class's
+        range check, for one built without the table)."""
+        for name, value in values.items():
+            problem = self[name].reason(value)
+            if problem:
+                raise ParameterError(problem)
 
     def validate(self, values: Mapping[str, Any], *, ignore: Iterable[str] = ()) -> dict[str, Any]:
         """Every parameter's value (values over the defaults), checked one by one and together.

@@ -26,19 +26,6 @@ from typing import Any
 from beams_common.parameters import ParameterSpec
 from beams_common.pose2d import Pose2D
 
-# One BeAMS revolution (thesis ch. 2: the turret turns at ~10 Hz): the newest bearing of a revolution is
-# at most this old when the revolution is published.
-REVOLUTION_PERIOD_S = 0.1
-# Default tolerance on a stamp's age at reception: one revolution, plus 0.15 s of transport and
-# scheduling on a loaded computer; a revolution restamped 0.3 s late is beyond it.
-DEFAULT_MAX_STAMP_AGE_S = 0.25
-# Default tolerance on a stamp ahead of the receiving clock: hosts synchronised by NTP/PTP agree within
-# milliseconds; 0.1 s leaves room for a coarse synchronisation, a stamp 0.5 s early is beyond it.
-DEFAULT_MAX_STAMP_LEAD_S = 0.1
-# A Eurobot robot (rules: perimeter <= 1.2 m unfolded) drives below ~1.5 m/s and turns below ~2 turns/s;
-# the defaults leave room above both.
-DEFAULT_MAX_SPEED_M_PER_S = 2.0
-DEFAULT_MAX_YAW_RATE_RAD_PER_S = 4.0 * math.pi
 # Stamps are quantised and jittered: an increment may exceed speed x interval by this much (m, rad).
 ODOMETRY_STEP_SLACK_M = 0.02
 ODOMETRY_STEP_SLACK_RAD = 0.05
@@ -48,17 +35,65 @@ MAX_POSE_SIGMA_M = 4.0
 MAX_POSE_SIGMA_RAD = 2.0 * math.pi
 
 
+# The parameters of the checks, shared by triangulation_node and ekf_node (changeable at runtime: each
+# message is judged with the values in force).
+# The age: one revolution (0.1 s, thesis ch. 2: the turret turns at ~10 Hz; the newest bearing of a
+# revolution is at most that old when it is published), plus 0.15 s of transport and scheduling on a
+# loaded computer; a revolution restamped 0.3 s late is beyond it. The lead: hosts synchronised by
+# NTP/PTP agree within milliseconds; 0.1 s leaves room for a coarse synchronisation, a stamp 0.5 s early
+# is beyond it.
+STAMP_SPECS = (
+    ParameterSpec(
+        "max_stamp_age_s",
+        0.25,
+        "Largest age (s) of an input's stamp at reception (a revolution's newest bearing, an odometry "
+        "message, at ekf_node an accepted ToTal pose) on the node's clock; older inputs are refused as late, "
+        "with the reason on /diagnostics (<kind>_stamp_refused; two in a row degrade the status). 0 "
+        "switches the check off (a replay whose stamps are not on the node's clock).",
+        minimum=0.0,
+        maximum=60.0,
+        runtime=True,
+    ),
+    ParameterSpec(
+        "max_stamp_lead_s",
+        0.1,
+        "Largest lead (s) of an input's stamp ahead of the node's clock; inputs from further in the future "
+        "are refused, as for the age. 0 switches the check off.",
+        minimum=0.0,
+        maximum=60.0,
+        runtime=True,
+    ),
+)
+# A Eurobot robot (rules: perimeter <= 1.2 m unfolded) drives below ~1.5 m/s and turns below ~2 turns/s;
+# the defaults leave room above both.
+MOTION_SPECS = (
+    ParameterSpec(
+        "max_speed_m_per_s",
+        2.0,
+        "The robot's maximum speed (m/s): an odometry increment beyond it (plus 2 cm) is a jump, refused.",
+        minimum=0.01,
+        maximum=20.0,
+        runtime=True,
+    ),
+    ParameterSpec(
+        "max_yaw_rate_rad_per_s",
+        4.0 * math.pi,
+        "The robot's maximum yaw rate (rad/s): an odometry increment turning faster (plus 0.05 rad) is a "
+        "jump, refused.",
+        minimum=0.01,
+        maximum=100.0,
+        runtime=True,
+    ),
+)
+
+
 @dataclass(frozen=True)
 class StampTolerance:
     """How far a stamp may lie behind (`max_age_s`) or ahead of (`max_lead_s`) the receiving clock (s);
     0 switches that side of the check off (a replay whose stamps are not on the node's clock)."""
 
-    max_age_s: float = DEFAULT_MAX_STAMP_AGE_S
-    max_lead_s: float = DEFAULT_MAX_STAMP_LEAD_S
-
-    def __post_init__(self) -> None:
-        if not (self.max_age_s >= 0.0 and self.max_lead_s >= 0.0):
-            raise ValueError(f"stamp tolerances must be >= 0, got {self.max_age_s}, {self.max_lead_s}")
+    max_age_s: float = STAMP_SPECS[0].default
+    max_lead_s: float = STAMP_SPECS[1].default
 
 
 def stamp_problem(what: str, stamp_s: float, received_s: float, tolerance: StampTolerance) -> str:
@@ -106,15 +141,8 @@ class StampCheck:
 class MotionLimits:
     """What the robot can do: its maximum speed (m/s) and yaw rate (rad/s)."""
 
-    max_speed_m_per_s: float = DEFAULT_MAX_SPEED_M_PER_S
-    max_yaw_rate_rad_per_s: float = DEFAULT_MAX_YAW_RATE_RAD_PER_S
-
-    def __post_init__(self) -> None:
-        if not (self.max_speed_m_per_s > 0.0 and self.max_yaw_rate_rad_per_s > 0.0):
-            raise ValueError(
-                f"motion limits must be > 0, got {self.max_speed_m_per_s} m/s, "
-                f"{self.max_yaw_rate_rad_per_s} rad/s"
-            )
+    max_speed_m_per_s: float = MOTION_SPECS[0].default
+    max_yaw_rate_rad_per_s: float = MOTION_SPECS[1].default
 
     def max_step(self, interval_s: float) -> tuple[float, float]:
         """The largest plausible translation (m) and rotation (rad) over `interval_s`, with the slack of
@@ -143,51 +171,6 @@ def odometry_step_problem(interval_s: float, step: Pose2D, limits: MotionLimits)
             f"{limits.max_yaw_rate_rad_per_s:g} rad/s allows ({max_rotation_rad:.3f} rad): a jump, not motion"
         )
     return ""
-
-
-# The parameters of the checks, shared by triangulation_node and ekf_node (changeable at runtime: each
-# message is judged with the values in force).
-STAMP_SPECS = (
-    ParameterSpec(
-        "max_stamp_age_s",
-        DEFAULT_MAX_STAMP_AGE_S,
-        "Largest age (s) of an input's stamp at reception (a revolution's newest bearing, an odometry "
-        "message, at ekf_node an accepted ToTal pose) on the node's clock; older inputs are refused as late, "
-        "with the reason on /diagnostics (<kind>_stamp_refused; two in a row degrade the status). 0 "
-        "switches the check off (a replay whose stamps are not on the node's clock).",
-        minimum=0.0,
-        maximum=60.0,
-        runtime=True,
-    ),
-    ParameterSpec(
-        "max_stamp_lead_s",
-        DEFAULT_MAX_STAMP_LEAD_S,
-        "Largest lead (s) of an input's stamp ahead of the node's clock; inputs from further in the future "
-        "are refused, as for the age. 0 switches the check off.",
-        minimum=0.0,
-        maximum=60.0,
-        runtime=True,
-    ),
-)
-MOTION_SPECS = (
-    ParameterSpec(
-        "max_speed_m_per_s",
-        DEFAULT_MAX_SPEED_M_PER_S,
-        "The robot's maximum speed (m/s): an odometry increment beyond it (plus 2 cm) is a jump, refused.",
-        minimum=0.01,
-        maximum=20.0,
-        runtime=True,
-    ),
-    ParameterSpec(
-        "max_yaw_rate_rad_per_s",
-        DEFAULT_MAX_YAW_RATE_RAD_PER_S,
-        "The robot's maximum yaw rate (rad/s): an odometry increment turning faster (plus 0.05 rad) is a "
-        "jump, refused.",
-        minimum=0.01,
-        maximum=100.0,
-        runtime=True,
-    ),
-)
 
 
 def stamp_tolerance_of(values: Mapping[str, Any]) -> StampTolerance:

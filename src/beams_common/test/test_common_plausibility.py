@@ -7,8 +7,6 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from beams_common.plausibility import (
-    DEFAULT_MAX_SPEED_M_PER_S,
-    DEFAULT_MAX_YAW_RATE_RAD_PER_S,
     MotionLimits,
     StampCheck,
     StampTolerance,
@@ -61,7 +59,7 @@ def test_a_zero_tolerance_switches_that_side_off_and_non_finite_stamps_are_left_
 def test_motion_within_the_limits_passes_and_a_100_m_jump_is_refused():
     limits = MotionLimits()
     # 50 Hz odometry of a robot at its top speed, turning at its top rate
-    step = (DEFAULT_MAX_SPEED_M_PER_S * 0.02, 0.0, DEFAULT_MAX_YAW_RATE_RAD_PER_S * 0.02)
+    step = (limits.max_speed_m_per_s * 0.02, 0.0, limits.max_yaw_rate_rad_per_s * 0.02)
     assert odometry_step_problem(0.02, step, limits) == ""
     problem = odometry_step_problem(0.02, (100.0, 0.0, 0.0), limits)
     assert "moved 100.000 m in 0.020 s" in problem and "2 m/s" in problem

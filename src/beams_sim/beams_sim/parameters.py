@@ -1,20 +1,21 @@
 """sim_world_node's parameters: one spec each. All read-only: they define the simulated match, which a
-change in the middle of it would make a different one (restart the node instead)."""
+change in the middle of it would make a different one (restart the node instead). The simulated world's
+classes (`world.MotionLimits`, `OdometryDrift`, `OdometrySimulator`, `EurobotTrajectory`) take their
+defaults and ranges from here."""
 
 from collections.abc import Mapping
 from typing import Any
 
 from beams_common.parameters import ParameterSpec, ParameterTable
-from beams_sim.world import EurobotTrajectory, MotionLimits, OdometryDrift, Pose2D
 
 TRAJECTORY_KINDS = ("random", "waypoints", "static")
-_DRIFT = OdometryDrift()
-_DRIFT_DESCRIPTIONS = {
-    "left_scale_error": "Left wheel: reported / travelled distance - 1.",
-    "right_scale_error": "Right wheel: reported / travelled distance - 1.",
-    "wheel_base_error": "Nominal / true wheel base - 1.",
-    "slip_std": "Per-sample wheel slip, fraction of the wheel's travel (half-normal sigma).",
-    "noise_m_per_sqrt_m": "Random-walk noise of each wheel's distance (m per sqrt(m)).",
+# OdometryDrift's fields (a small robot, roughly calibrated): default, description, minimum
+ODOMETRY_DRIFT = {
+    "left_scale_error": (0.01, "Left wheel: reported / travelled distance - 1.", -0.49),
+    "right_scale_error": (0.011, "Right wheel: reported / travelled distance - 1.", -0.49),
+    "wheel_base_error": (0.01, "Nominal / true wheel base - 1.", -0.49),
+    "slip_std": (0.005, "Per-sample wheel slip, fraction of the wheel's travel (half-normal sigma).", 0.0),
+    "noise_m_per_sqrt_m": (0.001, "Random-walk noise of each wheel's distance (m per sqrt(m)).", 0.0),
 }
 
 
@@ -88,8 +89,8 @@ SIM_WORLD_PARAMETERS = ParameterTable(
             "robot_radius_m", 0.15, "Robot footprint radius kept on the table (m).", minimum=0.0, maximum=0.9
         ),
         *(
-            ParameterSpec(f"odometry_{name}", getattr(_DRIFT, name), description, minimum=-0.49, maximum=0.49)
-            for name, description in _DRIFT_DESCRIPTIONS.items()
+            ParameterSpec(f"odometry_{name}", default, description, minimum=low, maximum=0.49)
+            for name, (default, description, low) in ODOMETRY_DRIFT.items()
         ),
         ParameterSpec("odometry_seed", 2, "Seed of the odometry's slip and noise.", minimum=0, maximum=2**31),
         ParameterSpec("wheel_base_m", 0.3, "Nominal wheel base of the robot (m).", minimum=0.05, maximum=2.0),
@@ -104,31 +105,3 @@ SIM_WORLD_PARAMETERS = ParameterTable(
     ),
     (_dropout_check, _waypoints_check),
 )
-
-
-def _pose(values: list[float]) -> Pose2D:
-    return (float(values[0]), float(values[1]), float(values[2]))
-
-
-def trajectory_of(values: Mapping[str, Any]) -> EurobotTrajectory:
-    """The match the validated parameters describe; ValueError or RuntimeError when it cannot be built
-    (waypoints off the table, a start pose too close to the border)."""
-    limits = MotionLimits(
-        max_speed_mps=values["max_speed_mps"],
-        max_yaw_rate_radps=values["max_yaw_rate_radps"],
-        robot_radius_m=values["robot_radius_m"],
-    )
-    duration_s = values["duration_s"]
-    if values["trajectory"] == "static":
-        return EurobotTrajectory.static(_pose(values["static_pose"]), duration_s)
-    if values["trajectory"] == "waypoints":
-        points = list(zip(values["waypoints_x"], values["waypoints_y"], strict=True))
-        return EurobotTrajectory.through_waypoints(points, duration_s, limits)
-    return EurobotTrajectory.random(
-        values["trajectory_seed"], duration_s, limits, _pose(values["start_pose"])
-    )
-
-
-def drift_of(values: Mapping[str, Any]) -> OdometryDrift:
-    """The odometry errors the validated parameters describe."""
-    return OdometryDrift(**{name: values[f"odometry_{name}"] for name in _DRIFT_DESCRIPTIONS})

@@ -28,8 +28,8 @@ from beams_common.ros.messages import planar_tf_message, ros_covariance, set_pos
 from beams_common.ros.node_support import TF_QOS, Diagnostics, run_node
 from beams_common.ros.parameters import ParameterValidationError, declare_table
 from beams_common.ros.rate_status import RateStatus
-from beams_sim.parameters import SIM_WORLD_PARAMETERS, drift_of, trajectory_of
-from beams_sim.world import OdometrySimulator, Pose2D
+from beams_sim.parameters import SIM_WORLD_PARAMETERS
+from beams_sim.world import OdometrySimulator, Pose2D, drift_of, trajectory_of
 
 QUEUE_DEPTH = 10
 # Rough 1-sigma growth of odometry errors, for the covariance fields only (the EKF has its own model).

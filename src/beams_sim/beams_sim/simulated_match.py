@@ -31,6 +31,7 @@ from beams_driver.codes import BeaconCode
 from beams_driver.decoder import BearingDecoder, DecodedRevolution, VarianceSource
 from beams_driver.edges import RevolutionEdges
 from beams_driver.variance import CorrectedVariance, EdgeVariances, VarianceModel
+from beams_sim.parameters import SIM_WORLD_PARAMETERS
 from beams_sim.sensor_sim import (
     BiasFunction,
     Occlusion,
@@ -122,7 +123,7 @@ def simulate_match(
     occlusion: Occlusion | None = None,
     odometry_drift: OdometryDrift | None = None,
     odometry_rate_hz: float = ODOMETRY_RATE_HZ,
-    wheel_base_m: float = 0.3,
+    wheel_base_m: float = SIM_WORLD_PARAMETERS.default("wheel_base_m"),
     keep_edges: bool = False,
 ) -> SimulatedMatch:
     """Run a match offline (see the module docstring).

@@ -21,17 +21,20 @@ the truth to a fraction of a millimetre over a match.
 """
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from beams_common.angles import wrap_to_pi
+from beams_sim.parameters import ODOMETRY_DRIFT, SIM_WORLD_PARAMETERS
 
 TABLE_LENGTH_M = 3.0
 TABLE_WIDTH_M = 2.0
-MATCH_DURATION_S = 90.0
+MATCH_DURATION_S = SIM_WORLD_PARAMETERS.default("duration_s")
 Pose2D = tuple[float, float, float]
+START_POSE: Pose2D = tuple(SIM_WORLD_PARAMETERS.default("start_pose"))
 
 # Uniform cubic B-spline: position on a segment is [u^3 u^2 u 1] @ _BSPLINE @ [Q0 Q1 Q2 Q3].
 _BSPLINE = (
@@ -52,23 +55,21 @@ _SAMPLES_PER_SEGMENT = 1024
 class MotionLimits:
     """What the robot may do: speeds, accelerations and the footprint that must stay on the table."""
 
-    max_speed_mps: float = 0.5
-    max_yaw_rate_radps: float = 2.0
+    max_speed_mps: float = SIM_WORLD_PARAMETERS.default("max_speed_mps")
+    max_yaw_rate_radps: float = SIM_WORLD_PARAMETERS.default("max_yaw_rate_radps")
     max_acceleration_mps2: float = 0.6
     max_lateral_acceleration_mps2: float = 1.0
-    robot_radius_m: float = 0.15
+    robot_radius_m: float = SIM_WORLD_PARAMETERS.default("robot_radius_m")
 
     def __post_init__(self) -> None:
-        values = (
-            self.max_speed_mps,
-            self.max_yaw_rate_radps,
-            self.max_acceleration_mps2,
-            self.max_lateral_acceleration_mps2,
+        SIM_WORLD_PARAMETERS.require(
+            max_speed_mps=self.max_speed_mps,
+            max_yaw_rate_radps=self.max_yaw_rate_radps,
+            robot_radius_m=self.robot_radius_m,
         )
-        if not all(v > 0.0 and math.isfinite(v) for v in values):
+        accelerations = (self.max_acceleration_mps2, self.max_lateral_acceleration_mps2)
+        if not all(v > 0.0 and math.isfinite(v) for v in accelerations):
             raise ValueError(f"motion limits must be positive and finite, got {self}")
-        if not 0.0 <= self.robot_radius_m < TABLE_WIDTH_M / 2:
-            raise ValueError(f"robot_radius_m must be in [0, {TABLE_WIDTH_M / 2}), got {self.robot_radius_m}")
 
 
 class EurobotTrajectory:
@@ -107,7 +108,7 @@ class EurobotTrajectory:
         seed: int = 0,
         duration_s: float = MATCH_DURATION_S,
         limits: MotionLimits | None = None,
-        start_pose: Pose2D = (0.4, 1.0, 0.0),
+        start_pose: Pose2D = START_POSE,
         sample_rate_hz: float = 1000.0,
     ) -> "EurobotTrajectory":
         """A match through random control points drawn from the seed (deterministic)."""
@@ -357,18 +358,14 @@ class OdometryDrift:
     moves); noise_m_per_sqrt_m: random-walk noise of each wheel's distance.
     """
 
-    left_scale_error: float = 0.01
-    right_scale_error: float = 0.011
-    wheel_base_error: float = 0.01
-    slip_std: float = 0.005
-    noise_m_per_sqrt_m: float = 0.001
+    left_scale_error: float = ODOMETRY_DRIFT["left_scale_error"][0]
+    right_scale_error: float = ODOMETRY_DRIFT["right_scale_error"][0]
+    wheel_base_error: float = ODOMETRY_DRIFT["wheel_base_error"][0]
+    slip_std: float = ODOMETRY_DRIFT["slip_std"][0]
+    noise_m_per_sqrt_m: float = ODOMETRY_DRIFT["noise_m_per_sqrt_m"][0]
 
     def __post_init__(self) -> None:
-        values = (self.left_scale_error, self.right_scale_error, self.wheel_base_error)
-        if not all(math.isfinite(v) and abs(v) < 0.5 for v in values):
-            raise ValueError(f"odometry drift: scale and wheel-base errors must be finite, below 50%: {self}")
-        if not (self.slip_std >= 0.0 and self.noise_m_per_sqrt_m >= 0.0):
-            raise ValueError(f"odometry drift: slip_std and noise must be >= 0, got {self}")
+        SIM_WORLD_PARAMETERS.require(**{f"odometry_{name}": getattr(self, name) for name in ODOMETRY_DRIFT})
 
     @classmethod
     def none(cls) -> "OdometryDrift":
@@ -404,11 +401,10 @@ class OdometrySimulator:
         trajectory: EurobotTrajectory,
         drift: OdometryDrift | None = None,
         seed: int = 0,
-        wheel_base_m: float = 0.3,
+        wheel_base_m: float = SIM_WORLD_PARAMETERS.default("wheel_base_m"),
         initial_pose_odom: Pose2D = (0.0, 0.0, 0.0),
     ) -> None:
-        if not wheel_base_m > 0.0:
-            raise ValueError(f"wheel_base_m must be positive, got {wheel_base_m}")
+        SIM_WORLD_PARAMETERS.require(wheel_base_m=wheel_base_m)
         self.trajectory = trajectory
         self.drift = drift or OdometryDrift()
         self.wheel_base_m = float(wheel_base_m)
@@ -469,3 +465,24 @@ class OdometrySimulator:
         reported = wheels * scale * (1.0 + slip) + noise
         left, right = reported[:, 0], reported[:, 1]
         return 0.5 * (left + right), (right - left) / self.wheel_base_m
+
+
+def trajectory_of(values: Mapping[str, Any]) -> EurobotTrajectory:
+    """The match the validated parameters describe; ValueError or RuntimeError when it cannot be built
+    (waypoints off the table, a start pose too close to the border)."""
+    limits = MotionLimits(
+        **{name: values[name] for name in ("max_speed_mps", "max_yaw_rate_radps", "robot_radius_m")}
+    )
+    duration_s = values["duration_s"]
+    if values["trajectory"] == "static":
+        return EurobotTrajectory.static(values["static_pose"], duration_s)
+    if values["trajectory"] == "waypoints":
+        points = list(zip(values["waypoints_x"], values["waypoints_y"], strict=True))
+        return EurobotTrajectory.through_waypoints(points, duration_s, limits)
+    start_pose = tuple(map(float, values["start_pose"]))
+    return EurobotTrajectory.random(values["trajectory_seed"], duration_s, limits, start_pose)
+
+
+def drift_of(values: Mapping[str, Any]) -> OdometryDrift:
+    """The odometry errors the validated parameters describe."""
+    return OdometryDrift(**{name: values[f"odometry_{name}"] for name in ODOMETRY_DRIFT})

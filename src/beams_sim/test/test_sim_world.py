@@ -111,7 +111,7 @@ def test_waypoints_give_the_b_spline_and_are_validated() -> None:
         EurobotTrajectory.through_waypoints([(0.5, 1.0), (2.95, 1.0), (2.95, 1.9)])
     with pytest.raises(ValueError, match="3 or more"):
         EurobotTrajectory.through_waypoints([(0.5, 1.0), (1.5, 1.0)])
-    with pytest.raises(ValueError, match="motion limits"):
+    with pytest.raises(ValueError, match=r"max_speed_mps = -1\.0 is below its minimum"):
         MotionLimits(max_speed_mps=-1.0)
     with pytest.raises(ValueError, match="off the table"):
         EurobotTrajectory.random(seed=0, start_pose=(0.1, 1.0, 0.0))

@@ -159,7 +159,7 @@ def replay_bag(
     the bag did not record.
     """
     typestore = typestore if typestore is not None else beams_typestore()
-    pipelines = ReplayPipelines(settings or ReplaySettings())
+    pipelines = ReplayPipelines(settings or settings_from_parameters({}, {}))
     use_odometry = pipelines.settings.triangulation.use_odometry
     pipelines.expect_odometry = use_odometry and ODOMETRY_TOPIC in bag_topics(input_bag, namespace)
     if start_like_live:

@@ -1,17 +1,21 @@
-"""The node reference's parameter tables (docs/nodes.md), written from the nodes' ParameterTables (one
-spec per parameter, so the documentation cannot drift from what the nodes declare).
+"""The node reference's parameter tables (docs/nodes.md) and beams_bringup's parameter file
+(config/beams_params.yaml), written from the nodes' ParameterTables (one spec per parameter, so neither
+can drift from what the nodes declare).
 
     python -m beams_tools.parameter_docs                          # print every node's table
     python -m beams_tools.parameter_docs --write docs/nodes.md    # replace the tables between the markers
+    python -m beams_tools.parameter_docs --write src/beams_bringup/config/beams_params.yaml
 
-Each table sits in docs/nodes.md between `<!-- parameters: NAME -->` and `<!-- /parameters -->`;
-test/static/test_docs_in_sync.py fails when one differs from what this module writes.
+Each table sits in docs/nodes.md between `<!-- parameters: NAME -->` and `<!-- /parameters -->`; the
+parameter file has one section per node, every parameter at its default under its description;
+test/static/test_docs_in_sync.py fails when either differs from what this module writes.
 """
 
 import argparse
 import pathlib
 import re
 import sys
+import textwrap
 
 from beams_calibration.parameters import CALIBRATION_PARAMETERS
 from beams_common.parameters import ParameterSpec
@@ -35,13 +39,15 @@ _BLOCK = re.compile(r"(<!-- parameters: (?P<name>[^>]+?) -->\n)(?P<body>.*?)(<!-
 
 
 def _value(value: object) -> str:
+    """A value as YAML 1.1 (PyYAML) and rcl both read it back: a float's exponent needs a dot."""
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, str):
         return f'"{value}"'
     if isinstance(value, list):
         return "[" + ", ".join(_value(v) for v in value) + "]"
-    return repr(value) if isinstance(value, float) else str(value)
+    text = repr(value) if isinstance(value, float) else str(value)
+    return text.replace("e", ".0e") if "e" in text and "." not in text else text
 
 
 def _limits(spec: ParameterSpec) -> str:
@@ -50,8 +56,8 @@ def _limits(spec: ParameterSpec) -> str:
         parts.append(" / ".join(spec.choices))
     if spec.minimum is not None or spec.maximum is not None:
         parts.append(f"[{_value(spec.minimum)}, {_value(spec.maximum)}]")
-    if spec.length is not None:
-        low, high = (spec.length, spec.length) if isinstance(spec.length, int) else spec.length
+    if spec.lengths:
+        low, high = spec.lengths
         parts.append(f"{low} values" if low == high else f"{low}-{high} values")
     return ", ".join(parts)
 
@@ -66,6 +72,34 @@ def markdown_table(specs: tuple[ParameterSpec, ...]) -> str:
             f"| `{spec.name}` | `{_value(spec.default)}` | {_limits(spec)} | {change} | {description} |"
         )
     return "\n".join(rows) + "\n"
+
+
+PARAMETER_FILE_HEADER = """\
+# The BeAMS suite's parameters at their defaults, one section per node (`/**/<node>`: in any namespace),
+# read by `ros2 launch beams_bringup beams.launch.py`. GENERATED from the nodes' specs: edit a spec, then
+#   python -m beams_tools.parameter_docs --write src/beams_bringup/config/beams_params.yaml
+# A robot's own values go in a copy of this file (--params-file) or a launch override (docs/nodes.md)."""
+
+
+_COMMENT = textwrap.TextWrapper(
+    110, initial_indent="    # ", subsequent_indent="    # ", break_on_hyphens=False
+)
+
+
+def parameter_file() -> str:
+    """beams_bringup's parameter file: a section per node of TABLES (a table `<node> <part>`, an edge
+    source's, joins its node's), every parameter at its default under its full description."""
+    lines = [PARAMETER_FILE_HEADER]
+    for name, specs in TABLES.items():
+        node, _, part = name.partition(" ")
+        if part:
+            lines += ["", f"    # ---- {name} ----"]
+        else:
+            lines += ["", f"# ---- {node} ----", f"/**/{node}:", "  ros__parameters:"]
+        for spec in specs:
+            lines += _COMMENT.wrap(spec.full_description())
+            lines.append(f"    {spec.name}: {_value(spec.default)}")
+    return "\n".join(lines) + "\n"
 
 
 def write(document: str) -> str:
@@ -87,10 +121,11 @@ def tables_in(document: str) -> dict[str, str]:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--write", type=pathlib.Path, help="document to update in place (docs/nodes.md)")
+    parser.add_argument("--write", type=pathlib.Path, help="docs/nodes.md or beams_params.yaml to write")
     options = parser.parse_args(argv)
     if options.write:
-        options.write.write_text(write(options.write.read_text()))
+        yaml_file = options.write.suffix == ".yaml"
+        options.write.write_text(parameter_file() if yaml_file else write(options.write.read_text()))
         return 0
     for name, specs in TABLES.items():
         print(f"{name}\n\n{markdown_table(specs)}")

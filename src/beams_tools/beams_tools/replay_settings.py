@@ -6,17 +6,17 @@ from __future__ import annotations
 import os
 import pathlib
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_common.beacon_map import BeaconMap
 from beams_common.geometry_parameters import geometry_of
 from beams_common.parameters import ROS_NODE_PARAMETERS, ParameterTable, load_parameter_file
 from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
 from beams_ekf.settings import FilterSettings
 from beams_tools.robot_processes import PARAMS_FILE
-from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
-from beams_triangulation.pipeline import TriangulationSettings
+from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
+from beams_triangulation.pipeline import TriangulationSettings, triangulation_settings
 
 
 def installed_params_file() -> pathlib.Path | None:
@@ -40,14 +40,14 @@ def installed_params_file() -> pathlib.Path | None:
 # -- settings -----------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class ReplaySettings:
-    """What the two nodes take from their parameters (defaults: the nodes' defaults)."""
+    """What the two nodes take from their parameters (`settings_from_parameters({}, {})`: their defaults)."""
 
-    triangulation_map: BeaconMap = EUROBOT_BEACON_MAP
-    triangulation_offset_m: tuple[float, float] = (0.0, 0.0)
-    triangulation: TriangulationSettings = field(default_factory=TriangulationSettings)
-    ekf_map: BeaconMap = EUROBOT_BEACON_MAP
-    ekf_offset_m: tuple[float, float] = (0.0, 0.0)
-    ekf: FilterSettings = field(default_factory=FilterSettings)
+    triangulation_map: BeaconMap
+    triangulation_offset_m: tuple[float, float]
+    triangulation: TriangulationSettings
+    ekf_map: BeaconMap
+    ekf_offset_m: tuple[float, float]
+    ekf: FilterSettings
 
 
 def load_node_parameters(path: pathlib.Path | None, table: ParameterTable) -> dict[str, Any]:

@@ -24,11 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 from beams_triangulation.pose_covariance import pose_covariance, pose_covariance_many, position_std_m
 from beams_triangulation.total import ToTalFix, triangulate_many
 
-DEFAULT_MAX_INVERSE_ABS_D = 2.0
-DEFAULT_MAX_POSITION_STD_M = 0.05
 REASON_NO_TRIPLET = "no beacon triplet gives a fix: robot on the critical circumference of every triplet"
 REASON_NOT_COMPENSATED = "odometry does not cover the revolution: bearings not motion-compensated"
 
@@ -37,12 +36,11 @@ REASON_NOT_COMPENSATED = "odometry does not cover the revolution: bearings not m
 class GateConfig:
     """The two acceptance gates: 1/|D| (m^-2) and sqrt(var x + var y) (m)."""
 
-    max_inverse_abs_d: float = DEFAULT_MAX_INVERSE_ABS_D
-    max_position_std_m: float = DEFAULT_MAX_POSITION_STD_M
+    max_inverse_abs_d: float = TRIANGULATION_PARAMETERS.default("max_inverse_abs_d")
+    max_position_std_m: float = TRIANGULATION_PARAMETERS.default("max_position_std_m")
 
     def __post_init__(self) -> None:
-        if not (self.max_inverse_abs_d > 0.0 and self.max_position_std_m > 0.0):
-            raise ValueError(f"gate thresholds must be positive, got {self}")
+        TRIANGULATION_PARAMETERS.require(**vars(self))  # its fields are the two gate parameters
 
 
 @dataclass(slots=True)

@@ -1,24 +1,24 @@
 """The per-revolution pipeline triangulation_node runs (and the offline replay): each revolution, sorted out
 by the bearing intake, through a `revolution.RevolutionEstimator` (with the motion seen between
 revolutions), odometry into an odometry buffer, a revolution the odometry does not cover yet waiting for
-it (`TriangulationPipeline`). parameters.triangulation_settings maps the node's parameters to its
-settings."""
+it (`TriangulationPipeline`). `triangulation_settings` maps the node's parameters to its settings."""
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 from beams_common.beacon_map import BeaconMap
 from beams_common.bearing import Bearing
 from beams_common.bearing_intake import RevolutionIntake, revolution_intake
-from beams_common.plausibility import MotionLimits, odometry_step_problem
+from beams_common.plausibility import MotionLimits, motion_limits_of, odometry_step_problem
 from beams_common.pose2d import between
 from beams_common.validation import odometry_problem
 from beams_triangulation.gating import GateConfig
 from beams_triangulation.motion_compensation import odometry_buffer
+from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 from beams_triangulation.revolution import RevolutionEstimator, RevolutionPose
 
 
@@ -28,11 +28,24 @@ class TriangulationSettings:
 
     gates: GateConfig = field(default_factory=GateConfig)
     # bring each revolution's bearings to one instant with `odom` (and refuse the uncovered ones)
-    use_odometry: bool = True
-    odometry_history_s: float = 2.0
-    max_odometry_extrapolation_s: float = 0.05
+    use_odometry: bool = TRIANGULATION_PARAMETERS.default("use_odometry")
+    odometry_history_s: float = TRIANGULATION_PARAMETERS.default("odometry_history_s")
+    max_odometry_extrapolation_s: float = TRIANGULATION_PARAMETERS.default("max_odometry_extrapolation_s")
     # the robot's maximum speed and yaw rate: an odometry increment beyond them is a jump
     motion_limits: MotionLimits = field(default_factory=MotionLimits)
+
+
+def triangulation_settings(parameters: Mapping[str, Any]) -> TriangulationSettings:
+    """The settings of triangulation_node's parameter values by name (a missing one takes its default);
+    ParameterError (a ValueError) for a value the node refuses, alone or with the others."""
+    values = TRIANGULATION_PARAMETERS.validate(parameters)
+    return TriangulationSettings(
+        gates=GateConfig(float(values["max_inverse_abs_d"]), float(values["max_position_std_m"])),
+        use_odometry=bool(values["use_odometry"]),
+        odometry_history_s=float(values["odometry_history_s"]),
+        max_odometry_extrapolation_s=float(values["max_odometry_extrapolation_s"]),
+        motion_limits=motion_limits_of(values),
+    )
 
 
 Tag = Any  # what the caller attaches to a revolution (its number live, its due instant offline)

@@ -57,8 +57,8 @@ from beams_common.ros.status_topic import StatusTopic
 from beams_common.validation import bounded, planar_estimate_problem
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_triangulation.gating import NoPose, PoseEstimate
-from beams_triangulation.parameters import TRIANGULATION_PARAMETERS, triangulation_settings
-from beams_triangulation.pipeline import TriangulationPipeline
+from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
+from beams_triangulation.pipeline import TriangulationPipeline, triangulation_settings
 from beams_triangulation.revolution import RevolutionPose
 from beams_triangulation.triangulation_health import WAITING_FOR_BEARINGS, TriangulationHealth
 

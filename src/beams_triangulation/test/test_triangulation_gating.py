@@ -146,9 +146,9 @@ def test_rejected_pose_keeps_its_numbers():
 
 
 def test_gate_config_rejects_non_positive_thresholds():
-    with pytest.raises(ValueError, match="positive"):
+    with pytest.raises(ValueError, match=r"max_inverse_abs_d = 0\.0 is below its minimum"):
         GateConfig(max_inverse_abs_d=0.0)
-    with pytest.raises(ValueError, match="positive"):
+    with pytest.raises(ValueError, match="max_position_std_m must be finite"):
         GateConfig(max_position_std_m=math.nan)
 
 

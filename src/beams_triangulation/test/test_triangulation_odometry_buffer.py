@@ -16,8 +16,12 @@ from beams_common.pose2d import between
 from beams_common.pose_buffer import PoseBuffer
 from beams_triangulation.gating import REASON_NOT_COMPENSATED, GateConfig, PoseEstimate
 from beams_triangulation.motion_compensation import odometry_buffer
-from beams_triangulation.parameters import triangulation_settings
-from beams_triangulation.pipeline import RevolutionEstimator, TriangulationPipeline, TriangulationSettings
+from beams_triangulation.pipeline import (
+    RevolutionEstimator,
+    TriangulationPipeline,
+    TriangulationSettings,
+    triangulation_settings,
+)
 from beams_triangulation.revolution import estimate_revolution
 from beams_triangulation.total import expected_bearings
 
