@@ -45,7 +45,15 @@ def _module_file(parts: list[str]) -> tuple[pathlib.Path | None, list[str]]:
     return None, parts
 
 
+# entry-point groups are dotted names too (`beams_driver.edge_sources`): declared in a setup.py
+ENTRY_POINT_GROUPS = set(
+    re.findall(r'"(beams_\w+\.\w+)":', " ".join(p.read_text() for p in ROOT.glob("src/*/setup.py")))
+)
+
+
 def _module_exists(name: str) -> bool:
+    if name in ENTRY_POINT_GROUPS:
+        return True
     module, attributes = _module_file(name.split("."))
     if module is None:
         return False

@@ -10,11 +10,11 @@ import sys
 import yaml
 
 from beams_bringup.architecture_docs import picture_in
-from beams_bringup.system import PARAMS_FILE as PARAMS_FILE_NAME
-from beams_bringup.system import ROBOT_NODES
 from beams_common.parameters import load_parameter_file, node_section
 from beams_ekf.parameters import EKF_PARAMETERS
 from beams_tools.parameter_docs import TABLES, markdown_table, parameter_file, tables_in
+from beams_tools.robot_processes import PARAMS_FILE as PARAMS_FILE_NAME
+from beams_tools.robot_processes import ROBOT_NODES
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
