@@ -67,10 +67,8 @@ class BeaconStates(StateBlock):
 
     def _block(self, beacon_id: int) -> slice | None:
         """The beacon's (dx, dy) in the block, None for a fixed beacon."""
-        if beacon_id not in self.beacon_ids:
-            return None
-        start = COORDINATES * self.beacon_ids.index(beacon_id)
-        return slice(start, start + COORDINATES)
+        k = self.beacon_ids.index(beacon_id) if beacon_id in self.beacon_ids else None
+        return None if k is None else slice(COORDINATES * k, COORDINATES * (k + 1))
 
     def problem(self, beacon_ids: Iterable[int]) -> str | None:
         map_ids = [int(i) for i in beacon_ids]
@@ -111,13 +109,10 @@ class BeaconStates(StateBlock):
     ) -> dict[int, tuple[tuple[float, float], np.ndarray]]:
         """{id: ((x, y) learnt (m), its 2x2 covariance)} of the states (mean, covariance) and the
         configured map."""
-        blocks = {i: self._block(i) for i in self.beacon_ids}
+        blocks = [(i, self._block(i)) for i in self.beacon_ids]
         return {
-            i: (
-                (beacons_xy[i][0] + float(mean[b][0]), beacons_xy[i][1] + float(mean[b][1])),
-                covariance[b, b].copy(),
-            )
-            for i, b in blocks.items()
+            i: (tuple(float(v) for v in np.add(beacons_xy[i], mean[b])), covariance[b, b].copy())
+            for i, b in blocks
         }
 
 

@@ -15,18 +15,14 @@ A bearing stamped between two states of the filter is applied at the earlier one
 pose the interpolated odometry gives it at the stamp, expressed in that state's robot frame: an
 effective "lever" pose (px, py, ptheta) that the same measurement model handles (see `turret_pose`).
 
-The state is a list of blocks (`state_blocks`, docs/state_blocks.md): the pose (`PoseStates`), then
-optionally the odometry's systematic errors (`odometry_errors`), the power bias of uncalibrated bearings
-(`power_bias_states`, estimated or Schmidt-Kalman considered), the correction of the configured turret
-offset and of some beacons' coordinates (`turret_offset_states`, `beacon_states`). The blocks past the
-pose describe the sensor and the odometry, not where the robot is: a re-initialisation (ToTal's fix after a
-kidnapping or a lost filter, an operator's pose, a reset) keeps what they learnt, with their covariance.
+The state is a list of blocks (`state_blocks`, docs/state_blocks.md): the pose (`PoseStates`), then the
+sensor's and the odometry's, which a re-initialisation keeps (ToTal's fix after a kidnapping, a reset).
 """
 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from math import atan2, cos, hypot, isfinite, sin
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
@@ -37,8 +33,6 @@ from beams_common.parameters import ParameterSpec, ParameterTable
 from beams_common.pose2d import Pose2D, compose
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, rejected
 from beams_ekf.state_blocks import BearingPart, Sighting, StateBlock
-
-Block = TypeVar("Block", bound=StateBlock)
 
 
 @dataclass(frozen=True)
@@ -97,9 +91,8 @@ class ProcessNoise:
 
 
 def gate_threshold(probability: float) -> float:
-    """Chi-square (1 dof) quantile that a consistent innovation stays under with `probability`."""
-    if not 0.0 < probability < 1.0:
-        raise ValueError(f"gate probability must be in (0, 1), got {probability}")
+    """Chi-square (1 dof) quantile that a consistent innovation stays under with `probability` (its
+    range: the gate_probability spec's)."""
     return float(chi2.ppf(probability, df=1))
 
 
@@ -140,8 +133,9 @@ WHEEL_BASE_M = 0.3
 _WHEEL_NOISE = ProcessNoise.wheel_noise(WHEEL_VARIANCE_M2_PER_M, WHEEL_BASE_M)
 # variances per unit travelled: from none to far more than any wheel
 _VARIANCE_RATE = {"minimum": 0.0, "maximum": 1.0e3, "runtime": True}
-# the pose's parameters: changeable while the filter runs (they enter the next prediction)
-POSE_SPECS = ParameterTable(
+# the filter's parameters, the pose's process noise and the gate: changeable while the filter runs (they
+# enter the next prediction and the next bearing's gate)
+BEARING_EKF_SPECS = ParameterTable(
     "ekf_node",
     (
         ParameterSpec(
@@ -168,15 +162,25 @@ POSE_SPECS = ParameterTable(
             "Odometry cross-track variance per metre travelled.",
             **_VARIANCE_RATE,
         ),
+        ParameterSpec(
+            "gate_probability",
+            0.999,
+            "Chi-square (1 dof) probability of the per-bearing validation gate.",
+            minimum=0.5,
+            maximum=0.999999,
+            runtime=True,
+        ),
     ),
 )
 
 
 def process_noise_of(values: Mapping[str, Any]) -> ProcessNoise:
     """The process noise of ekf_node's validated parameter values."""
-    names = ("translation_m2_per_m", "rotation_rad2_per_rad", "rotation_rad2_per_m", "cross_track_m2_per_m")
     return ProcessNoise(
-        **{name: float(values[spec]) for name, spec in zip(names, POSE_SPECS.names, strict=True)}
+        translation_m2_per_m=float(values["translation_variance_m2_per_m"]),
+        rotation_rad2_per_rad=float(values["rotation_variance_rad2_per_rad"]),
+        rotation_rad2_per_m=float(values["rotation_variance_rad2_per_m"]),
+        cross_track_m2_per_m=float(values["cross_track_variance_m2_per_m"]),
     )
 
 
@@ -227,7 +231,7 @@ class BearingEkf:
         beacons_xy: Mapping[int, Sequence[float]],
         sensor_offset_m: tuple[float, float] = (0.0, 0.0),
         process_noise: ProcessNoise | None = None,
-        gate_probability: float = 0.999,
+        gate_probability: float = BEARING_EKF_SPECS.default("gate_probability"),
         blocks: Iterable[StateBlock | None] = (),
     ) -> None:
         blocks = [PoseStates(process_noise or ProcessNoise()), *(b for b in blocks if b is not None)]
@@ -235,10 +239,7 @@ class BearingEkf:
         self._parts = [(b, slice(int(end - b.size), int(end))) for b, end in zip(blocks, ends, strict=True)]
         self._pose = self._parts[0][1]
         self.dim = int(ends[-1])
-        # the states a re-initialisation keeps
-        self._kept = np.array(
-            [i for b, part in self._parts if b.learnt for i in range(part.start, part.stop)], int
-        )
+        self._kept = np.array([i for b, p in self._parts if b.learnt for i in range(p.start, p.stop)], int)
         self._ekf = _OdometryEkf(dim_x=self.dim, dim_z=1)
         self._memory = [block.new_memory() for block in blocks]
         self._initialised = False
@@ -273,10 +274,6 @@ class BearingEkf:
             p[np.ix_(at, at)] = block.prior_covariance[np.ix_(stale, stale)]
 
     @property
-    def process_noise(self) -> ProcessNoise:
-        return self._parts[0][0].noise
-
-    @property
     def initialised(self) -> bool:
         """True once a pose has been given."""
         return self._initialised
@@ -292,16 +289,14 @@ class BearingEkf:
         """3x3 covariance of (x, y, theta) (a copy)."""
         return self._ekf.P[self._pose, self._pose].copy()
 
-    def block(self, kind: type[Block]) -> Block | None:
+    def block(self, kind: type[StateBlock]) -> Any:
         """The filter's block of that kind, or None."""
         return next((block for block, _ in self._parts if isinstance(block, kind)), None)
 
     def estimate(self, kind: type[StateBlock]) -> tuple[np.ndarray, np.ndarray] | None:
         """The states of the block of that kind and their covariance (copies), or None without it."""
-        for block, part in self._parts:
-            if isinstance(block, kind):
-                return self._ekf.x[part, 0].copy(), self._ekf.P[part, part].copy()
-        return None
+        part = next((part for block, part in self._parts if isinstance(block, kind)), None)
+        return None if part is None else (self._ekf.x[part, 0].copy(), self._ekf.P[part, part].copy())
 
     def initialise(self, pose: Pose2D, covariance: np.ndarray) -> None:
         """Start (or restart) from a pose and its 3x3 covariance (ToTal's fix or an operator's pose).
@@ -317,16 +312,12 @@ class BearingEkf:
         if np.any(np.linalg.eigvalsh(0.5 * (covariance + covariance.T)) <= 0.0):
             raise ValueError("initial covariance must be positive definite")
         x, p, kept = np.zeros((self.dim, 1)), np.zeros((self.dim, self.dim)), np.ix_(self._kept, self._kept)
+        learnt = self._ekf.x[self._kept, 0], self._ekf.P[kept]
         x[self._pose, 0] = (pose[0], pose[1], wrap_to_pi(pose[2]))
         p[self._pose, self._pose] = 0.5 * (covariance + covariance.T)
-        keep = (
-            self._learnt
-            and np.all(np.isfinite(self._ekf.x[self._kept]))
-            and np.all(np.isfinite(self._ekf.P[kept]))
-        )
+        keep = self._learnt and all(np.all(np.isfinite(v)) for v in learnt)
         if keep:
-            x[self._kept, 0] = self._ekf.x[self._kept, 0]
-            p[kept] = self._ekf.P[kept]
+            x[self._kept, 0], p[kept] = learnt
         for block, part in self._parts[1:]:
             if not (keep and block.learnt):
                 x[part, 0] = block.prior_mean
@@ -387,14 +378,8 @@ class BearingEkf:
         self, beacon_id: int, lever: Pose2D | None = None, uncorrected_window_rad: float = 0.0
     ) -> tuple[float, np.ndarray]:
         """h(x) and its 1 x dim Jacobian for one beacon, the turret at `lever` in the robot frame; plus
-        the power bias f(w) (eq. 7.17) of a bearing no calibration corrected, at its window (0: none)."""
-        expected, jacobian, _ = self._sighting(beacon_id, lever, uncorrected_window_rad)
-        return expected, jacobian
-
-    def _sighting(
-        self, beacon_id: int, lever: Pose2D | None, uncorrected_window_rad: float
-    ) -> tuple[float, np.ndarray, np.ndarray]:
-        """h(x), its 1 x dim Jacobian, and which states the bearing leaves alone (their gain zero)."""
+        the power bias f(w) (eq. 7.17) of a bearing no calibration corrected, at its window (0: none).
+        Which states the bearing leaves alone (their gain zero) is kept for `update_bearing`."""
         lever = lever if lever is not None else (self.sensor_offset_m[0], self.sensor_offset_m[1], 0.0)
         x = self._ekf.x
         sighting = Sighting(beacon_id, self.pose, lever, self.beacons_xy[beacon_id], uncorrected_window_rad)
@@ -410,7 +395,8 @@ class BearingEkf:
             frozen[part] = not learns or (sighting.pose_only and block.learnt)
             if shift is not None:
                 expected = wrap_to_pi(expected + shift)
-        return expected, jacobian, frozen
+        self._frozen = frozen
+        return expected, jacobian
 
     def update_bearing(
         self,
@@ -430,7 +416,7 @@ class BearingEkf:
         if not (isfinite(bearing_rad) and isfinite(variance_rad2) and variance_rad2 > 0.0):
             return rejected(BearingReason.INVALID_MEASUREMENT)
         try:
-            expected, jacobian, frozen = self._sighting(beacon_id, lever, uncorrected_window_rad)
+            expected, jacobian = self.predicted_bearing(beacon_id, lever, uncorrected_window_rad)
         except ZeroDivisionError:
             return rejected(BearingReason.SENSOR_ON_BEACON)
         residual = wrap_to_pi(bearing_rad - expected)
@@ -438,7 +424,7 @@ class BearingEkf:
         nis = residual * residual / innovation_variance
         if nis > self.gate:
             return BearingOutcome(False, nis, residual, BearingReason.GATED)
-        self._joseph_update(jacobian, variance_rad2, residual, innovation_variance, frozen)
+        self._joseph_update(jacobian, variance_rad2, residual, innovation_variance, self._frozen)
         heading = self._ekf.x[self._pose][2:]
         heading[0, 0] = wrap_to_pi(float(heading[0, 0]))
         # rounding drifts P from symmetric: after a wide prior (sigma 4 m) by more than the 1e-9 the

@@ -54,6 +54,7 @@ def arc_of_increment(increment: Pose2D) -> tuple[float, float]:
 # of wheel base, the size sim_world's OdometryDrift gives a roughly calibrated robot: 1 % wheel radii, 0.4 %
 # mean slip, 1 % wheel base; a heading drift of 0.03 rad/m: a 0.5 % radius difference over a 0.3 m wheel
 # base is 0.017 rad/m)
+_SIGMA_RANGE = {"minimum": 1e-6, "maximum": 1.0}
 ODOMETRY_ERROR_SPECS = ParameterTable(
     "ekf_node",
     (
@@ -67,22 +68,19 @@ ODOMETRY_ERROR_SPECS = ParameterTable(
             "odometry_scale_sigma",
             0.02,
             "Prior standard deviation of the odometry's distance scale.",
-            minimum=1e-6,
-            maximum=1.0,
+            **_SIGMA_RANGE,
         ),
         ParameterSpec(
             "odometry_rotation_scale_sigma",
             0.02,
             "Prior standard deviation of the odometry's rotation scale (wheel base).",
-            minimum=1e-6,
-            maximum=1.0,
+            **_SIGMA_RANGE,
         ),
         ParameterSpec(
             "odometry_heading_drift_sigma_rad_per_m",
             0.03,
             "Prior standard deviation of the heading drift per metre driven (unequal wheel radii, rad/m).",
-            minimum=1e-6,
-            maximum=1.0,
+            **_SIGMA_RANGE,
         ),
     ),
 )

@@ -4,32 +4,30 @@ node and for the offline replay; `filter_settings` builds the settings from the 
 """
 
 from collections.abc import Mapping
+from dataclasses import fields
 from typing import Any
 
 from beams_common.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SPECS
 from beams_common.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, rates_check
 from beams_common.parameters import ROS_NODE_PARAMETERS, ParameterSpec, ParameterTable
 from beams_common.plausibility import MOTION_SPECS, STAMP_SPECS, motion_limits_of
-from beams_ekf.bearing_ekf import POSE_SPECS, process_noise_of
-from beams_ekf.settings import LOCALISER_SPECS, SETTINGS_SPECS, FilterSettings, LocaliserConfig
-from beams_ekf.state_blocks import registered_blocks, typed_value
+from beams_ekf.bearing_ekf import BEARING_EKF_SPECS, process_noise_of
+from beams_ekf.settings import SETTINGS_SPECS, FilterSettings, LocaliserConfig
+from beams_ekf.state_blocks import registered_blocks
 
-# the pose's and the filter's own: the runtime ones enter the next prediction and the next bearing's
-# gate; the others shape the Localiser's history and monitors, built at start-up
-FILTER_SPECS = (*POSE_SPECS.specs, *SETTINGS_SPECS.specs)
 _BLOCKS = registered_blocks(FilterSettings)
+_LOCALISER = [f.name for f in fields(LocaliserConfig) if f.name in SETTINGS_SPECS.names]
 
 
 def _settings_of(values: Mapping[str, Any]) -> FilterSettings:
     """The settings of every filter parameter's value by name (ValueError for values the settings refuse
     together, such as kidnap_gated_bearings above kidnap_window_bearings)."""
-    setting = {spec.name: typed_value(spec, values[spec.name]) for spec in SETTINGS_SPECS.specs}
     return FilterSettings(
         process_noise=process_noise_of(values),
-        gate_probability=setting["gate_probability"],
-        localiser=LocaliserConfig(**{name: setting[name] for name in LOCALISER_SPECS.names}),
-        use_total_pose=setting["use_total_pose"],
-        default_pose_sigma=setting["default_pose_sigma"],
+        gate_probability=float(values["gate_probability"]),
+        localiser=LocaliserConfig(**{n: SETTINGS_SPECS[n].item_type(values[n]) for n in _LOCALISER}),
+        use_total_pose=bool(values["use_total_pose"]),
+        default_pose_sigma=tuple(float(v) for v in values["default_pose_sigma"]),
         motion_limits=motion_limits_of(values),
         **{name: states_of(values) for name, _, states_of in _BLOCKS},
     )
@@ -47,7 +45,8 @@ EKF_PARAMETERS = ParameterTable(
     "ekf_node",
     (
         *GEOMETRY_SPECS,
-        *FILTER_SPECS,
+        *BEARING_EKF_SPECS.specs,
+        *SETTINGS_SPECS.specs,
         *MOTION_SPECS,
         *STAMP_SPECS,
         *BEARING_RATE_SPECS,

@@ -13,15 +13,15 @@ import numpy as np
 from beams_common.parameters import ParameterSpec, ParameterTable
 from beams_common.plausibility import MAX_POSE_SIGMA_M, MotionLimits
 from beams_ekf.beacon_states import BEACON_STATE_SPECS, BeaconStates, beacon_states_of
-from beams_ekf.bearing_ekf import POSE_SPECS, ProcessNoise, process_noise_of
+from beams_ekf.bearing_ekf import BEARING_EKF_SPECS, ProcessNoise, process_noise_of
 from beams_ekf.odometry_errors import ODOMETRY_ERROR_SPECS, OdometryErrorStates, odometry_error_states_of
 from beams_ekf.power_bias_states import POWER_BIAS_SPECS, PowerBiasStates, power_bias_states_of
 from beams_ekf.state_blocks import block_field, registered_blocks
 from beams_ekf.turret_offset_states import TURRET_OFFSET_SPECS, TurretOffsetStates, turret_offset_states_of
 
-# the Localiser's parameters (LocaliserConfig's fields of the same names); they shape its history and
-# monitors, built at start-up
-LOCALISER_SPECS = ParameterTable(
+# the settings' own parameters (LocaliserConfig's are its fields of the same names), beside the filter's
+# (bearing_ekf.BEARING_EKF_SPECS) and the blocks'
+SETTINGS_SPECS = ParameterTable(
     "ekf_node",
     (
         ParameterSpec(
@@ -116,13 +116,10 @@ LOCALISER_SPECS = ParameterTable(
             minimum=0.5,
             maximum=1.0 - 1e-12,
         ),
-        # 9: three revolutions of the three beacons, 0.3 s at 10 Hz. Three bearings of one revolution fix a
-        # pose on their own (ToTal), so a pose 0.5 m off cannot have them all inside its gate: each gated
-        # one starts the count again, and 6 gated of the last 12 make the kidnap evidence that
-        # re-initialises from ToTal; three revolutions in a row leave the filter three updates of each
-        # beacon to pull a slightly wrong pose in before it is called tracking. Counted in bearings, not
-        # in calls: a revolution's bearings can reach the filter in two parts (those stamped after the
-        # newest odometry wait for it) and the offline replay feeds them one by one.
+        # 9: three revolutions of the three beacons. A pose 0.5 m off cannot have a revolution's three
+        # bearings inside its gate (they fix a pose on their own), and 6 gated of the last 12 re-initialise
+        # from ToTal; three revolutions leave three updates of each beacon to pull a slightly wrong pose
+        # in. Counted in bearings, not in calls: a revolution can reach the filter in two parts.
         ParameterSpec(
             "confirming_bearings",
             9,
@@ -133,66 +130,6 @@ LOCALISER_SPECS = ParameterTable(
             minimum=0,
             maximum=1000,
         ),
-    ),
-)
-_LOCALISER = LOCALISER_SPECS.default
-
-
-@dataclass(frozen=True)
-class LocaliserConfig:
-    """Timing and re-initialisation parameters (defaults suit 50 Hz odometry and a 10 Hz turret)."""
-
-    odometry_history_s: float = _LOCALISER("odometry_history_s")
-    max_odometry_extrapolation_s: float = _LOCALISER("max_odometry_extrapolation_s")
-    # an odometry step longer than this is a gap: the covariance grows with its duration
-    odometry_gap_s: float = _LOCALISER("odometry_gap_s")
-    gap_position_variance_m2_per_s: float = _LOCALISER("gap_position_variance_m2_per_s")
-    gap_heading_variance_rad2_per_s: float = _LOCALISER("gap_heading_variance_rad2_per_s")
-    # a gap never inflates more than this long (the table bounds how lost the robot can be)
-    max_gap_inflation_s: float = 10.0
-    # the filter is "lost" when at least kidnap_gated_bearings of the last kidnap_window_bearings new
-    # bearings were gated out (a consistent filter gates 1 - gate_probability of them); a lost filter
-    # takes ToTal's fix when the fix is elsewhere: inconsistent with the estimate (chi-square, 3 dof,
-    # at kidnap_probability, the two covariances summed) or farther than the distance/heading below
-    kidnap_gated_bearings: int = _LOCALISER("kidnap_gated_bearings")
-    kidnap_window_bearings: int = _LOCALISER("kidnap_window_bearings")
-    kidnap_probability: float = _LOCALISER("kidnap_probability")
-    kidnap_distance_m: float = _LOCALISER("kidnap_distance_m")
-    kidnap_heading_rad: float = _LOCALISER("kidnap_heading_rad")
-    # odometry stamps going back by more than this, in time_jump_confirmations consecutive messages,
-    # reset the filter (a bag loop); smaller steps, and a single stray old message, are dropped
-    time_jump_tolerance_s: float = 0.0
-    time_jump_confirmations: int = _LOCALISER("time_jump_confirmations")
-    # lost detection (NisMonitor): the NIS of the last lost_nis_window_bearings new bearings, summed,
-    # beyond the chi-square quantile at lost_nis_probability (0: the monitor is off)
-    lost_nis_window_bearings: int = _LOCALISER("lost_nis_window_bearings")
-    lost_nis_probability: float = _LOCALISER("lost_nis_probability")
-    # after a break of the estimate's continuity (an operator's pose, an odometry jump or silence, a time
-    # jump, a re-initialisation after a kidnap or a lost test), the accepted bearings in a row that
-    # confirm it (`consistency.PoseConfirmation`; 0: the check is off)
-    confirming_bearings: int = _LOCALISER("confirming_bearings")
-
-    def __post_init__(self) -> None:
-        if self.kidnap_gated_bearings > self.kidnap_window_bearings:
-            raise ValueError(
-                f"need kidnap_gated_bearings <= kidnap_window_bearings, got "
-                f"{self.kidnap_gated_bearings} and {self.kidnap_window_bearings}"
-            )
-
-
-# the filter's own parameters, beside the pose's (bearing_ekf.POSE_SPECS), the blocks' and the Localiser's
-SETTINGS_SPECS = ParameterTable(
-    "ekf_node",
-    (
-        ParameterSpec(
-            "gate_probability",
-            0.999,
-            "Chi-square (1 dof) probability of the per-bearing validation gate.",
-            minimum=0.5,
-            maximum=0.999999,
-            runtime=True,
-        ),
-        *LOCALISER_SPECS.specs,
         ParameterSpec(
             "use_total_pose",
             True,
@@ -211,7 +148,40 @@ SETTINGS_SPECS = ParameterTable(
         ),
     ),
 )
-_SETTING = SETTINGS_SPECS.default
+_DEFAULT = SETTINGS_SPECS.default
+
+
+@dataclass(frozen=True)
+class LocaliserConfig:
+    """Timing and re-initialisation parameters (defaults suit 50 Hz odometry and a 10 Hz turret), each
+    described by its spec (SETTINGS_SPECS) but the two commented."""
+
+    odometry_history_s: float = _DEFAULT("odometry_history_s")
+    max_odometry_extrapolation_s: float = _DEFAULT("max_odometry_extrapolation_s")
+    odometry_gap_s: float = _DEFAULT("odometry_gap_s")
+    gap_position_variance_m2_per_s: float = _DEFAULT("gap_position_variance_m2_per_s")
+    gap_heading_variance_rad2_per_s: float = _DEFAULT("gap_heading_variance_rad2_per_s")
+    # a gap never inflates more than this long (the table bounds how lost the robot can be)
+    max_gap_inflation_s: float = 10.0
+    kidnap_gated_bearings: int = _DEFAULT("kidnap_gated_bearings")
+    kidnap_window_bearings: int = _DEFAULT("kidnap_window_bearings")
+    kidnap_probability: float = _DEFAULT("kidnap_probability")
+    kidnap_distance_m: float = _DEFAULT("kidnap_distance_m")
+    kidnap_heading_rad: float = _DEFAULT("kidnap_heading_rad")
+    # odometry stamps going back by more than this, in time_jump_confirmations consecutive messages,
+    # reset the filter (a bag loop); smaller steps, and a single stray old message, are dropped
+    time_jump_tolerance_s: float = 0.0
+    time_jump_confirmations: int = _DEFAULT("time_jump_confirmations")
+    lost_nis_window_bearings: int = _DEFAULT("lost_nis_window_bearings")
+    lost_nis_probability: float = _DEFAULT("lost_nis_probability")
+    confirming_bearings: int = _DEFAULT("confirming_bearings")
+
+    def __post_init__(self) -> None:
+        if self.kidnap_gated_bearings > self.kidnap_window_bearings:
+            raise ValueError(
+                f"need kidnap_gated_bearings <= kidnap_window_bearings, got "
+                f"{self.kidnap_gated_bearings} and {self.kidnap_window_bearings}"
+            )
 
 
 @dataclass(frozen=True)
@@ -225,17 +195,16 @@ class FilterSettings:
     defaults).
     """
 
-    process_noise: ProcessNoise = field(default_factory=lambda: process_noise_of(POSE_SPECS.defaults()))
+    process_noise: ProcessNoise = field(
+        default_factory=lambda: process_noise_of(BEARING_EKF_SPECS.defaults())
+    )
     odometry_errors: OdometryErrorStates | None = field(
         **block_field(ODOMETRY_ERROR_SPECS, odometry_error_states_of)
     )
-    # chi-square (1 dof) probability of the per-bearing gate
-    gate_probability: float = _SETTING("gate_probability")
+    gate_probability: float = BEARING_EKF_SPECS.default("gate_probability")
     localiser: LocaliserConfig = field(default_factory=LocaliserConfig)
-    # initialise (and re-initialise after a kidnapping) from ToTal's accepted poses
-    use_total_pose: bool = _SETTING("use_total_pose")
-    # standard deviations (m, m, rad) of a pose without a usable covariance
-    default_pose_sigma: tuple[float, float, float] = tuple(_SETTING("default_pose_sigma"))
+    use_total_pose: bool = _DEFAULT("use_total_pose")
+    default_pose_sigma: tuple[float, float, float] = tuple(_DEFAULT("default_pose_sigma"))
     # the robot's maximum speed and yaw rate: an odometry increment beyond them is a jump
     motion_limits: MotionLimits = field(default_factory=MotionLimits)
     # the power bias of uncalibrated bearings (estimated or considered); None: white noise
@@ -250,7 +219,7 @@ class FilterSettings:
     @property
     def blocks(self) -> tuple:
         """The state blocks past the pose, in order (None: off)."""
-        return tuple(getattr(self, name) for name, _, _ in registered_blocks(FilterSettings))
+        return tuple(getattr(self, name) for name, _, _ in registered_blocks(type(self)))
 
     @property
     def default_pose_covariance(self) -> np.ndarray:

@@ -113,8 +113,8 @@ def test_gate_rejects_an_outlier_and_accepts_a_consistent_bearing():
 
 def test_gate_threshold_is_the_chi_square_quantile():
     assert gate_threshold(0.95) == pytest.approx(3.841458820694124)
-    with pytest.raises(ValueError):
-        gate_threshold(1.0)
+    with pytest.raises(ValueError, match="gate_probability"):
+        filter_settings({"gate_probability": 1.0})
 
 
 @pytest.mark.parametrize(
