@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from beams_common.parameters import ParameterSpec, ParameterTable
-from beams_ekf.state_blocks import BearingPart, Sighting, StateBlock
+from beams_ekf.state_blocks import BeaconsXy, BearingPart, Sighting, StateBlock
 
 # the map frame needs three fixed beacons (its two translations and its rotation)
 MIN_FIXED_BEACONS = 3
@@ -84,9 +84,7 @@ class BeaconStates(StateBlock):
             )
         return None
 
-    def stale(
-        self, old_xy: Mapping[int, tuple[float, float]], new_xy: Mapping[int, tuple[float, float]]
-    ) -> list:
+    def stale(self, old_xy: BeaconsXy, new_xy: BeaconsXy) -> list:
         """A moved beacon's: the corrections learnt were relative to its old coordinates."""
         moved = [self._block(i) for i in self.beacon_ids if old_xy.get(i) != new_xy[i]]
         return [k for block in moved for k in range(block.start, block.stop)]
@@ -104,9 +102,7 @@ class BeaconStates(StateBlock):
             jacobian[block] = -sighting.d_pose[:2]
         return BearingPart(jacobian)
 
-    def learnt(
-        self, mean: np.ndarray, covariance: np.ndarray, beacons_xy: Mapping[int, tuple[float, float]]
-    ) -> dict[int, tuple[tuple[float, float], np.ndarray]]:
+    def learnt(self, mean: np.ndarray, covariance: np.ndarray, beacons_xy: BeaconsXy) -> dict[int, tuple]:
         """{id: ((x, y) learnt (m), its 2x2 covariance)} of the states (mean, covariance) and the
         configured map."""
         blocks = [(i, self._block(i)) for i in self.beacon_ids]

@@ -197,13 +197,8 @@ class PoseStates(StateBlock):
         m_along, m_across, m_heading = self.noise.robot_frame_variances(increment)
         c, s = cos(float(mean[2])), sin(float(mean[2]))
         cc, ss, cs = c * c, s * s, c * s
-        return np.array(
-            [
-                [cc * m_along + ss * m_across, cs * (m_along - m_across), 0.0],
-                [cs * (m_along - m_across), ss * m_along + cc * m_across, 0.0],
-                [0.0, 0.0, m_heading],
-            ]
-        )
+        xx, yy, xy = cc * m_along + ss * m_across, ss * m_along + cc * m_across, cs * (m_along - m_across)
+        return np.array([[xx, xy, 0.0], [xy, yy, 0.0], [0.0, 0.0, m_heading]])
 
     def bearing(self, mean: np.ndarray, sighting: Sighting, memory: Any) -> BearingPart:
         return BearingPart(sighting.d_pose)
@@ -221,10 +216,7 @@ class _OdometryEkf(ExtendedKalmanFilter):
 
 class BearingEkf:
     """EKF over the pose (x, y, theta) in the map frame and the `blocks` after it (None: skipped);
-    beacons identified by id, so no data association.
-
-    The first PoseFilter (pose_filter.py).
-    """
+    beacons identified by id, so no data association. The first PoseFilter (pose_filter.py)."""
 
     def __init__(
         self,
@@ -269,8 +261,7 @@ class BearingEkf:
             stale = block.stale(old, self.beacons_xy)
             at, x, p = np.arange(part.start, part.stop)[stale], self._ekf.x, self._ekf.P
             x[at, 0] = block.prior_mean[stale]
-            p[at, :] = 0.0
-            p[:, at] = 0.0
+            p[at, :], p[:, at] = 0.0, 0.0
             p[np.ix_(at, at)] = block.prior_covariance[np.ix_(stale, stale)]
 
     @property
@@ -301,10 +292,9 @@ class BearingEkf:
     def initialise(self, pose: Pose2D, covariance: np.ndarray) -> None:
         """Start (or restart) from a pose and its 3x3 covariance (ToTal's fix or an operator's pose).
 
-        The learnt blocks (odometry errors, power bias, turret offset, beacons) start from their prior the
-        first time; afterwards, a restart (after a kidnapping, a lost filter, a reset, a callback
-        exception) keeps what the bearings taught them, with their joint covariance (the odometry and the
-        sensor did not change), uncorrelated with the new pose.
+        The learnt blocks start from their prior the first time; afterwards, a restart (after a kidnapping,
+        a lost filter, a reset, a callback exception) keeps what the bearings taught them, with their joint
+        covariance (the odometry and the sensor did not change), uncorrelated with the new pose.
         """
         covariance = np.asarray(covariance, dtype=float).reshape(3, 3)
         if not (all(isfinite(v) for v in pose) and np.all(np.isfinite(covariance))):
@@ -360,11 +350,8 @@ class BearingEkf:
             if noise is not None:
                 q[part, part] = noise
         # Jacobian of compose(x, u) with respect to the pose
-        f[pose, pose] = [
-            [1.0, 0.0, -s * moved[0] - c * moved[1]],
-            [0.0, 1.0, c * moved[0] - s * moved[1]],
-            [0.0, 0.0, 1.0],
-        ]
+        dx, dy = moved[0], moved[1]
+        f[pose, pose] = [[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]]
         self._ekf.F, self._ekf.Q = f, q
         self._ekf.predict(u=moved)
 

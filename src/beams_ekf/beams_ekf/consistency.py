@@ -119,9 +119,8 @@ class KidnapEvidence:
         self._recent_gated.clear()
 
 
-# The accepted bearings in a row that confirm a pose (LocaliserConfig.confirming_bearings) come from at
-# least this many beacons: the bearings of a single beacon leave the position free along
-# the line to it.
+# The bearings that confirm a pose (LocaliserConfig.confirming_bearings) come from at least this many
+# beacons: the bearings of a single beacon leave the position free along the line to it.
 CONFIRMING_BEACONS = 2
 # An odometry silence (s, data time) this long breaks the estimate's continuity: ekf_health's lost test
 # says "no odometry" beyond the same 0.5 s (25 samples of 50 Hz odometry; a restarted odometry source

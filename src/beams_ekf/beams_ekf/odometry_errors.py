@@ -50,10 +50,9 @@ def arc_of_increment(increment: Pose2D) -> tuple[float, float]:
     return (increment[0] * a + increment[1] * b) / (a * a + b * b), increment[2]
 
 
-# ekf_node's parameters of the odometry error states (prior standard deviations: a few percent of scale and
-# of wheel base, the size sim_world's OdometryDrift gives a roughly calibrated robot: 1 % wheel radii, 0.4 %
-# mean slip, 1 % wheel base; a heading drift of 0.03 rad/m: a 0.5 % radius difference over a 0.3 m wheel
-# base is 0.017 rad/m)
+# The priors: a few percent of scale and of wheel base (what sim_world's OdometryDrift gives a roughly
+# calibrated robot: 1 % wheel radii, 0.4 % mean slip, 1 % wheel base), a heading drift of 0.03 rad/m (a
+# 0.5 % radius difference over a 0.3 m wheel base is 0.017 rad/m).
 _SIGMA_RANGE = {"minimum": 1e-6, "maximum": 1.0}
 ODOMETRY_ERROR_SPECS = ParameterTable(
     "ekf_node",

@@ -40,7 +40,6 @@ POWER_BIAS_MODES = ("estimate", "consider", "off")
 BASIS_SIZE = 4
 
 
-# ekf_node's parameters of the power-bias states
 POWER_BIAS_SPECS = ParameterTable(
     "ekf_node",
     (

@@ -19,6 +19,12 @@ from beams_ekf.power_bias_states import POWER_BIAS_SPECS, PowerBiasStates, power
 from beams_ekf.state_blocks import block_field, registered_blocks
 from beams_ekf.turret_offset_states import TURRET_OFFSET_SPECS, TurretOffsetStates, turret_offset_states_of
 
+# ranges shared by several parameters
+_UP_TO_1E3, _ONE_TO_1000, _ZERO_TO_1000 = (
+    {"minimum": 0.0, "maximum": 1.0e3},
+    {"minimum": 1, "maximum": 1000},
+    {"minimum": 0, "maximum": 1000},
+)
 # the settings' own parameters (LocaliserConfig's are its fields of the same names), beside the filter's
 # (bearing_ekf.BEARING_EKF_SPECS) and the blocks'
 SETTINGS_SPECS = ParameterTable(
@@ -46,30 +52,26 @@ SETTINGS_SPECS = ParameterTable(
             "gap_position_variance_m2_per_s",
             1.0e-3,
             "Position variance added per second of gap.",
-            minimum=0.0,
-            maximum=1.0e3,
+            **_UP_TO_1E3,
         ),
         ParameterSpec(
             "gap_heading_variance_rad2_per_s",
             1.0e-3,
             "Heading variance added per second of gap.",
-            minimum=0.0,
-            maximum=1.0e3,
+            **_UP_TO_1E3,
         ),
         ParameterSpec(
             "kidnap_gated_bearings",
             6,
             "Gated bearings, among the last kidnap_window_bearings, that make the filter "
             "lost (a ToTal pose elsewhere then re-initialises it).",
-            minimum=1,
-            maximum=1000,
+            **_ONE_TO_1000,
         ),
         ParameterSpec(
             "kidnap_window_bearings",
             12,
             "Number of recent bearings judged for kidnap_gated_bearings.",
-            minimum=1,
-            maximum=1000,
+            **_ONE_TO_1000,
         ),
         ParameterSpec(
             "kidnap_probability",
@@ -83,15 +85,13 @@ SETTINGS_SPECS = ParameterTable(
             "kidnap_distance_m",
             0.25,
             "Distance (m) from the estimate that always makes a ToTal pose 'elsewhere'.",
-            minimum=0.0,
-            maximum=1.0e3,
+            **_UP_TO_1E3,
         ),
         ParameterSpec(
             "kidnap_heading_rad",
             0.35,
             "Heading difference (rad) that always makes a ToTal pose 'elsewhere'.",
-            minimum=0.0,
-            maximum=1.0e3,
+            **_UP_TO_1E3,
         ),
         ParameterSpec(
             "time_jump_confirmations",
@@ -105,8 +105,7 @@ SETTINGS_SPECS = ParameterTable(
             "lost_nis_window_bearings",
             30,
             "Bearings whose NIS (normalised innovation squared) the lost test sums; 0 switches the test off.",
-            minimum=0,
-            maximum=1000,
+            **_ZERO_TO_1000,
         ),
         ParameterSpec(
             "lost_nis_probability",
@@ -127,8 +126,7 @@ SETTINGS_SPECS = ParameterTable(
             "that confirm the estimate after a break of its continuity (an operator's pose, an odometry "
             "jump or silence, a time jump, a re-initialisation after a kidnap or a lost test): the status "
             "is degraded until then; 0 switches the check off.",
-            minimum=0,
-            maximum=1000,
+            **_ZERO_TO_1000,
         ),
         ParameterSpec(
             "use_total_pose",
@@ -178,21 +176,19 @@ class LocaliserConfig:
 
     def __post_init__(self) -> None:
         if self.kidnap_gated_bearings > self.kidnap_window_bearings:
+            gated, window = self.kidnap_gated_bearings, self.kidnap_window_bearings
             raise ValueError(
-                f"need kidnap_gated_bearings <= kidnap_window_bearings, got "
-                f"{self.kidnap_gated_bearings} and {self.kidnap_window_bearings}"
+                f"need kidnap_gated_bearings <= kidnap_window_bearings, got {gated} and {window}"
             )
 
 
 @dataclass(frozen=True)
 class FilterSettings:
-    """What ekf_node takes from its parameters (besides the beacon geometry).
+    """What ekf_node takes from its parameters (besides the beacon geometry); the state blocks past the
+    pose are the `block_field`s, in the state's order (registering a block is its line here).
 
-    The state blocks past the pose are the `block_field`s, in the state's order (registering a block is
-    its line here). By default the filter estimates the odometry's systematic errors (`odometry_errors`),
-    so its process noise is the wheels' random noise alone (`ProcessNoise.wheel_noise`); without those
-    states the process noise must also cover the systematic errors as white noise (ProcessNoise's own
-    defaults).
+    By default the filter estimates the odometry's systematic errors, so its process noise is the wheels'
+    random noise alone (`ProcessNoise.wheel_noise`); without them it must also cover them as white noise.
     """
 
     process_noise: ProcessNoise = field(

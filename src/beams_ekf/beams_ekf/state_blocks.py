@@ -14,6 +14,8 @@ import numpy as np
 from beams_common.parameters import ParameterTable
 from beams_common.pose2d import Pose2D
 
+BeaconsXy = Mapping[int, tuple[float, float]]
+
 
 @dataclass
 class Sighting:
@@ -59,9 +61,7 @@ class StateBlock:
         """Why the block cannot run with a beacon map of these ids, or None."""
         return None
 
-    def stale(
-        self, old_xy: Mapping[int, tuple[float, float]], new_xy: Mapping[int, tuple[float, float]]
-    ) -> list:
+    def stale(self, old_xy: BeaconsXy, new_xy: BeaconsXy) -> list:
         """Indices (in the block) of the states a new beacon map puts back to their prior."""
         return []
 
