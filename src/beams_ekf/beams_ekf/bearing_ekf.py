@@ -210,7 +210,7 @@ class _OdometryEkf(ExtendedKalmanFilter):
 
     def predict_x(self, u: Pose2D = (0.0, 0.0, 0.0)) -> None:
         x = self.x.copy()
-        x[: PoseStates.size, 0] = compose(tuple(float(v) for v in self.x[: PoseStates.size, 0]), u)
+        x[: PoseStates.size, 0] = compose(tuple(self.x[: PoseStates.size, 0].tolist()), u)
         self.x = x
 
 
@@ -230,6 +230,7 @@ class BearingEkf:
         ends = np.cumsum([block.size for block in blocks])
         self._parts = [(b, slice(int(end - b.size), int(end))) for b, end in zip(blocks, ends, strict=True)]
         self._pose = self._parts[0][1]
+        self._heading = self._pose.stop - 1  # theta, the pose's last state
         self.dim = int(ends[-1])
         self._kept = np.array([i for b, p in self._parts if b.learnt for i in range(p.start, p.stop)], int)
         self._ekf = _OdometryEkf(dim_x=self.dim, dim_z=1)
@@ -272,7 +273,7 @@ class BearingEkf:
     @property
     def pose(self) -> Pose2D:
         """Current estimate (x, y, theta) in the map frame."""
-        x, y, theta = (float(v) for v in self._ekf.x[self._pose, 0])
+        x, y, theta = self._ekf.x[self._pose, 0].tolist()
         return (x, y, theta)
 
     @property
@@ -338,7 +339,7 @@ class BearingEkf:
         """Move by a robot-frame odometry increment (dx, dy, dtheta); P <- F P F' + G M G' (first order)."""
         x, pose = self._ekf.x, self._pose
         # the increment is expressed in the robot frame at the prior heading
-        theta = float(x[pose, 0][2])
+        theta = float(x[self._heading, 0])
         c, s = cos(theta), sin(theta)
         moved, f, q = increment, np.eye(self.dim), np.zeros((self.dim, self.dim))
         for block, part in self._parts:
@@ -376,13 +377,18 @@ class BearingEkf:
             expected, sighting.d_pose = bearing_measurement(sighting.pose, sighting.beacon_xy, sighting.lever)
         except ZeroDivisionError:
             raise ZeroDivisionError(f"the sensor is on beacon {beacon_id}") from None
-        jacobian, frozen = np.zeros((1, self.dim)), np.zeros(self.dim, dtype=bool)
+        jacobian, learning = np.zeros((1, self.dim)), []
         for (block, part), memory in zip(self._parts, self._memory, strict=True):
             jacobian[0, part], shift, learns = block.bearing(x[part, 0], sighting, memory)
-            frozen[part] = not learns or (sighting.pose_only and block.learnt)
+            learning.append(learns)
             if shift is not None:
                 expected = wrap_to_pi(expected + shift)
-        self._frozen = frozen
+        # once every block has seen the bearing: pose_only freezes every learnt block
+        self._frozen = [
+            part
+            for (block, part), learns in zip(self._parts, learning, strict=True)
+            if not learns or (sighting.pose_only and block.learnt)
+        ]
         return expected, jacobian
 
     def update_bearing(
@@ -412,8 +418,7 @@ class BearingEkf:
         if nis > self.gate:
             return BearingOutcome(False, nis, residual, BearingReason.GATED)
         self._joseph_update(jacobian, variance_rad2, residual, innovation_variance, self._frozen)
-        heading = self._ekf.x[self._pose][2:]
-        heading[0, 0] = wrap_to_pi(float(heading[0, 0]))
+        self._ekf.x[self._heading, 0] = wrap_to_pi(float(self._ekf.x[self._heading, 0]))
         # rounding drifts P from symmetric: after a wide prior (sigma 4 m) by more than the 1e-9 the
         # published-estimate invariant allows (else every later estimate is refused)
         self._ekf.P = 0.5 * (self._ekf.P + self._ekf.P.T)
@@ -425,7 +430,7 @@ class BearingEkf:
         variance_rad2: float,
         residual: float,
         innovation_variance: float,
-        frozen: np.ndarray,
+        frozen: list[slice],
     ) -> None:
         """x += K r, P = (I - K H) P (I - K H)' + K R K' (filterpy's form), K = P H' / S; the gain rows
         of the `frozen` states (consider parameters; the power bias for a bearing that cannot teach it;
@@ -433,7 +438,8 @@ class BearingEkf:
         Joseph form stays right for that gain."""
         p = self._ekf.P
         gain = (p @ jacobian.T) / innovation_variance
-        gain[frozen] = 0.0
+        for part in frozen:
+            gain[part] = 0.0
         reduce = np.eye(self.dim) - gain @ jacobian
         self._ekf.x = self._ekf.x + gain * residual
         self._ekf.P = reduce @ p @ reduce.T + variance_rad2 * (gain @ gain.T)

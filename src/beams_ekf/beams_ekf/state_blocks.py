@@ -6,7 +6,7 @@ and slices the state by their sizes (docs/state_blocks.md).
 """
 
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -17,7 +17,7 @@ from beams_common.pose2d import Pose2D
 BeaconsXy = Mapping[int, tuple[float, float]]
 
 
-@dataclass
+@dataclass(slots=True)
 class Sighting:
     """One bearing as the blocks see it, h(x) = atan2(yb - ys, xb - xs) - theta - ptheta: the turret
     at `lever` in the robot frame (`bearing_ekf.turret_pose`), `d_pose` = dh/d(x, y, theta) once h is
@@ -29,7 +29,7 @@ class Sighting:
     lever: Pose2D
     beacon_xy: tuple[float, float]
     window_rad: float = 0.0
-    d_pose: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    d_pose: np.ndarray | None = None
     pose_only: bool = False
 
 

@@ -149,3 +149,23 @@ def test_the_example_block_learns_a_constant_offset_and_a_reinitialisation_keeps
     ekf.reset(forget_learnt=True)
     ekf.initialise(POSE, sigma)
     assert ekf.estimate(BearingOffsetStates)[0] == 0.0  # forgotten: the prior again
+
+
+def test_a_bearing_whose_bias_is_not_modelled_yet_teaches_no_learnt_block():
+    """An uncalibrated bearing before the window fit is ready updates the pose alone (power_bias_states):
+    the odometry errors, registered before the power bias, are frozen too; a calibrated one teaches them
+    through their cross-covariance with the pose."""
+    ekf = BearingEkf(EUROBOT_BEACON_MAP.as_dict(), OFFSET, blocks=(OdometryErrorStates(), PowerBiasStates()))
+    ekf.initialise(POSE, np.eye(3) * 1e-4)
+    ekf.predict((0.3, 0.0, 0.5))  # correlates the pose with the odometry errors
+    before = [ekf.estimate(kind)[0] for kind in (OdometryErrorStates, PowerBiasStates)]
+    pose = ekf.pose
+    assert ekf.update_bearing(
+        1, ekf.predicted_bearing(1)[0] + 2e-3, 1e-6, uncorrected_window_rad=0.09
+    ).accepted
+    assert ekf.pose != pose
+    for kind, mean in zip((OdometryErrorStates, PowerBiasStates), before, strict=True):
+        np.testing.assert_array_equal(ekf.estimate(kind)[0], mean)
+    assert ekf.update_bearing(1, ekf.predicted_bearing(1)[0] + 2e-3, 1e-6).accepted
+    assert np.any(ekf.estimate(OdometryErrorStates)[0] != before[0])
+    np.testing.assert_array_equal(ekf.estimate(PowerBiasStates)[0], before[1])  # calibrated: no bias
