@@ -91,8 +91,7 @@ class ProcessNoise:
 
 
 def gate_threshold(probability: float) -> float:
-    """Chi-square (1 dof) quantile that a consistent innovation stays under with `probability` (its
-    range: the gate_probability spec's)."""
+    """Chi-square (1 dof) quantile that a consistent innovation stays under with `probability`."""
     return float(chi2.ppf(probability, df=1))
 
 
@@ -205,8 +204,7 @@ class PoseStates(StateBlock):
 
 
 class _OdometryEkf(ExtendedKalmanFilter):
-    """filterpy's EKF with the nonlinear odometry composition of the pose (the first block) as its state
-    transition (the other blocks are constants)."""
+    """filterpy's EKF whose state transition composes the pose (the first block) with the odometry."""
 
     def predict_x(self, u: Pose2D = (0.0, 0.0, 0.0)) -> None:
         x = self.x.copy()
@@ -384,11 +382,8 @@ class BearingEkf:
             if shift is not None:
                 expected = wrap_to_pi(expected + shift)
         # once every block has seen the bearing: pose_only freezes every learnt block
-        self._frozen = [
-            part
-            for (block, part), learns in zip(self._parts, learning, strict=True)
-            if not learns or (sighting.pose_only and block.learnt)
-        ]
+        judged = zip(self._parts, learning, strict=True)
+        self._frozen = [p for (b, p), learns in judged if not learns or (sighting.pose_only and b.learnt)]
         return expected, jacobian
 
     def update_bearing(

@@ -120,9 +120,8 @@ class OdometryErrorStates(StateBlock):
 
 def odometry_error_states_of(values: Mapping[str, Any]) -> OdometryErrorStates | None:
     """The states of ekf_node's validated parameter values; None when odometry_error_states is false."""
-    if not values["odometry_error_states"]:
-        return None
-    return OdometryErrorStates(*(float(values[name]) for name in _SIGMAS))
+    on = values["odometry_error_states"]
+    return OdometryErrorStates(*(float(values[name]) for name in _SIGMAS)) if on else None
 
 
 def corrected_increment(increment: Pose2D, errors: np.ndarray) -> tuple[Pose2D, np.ndarray, np.ndarray]:

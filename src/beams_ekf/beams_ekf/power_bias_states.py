@@ -110,8 +110,7 @@ class PowerBiasStates(StateBlock):
         return WindowFit()
 
     def bearing(self, mean: np.ndarray, sighting: Sighting, memory: "WindowFit") -> BearingPart:
-        """f(w) at the fitted window and its basis; until the window fit is ready the noisy measured
-        window only carries the bias's uncertainty."""
+        """f(w) at the fitted window (until the fit is ready, the measured one: the bias's uncertainty)."""
         if sighting.window_rad <= 0.0:
             return BearingPart(np.zeros(BASIS_SIZE), learns=False)
         turret = compose(sighting.pose, sighting.lever)
@@ -189,10 +188,6 @@ class WindowFit:
 def power_bias_states_of(values: Mapping[str, Any]) -> PowerBiasStates | None:
     """The states of ekf_node's validated parameter values; None when 'off'. ValueError for a window
     range that is not increasing."""
-    if values["power_bias_states"] == "off":
-        return None
-    return PowerBiasStates(
-        tuple(values["power_bias_window_range_rad"]),
-        float(values["power_bias_sigma_rad"]),
-        estimate=values["power_bias_states"] == "estimate",
-    )
+    mode, sigma = values["power_bias_states"], float(values["power_bias_sigma_rad"])
+    window = tuple(values["power_bias_window_range_rad"])
+    return None if mode == "off" else PowerBiasStates(window, sigma, estimate=mode == "estimate")
