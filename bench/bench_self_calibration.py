@@ -124,8 +124,8 @@ def bias_curve_error_rad(localiser: Localiser, match: SimulatedMatch) -> float:
     """RMS over the windows the table gives (0.2 m to 3.7 m from a beacon) of the estimated power bias
     minus the simulated one, both less their mean (a constant bias is the heading's)."""
     config = sensor_config_of(SENSOR_MODEL)
-    states = localiser.ekf.power_bias
-    coefficients, _ = localiser.ekf.power_bias_estimate
+    states = localiser.ekf.block(PowerBiasStates)
+    coefficients, _ = localiser.ekf.estimate(PowerBiasStates)
     windows = config.window_rad(np.linspace(0.2, 3.7, 200))
     estimated = np.array([states.bias_rad(coefficients, w) for w in windows])
     true = config.hardware.power_bias_rad(windows)

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise
+from beams_ekf.bearing_ekf import WHEEL_BASE_M, WHEEL_VARIANCE_M2_PER_M, BearingEkf, ProcessNoise
 from beams_ekf.localiser import Localiser, build_localiser
 from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.parameters import filter_settings
-from beams_ekf.settings import WHEEL_BASE_M, WHEEL_VARIANCE_M2_PER_M, FilterSettings
+from beams_ekf.settings import FilterSettings
 from beams_sim.simulated_match import simulate_match
 from beams_sim.world import OdometryDrift
 from beams_thesis.match_replay import replay_match
@@ -55,7 +55,7 @@ def test_error_states_converge_to_the_simulated_drift():
     match = simulate_match(30.0, 3)
     localiser = _node_filter(match)
     replay_match(localiser, match, *_start(match))
-    estimate, covariance = localiser.ekf.odometry_error_estimate
+    estimate, covariance = localiser.ekf.estimate(OdometryErrorStates)
     drift = OdometryDrift()
     # reported = true (1 + scale error)(1 + slip), the slip half-normal of mean slip_std sqrt(2/pi)
     reported_per_true = (1 + 0.5 * (drift.left_scale_error + drift.right_scale_error)) * (
@@ -116,22 +116,22 @@ def test_error_states_hold_the_pose_while_two_beacons_are_hidden(seed):
 
 
 def test_reinitialisation_keeps_the_learnt_odometry_errors():
-    ekf = BearingEkf(EUROBOT_BEACON_MAP.as_dict(), odometry_errors=OdometryErrorStates())
+    ekf = BearingEkf(EUROBOT_BEACON_MAP.as_dict(), blocks=(OdometryErrorStates(),))
     ekf.initialise((1.0, 1.0, 0.0), np.diag([1e-4, 1e-4, 1e-4]))
-    assert ekf.odometry_error_estimate[0] == pytest.approx([1.0, 1.0, 0.0])
+    assert ekf.estimate(OdometryErrorStates)[0] == pytest.approx([1.0, 1.0, 0.0])
     for _ in range(50):
         ekf.predict((0.01, 0.0, 0.0))
         expected, _ = ekf.predicted_bearing(3)
         ekf.update_bearing(3, expected + 2e-4, 1e-7)  # the robot is farther along than odometry says
-    learnt, learnt_covariance = ekf.odometry_error_estimate
+    learnt, learnt_covariance = ekf.estimate(OdometryErrorStates)
     assert learnt[0] > 1.0 and ekf.covariance.shape == (3, 3)
     ekf.initialise((2.0, 1.0, 0.0), np.diag([1e-4, 1e-4, 1e-4]))
-    kept, kept_covariance = ekf.odometry_error_estimate
+    kept, kept_covariance = ekf.estimate(OdometryErrorStates)
     np.testing.assert_array_equal(kept, learnt)
     np.testing.assert_array_equal(kept_covariance, learnt_covariance)
     ekf.reset()  # a reset (a callback exception, ~/reset) keeps them too (issue 19)
     ekf.initialise((2.0, 1.0, 0.0), np.diag([1e-4, 1e-4, 1e-4]))
-    np.testing.assert_array_equal(ekf.odometry_error_estimate[0], learnt)
+    np.testing.assert_array_equal(ekf.estimate(OdometryErrorStates)[0], learnt)
     ekf.reset(forget_learnt=True)  # the data start again (a time jump)
     ekf.initialise((2.0, 1.0, 0.0), np.diag([1e-4, 1e-4, 1e-4]))
-    assert ekf.odometry_error_estimate[0] == pytest.approx([1.0, 1.0, 0.0])
+    assert ekf.estimate(OdometryErrorStates)[0] == pytest.approx([1.0, 1.0, 0.0])

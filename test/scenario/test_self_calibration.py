@@ -199,7 +199,7 @@ def test_the_turret_offset_is_learnt_while_driving(tmp_path):
         localiser = build_localiser(EUROBOT_BEACON_MAP.as_dict(), (0.0, 0.0), settings)
         results[states] = (replay_match(localiser, match, start, covariance, (), calibrated=False), localiser)
     learnt, localiser = results[TurretOffsetStates(0.03)]
-    estimate, offset_covariance = localiser.ekf.turret_offset_estimate
+    estimate, offset_covariance = localiser.ekf.estimate(TurretOffsetStates)
     assert np.hypot(*(estimate - true_offset)) < 1e-3
     assert np.all(np.sqrt(np.diag(offset_covariance)) < 1e-3)
     rms, mean_nees = _pooled([learnt], 30.0, 90.0)

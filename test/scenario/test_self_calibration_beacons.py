@@ -18,7 +18,7 @@ from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_common.calibration_file import load_calibration
 from beams_common.pose_intake import PoseSource, planar_pose_intake
 from beams_driver.parameters import SENSOR_PARAMETERS, variance_model_of
-from beams_ekf.beacon_states import BeaconStates, beacon_states_of
+from beams_ekf.beacon_states import BEACON_STATE_SPECS, BeaconStates, beacon_states_of
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import FilterSettings, build_localiser
 from beams_ekf.parameters import filter_settings
@@ -69,7 +69,8 @@ def learnt():
 
 def test_a_fourth_beacon_off_its_map_position_is_learnt_while_driving(learnt, tmp_path):
     result, localiser = learnt
-    (xy, covariance) = localiser.ekf.beacon_estimate[4]
+    ekf = localiser.ekf
+    (xy, covariance) = ekf.block(BeaconStates).learnt(*ekf.estimate(BeaconStates), ekf.beacons_xy)[4]
     # 3.6 cm off at the start; observability analysis: to 0.2 mm (docs/self_calibration.md)
     assert np.hypot(xy[0] - TRUE_XY[0], xy[1] - TRUE_XY[1]) < LEARNT_WITHIN_M
     assert np.all(np.sqrt(np.diag(covariance)) < LEARNT_WITHIN_M)
@@ -91,16 +92,18 @@ def test_without_the_states_the_misplaced_beacon_makes_the_filter_overconfident(
 
 
 def test_estimated_beacons_need_three_fixed_ones():
-    assert beacon_states_of({"estimated_beacons": ""}) is None
-    assert beacon_states_of({"estimated_beacons": "4"}) == BeaconStates((4,), 0.05)
+    assert beacon_states_of({**BEACON_STATE_SPECS.defaults(), "estimated_beacons": ""}) is None
+    assert beacon_states_of({**BEACON_STATE_SPECS.defaults(), "estimated_beacons": "4"}) == BeaconStates(
+        (4,), 0.05
+    )
     assert filter_settings({"estimated_beacons": "4, 5"}).beacon_states.beacon_ids == (4, 5)
     with pytest.raises(ValueError, match="3"):
-        BearingEkf(EUROBOT_BEACON_MAP.as_dict(), beacons=BeaconStates((3,)))
+        BearingEkf(EUROBOT_BEACON_MAP.as_dict(), blocks=(BeaconStates((3,)),))
     with pytest.raises(ValueError, match="not in the beacon map"):
-        BearingEkf(MAP.as_dict(), beacons=BeaconStates((7,)))
+        BearingEkf(MAP.as_dict(), blocks=(BeaconStates((7,)),))
     with pytest.raises(ValueError, match="estimated_beacons"):
         filter_settings({"estimated_beacons": "four"})
-    BearingEkf(MAP.as_dict(), beacons=BeaconStates((4,)))  # four beacons, three fixed
+    BearingEkf(MAP.as_dict(), blocks=(BeaconStates((4,)),))  # four beacons, three fixed
 
 
 def test_a_reinitialisation_keeps_what_was_learnt_of_the_sensor():
@@ -110,7 +113,7 @@ def test_a_reinitialisation_keeps_what_was_learnt_of_the_sensor():
     match = default_driver_match(60.0, 0, calibrated=False)
     _, localiser = run(match, PowerBiasStates(), calibrated=False)
     ekf = localiser.ekf
-    bias, bias_covariance = ekf.power_bias_estimate
+    bias, bias_covariance = ekf.estimate(PowerBiasStates)
     prior = PowerBiasStates().prior_covariance
     assert np.trace(bias_covariance) < 0.5 * np.trace(prior)  # learnt something
     before = ekf.state()
@@ -128,13 +131,13 @@ def test_a_reinitialisation_keeps_what_was_learnt_of_the_sensor():
         assert np.array_equal(x[3:], before[0][3:])
         assert np.array_equal(p[3:, 3:], before[1][3:, 3:])
         assert not p[:3, 3:].any()  # uncorrelated with the new pose
-    assert np.array_equal(ekf.power_bias_estimate[0], bias)
+    assert np.array_equal(ekf.estimate(PowerBiasStates)[0], bias)
 
 
 def test_a_reinitialisation_after_a_failed_update_starts_the_states_from_their_prior():
-    ekf = BearingEkf(EUROBOT_BEACON_MAP.as_dict(), power_bias=PowerBiasStates())
+    ekf = BearingEkf(EUROBOT_BEACON_MAP.as_dict(), blocks=(PowerBiasStates(),))
     ekf.initialise((1.0, 1.0, 0.0), np.eye(3) * 1e-4)
     ekf._ekf.P[4, 4] = np.nan  # a callback exception halfway through an update
     ekf.reset()
     ekf.initialise((1.0, 1.0, 0.0), np.eye(3) * 1e-4)
-    assert np.allclose(ekf.power_bias_estimate[1], PowerBiasStates().prior_covariance)
+    assert np.allclose(ekf.estimate(PowerBiasStates)[1], PowerBiasStates().prior_covariance)

@@ -11,8 +11,7 @@ import numpy as np
 import pytest
 
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_ekf.bearing_ekf import ProcessNoise
-from beams_ekf.settings import WHEEL_BASE_M, WHEEL_VARIANCE_M2_PER_M
+from beams_ekf.bearing_ekf import WHEEL_BASE_M, WHEEL_VARIANCE_M2_PER_M, ProcessNoise
 from beams_sim.simulated_match import sensor_config_of
 from beams_sim.world import EurobotTrajectory
 from beams_thesis.observability import parameter_information

@@ -140,6 +140,10 @@ class ParameterTable:
     def names(self) -> tuple[str, ...]:
         return tuple(spec.name for spec in self.specs)
 
+    def default(self, name: str) -> Value:
+        """The default of parameter `name` (its spec's: the one source of a setting's default)."""
+        return self[name].default
+
     def defaults(self) -> dict[str, Any]:
         return {spec.name: spec.default for spec in self.specs}
 

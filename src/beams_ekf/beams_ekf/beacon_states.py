@@ -10,31 +10,51 @@ position plus its correction. Freeing a beacon when fewer than three others stay
 frame itself (two translations, one rotation) unobservable: refused.
 """
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from beams_common.parameters import ParameterSpec
+from beams_common.parameters import ParameterSpec, ParameterTable
+from beams_ekf.state_blocks import BeaconsXy, BearingPart, Sighting, StateBlock
 
 # the map frame needs three fixed beacons (its two translations and its rotation)
 MIN_FIXED_BEACONS = 3
 COORDINATES = 2
 
+BEACON_STATE_SPECS = ParameterTable(
+    "ekf_node",
+    (
+        ParameterSpec(
+            "estimated_beacons",
+            "",
+            "Ids of the beacons whose coordinates the EKF learns while driving, comma-separated (e.g. '4'); "
+            "at least 3 beacons must stay fixed (they define the map frame); written by ~/save_calibration. "
+            "Empty (default): every beacon's coordinates are taken as exact.",
+        ),
+        ParameterSpec(
+            "estimated_beacon_sigma_m",
+            0.05,
+            "Prior standard deviation (m) of each coordinate of an estimated beacon (estimated_beacons).",
+            minimum=1e-4,
+            maximum=1.0,
+        ),
+    ),
+)
+
 
 @dataclass(frozen=True)
-class BeaconStates:
+class BeaconStates(StateBlock):
     """The corrections (dx, dy) (m) of the coordinates of `beacon_ids`, in the map frame."""
 
     beacon_ids: tuple[int, ...]
-    prior_sigma_m: float = 0.05
+    prior_sigma_m: float = BEACON_STATE_SPECS.default("estimated_beacon_sigma_m")
 
     def __post_init__(self) -> None:
         ids = tuple(int(i) for i in self.beacon_ids)
         if not ids or len(set(ids)) != len(ids):
             raise ValueError(f"estimated beacons: need distinct ids, got {list(self.beacon_ids)}")
-        if not (np.isfinite(self.prior_sigma_m) and self.prior_sigma_m > 0.0):
-            raise ValueError(f"beacon coordinate prior sigma must be > 0, got {self.prior_sigma_m}")
         object.__setattr__(self, "beacon_ids", ids)
 
     @property
@@ -42,23 +62,19 @@ class BeaconStates:
         return COORDINATES * len(self.beacon_ids)
 
     @property
-    def prior_mean(self) -> np.ndarray:
-        return np.zeros(self.size)
-
-    @property
     def prior_covariance(self) -> np.ndarray:
         return self.prior_sigma_m**2 * np.eye(self.size)
 
-    def offset_of(self, beacon_id: int) -> int | None:
-        """Index of the beacon's dx within the block (dy follows), None for a fixed beacon."""
-        return COORDINATES * self.beacon_ids.index(beacon_id) if beacon_id in self.beacon_ids else None
+    def _block(self, beacon_id: int) -> slice | None:
+        """The beacon's (dx, dy) in the block, None for a fixed beacon."""
+        k = self.beacon_ids.index(beacon_id) if beacon_id in self.beacon_ids else None
+        return None if k is None else slice(COORDINATES * k, COORDINATES * (k + 1))
 
-    def problem(self, map_ids: Iterable[int]) -> str | None:
-        """Why these states cannot run with a map of `map_ids`, or None."""
-        map_ids = tuple(map_ids)
+    def problem(self, beacon_ids: Iterable[int]) -> str | None:
+        map_ids = [int(i) for i in beacon_ids]
         unknown = [i for i in self.beacon_ids if i not in map_ids]
         if unknown:
-            return f"estimated_beacons {unknown} not in the beacon map {list(map_ids)}"
+            return f"estimated_beacons {unknown} not in the beacon map {map_ids}"
         fixed = len(map_ids) - len(self.beacon_ids)
         if fixed < MIN_FIXED_BEACONS:
             return (
@@ -68,23 +84,32 @@ class BeaconStates:
             )
         return None
 
+    def stale(self, old_xy: BeaconsXy, new_xy: BeaconsXy) -> list:
+        """A moved beacon's: the corrections learnt were relative to its old coordinates."""
+        moved = [self._block(i) for i in self.beacon_ids if old_xy.get(i) != new_xy[i]]
+        return [k for block in moved for k in range(block.start, block.stop)]
 
-BEACON_STATE_PARAMETERS = (
-    ParameterSpec(
-        "estimated_beacons",
-        "",
-        "Ids of the beacons whose coordinates the EKF learns while driving, comma-separated (e.g. '4'); "
-        "at least 3 beacons must stay fixed (they define the map frame); written by ~/save_calibration. "
-        "Empty (default): every beacon's coordinates are taken as exact.",
-    ),
-    ParameterSpec(
-        "estimated_beacon_sigma_m",
-        0.05,
-        "Prior standard deviation (m) of each coordinate of an estimated beacon (estimated_beacons).",
-        minimum=1e-4,
-        maximum=1.0,
-    ),
-)
+    def shift(self, mean: np.ndarray, sighting: Sighting) -> None:
+        block = self._block(sighting.beacon_id)
+        if block is not None:
+            xy, (dx, dy) = sighting.beacon_xy, mean[block]
+            sighting.beacon_xy = (xy[0] + float(dx), xy[1] + float(dy))
+
+    def bearing(self, mean: np.ndarray, sighting: Sighting, memory: Any) -> BearingPart:
+        """The bearing depends on the beacon minus the turret: dh/d(beacon) = -dh/d(robot position)."""
+        jacobian, block = np.zeros(self.size), self._block(sighting.beacon_id)
+        if block is not None:
+            jacobian[block] = -sighting.d_pose[:2]
+        return BearingPart(jacobian)
+
+    def learnt(self, mean: np.ndarray, covariance: np.ndarray, beacons_xy: BeaconsXy) -> dict[int, tuple]:
+        """{id: ((x, y) learnt (m), its 2x2 covariance)} of the states (mean, covariance) and the
+        configured map."""
+        blocks = [(i, self._block(i)) for i in self.beacon_ids]
+        return {
+            i: (tuple(float(v) for v in np.add(beacons_xy[i], mean[b])), covariance[b, b].copy())
+            for i, b in blocks
+        }
 
 
 def parse_beacon_ids(text: str) -> tuple[int, ...]:
@@ -95,10 +120,7 @@ def parse_beacon_ids(text: str) -> tuple[int, ...]:
         raise ValueError(f"estimated_beacons: need comma-separated beacon ids, got {text!r}") from None
 
 
-def beacon_states_of(values: dict) -> BeaconStates | None:
-    """The states of ekf_node's parameter values; None when estimated_beacons is empty (the default)."""
-    ids = parse_beacon_ids(str(values.get("estimated_beacons", BEACON_STATE_PARAMETERS[0].default)))
-    if not ids:
-        return None
-    sigma_m = float(values.get("estimated_beacon_sigma_m", BEACON_STATE_PARAMETERS[1].default))
-    return BeaconStates(ids, sigma_m)
+def beacon_states_of(values: Mapping[str, Any]) -> BeaconStates | None:
+    """The states of ekf_node's validated parameter values; None when estimated_beacons is empty."""
+    ids = parse_beacon_ids(str(values["estimated_beacons"]))
+    return BeaconStates(ids, float(values["estimated_beacon_sigma_m"])) if ids else None

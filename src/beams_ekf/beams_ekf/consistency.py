@@ -119,17 +119,8 @@ class KidnapEvidence:
         self._recent_gated.clear()
 
 
-# Accepted bearings in a row, with no gated one between them, that confirm a pose after a break of
-# continuity: three revolutions of the three beacons, 0.3 s at 10 Hz. Three bearings of one revolution
-# fix a pose on their own (ToTal), so a pose 0.5 m off cannot have them all inside its gate: each gated
-# one starts the count again, and 6 gated of the last 12 make the kidnap evidence that re-initialises
-# from ToTal; three revolutions in a row leave the filter three updates of each beacon to pull a slightly
-# wrong pose in before it is called tracking. Counted in bearings, not in calls:
-# a revolution's bearings can reach the filter in two parts (those stamped after the newest odometry wait
-# for it) and the offline replay feeds them one by one.
-CONFIRMING_BEARINGS = 9
-# ... from at least this many beacons: the bearings of a single beacon leave the position free along
-# the line to it.
+# The bearings that confirm a pose (LocaliserConfig.confirming_bearings) come from at least this many
+# beacons: the bearings of a single beacon leave the position free along the line to it.
 CONFIRMING_BEACONS = 2
 # Odometry silent this long (s) leaves the estimate behind a moving robot (25 samples of 50 Hz odometry,
 # 0.25 m at 0.5 m/s): in data time it breaks the estimate's continuity (a restarted odometry source that
@@ -150,9 +141,7 @@ class PoseConfirmation:
     evidence that the world broke the estimate (the fix may straddle it).
     """
 
-    def __init__(self, confirming_bearings: int = CONFIRMING_BEARINGS) -> None:
-        if confirming_bearings < 0:
-            raise ValueError(f"confirming_bearings must be >= 0, got {confirming_bearings}")
+    def __init__(self, confirming_bearings: int) -> None:
         self.confirming_bearings = confirming_bearings
         self._event = ""  # '' when confirmed
         self._run: list[int] = []  # beacon ids of the accepted bearings in a row since the event

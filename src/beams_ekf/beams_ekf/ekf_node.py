@@ -150,7 +150,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         by the returned step."""
         geometry = runtime_geometry(values, changed, self.geometry)
         settings = filter_settings(values)
-        problem = settings.beacon_states and settings.beacon_states.problem(geometry.beacon_map.ids)
+        problem = next(filter(None, (b.problem(geometry.beacon_map.ids) for b in settings.blocks if b)), None)
         if problem:
             raise ValueError(problem)
         tolerance = stamp_tolerance_of(values)

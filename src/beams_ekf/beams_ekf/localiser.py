@@ -339,14 +339,7 @@ def build_localiser(
 ) -> Localiser:
     """The Localiser of a beacon map ({id: (x, y)}), a turret offset (m) and the filter settings."""
     ekf = BearingEkf(
-        beacons_xy,
-        sensor_offset_m,
-        settings.process_noise,
-        settings.gate_probability,
-        settings.odometry_errors,
-        settings.power_bias,
-        settings.turret_offset,
-        settings.beacon_states,
+        beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability, settings.blocks
     )
     return Localiser(ekf, settings.localiser, settings.motion_limits, settings.default_pose_covariance)
 

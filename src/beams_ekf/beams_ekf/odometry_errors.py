@@ -15,12 +15,16 @@ wheel radii turn the robot while it drives straight). With them as states, the p
 the wheels' random noise, per step.
 """
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from math import cos, isfinite, sin
+from math import cos, hypot, sin
+from typing import Any
 
 import numpy as np
 
+from beams_common.parameters import ParameterSpec, ParameterTable
 from beams_common.pose2d import Pose2D
+from beams_ekf.state_blocks import StateBlock
 
 # below this turn (rad) the arc functions use their Taylor series (the closed forms lose precision)
 _SMALL_TURN_RAD = 1e-4
@@ -46,27 +50,54 @@ def arc_of_increment(increment: Pose2D) -> tuple[float, float]:
     return (increment[0] * a + increment[1] * b) / (a * a + b * b), increment[2]
 
 
+# The priors: a few percent of scale and of wheel base (what sim_world's OdometryDrift gives a roughly
+# calibrated robot: 1 % wheel radii, 0.4 % mean slip, 1 % wheel base), a heading drift of 0.03 rad/m (a
+# 0.5 % radius difference over a 0.3 m wheel base is 0.017 rad/m).
+_SIGMA_RANGE = {"minimum": 1e-6, "maximum": 1.0}
+ODOMETRY_ERROR_SPECS = ParameterTable(
+    "ekf_node",
+    (
+        ParameterSpec(
+            "odometry_error_states",
+            True,
+            "Estimate the odometry's systematic errors (distance scale, rotation scale, "
+            "heading drift per metre) as filter states.",
+        ),
+        ParameterSpec(
+            "odometry_scale_sigma",
+            0.02,
+            "Prior standard deviation of the odometry's distance scale.",
+            **_SIGMA_RANGE,
+        ),
+        ParameterSpec(
+            "odometry_rotation_scale_sigma",
+            0.02,
+            "Prior standard deviation of the odometry's rotation scale (wheel base).",
+            **_SIGMA_RANGE,
+        ),
+        ParameterSpec(
+            "odometry_heading_drift_sigma_rad_per_m",
+            0.03,
+            "Prior standard deviation of the heading drift per metre driven (unequal wheel radii, rad/m).",
+            **_SIGMA_RANGE,
+        ),
+    ),
+)
+_SIGMAS = ("odometry_scale_sigma", "odometry_rotation_scale_sigma", "odometry_heading_drift_sigma_rad_per_m")
+
+
 @dataclass(frozen=True)
-class OdometryErrorStates:
-    """Optional filter states (k_s, k_theta, h) for the odometry's systematic errors, with their prior.
+class OdometryErrorStates(StateBlock):
+    """Filter states (k_s, k_theta, h) for the odometry's systematic errors, with their prior: each
+    prediction applies the increment they correct (`corrected_increment`), and the bearings estimate
+    them through the pose's cross-covariance with them."""
 
-    Prior standard deviations: a few percent of scale and of wheel base (the size sim_world's
-    OdometryDrift gives a roughly calibrated robot: 1 % wheel radii, 0.4 % mean slip, 1 % wheel base)
-    and a heading drift of 0.03 rad/m (a 0.5 % radius difference over a 0.3 m wheel base is 0.017 rad/m).
-    """
-
-    scale_sigma: float = 0.02
-    rotation_scale_sigma: float = 0.02
-    heading_drift_sigma_rad_per_m: float = 0.03
+    scale_sigma: float = ODOMETRY_ERROR_SPECS.default(_SIGMAS[0])
+    rotation_scale_sigma: float = ODOMETRY_ERROR_SPECS.default(_SIGMAS[1])
+    heading_drift_sigma_rad_per_m: float = ODOMETRY_ERROR_SPECS.default(_SIGMAS[2])
     # random walk of the three states per metre travelled (0: constants, as in the simulator)
     walk_variance_per_m: float = 0.0
-
-    def __post_init__(self) -> None:
-        sigmas = (self.scale_sigma, self.rotation_scale_sigma, self.heading_drift_sigma_rad_per_m)
-        if not all(isfinite(v) and v > 0.0 for v in sigmas):
-            raise ValueError(f"odometry error priors must be finite and > 0, got {sigmas}")
-        if not (isfinite(self.walk_variance_per_m) and self.walk_variance_per_m >= 0.0):
-            raise ValueError(f"walk_variance_per_m must be finite and >= 0, got {self.walk_variance_per_m}")
+    size = 3
 
     @property
     def prior_mean(self) -> np.ndarray:
@@ -78,6 +109,19 @@ class OdometryErrorStates:
         """3x3 diagonal prior covariance of (k_s, k_theta, h)."""
         sigmas = (self.scale_sigma, self.rotation_scale_sigma, self.heading_drift_sigma_rad_per_m)
         return np.diag(np.square(sigmas))
+
+    def corrected_increment(self, increment: Pose2D, mean: np.ndarray) -> tuple[Pose2D, np.ndarray]:
+        moved, d_errors, _ = corrected_increment(increment, mean)
+        return moved, d_errors
+
+    def process_noise(self, increment: Pose2D, mean: np.ndarray) -> np.ndarray:
+        return self.walk_variance_per_m * hypot(increment[0], increment[1]) * np.eye(self.size)
+
+
+def odometry_error_states_of(values: Mapping[str, Any]) -> OdometryErrorStates | None:
+    """The states of ekf_node's validated parameter values; None when odometry_error_states is false."""
+    on = values["odometry_error_states"]
+    return OdometryErrorStates(*(float(values[name]) for name in _SIGMAS)) if on else None
 
 
 def corrected_increment(increment: Pose2D, errors: np.ndarray) -> tuple[Pose2D, np.ndarray, np.ndarray]:

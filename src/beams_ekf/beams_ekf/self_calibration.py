@@ -11,7 +11,10 @@ import os
 
 from beams_common.beacon_map import BeaconMap
 from beams_common.calibration_file import SensorCalibration, save_calibration
+from beams_ekf.beacon_states import BeaconStates
 from beams_ekf.bearing_ekf import BearingEkf
+from beams_ekf.power_bias_states import PowerBiasStates
+from beams_ekf.turret_offset_states import TurretOffsetStates
 
 
 def self_calibration(
@@ -21,18 +24,19 @@ def self_calibration(
     the configured offset, corrected by the filter's estimate when it has turret offset states; the
     beacons it estimates at their learnt coordinates);
     ValueError when the filter has no power-bias states."""
-    estimate = ekf.power_bias_estimate
-    if estimate is None or ekf.power_bias is None:
+    states, estimate = ekf.block(PowerBiasStates), ekf.estimate(PowerBiasStates)
+    if states is None or estimate is None:
         raise ValueError("the filter has no power-bias states (power_bias_states is 'off')")
-    correction = ekf.power_bias.correction(estimate[0])
-    offset = ekf.turret_offset_estimate
+    correction = states.correction(estimate[0])
+    offset = ekf.estimate(TurretOffsetStates)
     if offset is not None:
         turret_offset_m = (turret_offset_m[0] + float(offset[0][0]), turret_offset_m[1] + float(offset[0][1]))
-    learnt = ekf.beacon_estimate
-    if learnt:
+    beacons = ekf.block(BeaconStates)
+    if beacons is not None:
+        learnt = beacons.learnt(*ekf.estimate(BeaconStates), ekf.beacons_xy)
         xy = [learnt[i][0] if i in learnt else tuple(beacon_map.xy[n]) for n, i in enumerate(beacon_map.ids)]
         beacon_map = BeaconMap.from_lists(beacon_map.ids, [p[0] for p in xy], [p[1] for p in xy])
-    warnings = () if ekf.power_bias.estimate else ("power_bias_states 'consider': the prior, nothing learnt",)
+    warnings = () if states.estimate else ("power_bias_states 'consider': the prior, nothing learnt",)
     return SensorCalibration(
         beacon_map,
         correction,

@@ -9,6 +9,7 @@ from beams_common.angles import wrap_to_pi
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.pose2d import compose
 from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise, gate_threshold, turret_pose
+from beams_ekf.parameters import filter_settings
 
 EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
 
@@ -70,7 +71,7 @@ def test_process_noise_grows_with_distance_and_rotation():
 
 def test_process_noise_rejects_negative_values():
     with pytest.raises(ValueError, match="translation"):
-        ProcessNoise(translation_m2_per_m=-1.0)
+        filter_settings({"translation_variance_m2_per_m": -1.0})
 
 
 def test_update_pulls_the_estimate_towards_the_truth_and_shrinks_the_innovation_variance():
@@ -112,8 +113,8 @@ def test_gate_rejects_an_outlier_and_accepts_a_consistent_bearing():
 
 def test_gate_threshold_is_the_chi_square_quantile():
     assert gate_threshold(0.95) == pytest.approx(3.841458820694124)
-    with pytest.raises(ValueError):
-        gate_threshold(1.0)
+    with pytest.raises(ValueError, match="gate_probability"):
+        filter_settings({"gate_probability": 1.0})
 
 
 @pytest.mark.parametrize(

@@ -13,7 +13,7 @@ import yaml
 from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.parameters import node_section
 from beams_common.pose_intake import PoseSource, planar_pose_intake
-from beams_ekf.bearing_ekf import ProcessNoise
+from beams_ekf.bearing_ekf import BEARING_EKF_SPECS, ProcessNoise
 from beams_ekf.localiser import (
     Bearing,
     FilterSettings,
@@ -23,7 +23,9 @@ from beams_ekf.localiser import (
     operator_pose_stamp_s,
     revolution_of,
 )
-from beams_ekf.parameters import EKF_PARAMETERS, FILTER_SPECS, filter_settings
+from beams_ekf.odometry_errors import ODOMETRY_ERROR_SPECS
+from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
+from beams_ekf.settings import SETTINGS_SPECS
 from beams_thesis.synthetic import SyntheticMatch, synthetic_match
 
 EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
@@ -162,7 +164,10 @@ def test_settings_from_the_node_parameter_file():
 def test_declared_defaults_are_the_settings_and_the_documented_ones():
     """ekf_node declares its parameters with the specs' defaults: they map back to the default settings,
     and the documented YAML file gives the same values."""
-    defaults = {spec.name: spec.default for spec in FILTER_SPECS}
+    defaults = {
+        spec.name: spec.default
+        for spec in (*BEARING_EKF_SPECS.specs, *SETTINGS_SPECS.specs, *ODOMETRY_ERROR_SPECS.specs)
+    }
     assert filter_settings(defaults) == FilterSettings()
     assert {name: EKF_PARAMETERS[name].default for name in defaults} == defaults
     documented = node_section(yaml.safe_load(CONFIG.read_text()), "ekf_node")
@@ -177,6 +182,7 @@ def test_declared_defaults_are_the_settings_and_the_documented_ones():
         {"default_pose_sigma": [0.1, 0.1]},
         {"kidnap_gated_bearings": 13, "kidnap_window_bearings": 12},
         {"translation_variance_m2_per_m": -1.0},
+        {"kidnap_probability": 0.9999999},  # the spec's range: [0.5, 0.999999]
     ],
 )
 def test_settings_refuse_inconsistent_values(parameters):

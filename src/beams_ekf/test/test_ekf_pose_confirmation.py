@@ -1,7 +1,7 @@
 """A pose the filter has not verified with its own bearings is not "tracking" (issue 18): after an event
 that breaks the estimate's continuity (an operator's pose, an odometry jump or silence, a time jump, a
 re-initialisation from ToTal after a kidnap) ekf_node's status model (`Localiser.unconfirmed` judged by
-`EkfHealth.verdict`, as ekf_node wires them) says degraded until CONFIRMING_BEARINGS accepted bearings in
+`EkfHealth.verdict`, as ekf_node wires them) says degraded until confirming_bearings accepted bearings in
 a row (three revolutions of the three beacons) confirm it; bearings that disagree keep it unconfirmed
 and the kidnap evidence re-initialises from ToTal."""
 
@@ -16,15 +16,17 @@ from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.bearing import Bearing
 from beams_common.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
 from beams_common.pose_intake import PoseSource, planar_pose_intake
-from beams_ekf.consistency import CONFIRMING_BEARINGS, PoseConfirmation
+from beams_ekf.consistency import PoseConfirmation
 from beams_ekf.ekf_health import EkfHealth
 from beams_ekf.localiser import Localiser, build_localiser, revolution_of
 from beams_ekf.outcomes import OdometryOutcome, PoseOutcome
-from beams_ekf.settings import FilterSettings
+from beams_ekf.parameters import filter_settings
+from beams_ekf.settings import FilterSettings, LocaliserConfig
 from beams_thesis.synthetic import SyntheticMatch, synthetic_match
 
 VALUES = {spec.name: spec.default for spec in (*BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC)}
 EVENT_S = 2.0  # the break of continuity, once the filter tracks
+CONFIRMING_BEARINGS = LocaliserConfig().confirming_bearings
 ONE_CM = np.diag([1e-4, 1e-4, 1e-4])  # 1 cm, 0.6 deg: ToTal's fixes and the operators' poses
 # the fault campaign's hazardously misleading error: beyond max(5 cm, 5 sigma) while tracking
 MISLEADING_FLOOR_M, MISLEADING_SIGMAS = 0.05, 5.0
@@ -266,7 +268,7 @@ def test_the_first_fix_after_a_time_jump_is_confirmed_by_the_bearings(match):
 
 
 def test_a_manual_reset_forgets_the_break():
-    confirmation = PoseConfirmation()
+    confirmation = PoseConfirmation(CONFIRMING_BEARINGS)
     confirmation.broken("an operator's pose")
     assert not confirmation.confirmed
     confirmation.clear()
@@ -274,7 +276,7 @@ def test_a_manual_reset_forgets_the_break():
 
 
 def test_a_gated_bearing_starts_the_count_again_and_one_beacon_never_confirms():
-    confirmation = PoseConfirmation()
+    confirmation = PoseConfirmation(CONFIRMING_BEARINGS)
     confirmation.broken("an operator's pose")
     for beacon_id in (1, 2, 3) * 2 + (1, 2):
         assert not confirmation.add(beacon_id, gated=False)
@@ -294,4 +296,4 @@ def test_the_check_switched_off_never_breaks():
     confirmation.broken("an operator's pose")
     assert confirmation.confirmed
     with pytest.raises(ValueError, match="confirming_bearings"):
-        PoseConfirmation(-1)
+        filter_settings({"confirming_bearings": -1})

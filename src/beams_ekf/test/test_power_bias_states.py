@@ -11,6 +11,7 @@ from beams_common.beacon_map import EUROBOT_BEACON_MAP
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.power_bias_states import (
     BASIS_SIZE,
+    POWER_BIAS_SPECS,
     THESIS_EXPERIMENT_WINDOWS_RAD,
     PowerBiasStates,
     WindowFit,
@@ -18,6 +19,7 @@ from beams_ekf.power_bias_states import (
 )
 
 STATES = PowerBiasStates()
+DEFAULTS = POWER_BIAS_SPECS.defaults()
 LOW, HIGH = THESIS_EXPERIMENT_WINDOWS_RAD
 coefficients = st.lists(st.floats(-3e-3, 3e-3), min_size=BASIS_SIZE, max_size=BASIS_SIZE).map(np.array)
 
@@ -65,7 +67,7 @@ def test_window_fit_learns_the_gaussian_beam_and_waits_until_it_can():
 
 
 def _filter(states: PowerBiasStates) -> BearingEkf:
-    ekf = BearingEkf(EUROBOT_BEACON_MAP.as_dict(), power_bias=states)
+    ekf = BearingEkf(EUROBOT_BEACON_MAP.as_dict(), blocks=(states,))
     ekf.initialise((1.5, 1.0, 0.0), np.diag([1e-4, 1e-4, 1e-4]))
     return ekf
 
@@ -83,7 +85,7 @@ def test_a_still_robot_teaches_no_curve_but_the_bias_widens_the_pose(estimate):
             bearing = math.atan2(by - 1.0, bx - 1.5) + 2e-3 + rng.normal(0.0, 1e-3)
             ekf.update_bearing(beacon_id, bearing, 1e-6, (0.0, 0.0, 0.0), 0.1)
             plain.update_bearing(beacon_id, bearing, 1e-6, (0.0, 0.0, 0.0))
-    beta, covariance = ekf.power_bias_estimate
+    beta, covariance = ekf.estimate(PowerBiasStates)
     assert np.all(beta == 0.0)
     assert np.allclose(covariance, PowerBiasStates().prior_covariance)
     # the 2 mrad bias shared by every bearing shows as heading uncertainty, which the plain filter lacks
@@ -92,57 +94,19 @@ def test_a_still_robot_teaches_no_curve_but_the_bias_widens_the_pose(estimate):
 
 def test_calibrated_bearings_do_not_touch_the_bias_states():
     ekf = _filter(PowerBiasStates())
-    prior = ekf.power_bias_estimate[1].copy()
+    prior = ekf.estimate(PowerBiasStates)[1].copy()
     for beacon_id, (bx, by) in EUROBOT_BEACON_MAP.as_dict().items():
         ekf.update_bearing(beacon_id, math.atan2(by - 1.0, bx - 1.5) + 1e-3, 1e-6, (0.0, 0.0, 0.0), 0.0)
-    assert np.allclose(ekf.power_bias_estimate[1], prior)
-    assert np.all(ekf.power_bias_estimate[0] == 0.0)
+    assert np.allclose(ekf.estimate(PowerBiasStates)[1], prior)
+    assert np.all(ekf.estimate(PowerBiasStates)[0] == 0.0)
 
 
 def test_parameters_give_the_states_or_none():
-    assert power_bias_states_of({}) == PowerBiasStates()
-    assert power_bias_states_of({"power_bias_states": "off"}) is None
-    considered = power_bias_states_of({"power_bias_states": "consider", "power_bias_sigma_rad": 1e-3})
+    assert power_bias_states_of(DEFAULTS) == PowerBiasStates()
+    assert power_bias_states_of({**DEFAULTS, "power_bias_states": "off"}) is None
+    considered = power_bias_states_of(
+        {**DEFAULTS, "power_bias_states": "consider", "power_bias_sigma_rad": 1e-3}
+    )
     assert considered == PowerBiasStates(prior_sigma_rad=1e-3, estimate=False)
     with pytest.raises(ValueError, match="window range"):
-        power_bias_states_of({"power_bias_window_range_rad": [0.2, 0.1]})
-
-
-def test_measurement_jacobian_matches_finite_differences_over_every_state():
-    """h(x) of a bearing with odometry error, power bias, turret offset and beacon states (the observed
-    beacon's coordinates estimated, a fourth beacon fixed): its analytic Jacobian against central
-    differences of h, at a random state and a turned lever."""
-    from beams_ekf.beacon_states import BeaconStates
-    from beams_ekf.odometry_errors import OdometryErrorStates
-    from beams_ekf.turret_offset_states import TurretOffsetStates
-
-    ekf = BearingEkf(
-        {**EUROBOT_BEACON_MAP.as_dict(), 4: (1.5, -0.062)},
-        (0.03, -0.01),
-        odometry_errors=OdometryErrorStates(),
-        power_bias=PowerBiasStates(),
-        turret_offset=TurretOffsetStates(),
-        beacons=BeaconStates((3,)),
-    )
-    ekf.initialise((1.2, 0.7, 0.4), np.eye(3) * 1e-4)
-    rng = np.random.default_rng(5)
-    x, p = ekf.state()
-    x[6:, 0] = rng.normal(0.0, 2e-3, ekf.dim - 6)
-    ekf.restore((x, p))
-    lever = (0.05, 0.02, 0.3)
-    # a window the fit never saw: the bias is evaluated at the measured window (no fit yet)
-    _, jacobian = ekf.predicted_bearing(3, lever, 0.09)
-    numeric = np.zeros(ekf.dim)
-    for k in range(ekf.dim):
-        values = []
-        for step in (1e-6, -1e-6):
-            moved = x.copy()
-            moved[k, 0] += step
-            ekf.restore((moved, p))
-            values.append(ekf.predicted_bearing(3, lever, 0.09)[0])
-        numeric[k] = (values[0] - values[1]) / 2e-6
-    ekf.restore((x, p))
-    # the odometry error states do not enter a bearing (only the prediction)
-    assert np.allclose(jacobian[0], numeric, atol=1e-6), (jacobian[0], numeric)
-    assert np.all(numeric[3:6] == 0.0)
-    assert np.all(numeric[-2:] != 0.0)  # the beacon's coordinates enter its bearing
+        power_bias_states_of({**DEFAULTS, "power_bias_window_range_rad": [0.2, 0.1]})
