@@ -17,7 +17,7 @@ from scipy.stats import spearmanr
 
 from beams_calibration.calibrate import PARAMETER_COUNT, Problem, calibrate, optimise_groups
 from beams_calibration.dataset import to_arrays
-from beams_common.bearing_correction import THESIS_CORRECTION
+from beams_common.calibration.bearing_correction import THESIS_CORRECTION
 from beams_thesis import thesis_figures, thesis_setup
 from beams_triangulation.error_map import grid, monte_carlo_maps
 

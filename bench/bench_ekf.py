@@ -20,10 +20,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from beams_common.angles import wrap_to_pi
-from beams_common.bearing import Bearing
-from beams_common.pose2d import compose
-from beams_common.pose_intake import PoseSource, planar_pose_intake
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.bearing import Bearing
+from beams_common.geometry.pose2d import compose
+from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
 from beams_driver.variance import VarianceModel
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser, revolution_of

@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
-from beams_common.pose2d import between
+from beams_common.geometry.pose2d import between
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
 from beams_ekf.odometry_errors import OdometryErrorStates

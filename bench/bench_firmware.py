@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.serial_protocol import FRAME_SIZE, HELLO_SIZE, EventKind, FrameParser
 from beams_sim.world import EurobotTrajectory
 

@@ -2,7 +2,7 @@
 publisher is said.
 
 The robot's four nodes run under the demo's supervisor (beams_tools.supervisor, respawn after
-RESPAWN_DELAY_S, as beams.launch.py does), ekf_node as its hot standby pair (beams_common.standby); each
+RESPAWN_DELAY_S, as beams.launch.py does), ekf_node as its hot standby pair (beams_common.ros.standby); each
 node in turn is killed with SIGKILL, KILL_ROUNDS times (of the EKF's pair, the active process), and the
 delay from the kill to the EKF's next beams/ekf/odometry message is timed (the EKF goes on predicting on
 odometry while another node is down; killed itself, its standby takes over: rclpy's start, the node's

@@ -11,7 +11,7 @@ import sys
 
 import numpy as np
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.estimate_noise import estimate
 from beams_driver.noise_estimation import beacon_spread, recordings_from_bearings
 from beams_driver.parameters import DRIVER_PARAMETERS, codes_of, variance_model_of

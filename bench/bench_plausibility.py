@@ -20,10 +20,15 @@ from math import hypot
 
 import numpy as np
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.bearing import Bearing
-from beams_common.plausibility import MotionLimits, StampTolerance, odometry_step_problem, stamp_problem
-from beams_common.pose_intake import PoseSource, planar_pose_intake
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.bearing import Bearing
+from beams_common.intake.plausibility import (
+    MotionLimits,
+    StampTolerance,
+    odometry_step_problem,
+    stamp_problem,
+)
+from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
 from beams_ekf.localiser import build_localiser, revolution_of
 from beams_ekf.settings import FilterSettings
 from beams_thesis.synthetic import synthetic_match

@@ -13,7 +13,7 @@ from collections.abc import Callable
 import numpy as np
 from rows_table import print_rows
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.decoder import BearingDecoder
 from beams_driver.edges import RevolutionEdges
 from beams_driver.serial_protocol import (

@@ -13,8 +13,8 @@ import timeit
 
 import numpy as np
 
-from beams_common.angles import wrap_to_pi
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_sim.simulated_match import simulate_match
 from beams_triangulation.gating import GateConfig, PoseEstimate, gated_estimate
 from beams_triangulation.motion_compensation import interpolate_pose

@@ -10,11 +10,11 @@ import timeit
 
 import numpy as np
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.bearing import Bearing
-from beams_common.bearing_intake import RevolutionIntake, revolution_intake
-from beams_common.pose_intake import PoseSource, planar_pose_intake
-from beams_common.validation import bearing_problem, one_sighting_per_beacon, planar_estimate_problem
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.bearing import Bearing
+from beams_common.intake.bearing_intake import RevolutionIntake, revolution_intake
+from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
+from beams_common.intake.validation import bearing_problem, one_sighting_per_beacon, planar_estimate_problem
 from beams_ekf.localiser import FilterSettings, build_localiser
 from beams_triangulation.total import expected_bearings
 

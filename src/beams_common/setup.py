@@ -15,9 +15,9 @@ setup(
     maintainer="BeAMS ROS maintainers",
     maintainer_email="maintainers@beams-ros.org",
     description=(
-        "Shared concepts of the BeAMS suite: angles, SE(2) poses, beacon maps, stamped pose "
-        "buffers, time jumps, the calibration file and bias models; beams_common.ros: node runner, "
-        "parameter specs, diagnostics, QoS, topic names, message conversions."
+        "Shared concepts of the BeAMS suite by sub-package: geometry, intake (input checks), status, "
+        "calibration (file, schema, checks, corrections), config (parameter specs), interfaces (topics, "
+        "message builders); beams_common.ros: node runner, hot standby, diagnostics, conversions."
     ),
     license="Apache-2.0",
     entry_points={"console_scripts": []},

@@ -34,7 +34,7 @@ def test_a_guided_session_captures_the_plan_resumes_and_calibrates(
 ):
     from beams_calibration.dataset import load_dataset
     from beams_calibration.session import THESIS_AREA, poses_match, reference_plan
-    from beams_common.calibration_file import load_calibration
+    from beams_common.calibration.calibration_file import load_calibration
     from beams_thesis import thesis_setup
 
     truth, prior = thesis_setup.TRUE_BEACONS, thesis_setup.PRIOR_BEACONS

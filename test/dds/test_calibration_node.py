@@ -106,8 +106,8 @@ def test_capture_refuses_a_hidden_beacon(start_node, rclpy_node, tmp_path):
 
 def test_calibrate_service_writes_the_calibration_file(start_node, rclpy_node, tmp_path):
     from beams_calibration.dataset import Dataset, save_dataset
-    from beams_common.bearing_correction import THESIS_CORRECTION
-    from beams_common.calibration_file import load_calibration
+    from beams_common.calibration.bearing_correction import THESIS_CORRECTION
+    from beams_common.calibration.calibration_file import load_calibration
     from beams_msgs.srv import Calibrate
 
     setup = _setup()
@@ -148,7 +148,7 @@ def test_non_finite_bearings_in_a_capture_are_left_out_and_counted(rclpy_node, s
     """A bearing with a NaN in a captured revolution is left out of the average, counted and shown."""
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from beams_common.bearing_messages import BearingFields
+    from beams_common.interfaces.bearing_messages import BearingFields
     from beams_common.ros.messages import bearing_array
     from beams_msgs.msg import BeaconBearingArray
     from beams_msgs.srv import CaptureReference

@@ -19,7 +19,7 @@ from collections.abc import Iterator
 import numpy as np
 import pytest
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 
 WAIT_S = 20.0
 QUIET_S = 1.5  # no bearing may arrive for this long after a deactivation

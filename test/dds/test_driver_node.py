@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 
 WAIT_S = 20.0
 STATIC_POSE = (1.0, 1.2, 0.4)
@@ -142,8 +142,8 @@ def test_reloaded_calibration_corrects_the_published_bearings(rclpy_node, start_
     """A calibration file written while the driver runs is applied on `~/reload_calibration` (issue 6)."""
     from std_srvs.srv import Trigger
 
-    from beams_common.bearing_correction import BearingCorrection
-    from beams_common.calibration_file import SensorCalibration, save_calibration
+    from beams_common.calibration.bearing_correction import BearingCorrection
+    from beams_common.calibration.calibration_file import SensorCalibration, save_calibration
 
     path = tmp_path / "calibration.yaml"
     save_calibration(SensorCalibration(beacon_map=EUROBOT_BEACON_MAP), path)

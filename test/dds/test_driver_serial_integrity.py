@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.serial_protocol import TIMER_HZ, EventKind, FrameEncoder
 from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 

@@ -14,7 +14,7 @@ import time
 
 import numpy as np
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.serial_protocol import FrameEncoder
 from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 

@@ -4,7 +4,7 @@ on /diagnostics, and the bearings keep coming from the revolutions they spared."
 
 import numpy as np
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.serial_protocol import (
     TICKS_PER_REVOLUTION,
     TIMER_HZ,

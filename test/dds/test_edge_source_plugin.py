@@ -22,7 +22,7 @@ def test_a_replay_source_from_another_package_plugs_into_the_driver(
 ):
     from rclpy.qos import qos_profile_sensor_data
 
-    from beams_common.beacon_map import EUROBOT_BEACON_MAP
+    from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
     from beams_msgs.msg import BeaconBearingArray
     from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 

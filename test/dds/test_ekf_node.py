@@ -38,7 +38,7 @@ def _odometry(t: float, pose):
 
 
 def _revolution(bearings):
-    from beams_common.bearing_messages import BearingFields, nanoseconds
+    from beams_common.interfaces.bearing_messages import BearingFields, nanoseconds
     from beams_common.ros.messages import bearing_array
 
     fields = [
@@ -105,7 +105,7 @@ def _assert_map_to_odom_places_the_odometry_on_the_estimate(transforms, outputs,
     """REP-105: map -> odom composed with the odometry pose of the same stamp is the EKF's map pose."""
     import numpy as np
 
-    from beams_common.pose2d import compose
+    from beams_common.geometry.pose2d import compose
     from beams_common.ros.messages import stamp_to_seconds
 
     # one stamp may carry two estimates (after the odometry, then after a revolution's bearings at that

@@ -35,7 +35,7 @@ def _messages(match):
     from geometry_msgs.msg import PoseWithCovarianceStamped
     from nav_msgs.msg import Odometry
 
-    from beams_common.bearing_messages import BearingFields, nanoseconds
+    from beams_common.interfaces.bearing_messages import BearingFields, nanoseconds
     from beams_common.ros.messages import (
         bearing_array,
         ros_covariance,
@@ -99,8 +99,8 @@ def _node_estimates(node, odometry, revolutions, fixes, initial):
 
 def _offline_result(node, match, odometry, revolutions, fixes, initial):
     """The same messages, decoded as the node decodes them, through beams_thesis.replay (the benches')."""
-    from beams_common.bearing import bearings_of_message
-    from beams_common.pose_intake import PoseSource, pose_message_intake
+    from beams_common.geometry.bearing import bearings_of_message
+    from beams_common.intake.pose_intake import PoseSource, pose_message_intake
     from beams_common.ros.messages import pose2d_of, stamp_to_seconds
     from beams_ekf.localiser import build_localiser
     from beams_thesis.replay import PoseEvent, replay

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.decoder import TIMEOUT_BITS, BearingDecoder, DecodedRevolution
 from beams_driver.edges import RevolutionEdges
 from beams_driver.serial_protocol import (

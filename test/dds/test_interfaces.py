@@ -12,7 +12,7 @@ ROUND_TRIP_TIMEOUT_S = 20.0
 
 def _sample_messages():
     import beams_msgs.msg as beams_msgs_msg
-    from beams_common.bearing_messages import NS_PER_S, BearingFields
+    from beams_common.interfaces.bearing_messages import NS_PER_S, BearingFields
     from beams_common.ros.messages import bearing_array
 
     stamp_ns = 12 * NS_PER_S + 345

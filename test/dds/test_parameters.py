@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from beams_common.parameters import ParameterError
+from beams_common.config.parameters import ParameterError
 from beams_tools.replay_settings import load_node_parameters
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 
@@ -94,7 +94,7 @@ def _get(rclpy_node, node_name: str, name: str):
 
 
 def _revolution(pose, beacons=BEACONS, revolution=0):
-    from beams_common.bearing_messages import BearingFields, nanoseconds
+    from beams_common.interfaces.bearing_messages import BearingFields, nanoseconds
     from beams_common.ros.messages import bearing_array
 
     x, y, theta = pose
@@ -169,7 +169,7 @@ def test_a_change_is_validated_in_on_set_and_applied_in_post_set(rclpy_node):
     applied, the values stay), an accepted change is applied once rclpy has set it."""
     from rclpy.parameter import Parameter
 
-    from beams_common.parameters import ParameterSpec, ParameterTable
+    from beams_common.config.parameters import ParameterSpec, ParameterTable
     from beams_common.ros.parameters import apply_runtime_changes, declare_table
 
     table = ParameterTable(

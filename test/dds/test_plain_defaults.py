@@ -131,7 +131,7 @@ def test_save_calibration_writes_a_file_the_driver_reads(start_node, rclpy_node,
     the reason."""
     from std_srvs.srv import Trigger
 
-    from beams_common.calibration_file import load_calibration
+    from beams_common.calibration.calibration_file import load_calibration
 
     path = tmp_path / "learnt.yaml"
     start_node("beams_ekf", "ekf_node", {"self_calibration_file": str(path)})

@@ -24,8 +24,8 @@ NODES = (
 
 def _calibration(tmp_path: Path, name: str, **values) -> Path:
     """A calibration file of the Eurobot map with the given bearing correction / offset."""
-    from beams_common.beacon_map import EUROBOT_BEACON_MAP
-    from beams_common.calibration_file import SensorCalibration, save_calibration
+    from beams_common.calibration.calibration_file import SensorCalibration, save_calibration
+    from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 
     path = tmp_path / name
     save_calibration(SensorCalibration(beacon_map=EUROBOT_BEACON_MAP, **values), path)
@@ -57,7 +57,7 @@ def test_an_implausible_calibration_is_refused_wherever_it_is_loaded(
 ):
     from std_srvs.srv import Trigger
 
-    from beams_common.bearing_correction import BearingCorrection
+    from beams_common.calibration.bearing_correction import BearingCorrection
 
     bad = _calibration(tmp_path, "implausible.yaml", bearing_correction=BearingCorrection(**correction))
     good = _calibration(tmp_path, "good.yaml")
@@ -154,7 +154,7 @@ def _status(rclpy_node, node_name: str) -> str:
 def test_total_leaves_an_unknown_beacon_out_and_refuses_late_or_early_revolutions(start_node, rclpy_node):
     from diagnostic_msgs.msg import DiagnosticArray
 
-    from beams_common.beacon_map import EUROBOT_BEACON_MAP
+    from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
     from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 
     node = start_node("beams_triangulation", "triangulation_node", {"use_odometry": False})

@@ -2,7 +2,7 @@
 `ros2 launch` does with respawn (beams.launch.py; its real-tool check is in test_ros2_cli.py).
 
 The whole robot runs under the supervisor the demo uses, ekf_node as its hot standby pair (two
-processes, beams_common.standby); each node in turn is killed with SIGKILL (no chance to clean up), the
+processes, beams_common.ros.standby); each node in turn is killed with SIGKILL (no chance to clean up), the
 EKF's active process twice in a row (the second kill hits the standby that took over from the first).
 The killed node's own output is seen again, and the longest silence of the EKF's output
 (beams/ekf/odometry) in the SILENCE_WINDOW_S after the kill is at most EKF_BACK_S, issue 18's 2 s:

@@ -291,7 +291,7 @@ def test_ros2_launch_respawns_each_killed_node_and_the_ekf_comes_back(rclpy_node
     log says the process died, the killed one is respawned, and Ctrl-C still stops everything."""
     from nav_msgs.msg import Odometry
 
-    from beams_common.standby import NodeIdentity, RoleLock, domain_id_of, role_name
+    from beams_common.ros.standby import NodeIdentity, RoleLock, domain_id_of, role_name
 
     arrivals: list[float] = []
     rclpy_node.node.create_subscription(
@@ -308,7 +308,7 @@ def test_ros2_launch_respawns_each_killed_node_and_the_ekf_comes_back(rclpy_node
     for node in LAUNCHED_NODES:
         pids = processes(node)
         assert len(pids) == (2 if node == "ekf_node" else 1), (node, descendants(launch.process.pid))
-        # every node holds its role (beams_common.standby): of the EKF's pair, the active one
+        # every node holds its role (beams_common.ros.standby): of the EKF's pair, the active one
         holder = RoleLock(role_name(NodeIdentity("/robot1", node), domain_id_of(ros_env))).holder_pid()
         assert holder in pids, (node, holder, pids)
         killed_at = time.monotonic()

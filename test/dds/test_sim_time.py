@@ -39,7 +39,7 @@ def _odometry(match, index: int):
 
 
 def _revolution(decoded):
-    from beams_common.bearing_messages import BearingFields, nanoseconds
+    from beams_common.interfaces.bearing_messages import BearingFields, nanoseconds
     from beams_common.ros.messages import bearing_array
 
     fields = [

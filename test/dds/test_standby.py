@@ -1,4 +1,4 @@
-"""ekf_node's hot standby over DDS (issue 18, beams_common.standby through run_node): a process started
+"""ekf_node's hot standby over DDS (issue 18, beams_common.ros.standby through run_node): a process started
 with --standby while the role is held waits outside the ROS graph (no DDS participant: one socket, the
 watch on the holder; no CPU: it blocks), takes over when the active one is killed, and a stop signal
 ends it with 0 however it comes (Ctrl-C to its process group, twice as under `ros2 launch`, SIGTERM).
@@ -48,7 +48,7 @@ def cpu_s(pid: int) -> float:
 
 def start_active(rclpy_node, start_node):
     """A plain ekf_node holding the role, in the graph."""
-    from beams_common.standby import NodeIdentity, RoleLock, domain_id_of, role_name
+    from beams_common.ros.standby import NodeIdentity, RoleLock, domain_id_of, role_name
 
     active = start_node("beams_ekf", "ekf_node")
     assert rclpy_node.spin_until(lambda: ekf_nodes_in_graph(rclpy_node) == 1, UP_TIMEOUT_S), active.log()

@@ -28,7 +28,7 @@ def test_the_status_topics_say_what_diagnostics_says_at_once_and_latched(start_n
     from geometry_msgs.msg import PoseWithCovarianceStamped
     from nav_msgs.msg import Odometry
 
-    from beams_common import topics
+    from beams_common.interfaces import topics
     from beams_common.ros.status_topic import STATUS_QOS
     from beams_msgs.msg import LocalisationStatus
     from beams_msgs.srv import SetPose

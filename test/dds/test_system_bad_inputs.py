@@ -66,7 +66,7 @@ BAD_CASES = st.one_of(
 
 def _true_bearings() -> list[tuple[int, float, float, float]]:
     """(beacon id, bearing rad, variance rad^2, stamp offset s) of the true pose's revolution."""
-    from beams_common.beacon_map import EUROBOT_BEACON_MAP
+    from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
     from beams_triangulation.total import expected_bearings
 
     angles = expected_bearings(EUROBOT_BEACON_MAP.xy, TRUE_POSE)
@@ -80,7 +80,7 @@ def _true_bearings() -> list[tuple[int, float, float, float]]:
 
 
 def _revolution_message(number: int, now_s: float, bearings):
-    from beams_common.bearing_messages import BearingFields, nanoseconds
+    from beams_common.interfaces.bearing_messages import BearingFields, nanoseconds
     from beams_common.ros.messages import bearing_array
 
     fields = [
@@ -204,8 +204,8 @@ def _pose_error_m(pose) -> float:
 
 
 def _output_problem(pose_with_covariance) -> str:
+    from beams_common.intake.validation import planar_estimate_problem
     from beams_common.ros.messages import planar_covariance, pose2d_of
-    from beams_common.validation import planar_estimate_problem
 
     return planar_estimate_problem(
         pose2d_of(pose_with_covariance.pose), planar_covariance(pose_with_covariance.covariance)
@@ -276,7 +276,7 @@ def test_generated_bad_inputs_never_kill_a_node_nor_leave_an_invalid_pose(start_
         "revolutions_too_many_bearings",
         "revolutions_with_invalid_bearings",
         "odometry_invalid",
-        "total_poses_invalid",  # the pose intake's counters (beams_common.pose_intake)
+        "total_poses_invalid",  # the pose intake's counters (beams_common.intake.pose_intake)
         "operator_poses_invalid",
     ):
         assert _counter(rclpy_node, "ekf_node", key) > 0, key
@@ -290,8 +290,8 @@ def test_generated_bad_inputs_never_kill_a_node_nor_leave_an_invalid_pose(start_
 
 def _bad_calibration_file(tmp_path: Path) -> Path:
     """A valid calibration file except for `power_bias: [1, 2, 3, 4]` (a list where a mapping is due)."""
-    from beams_common.beacon_map import EUROBOT_BEACON_MAP
-    from beams_common.calibration_file import SensorCalibration, save_calibration
+    from beams_common.calibration.calibration_file import SensorCalibration, save_calibration
+    from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 
     path = tmp_path / "calibration.yaml"
     save_calibration(SensorCalibration(beacon_map=EUROBOT_BEACON_MAP), path)

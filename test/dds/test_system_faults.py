@@ -249,7 +249,7 @@ def malformed_inputs(now_s: float) -> list[tuple[str, Any]]:
     from builtin_interfaces.msg import Time
     from nav_msgs.msg import Odometry
 
-    from beams_common.bearing_messages import NS_PER_S, BearingFields
+    from beams_common.interfaces.bearing_messages import NS_PER_S, BearingFields
     from beams_common.ros.messages import bearing_array
     from beams_msgs.msg import BeaconBearingArray
 

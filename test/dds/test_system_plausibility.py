@@ -181,8 +181,8 @@ def _calibration_that_makes_the_fixes_worse_is_flagged(graph, probe: RobotProbe,
     from rclpy.parameter import Parameter
     from std_srvs.srv import Trigger
 
-    from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
-    from beams_common.calibration_file import SensorCalibration, save_calibration
+    from beams_common.calibration.calibration_file import SensorCalibration, save_calibration
+    from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 
     path = tmp_path / "calibration.yaml"
     save_calibration(SensorCalibration(beacon_map=EUROBOT_BEACON_MAP), path)

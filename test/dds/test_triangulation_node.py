@@ -39,7 +39,7 @@ def _bearing(beacon_id: int, pose, offset=OFFSET) -> float:
 
 def _revolution(items, revolution=0):
     """items: (beacon_id, bearing, stamp_s) triples."""
-    from beams_common.bearing_messages import BearingFields, nanoseconds
+    from beams_common.interfaces.bearing_messages import BearingFields, nanoseconds
     from beams_common.ros.messages import bearing_array
 
     fields = [

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from scipy.stats import chi2
 
-from beams_common.angles import wrap_to_pi
+from beams_common.geometry.angles import wrap_to_pi
 from beams_ekf.localiser import FilterSettings, build_localiser
 from beams_sim.simulated_match import SimulatedMatch, calibrated_match, sensor_config_of, simulate_match
 from beams_thesis.match_replay import match_fixes, replay_match

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_ekf.bearing_ekf import WHEEL_BASE_M, WHEEL_VARIANCE_M2_PER_M, BearingEkf, ProcessNoise
 from beams_ekf.localiser import Localiser, build_localiser
 from beams_ekf.odometry_errors import OdometryErrorStates

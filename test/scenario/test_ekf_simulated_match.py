@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from beams_common.pose2d import compose
+from beams_common.geometry.pose2d import compose
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Localiser
 from beams_sim.simulated_match import SimulatedMatch, simulate_match

@@ -8,7 +8,7 @@ import subprocess
 
 import pytest
 
-from beams_common.parameters import ParameterTable, load_parameter_file
+from beams_common.config.parameters import ParameterTable, load_parameter_file
 from beams_driver.parameters import DRIVER_PARAMETERS
 from beams_sim.sensor_sim import SensorSimConfig
 from beams_sim.sim_source import PARAMETERS as SIM_PARAMETERS

@@ -12,8 +12,8 @@ import sys
 import numpy as np
 import pytest
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.calibration_file import load_calibration
+from beams_common.calibration.calibration_file import load_calibration
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.parameters import SENSOR_PARAMETERS, corrected_variance_of, variance_model_of
 from beams_ekf.power_bias_states import THESIS_EXPERIMENT_WINDOWS_RAD, PowerBiasStates
 from beams_ekf.self_calibration import save_self_calibration

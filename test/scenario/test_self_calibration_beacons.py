@@ -14,9 +14,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
-from beams_common.calibration_file import load_calibration
-from beams_common.pose_intake import PoseSource, planar_pose_intake
+from beams_common.calibration.calibration_file import load_calibration
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
 from beams_driver.parameters import SENSOR_PARAMETERS, variance_model_of
 from beams_ekf.beacon_states import BEACON_STATE_SPECS, BeaconStates, beacon_states_of
 from beams_ekf.bearing_ekf import BearingEkf

@@ -10,7 +10,7 @@ the data outweigh the prior in that direction.
 import numpy as np
 import pytest
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_ekf.bearing_ekf import WHEEL_BASE_M, WHEEL_VARIANCE_M2_PER_M, ProcessNoise
 from beams_sim.simulated_match import sensor_config_of
 from beams_sim.world import EurobotTrajectory

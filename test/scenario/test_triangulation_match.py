@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from beams_common.angles import wrap_to_pi
+from beams_common.geometry.angles import wrap_to_pi
 from beams_sim.simulated_match import simulate_match
 from beams_triangulation.gating import PoseEstimate
 from beams_triangulation.motion_compensation import interpolate_pose

@@ -10,7 +10,7 @@ import sys
 import yaml
 
 from beams_bringup.architecture_docs import picture_in
-from beams_common.parameters import load_parameter_file, node_section
+from beams_common.config.parameters import load_parameter_file, node_section
 from beams_ekf.parameters import EKF_PARAMETERS
 from beams_tools.parameter_docs import TABLES, markdown_table, parameter_file, tables_in
 from beams_tools.robot_processes import PARAMS_FILE as PARAMS_FILE_NAME

@@ -1,5 +1,5 @@
 """Each node's executable is named as the node it runs (read from the source, no ROS needed): run_node
-takes the node's role under its executable's name (beams_common.standby), before the node exists."""
+takes the node's role under its executable's name (beams_common.ros.standby), before the node exists."""
 
 import pathlib
 import re

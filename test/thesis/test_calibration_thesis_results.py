@@ -24,8 +24,8 @@ from beams_calibration.calibrate import (
     rms_figures,
 )
 from beams_calibration.dataset import to_arrays
-from beams_common.angles import wrap_to_pi
-from beams_common.bearing_correction import THESIS_ROTATION_BIAS_COEFFICIENTS, BearingCorrection
+from beams_common.calibration.bearing_correction import THESIS_ROTATION_BIAS_COEFFICIENTS, BearingCorrection
+from beams_common.geometry.angles import wrap_to_pi
 from beams_thesis import thesis_figures, thesis_setup
 from beams_triangulation.error_map import grid, monte_carlo_maps
 from beams_triangulation.total import expected_bearings, triangulate_many

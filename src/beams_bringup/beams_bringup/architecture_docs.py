@@ -22,7 +22,7 @@ import re
 import sys
 from dataclasses import dataclass, field
 
-from beams_common import topics
+from beams_common.interfaces import topics
 from beams_tools.robot_processes import ROBOT_NODES, RobotNode
 
 # Started by hand while calibrating (README, docs/calibration.md), not by the launch file.

@@ -1,7 +1,7 @@
 """`make demo`: a simulated Eurobot match with every BeAMS node running as its own process.
 
 Starts sim_world_node, driver_node (simulated sensor), triangulation_node and ekf_node with its hot
-standby (two processes, beams_common.standby) from the install tree (the executables `ros2 run`
+standby (two processes, beams_common.ros.standby) from the install tree (the executables `ros2 run`
 starts), records every topic to an MCAP bag as `ros2 bag record` does (fully qualified names, the
 publishers' offered QoS profiles in the metadata), prints live progress (pose errors against the truth,
 bearings per second, rejected windows), stops the nodes with SIGINT and leaves a trajectory plot and a
@@ -38,10 +38,10 @@ from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, Qo
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
-from beams_common import topics
-from beams_common.angles import wrap_to_pi
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.calibration_file import SensorCalibration, save_calibration
+from beams_common.calibration.calibration_file import SensorCalibration, save_calibration
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.interfaces import topics
 from beams_common.ros.messages import planar_covariance, pose2d_of
 from beams_common.ros.node_support import BEARINGS_QOS
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose

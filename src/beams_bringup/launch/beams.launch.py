@@ -15,7 +15,7 @@ is back within 0.5 s) unless FASTRTPS_DEFAULT_PROFILES_FILE is already set.
 A node that dies is started again RESPAWN_DELAY_S (0.25 s) later (respawn), the driver too: with
 driver_autostart:=false it comes back unconfigured, which is what a lifecycle manager that reconnects
 to respawned nodes (nav2's attempt_respawn_reconnection) expects; a dead driver would need one anyway.
-ekf_node runs as a pair (hot standby, beams_common.standby): both processes start with --standby, one
+ekf_node runs as a pair (hot standby, beams_common.ros.standby): both processes start with --standby, one
 takes the node's role and runs, the other waits outside the ROS graph and becomes the EKF at once when
 the first dies, which is respawned into the waiting place. One ekf_node only:
     ros2 launch beams_bringup beams.launch.py ekf_standby:=false

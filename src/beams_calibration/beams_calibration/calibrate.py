@@ -24,10 +24,10 @@ from scipy.optimize import minimize
 
 from beams_calibration.dataset import CalibrationArrays, Dataset, to_arrays
 from beams_calibration.parameters import CALIBRATION_PARAMETERS
-from beams_common.angles import wrap_to_pi
-from beams_common.beacon_map import BeaconMap
-from beams_common.bearing_correction import BearingCorrection
-from beams_common.calibration_file import RmsFigures, SensorCalibration
+from beams_common.calibration.bearing_correction import BearingCorrection
+from beams_common.calibration.calibration_file import RmsFigures, SensorCalibration
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.beacon_map import BeaconMap
 from beams_triangulation.total import triangulate_many
 
 Progress = Callable[[str], None]

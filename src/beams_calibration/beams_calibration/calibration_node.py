@@ -51,9 +51,10 @@ from beams_calibration.dataset import (
 )
 from beams_calibration.outputs import rms_regression, write_outputs
 from beams_calibration.parameters import CALIBRATION_PARAMETERS
-from beams_common import topics
-from beams_common.beacon_map import BeaconMap
-from beams_common.geometry_parameters import beacon_map_of
+from beams_common.config.geometry_parameters import beacon_map_of
+from beams_common.geometry.beacon_map import BeaconMap
+from beams_common.intake.validation import bounded
+from beams_common.interfaces import topics
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.node_support import (
@@ -62,7 +63,6 @@ from beams_common.ros.node_support import (
     run_node,
 )
 from beams_common.ros.parameters import ParameterValidationError, apply_runtime_changes, declare_table
-from beams_common.validation import bounded
 from beams_msgs.msg import BeaconBearingArray
 from beams_msgs.srv import Calibrate, CaptureReference, ListConfigurations
 

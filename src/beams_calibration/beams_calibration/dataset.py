@@ -35,10 +35,10 @@ import numpy as np
 import yaml
 
 from beams_calibration.parameters import CALIBRATION_PARAMETERS
-from beams_common import file_schema
-from beams_common.angles import wrap_to_pi
-from beams_common.beacon_map import BeaconMap
-from beams_common.calibration_file import SensorCalibration, atomic_write_text
+from beams_common.calibration import file_schema
+from beams_common.calibration.calibration_file import SensorCalibration, atomic_write_text
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.beacon_map import BeaconMap
 
 DATASET_FORMAT = "beams-calibration-dataset"
 DATASET_VERSION = 1

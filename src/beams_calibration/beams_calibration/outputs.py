@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 
 from beams_calibration.calibrate import CalibrationResult, configuration_rms
-from beams_common.calibration_file import StagedFile, calibration_text
+from beams_common.calibration.calibration_file import StagedFile, calibration_text
 
 # Tolerances on "worse" (m, rad): the fit stops at a relative criterion, a tie is not a regression.
 RMS_TOLERANCE_M = 1e-5

@@ -3,8 +3,8 @@ call, so they may change at runtime; the dataset file and the a-priori beacon ma
 other at start-up and stay read-only. The capture (`dataset`) and Algorithm 7.1 (`calibrate`) take their
 defaults from here."""
 
-from beams_common.geometry_parameters import beacon_map_check, beacon_map_specs
-from beams_common.parameters import ParameterSpec, ParameterTable
+from beams_common.config.geometry_parameters import beacon_map_check, beacon_map_specs
+from beams_common.config.parameters import ParameterSpec, ParameterTable
 
 CALIBRATION_PARAMETERS = ParameterTable(
     "calibration_node",

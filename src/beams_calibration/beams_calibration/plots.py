@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from beams_calibration.calibrate import CalibrationResult, position_groups
-from beams_common.calibration_file import StagedFile
+from beams_common.calibration.calibration_file import StagedFile
 
 # Figure 7.13: each panel is 15 mm wide with a graduation every 2 mm.
 PANEL_HALF_SIDE_M = 0.0075

@@ -5,7 +5,7 @@ them."""
 
 import numpy as np
 
-from beams_common.beacon_map import BeaconMap
+from beams_common.geometry.beacon_map import BeaconMap
 
 # Table 7.1: a-priori beacon coordinates (m).
 PRIOR_BEACONS = BeaconMap.from_lists((1, 2, 3), (1.151, 0.600, 0.049), (0.049, 0.907, 0.049))

@@ -22,8 +22,8 @@ import numpy as np
 from beams_calibration.calibrate import CoverageRequirements
 from beams_calibration.dataset import capture_pose_problem, pose_of_summary
 from beams_calibration.reference_layout import PRIOR_BEACONS, REFERENCE_POSITIONS
-from beams_common.angles import wrap_to_pi
-from beams_common.beacon_map import BeaconMap
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.beacon_map import BeaconMap
 
 # The turret turns at about 10 Hz (section 3.2): a capture of N revolutions lasts about N / 10 s.
 NOMINAL_TURRET_RATE_HZ = 10.0

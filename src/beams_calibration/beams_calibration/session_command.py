@@ -48,8 +48,8 @@ from beams_calibration.session import (
     reference_plan,
     run_session,
 )
-from beams_common import topics
-from beams_common.beacon_map import BeaconMap
+from beams_common.geometry.beacon_map import BeaconMap
+from beams_common.interfaces import topics
 from beams_common.ros.messages import seconds_to_stamp, set_pose2d
 from beams_msgs.srv import Calibrate, CaptureReference, ListConfigurations
 
@@ -124,7 +124,7 @@ class RosCalibrationServices:
         self.args = args
         self.executor = SingleThreadedExecutor(context=node.context)
         self.executor.add_node(node)
-        # the node's private services (beams_common.topics): /<namespace>/<node>/capture_reference
+        # the node's private services (beams_common.interfaces.topics): /<namespace>/<node>/capture_reference
         service = f"{args.node}/{{}}".format
         self.capture_client = node.create_client(CaptureReference, service(topics.CAPTURE_REFERENCE[2:]))
         self.list_client = node.create_client(ListConfigurations, service(topics.LIST_CONFIGURATIONS[2:]))

@@ -27,8 +27,8 @@ from beams_calibration.calibrate import (
     rms_figures,
 )
 from beams_calibration.dataset import Dataset, to_arrays
-from beams_common.bearing_correction import BearingCorrection
-from beams_common.calibration_file import load_calibration, save_calibration
+from beams_common.calibration.bearing_correction import BearingCorrection
+from beams_common.calibration.calibration_file import load_calibration, save_calibration
 from beams_thesis import thesis_setup
 
 INJECTED = BearingCorrection((-89.93, 36.64, -4.93, 0.22), (8.79e-4, -1.01e-3, -1.03e-3, -1.74e-3))

@@ -8,8 +8,8 @@ import pytest
 
 from beams_calibration import calibrate_command
 from beams_calibration.dataset import save_dataset
-from beams_common.beacon_map import BeaconMap
-from beams_common.calibration_file import load_calibration
+from beams_common.calibration.calibration_file import load_calibration
+from beams_common.geometry.beacon_map import BeaconMap
 from beams_thesis import thesis_setup
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -18,8 +18,8 @@ from beams_calibration.dataset import (
     save_dataset,
     to_arrays,
 )
-from beams_common import calibration_file
-from beams_common.beacon_map import BeaconMap
+from beams_common.calibration import calibration_file
+from beams_common.geometry.beacon_map import BeaconMap
 
 PRIOR = BeaconMap.from_lists((1, 2, 3), (1.151, 0.600, 0.049), (0.049, 0.907, 0.049))
 

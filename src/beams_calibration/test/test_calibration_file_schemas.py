@@ -1,4 +1,4 @@
-"""The calibration file and the dataset file read against their schema (beams_common.file_schema).
+"""The calibration file and the dataset file read against their schema (beams_common.calibration.file_schema).
 
 Searched rather than enumerated: valid documents perturbed entry by entry (every path replaced by any
 YAML value, or deleted), and random documents. Whatever the document, the parser either returns a
@@ -18,9 +18,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from beams_calibration.dataset import Dataset, DatasetError, dataset_from_dict, dataset_to_dict, load_dataset
-from beams_common.beacon_map import BeaconMap
-from beams_common.bearing_correction import THESIS_CORRECTION, BearingCorrection
-from beams_common.calibration_file import (
+from beams_common.calibration.bearing_correction import THESIS_CORRECTION, BearingCorrection
+from beams_common.calibration.calibration_file import (
     CalibrationFileError,
     RmsFigures,
     SensorCalibration,
@@ -29,7 +28,8 @@ from beams_common.calibration_file import (
     load_calibration,
     save_calibration,
 )
-from beams_common.file_schema import schema_problem
+from beams_common.calibration.file_schema import schema_problem
+from beams_common.geometry.beacon_map import BeaconMap
 from beams_thesis import thesis_setup
 
 SEARCH = settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.too_slow])

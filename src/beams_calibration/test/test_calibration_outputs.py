@@ -18,9 +18,9 @@ from beams_calibration.dataset import (
     save_dataset,
 )
 from beams_calibration.outputs import rms_regression, write_outputs
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.bearing_correction import THESIS_CORRECTION
-from beams_common.calibration_file import load_calibration
+from beams_common.calibration.bearing_correction import THESIS_CORRECTION
+from beams_common.calibration.calibration_file import load_calibration
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_thesis import thesis_setup
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"

@@ -32,7 +32,7 @@ from beams_calibration.session import (
     run_session,
     split_plan,
 )
-from beams_common.beacon_map import BeaconMap
+from beams_common.geometry.beacon_map import BeaconMap
 from beams_thesis import thesis_setup
 
 EUROBOT = BeaconMap.from_lists((1, 2, 3), (-0.062, -0.062, 3.062), (-0.062, 2.062, 1.0))

@@ -6,13 +6,17 @@ from types import SimpleNamespace
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_common.bearing import Bearing
-from beams_common.bearing_intake import (
+from beams_common.geometry.bearing import Bearing
+from beams_common.intake.bearing_intake import (
     BearingRefusal,
     bearings_message_intake,
     revolution_intake,
 )
-from beams_common.validation import MAX_BEARINGS_PER_REVOLUTION, MIN_BEARING_VARIANCE_RAD2, bearing_problem
+from beams_common.intake.validation import (
+    MAX_BEARINGS_PER_REVOLUTION,
+    MIN_BEARING_VARIANCE_RAD2,
+    bearing_problem,
+)
 
 KNOWN = (1, 2, 3)
 VARIANCE = 3.0e-6

@@ -2,7 +2,12 @@
 
 from types import SimpleNamespace
 
-from beams_common.bearing_messages import NS_PER_S, BearingFields, bearing_array_message, nanoseconds
+from beams_common.interfaces.bearing_messages import (
+    NS_PER_S,
+    BearingFields,
+    bearing_array_message,
+    nanoseconds,
+)
 
 # any message classes taking keyword fields (rclpy's, a rosbags typestore's) serve the builder
 TYPES = {

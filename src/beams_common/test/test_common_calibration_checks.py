@@ -9,9 +9,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
-from beams_common.bearing_correction import THESIS_CORRECTION, BearingCorrection
-from beams_common.calibration_checks import (
+from beams_common.calibration.bearing_correction import THESIS_CORRECTION, BearingCorrection
+from beams_common.calibration.calibration_checks import (
     MAX_BEACON_CORRECTION_M,
     MAX_ROTATION_BIAS_RAD,
     BearingSample,
@@ -23,13 +22,14 @@ from beams_common.calibration_checks import (
     power_bias_extent_rad,
     rotation_bias_extent_rad,
 )
-from beams_common.calibration_file import (
+from beams_common.calibration.calibration_file import (
     CalibrationFileError,
     SensorCalibration,
     load_calibration,
     save_calibration,
 )
-from beams_common.geometry_parameters import geometry_of
+from beams_common.config.geometry_parameters import geometry_of
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 
 THESIS_OFFSET_M = (-0.00098, -0.00011)  # section 7.3.5
 

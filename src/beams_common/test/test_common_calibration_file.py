@@ -6,17 +6,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from beams_common import calibration_file
-from beams_common.angles import wrap_to_pi
-from beams_common.beacon_map import BeaconMap
-from beams_common.bearing_correction import IDENTITY_CORRECTION, THESIS_CORRECTION, BearingCorrection
-from beams_common.calibration_file import (
+from beams_common.calibration import calibration_file
+from beams_common.calibration.bearing_correction import (
+    IDENTITY_CORRECTION,
+    THESIS_CORRECTION,
+    BearingCorrection,
+)
+from beams_common.calibration.calibration_file import (
     CalibrationFileError,
     RmsFigures,
     SensorCalibration,
     load_calibration,
     save_calibration,
 )
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.beacon_map import BeaconMap
 
 # Table 7.4 (after calibration) and the figure 7.11/7.12 coefficients.
 THESIS_COEFFICIENTS = (

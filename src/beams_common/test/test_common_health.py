@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from beams_common.health import RateMonitor, RecentFaults, Status, judge
+from beams_common.status.health import RateMonitor, RecentFaults, Status, judge
 
 
 def test_the_verdict_is_waiting_then_lost_then_degraded_then_tracking():

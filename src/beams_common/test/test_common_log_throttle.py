@@ -4,7 +4,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from beams_common.log_throttle import KeyThrottle
+from beams_common.status.log_throttle import KeyThrottle
 
 
 class FakeClock:

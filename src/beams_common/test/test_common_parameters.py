@@ -7,8 +7,8 @@ import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_common.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SPECS, geometry_of
-from beams_common.parameters import (
+from beams_common.config.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SPECS, geometry_of
+from beams_common.config.parameters import (
     ParameterError,
     ParameterSpec,
     ParameterTable,
@@ -133,9 +133,9 @@ def test_topic_names(name, valid):
 def test_a_runtime_change_reads_the_calibration_file_only_when_the_geometry_changes(tmp_path):
     """A gate or frame change keeps the geometry in use (the file is not read again); a geometry change
     reads it; the map cannot change under a calibration file."""
-    from beams_common.beacon_map import EUROBOT_BEACON_MAP
-    from beams_common.calibration_file import SensorCalibration, save_calibration
-    from beams_common.geometry_parameters import runtime_geometry
+    from beams_common.calibration.calibration_file import SensorCalibration, save_calibration
+    from beams_common.config.geometry_parameters import runtime_geometry
+    from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 
     path = tmp_path / "calibration.yaml"
     save_calibration(SensorCalibration(beacon_map=EUROBOT_BEACON_MAP), path)

@@ -6,7 +6,7 @@ import math
 from hypothesis import given
 from hypothesis import strategies as st
 
-from beams_common.plausibility import (
+from beams_common.intake.plausibility import (
     MotionLimits,
     StampCheck,
     StampTolerance,

@@ -6,8 +6,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from beams_common.angles import wrap_to_pi
-from beams_common.pose2d import between, compose, interpolate, inverse, yaw_of_quaternion
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.pose2d import between, compose, interpolate, inverse, yaw_of_quaternion
 
 A, B = (0.3, -1.2, 2.8), (1.1, 0.4, -2.9)
 

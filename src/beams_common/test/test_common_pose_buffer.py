@@ -6,10 +6,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_common.angles import wrap_to_pi
-from beams_common.pose2d import is_finite_pose
-from beams_common.pose_buffer import PoseBuffer
-from beams_common.validation import odometry_problem
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.pose2d import is_finite_pose
+from beams_common.geometry.pose_buffer import PoseBuffer
+from beams_common.intake.validation import odometry_problem
 
 
 def _close(a, b, tolerance=1e-9) -> bool:

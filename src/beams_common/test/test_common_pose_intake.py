@@ -7,8 +7,8 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_common.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD
-from beams_common.pose_intake import (
+from beams_common.intake.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD
+from beams_common.intake.pose_intake import (
     KeptPose,
     PoseRefusal,
     PoseSource,

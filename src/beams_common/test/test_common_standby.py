@@ -1,4 +1,4 @@
-"""The role lock of the hot standby (beams_common.standby): held and free, freed by the kernel when its
+"""The role lock of the hot standby (beams_common.ros.standby): held and free, freed by the kernel when its
 holder is killed, one role per domain and fully qualified name, the identity read from --ros-args."""
 
 import os
@@ -13,7 +13,7 @@ import uuid
 import pytest
 
 import beams_common
-from beams_common.standby import (
+from beams_common.ros.standby import (
     MAX_ABSTRACT_NAME_BYTES,
     NodeIdentity,
     RoleLock,
@@ -40,7 +40,7 @@ def start_holder(name: str) -> subprocess.Popen:
     source_root = pathlib.Path(beams_common.__file__).resolve().parents[1]
     program = (
         "import sys, time\n"
-        "from beams_common.standby import RoleLock\n"
+        "from beams_common.ros.standby import RoleLock\n"
         f"lock = RoleLock({name!r})\n"
         "print('held' if lock.try_acquire() else 'refused', flush=True)\n"
         "time.sleep(60)\n"

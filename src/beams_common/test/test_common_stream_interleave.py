@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from beams_common.stream_interleave import InterleaveDetector
+from beams_common.intake.stream_interleave import InterleaveDetector
 
 REVOLUTION_MODULUS = 2**32
 

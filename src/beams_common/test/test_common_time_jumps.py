@@ -2,7 +2,7 @@
 
 import pytest
 
-from beams_common.time_jumps import StampOrder, TimeJumpDetector
+from beams_common.intake.time_jumps import StampOrder, TimeJumpDetector
 
 
 def _classify_all(detector: TimeJumpDetector, stamps: list[float]) -> list[StampOrder]:

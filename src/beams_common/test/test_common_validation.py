@@ -1,4 +1,4 @@
-"""The shared checks of beams_common.validation: bounded reasons, the output covariance invariant, the
+"""The shared checks of beams_common.intake.validation: bounded reasons, the output covariance invariant, the
 operator pose, one sighting per beacon; searched with generated values."""
 
 import math
@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from beams_common.validation import (
+from beams_common.intake.validation import (
     MAX_REASON_CHARS,
     bounded,
     covariance_problem,

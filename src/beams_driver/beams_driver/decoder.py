@@ -21,8 +21,8 @@ from typing import Protocol
 
 import numpy as np
 
-from beams_common.angles import wrap_to_pi
-from beams_common.bearing import Bearing
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.bearing import Bearing
 from beams_driver.codes import BeaconCode
 from beams_driver.edges import RevolutionEdges
 from beams_driver.receiver import IDEAL_RECEIVER, ReceiverModel
@@ -56,7 +56,7 @@ class DecodedBearing:
     stamp_s: float
 
     def as_bearing(self) -> Bearing:
-        """The bearing as the triangulation and the EKF take it (beams_common.bearing)."""
+        """The bearing as the triangulation and the EKF take it (beams_common.geometry.bearing)."""
         return Bearing(self.stamp_s, self.beacon_id, self.bearing, self.variance)
 
 

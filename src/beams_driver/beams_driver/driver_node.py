@@ -27,13 +27,12 @@ from rclpy.node import Node
 from rclpy.subscription import Subscription
 from rclpy.timer import Timer
 
-from beams_common import topics
-from beams_common.angles import wrap_to_pi
-from beams_common.bearing_correction import BearingCorrection
-from beams_common.bearing_messages import BearingFields, nanoseconds
-from beams_common.calibration_file import SensorCalibration, load_calibration
-from beams_common.health import RATE_WINDOW_S, RateMonitor
-from beams_common.parameters import ParameterTable
+from beams_common.calibration.bearing_correction import BearingCorrection
+from beams_common.calibration.calibration_file import SensorCalibration, load_calibration
+from beams_common.config.parameters import ParameterTable
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.interfaces import topics
+from beams_common.interfaces.bearing_messages import BearingFields, nanoseconds
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import bearing_array, pose2d_of, stamp_to_seconds
@@ -45,6 +44,7 @@ from beams_common.ros.parameters import (
     declare_table,
 )
 from beams_common.ros.rate_status import RateStatus
+from beams_common.status.health import RATE_WINDOW_S, RateMonitor
 from beams_driver.decoder import BearingDecoder, DecodedRevolution
 from beams_driver.edge_source import EdgeSource, PoseCallback, source_kind
 from beams_driver.edges import TURRET_PERIOD_S, RevolutionEdges

@@ -18,8 +18,8 @@ from dataclasses import dataclass, field
 from importlib.metadata import entry_points
 from typing import Any, Protocol
 
-from beams_common.parameters import ParameterSpec
-from beams_common.pose2d import Pose2D
+from beams_common.config.parameters import ParameterSpec
+from beams_common.geometry.pose2d import Pose2D
 from beams_driver.codes import BeaconCode
 from beams_driver.edges import RevolutionEdges
 from beams_driver.receiver import ReceiverModel

@@ -22,8 +22,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from beams_common.calibration_file import atomic_write_text
-from beams_common.parameters import ParameterError, ParameterTable, load_parameter_file
+from beams_common.calibration.calibration_file import atomic_write_text
+from beams_common.config.parameters import ParameterError, ParameterTable, load_parameter_file
 from beams_driver.edge_source import named_sources, source_kind
 from beams_driver.noise_estimation import (
     MAX_DRIFT_RAD,

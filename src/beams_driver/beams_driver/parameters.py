@@ -10,9 +10,9 @@ exit or to wait for a lifecycle manager when another parameter is bad; DRIVER_PA
 from collections.abc import Mapping
 from typing import Any
 
-from beams_common.bearing_correction import BearingCorrection
-from beams_common.geometry_parameters import CALIBRATION_FILE
-from beams_common.parameters import ParameterSpec, ParameterTable
+from beams_common.calibration.bearing_correction import BearingCorrection
+from beams_common.config.geometry_parameters import CALIBRATION_FILE
+from beams_common.config.parameters import ParameterSpec, ParameterTable
 from beams_driver.codes import BIT_TIME_S, BeaconCode, code_family, codes_from_strings, validate_codes
 from beams_driver.decoder import MIN_CODES_SEEN
 from beams_driver.receiver import HardwareNoise, ReceiverModel

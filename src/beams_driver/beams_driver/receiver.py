@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from beams_common.bearing_correction import BearingCorrection
+from beams_common.calibration.bearing_correction import BearingCorrection
 from beams_driver.codes import BeaconCode
 from beams_driver.edges import TURRET_PERIOD_S
 

@@ -32,7 +32,7 @@ from typing import Any
 
 import serial
 
-from beams_common.parameters import ParameterSpec
+from beams_common.config.parameters import ParameterSpec
 from beams_driver.edge_source import EdgeSourceKind, SourceHealth, SourceHost, SourcePoll
 from beams_driver.edges import RevolutionEdges
 from beams_driver.serial_protocol import (

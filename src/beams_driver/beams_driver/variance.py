@@ -19,7 +19,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from beams_common.bearing_correction import BearingCorrection
+from beams_common.calibration.bearing_correction import BearingCorrection
 from beams_driver.codes import BeaconCode, first_last_edges, is_family_code
 from beams_driver.edges import TURRET_SPEED_RAD_S
 from beams_driver.receiver import ReceiverModel

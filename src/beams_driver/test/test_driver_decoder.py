@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_common.angles import wrap_to_pi
+from beams_common.geometry.angles import wrap_to_pi
 from beams_driver.codes import code_family
 from beams_driver.decoder import BearingDecoder, DecodedRevolution
 from beams_driver.edges import RevolutionEdges

@@ -11,8 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_common.angles import wrap_to_pi
-from beams_common.bearing_correction import BearingCorrection
+from beams_common.calibration.bearing_correction import BearingCorrection
+from beams_common.geometry.angles import wrap_to_pi
 from beams_driver.codes import BeaconCode, code_family, codes_from_strings, family_code, first_last_edges
 from beams_driver.decoder import BearingDecoder
 from beams_driver.edges import RevolutionEdges

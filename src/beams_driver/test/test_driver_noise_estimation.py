@@ -10,7 +10,7 @@ import math
 import numpy as np
 import pytest
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.estimate_noise import driver_models, estimate
 from beams_driver.noise_estimation import (
     TOLERATED_RATIO,

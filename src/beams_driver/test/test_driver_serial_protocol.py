@@ -15,7 +15,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver import serial_protocol
 from beams_driver.decoder import BearingDecoder
 from beams_driver.edges import RevolutionEdges

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from beams_common.parameters import ParameterSpec, ParameterTable
+from beams_common.config.parameters import ParameterSpec, ParameterTable
 from beams_ekf.state_blocks import BeaconsXy, BearingPart, Sighting, StateBlock
 
 # the map frame needs three fixed beacons (its two translations and its rotation)

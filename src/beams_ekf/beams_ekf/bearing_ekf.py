@@ -28,9 +28,9 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from scipy.stats import chi2
 
-from beams_common.angles import wrap_to_pi
-from beams_common.parameters import ParameterSpec, ParameterTable
-from beams_common.pose2d import Pose2D, compose
+from beams_common.config.parameters import ParameterSpec, ParameterTable
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.pose2d import Pose2D, compose
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, rejected
 from beams_ekf.state_blocks import BearingPart, Sighting, StateBlock
 

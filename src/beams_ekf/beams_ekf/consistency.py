@@ -18,8 +18,8 @@ from math import hypot, isfinite
 import numpy as np
 from scipy.stats import chi2
 
-from beams_common.angles import wrap_to_pi
-from beams_common.pose2d import Pose2D
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.pose2d import Pose2D
 
 
 class NisMonitor:

@@ -1,4 +1,4 @@
-"""ekf_node's status (`beams_common.health`): tracking only while its consistency checks pass.
+"""ekf_node's status (`beams_common.status.health`): tracking only while its consistency checks pass.
 
 - waiting: no pose has initialised the filter (or it was reset).
 - lost: the bearings' innovations contradict the estimate (`NisMonitor`'s chi-square test over its
@@ -19,7 +19,7 @@ The receiving clock is the node's (ROS time: /clock under use_sim_time); pure, t
 from collections.abc import Mapping
 from typing import Any
 
-from beams_common.health import (
+from beams_common.status.health import (
     FAULT_HOLD_S,
     RecentFaults,
     Verdict,

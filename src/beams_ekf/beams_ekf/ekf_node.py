@@ -16,11 +16,11 @@ learnt while driving to `self_calibration_file`.
 All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
 
 Every pose (ToTal's accepted fix, /initialpose, `~/set_pose`) goes through the one pose intake
-(`beams_common.pose_intake`, as the offline replay's): in another frame than `map_frame`, non-finite, or
-with a covariance asymmetric, not positive semi-definite or beyond 4 m / 2 pi rad, it is refused with
-the reason, counted `<total|operator>_poses_<kind>` on /diagnostics (`~/set_pose` answers it).
+(`beams_common.intake.pose_intake`, as the offline replay's): in another frame than `map_frame`, non-finite,
+or with a covariance asymmetric, not positive semi-definite or beyond 4 m / 2 pi rad, it is refused with the
+reason, counted `<total|operator>_poses_<kind>` on /diagnostics (`~/set_pose` answers it).
 
-Plausibility (`beams_common.plausibility`): a revolution whose newest bearing, an odometry
+Plausibility (`beams_common.intake.plausibility`): a revolution whose newest bearing, an odometry
 message, or an accepted ToTal pose, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s`
 ahead of the node's clock is refused with the reason (`<bearings|odometry|total_pose>_stamp_refused`,
 `last_refusal`; two in a row degrade the status); an odometry increment beyond `max_speed_m_per_s` or
@@ -47,14 +47,14 @@ from rclpy.qos import qos_profile_sensor_data
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 
-from beams_common import topics
-from beams_common.bearing_intake import RevolutionIntake, bearings_message_intake
-from beams_common.calibration_checks import BearingSample, RecentBearings
-from beams_common.calibration_file import SensorCalibration
-from beams_common.geometry_parameters import BeaconGeometry, geometry_of_calibration, runtime_geometry
-from beams_common.health import Status
-from beams_common.plausibility import StampCheck, stamp_tolerance_of
-from beams_common.pose_intake import KeptPose, PoseIntake, PoseSource, RefusedPose, pose_message_intake
+from beams_common.calibration.calibration_checks import BearingSample, RecentBearings
+from beams_common.calibration.calibration_file import SensorCalibration
+from beams_common.config.geometry_parameters import BeaconGeometry, geometry_of_calibration, runtime_geometry
+from beams_common.intake.bearing_intake import RevolutionIntake, bearings_message_intake
+from beams_common.intake.plausibility import StampCheck, stamp_tolerance_of
+from beams_common.intake.pose_intake import KeptPose, PoseIntake, PoseSource, RefusedPose, pose_message_intake
+from beams_common.intake.validation import bounded, planar_estimate_problem
+from beams_common.interfaces import topics
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import (
@@ -77,7 +77,7 @@ from beams_common.ros.node_support import (
 )
 from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
 from beams_common.ros.status_topic import StatusTopic
-from beams_common.validation import bounded, planar_estimate_problem
+from beams_common.status.health import Status
 from beams_ekf.ekf_health import WAITING_FOR_POSE, EkfHealth
 from beams_ekf.localiser import build_localiser
 from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
@@ -244,8 +244,8 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
     def _take_pose(
         self, source: PoseSource, header, pose_with_covariance
     ) -> tuple[PoseIntake, PoseOutcome | None]:
-        """A pose message through the pose intake (`beams_common.pose_intake`, as the offline replay's) and
-        the localiser's pose door, which counts a refusal (shown here with its reason). None: a ToTal pose
+        """A pose message through the pose intake (`beams_common.intake.pose_intake`, as the offline replay's)
+        and the localiser's pose door, which counts a refusal (shown here with its reason). None: a ToTal pose
         stamped beyond the tolerance against the node's clock (it would be brought to the filter's instant
         wrongly), refused before the door."""
         stamp_s = stamp_to_seconds(header.stamp)

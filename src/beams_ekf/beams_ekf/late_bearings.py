@@ -16,9 +16,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from beams_common.bearing import Bearing
-from beams_common.pose2d import Pose2D, between
-from beams_common.pose_buffer import PoseBuffer
+from beams_common.geometry.bearing import Bearing
+from beams_common.geometry.pose2d import Pose2D, between
+from beams_common.geometry.pose_buffer import PoseBuffer
 from beams_ekf.bearing_ekf import turret_pose
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, PoseFilter, rejected
 from beams_ekf.settings import LocaliserConfig

@@ -2,20 +2,20 @@
 ToTal (or an operator) to initialise it.
 
 `Localiser` has one door per input, each answering an outcome: `on_odometry(stamp_s, pose)` (checked by
-`validation.odometry_problem`), `on_bearings(intake)` (a revolution through `beams_common.bearing_intake`)
-and `on_pose(intake)` (ToTal's fix or an operator's through `beams_common.pose_intake`). ekf_node and every
-offline driver (`beams_thesis.replay`, `beams_tools.replay_pipelines`, the benches) use these, so the
-offline figures are the node's. The EKF state is kept at the newest odometry instant, a bearing applied
-at its own stamp (`late_bearings`). A pose initialises the filter, brought to the filter's instant by the
-odometry since its stamp (a ToTal fix, stamped at its revolution ~0.1-0.2 s before it arrives, is refused
-when the odometry history does not cover it: taken as current, it put the live filter 0.2 m and 7 deg
-off, confidently), and re-initialises it when the robot was kidnapped (most recent bearings gated out
-while ToTal is confident of a pose inconsistent with the estimate: identified beacons make this
-possible, thesis ch. 8 "System deployment") or the filter is lost (`NisMonitor`). Time going backwards
-(a bag played in a loop; `beams_common.time_jumps`) resets everything, what the filter learnt of the
-sensor included; odometry gaps inflate the covariance; an odometry increment beyond the robot's speed or
-yaw rate (`beams_common.plausibility`) is never predicted with: the sample becomes the new reference and
-the covariance grows by the most the robot could have moved (`Localiser._rereference`).
+`validation.odometry_problem`), `on_bearings(intake)` (a revolution through
+`beams_common.intake.bearing_intake`) and `on_pose(intake)` (ToTal's fix or an operator's through
+`beams_common.intake.pose_intake`). ekf_node and every offline driver (`beams_thesis.replay`,
+`beams_tools.replay_pipelines`, the benches) use these, so the offline figures are the node's. The EKF state
+is kept at the newest odometry instant, a bearing applied at its own stamp (`late_bearings`). A pose
+initialises the filter, brought to the filter's instant by the odometry since its stamp (a ToTal fix, stamped
+at its revolution ~0.1-0.2 s before it arrives, is refused when the odometry history does not cover it: taken
+as current, it put the live filter 0.2 m and 7 deg off, confidently), and re-initialises it when the robot was
+kidnapped (most recent bearings gated out while ToTal is confident of a pose inconsistent with the estimate:
+identified beacons make this possible, thesis ch. 8 "System deployment") or the filter is lost (`NisMonitor`).
+Time going backwards (a bag played in a loop; `beams_common.intake.time_jumps`) resets everything, what the
+filter learnt of the sensor included; odometry gaps inflate the covariance; an odometry increment beyond the
+robot's speed or yaw rate (`beams_common.intake.plausibility`) is never predicted with: the sample becomes the
+new reference and the covariance grows by the most the robot could have moved (`Localiser._rereference`).
 After an event that breaks the estimate's continuity (an operator's pose, an odometry jump, an odometry
 silence of ODOMETRY_SILENCE_S, a time jump, a re-initialisation from ToTal after a kidnap or a lost test)
 the estimate is unconfirmed until its bearings confirm it (`consistency.PoseConfirmation`; ekf_node's
@@ -28,13 +28,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from beams_common.bearing import Bearing
-from beams_common.bearing_intake import RevolutionIntake, revolution_intake
-from beams_common.plausibility import MotionLimits, odometry_step_problem
-from beams_common.pose2d import Pose2D, between, compose, inverse
-from beams_common.pose_intake import PoseIntake, RefusedPose
-from beams_common.time_jumps import StampOrder, TimeJumpDetector
-from beams_common.validation import odometry_problem
+from beams_common.geometry.bearing import Bearing
+from beams_common.geometry.pose2d import Pose2D, between, compose, inverse
+from beams_common.intake.bearing_intake import RevolutionIntake, revolution_intake
+from beams_common.intake.plausibility import MotionLimits, odometry_step_problem
+from beams_common.intake.pose_intake import PoseIntake, RefusedPose
+from beams_common.intake.time_jumps import StampOrder, TimeJumpDetector
+from beams_common.intake.validation import odometry_problem
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.consistency import ODOMETRY_SILENCE_S, KidnapEvidence, NisMonitor, PoseConfirmation
 from beams_ekf.late_bearings import LateBearings
@@ -231,8 +231,8 @@ class Localiser:
 
     # -- bearings -------------------------------------------------------------------------------------
     def on_bearings(self, intake: RevolutionIntake) -> list[BearingOutcome]:
-        """A revolution the bearing intake sorted out (`beams_common.bearing_intake.revolution_intake`, the
-        triangulation's rules): its refusals counted (`bearings_<refusal>`, and the revolution's:
+        """A revolution the bearing intake sorted out (`beams_common.intake.bearing_intake.revolution_intake`,
+        the triangulation's rules): its refusals counted (`bearings_<refusal>`, and the revolution's:
         `revolutions_too_many_bearings`, `revolutions_conflicting_beacon`,
         `revolutions_with_invalid_bearings`; ekf_node reports these counts with the reasons), the bearings
         kept applied each at its own stamp (`late_bearings`). Returns their outcomes, in `intake.kept`'s
@@ -254,7 +254,7 @@ class Localiser:
 
     # -- poses ----------------------------------------------------------------------------------------
     def on_pose(self, intake: PoseIntake) -> PoseOutcome:
-        """A pose through the pose intake (`beams_common.pose_intake`: ToTal's fix or an operator's).
+        """A pose through the pose intake (`beams_common.intake.pose_intake`: ToTal's fix or an operator's).
         Returns what it did: a refusal is counted under its key (`<source>_poses_<kind>`, INVALID; ekf_node
         shows this count with the reason).
 

@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from beams_common.parameters import ParameterSpec, ParameterTable
-from beams_common.pose2d import Pose2D
+from beams_common.config.parameters import ParameterSpec, ParameterTable
+from beams_common.geometry.pose2d import Pose2D
 from beams_ekf.state_blocks import StateBlock
 
 # below this turn (rad) the arc functions use their Taylor series (the closed forms lose precision)

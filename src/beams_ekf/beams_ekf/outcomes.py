@@ -9,7 +9,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from beams_common.pose2d import Pose2D, compose, inverse
+from beams_common.geometry.pose2d import Pose2D, compose, inverse
 
 
 class OdometryOutcome(StrEnum):

@@ -7,10 +7,10 @@ from collections.abc import Mapping
 from dataclasses import fields
 from typing import Any
 
-from beams_common.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SPECS
-from beams_common.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, rates_check
-from beams_common.parameters import ROS_NODE_PARAMETERS, ParameterSpec, ParameterTable
-from beams_common.plausibility import MOTION_SPECS, STAMP_SPECS, motion_limits_of
+from beams_common.config.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SPECS
+from beams_common.config.parameters import ROS_NODE_PARAMETERS, ParameterSpec, ParameterTable
+from beams_common.intake.plausibility import MOTION_SPECS, STAMP_SPECS, motion_limits_of
+from beams_common.status.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, rates_check
 from beams_ekf.bearing_ekf import BEARING_EKF_SPECS, process_noise_of
 from beams_ekf.settings import SETTINGS_SPECS, FilterSettings, LocaliserConfig
 from beams_ekf.state_blocks import registered_blocks

@@ -16,7 +16,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from beams_common.pose2d import Pose2D
+from beams_common.geometry.pose2d import Pose2D
 
 
 class BearingReason(StrEnum):

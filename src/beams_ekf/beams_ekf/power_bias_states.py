@@ -25,9 +25,9 @@ from typing import Any
 
 import numpy as np
 
-from beams_common.bearing_correction import BearingCorrection
-from beams_common.parameters import ParameterSpec, ParameterTable
-from beams_common.pose2d import compose
+from beams_common.calibration.bearing_correction import BearingCorrection
+from beams_common.config.parameters import ParameterSpec, ParameterTable
+from beams_common.geometry.pose2d import compose
 from beams_ekf.state_blocks import BearingPart, Sighting, StateBlock
 
 # Section 5.7: the bias fluctuates with the received power within 0.23 deg.
@@ -132,7 +132,7 @@ class PowerBiasStates(StateBlock):
 
     def correction(self, coefficients: np.ndarray) -> BearingCorrection:
         """The chapter-7 correction (eq. 7.19's a, b, c, d, window range) that removes f: what a
-        calibration file holds (beams_common.calibration_file), no rotation bias."""
+        calibration file holds (beams_common.calibration.calibration_file), no rotation bias."""
         chebyshev = np.polynomial.Chebyshev(
             np.asarray(coefficients, dtype=float).reshape(-1),
             domain=list(self.window_range_rad),

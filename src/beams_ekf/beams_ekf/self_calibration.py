@@ -1,7 +1,7 @@
 """What the EKF learnt of the sensor while driving, as a chapter-7 calibration file.
 
 The power-bias states (`power_bias_states`) hold the curve f(w) of eq. 7.19 on a Chebyshev basis; the
-file holds it as eq. 7.19's (a, b, c, d) with the window range (beams_common.calibration_file), so
+file holds it as eq. 7.19's (a, b, c, d) with the window range (beams_common.calibration.calibration_file), so
 driver_node corrects the bearings with it and the chapter-7 tools (`calibrate`, the plots) read it. With
 turret offset states (`turret_offset_states`) the file's turret offset is the configured one corrected,
 with beacon states (`beacon_states`) its beacon map holds the learnt coordinates of those beacons.
@@ -9,8 +9,8 @@ with beacon states (`beacon_states`) its beacon map holds the learnt coordinates
 
 import os
 
-from beams_common.beacon_map import BeaconMap
-from beams_common.calibration_file import SensorCalibration, save_calibration
+from beams_common.calibration.calibration_file import SensorCalibration, save_calibration
+from beams_common.geometry.beacon_map import BeaconMap
 from beams_ekf.beacon_states import BeaconStates
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.power_bias_states import PowerBiasStates

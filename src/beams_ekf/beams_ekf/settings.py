@@ -10,8 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from beams_common.parameters import ParameterSpec, ParameterTable
-from beams_common.plausibility import MAX_POSE_SIGMA_M, MotionLimits
+from beams_common.config.parameters import ParameterSpec, ParameterTable
+from beams_common.intake.plausibility import MAX_POSE_SIGMA_M, MotionLimits
 from beams_ekf.beacon_states import BEACON_STATE_SPECS, BeaconStates, beacon_states_of
 from beams_ekf.bearing_ekf import BEARING_EKF_SPECS, ProcessNoise, process_noise_of
 from beams_ekf.odometry_errors import ODOMETRY_ERROR_SPECS, OdometryErrorStates, odometry_error_states_of

@@ -11,8 +11,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from beams_common.parameters import ParameterTable
-from beams_common.pose2d import Pose2D
+from beams_common.config.parameters import ParameterTable
+from beams_common.geometry.pose2d import Pose2D
 
 BeaconsXy = Mapping[int, tuple[float, float]]
 

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from beams_common.parameters import ParameterSpec, ParameterTable
+from beams_common.config.parameters import ParameterSpec, ParameterTable
 from beams_ekf.state_blocks import BearingPart, Sighting, StateBlock
 
 TURRET_OFFSET_SPECS = ParameterTable(

@@ -5,9 +5,9 @@ from math import atan2, pi, sqrt
 import numpy as np
 import pytest
 
-from beams_common.angles import wrap_to_pi
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.pose2d import compose
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.pose2d import compose
 from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise, gate_threshold, turret_pose
 from beams_ekf.parameters import filter_settings
 

@@ -1,7 +1,7 @@
 """ekf_node's status model (issue 18): tracking only while the filter's tests, the input rates and the
 plausibility checks pass; a sequence of inputs drives it through every status."""
 
-from beams_common.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
+from beams_common.status.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
 from beams_ekf.ekf_health import EkfHealth
 
 VALUES = {spec.name: spec.default for spec in (*BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC)}

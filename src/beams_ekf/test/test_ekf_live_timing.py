@@ -11,11 +11,11 @@ from math import hypot
 import numpy as np
 import pytest
 
-from beams_common.angles import wrap_to_pi
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.bearing import Bearing
-from beams_common.pose2d import Pose2D
-from beams_common.pose_intake import PoseIntake, PoseSource, planar_pose_intake
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.bearing import Bearing
+from beams_common.geometry.pose2d import Pose2D
+from beams_common.intake.pose_intake import PoseIntake, PoseSource, planar_pose_intake
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Localiser, LocaliserConfig, revolution_of
 from beams_thesis.synthetic import SyntheticMatch, synthetic_match

@@ -9,12 +9,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_common.angles import wrap_to_pi
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.bearing import Bearing
-from beams_common.bearing_intake import BearingRefusal
-from beams_common.pose2d import compose
-from beams_common.pose_intake import PoseSource, planar_pose_intake
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.bearing import Bearing
+from beams_common.geometry.pose2d import compose
+from beams_common.intake.bearing_intake import BearingRefusal
+from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import Localiser, LocaliserConfig, revolution_of
 from beams_thesis.replay import accuracy, replay
@@ -192,7 +192,7 @@ def test_time_going_backwards_resets_cleanly(match):
 def test_map_to_odom_puts_the_odometry_pose_on_the_estimate(match):
     """REP-105's map -> odom: composed with the odometry pose at the estimate's instant, the estimate;
     after a drifting drive it is no longer the identity (it corrects the drift)."""
-    from beams_common.pose2d import compose
+    from beams_common.geometry.pose2d import compose
 
     localiser = _localiser()
     _pose(localiser, 0.0, tuple(match.truth[0]), START_COVARIANCE, operator=True)

@@ -15,11 +15,11 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.bearing import Bearing
-from beams_common.bearing_intake import BearingRefusal, RevolutionIntake
-from beams_common.pose_intake import PoseSource, planar_pose_intake
-from beams_common.validation import (
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.bearing import Bearing
+from beams_common.intake.bearing_intake import BearingRefusal, RevolutionIntake
+from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
+from beams_common.intake.validation import (
     MAX_BEARINGS_PER_REVOLUTION,
     MIN_BEARING_VARIANCE_RAD2,
     bearing_problem,

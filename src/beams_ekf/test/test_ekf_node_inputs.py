@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.parameters import node_section
-from beams_common.pose_intake import PoseSource, planar_pose_intake
+from beams_common.config.parameters import node_section
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
 from beams_ekf.bearing_ekf import BEARING_EKF_SPECS, ProcessNoise
 from beams_ekf.localiser import (
     Bearing,

@@ -9,11 +9,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.bearing import Bearing
-from beams_common.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD
-from beams_common.pose_intake import PoseSource, planar_pose_intake, pose_covariance_problem
-from beams_common.validation import planar_estimate_problem
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.bearing import Bearing
+from beams_common.intake.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD
+from beams_common.intake.pose_intake import PoseSource, planar_pose_intake, pose_covariance_problem
+from beams_common.intake.validation import planar_estimate_problem
 from beams_ekf.localiser import Localiser, build_localiser, revolution_of
 from beams_ekf.outcomes import OdometryOutcome
 from beams_ekf.settings import FilterSettings

@@ -12,10 +12,10 @@ from math import hypot, sqrt
 import numpy as np
 import pytest
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.bearing import Bearing
-from beams_common.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
-from beams_common.pose_intake import PoseSource, planar_pose_intake
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.bearing import Bearing
+from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
+from beams_common.status.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
 from beams_ekf.consistency import PoseConfirmation
 from beams_ekf.ekf_health import EkfHealth
 from beams_ekf.localiser import Localiser, build_localiser, revolution_of

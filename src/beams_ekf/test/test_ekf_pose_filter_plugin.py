@@ -6,8 +6,8 @@ from math import hypot
 
 import numpy as np
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.pose2d import Pose2D, compose
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.pose2d import Pose2D, compose
 from beams_ekf.bearing_ekf import BearingEkf, gate_threshold
 from beams_ekf.localiser import Localiser
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, PoseFilter, rejected

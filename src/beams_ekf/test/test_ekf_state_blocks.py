@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from beams_common.angles import wrap_to_pi
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.parameters import ParameterSpec, ParameterTable
+from beams_common.config.parameters import ParameterSpec, ParameterTable
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_ekf.beacon_states import BeaconStates
 from beams_ekf.bearing_ekf import BearingEkf, bearing_measurement, turret_pose
 from beams_ekf.odometry_errors import OdometryErrorStates

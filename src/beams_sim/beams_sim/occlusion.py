@@ -9,7 +9,7 @@ of sight.
 import math
 from collections.abc import Callable, Mapping
 
-from beams_common.pose_buffer import PoseBuffer
+from beams_common.geometry.pose_buffer import PoseBuffer
 from beams_driver.edges import TURRET_PERIOD_S
 
 # seconds of true poses kept

@@ -6,7 +6,7 @@ defaults and ranges from here."""
 from collections.abc import Mapping
 from typing import Any
 
-from beams_common.parameters import ParameterSpec, ParameterTable
+from beams_common.config.parameters import ParameterSpec, ParameterTable
 
 TRAJECTORY_KINDS = ("random", "waypoints", "static")
 # OdometryDrift's fields (a small robot, roughly calibrated): default, description, minimum

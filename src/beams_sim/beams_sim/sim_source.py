@@ -10,11 +10,11 @@ from typing import Any
 
 import numpy as np
 
-from beams_common import topics
-from beams_common.calibration_file import load_calibration
-from beams_common.geometry_parameters import beacon_map_check, beacon_map_of, beacon_map_specs
-from beams_common.parameters import ParameterSpec, is_topic_name
-from beams_common.pose2d import Pose2D
+from beams_common.calibration.calibration_file import load_calibration
+from beams_common.config.geometry_parameters import beacon_map_check, beacon_map_of, beacon_map_specs
+from beams_common.config.parameters import ParameterSpec, is_topic_name
+from beams_common.geometry.pose2d import Pose2D
+from beams_common.interfaces import topics
 from beams_driver.codes import BeaconCode
 from beams_driver.edge_source import EdgeSourceKind, SourceHealth, SourceHost, SourcePoll
 from beams_driver.edges import TURRET_PERIOD_S

@@ -21,13 +21,13 @@ from rclpy.node import Node
 from rclpy.time import Time
 from tf2_msgs.msg import TFMessage
 
-from beams_common import topics
-from beams_common.health import RATE_WINDOW_S, RateMonitor
+from beams_common.interfaces import topics
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.messages import planar_tf_message, ros_covariance, set_pose2d
 from beams_common.ros.node_support import TF_QOS, Diagnostics, run_node
 from beams_common.ros.parameters import ParameterValidationError, declare_table
 from beams_common.ros.rate_status import RateStatus
+from beams_common.status.health import RATE_WINDOW_S, RateMonitor
 from beams_sim.parameters import SIM_WORLD_PARAMETERS
 from beams_sim.world import OdometrySimulator, Pose2D, drift_of, trajectory_of
 

@@ -24,9 +24,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from beams_common.angles import wrap_to_pi
-from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
-from beams_common.bearing_correction import BearingCorrection
+from beams_common.calibration.bearing_correction import BearingCorrection
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_driver.codes import BeaconCode
 from beams_driver.decoder import BearingDecoder, DecodedRevolution, VarianceSource
 from beams_driver.edges import RevolutionEdges

@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from beams_common.angles import wrap_to_pi
+from beams_common.geometry.angles import wrap_to_pi
 from beams_sim.parameters import ODOMETRY_DRIFT, SIM_WORLD_PARAMETERS
 
 TABLE_LENGTH_M = 3.0

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from beams_common.angles import wrap_to_pi
+from beams_common.geometry.angles import wrap_to_pi
 from beams_sim.occlusion import (
     TRUTH_LEAD_S,
     TRUTH_MAX_EXTRAPOLATION_S,

@@ -6,8 +6,8 @@ from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
 
-from beams_common.beacon_map import BeaconMap
-from beams_common.pose2d import Pose2D, interpolate
+from beams_common.geometry.beacon_map import BeaconMap
+from beams_common.geometry.pose2d import Pose2D, interpolate
 from beams_ekf.localiser import Localiser
 from beams_thesis.replay import PoseEvent, ReplayResult, replay
 from beams_thesis.synthetic import BearingEvent

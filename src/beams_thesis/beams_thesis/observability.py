@@ -17,7 +17,7 @@ from math import cos, sin
 
 import numpy as np
 
-from beams_common.pose2d import Pose2D, between
+from beams_common.geometry.pose2d import Pose2D, between
 from beams_ekf.bearing_ekf import ProcessNoise
 from beams_ekf.power_bias_states import PowerBiasStates
 

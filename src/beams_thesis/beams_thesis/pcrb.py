@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from beams_common.pose2d import Pose2D, between
+from beams_common.geometry.pose2d import Pose2D, between
 from beams_ekf.bearing_ekf import bearing_measurement, turret_pose
 from beams_ekf.odometry_errors import (
     OdometryErrorStates,

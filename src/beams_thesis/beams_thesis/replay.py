@@ -11,10 +11,10 @@ from itertools import groupby
 import numpy as np
 from scipy.stats import chi2
 
-from beams_common.angles import wrap_to_pi
-from beams_common.bearing import Bearing
-from beams_common.pose2d import Pose2D
-from beams_common.pose_intake import PoseSource, planar_pose_intake
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.bearing import Bearing
+from beams_common.geometry.pose2d import Pose2D
+from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
 from beams_ekf.localiser import Localiser, revolution_of
 from beams_thesis.synthetic import BearingEvent
 

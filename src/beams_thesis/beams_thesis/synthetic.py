@@ -10,9 +10,9 @@ from math import atan2, cos, hypot, pi, sin
 
 import numpy as np
 
-from beams_common.angles import wrap_to_pi
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.pose2d import Pose2D, between, compose
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.pose2d import Pose2D, between, compose
 
 
 @dataclass(frozen=True)

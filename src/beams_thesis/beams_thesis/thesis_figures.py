@@ -18,8 +18,8 @@ import numpy as np
 
 from beams_calibration.calibrate import PARAMETER_COUNT, Model, Problem, optimise_groups, rms_figures
 from beams_calibration.dataset import CalibrationArrays, Dataset, to_arrays
-from beams_common.angles import wrap_to_pi
-from beams_common.calibration_file import RmsFigures
+from beams_common.calibration.calibration_file import RmsFigures
+from beams_common.geometry.angles import wrap_to_pi
 from beams_triangulation.error_map import ErrorMaps
 from beams_triangulation.pose_covariance import distance_error_std_m, pose_covariance_many
 from beams_triangulation.total import expected_bearings, triangulate_many

@@ -22,13 +22,13 @@ import numpy as np
 from beams_calibration.calibrate import THESIS_TABLE_7_5  # noqa: F401 (the thesis's table, with its setup)
 from beams_calibration.dataset import Configuration, Dataset, average_capture, now_utc, save_dataset
 from beams_calibration.reference_layout import PRIOR_BEACONS, REFERENCE_ORIENTATIONS, REFERENCE_POSITIONS
-from beams_common.beacon_map import BeaconMap
-from beams_common.bearing_correction import (
+from beams_common.calibration.bearing_correction import (
     IDENTITY_CORRECTION,
     THESIS_POWER_BIAS_COEFFICIENTS,
     THESIS_ROTATION_BIAS_COEFFICIENTS,
     BearingCorrection,
 )
+from beams_common.geometry.beacon_map import BeaconMap
 from beams_driver.codes import BeaconCode
 from beams_driver.decoder import BearingDecoder
 from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator

@@ -10,8 +10,8 @@ from filterpy.kalman import KalmanFilter
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.pose2d import between, compose
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.pose2d import between, compose
 from beams_ekf.bearing_ekf import bearing_measurement
 from beams_ekf.odometry_errors import (
     OdometryErrorStates,

@@ -14,8 +14,8 @@ from typing import Any
 
 from rosbags.rosbag2 import Reader
 
-from beams_common import topics
-from beams_common.time_jumps import StampOrder, TimeJumpDetector
+from beams_common.intake.time_jumps import StampOrder, TimeJumpDetector
+from beams_common.interfaces import topics
 from beams_tools.bag_io import fully_qualified, offered_qos
 from beams_triangulation.motion_compensation import ODOMETRY_TIME_JUMP_S
 
@@ -84,7 +84,7 @@ def in_stamp_order(
     jump_ns: int = round(TIME_JUMP_S * NS_PER_S),
 ) -> Iterator[Event | None]:
     """Events by due instant within a reorder window; TIME_JUMP where the stamps go back by > jump_ns
-    in two consecutive messages (a bag loop; one stray message is not: `beams_common.time_jumps`).
+    in two consecutive messages (a bag loop; one stray message is not: `beams_common.intake.time_jumps`).
 
     A message later than the window is passed on late (the pipelines drop or absorb it as the nodes do).
     """

@@ -10,9 +10,9 @@ from typing import Any
 
 import numpy as np
 
-from beams_common import topics
-from beams_common.bearing_messages import BearingFields, bearing_array_message
-from beams_common.pose2d import Pose2D
+from beams_common.geometry.pose2d import Pose2D
+from beams_common.interfaces import topics
+from beams_common.interfaces.bearing_messages import BearingFields, bearing_array_message
 from beams_common.ros.messages import (
     ros_covariance,
 )

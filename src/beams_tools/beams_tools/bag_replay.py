@@ -34,8 +34,8 @@ from typing import Any
 import numpy as np
 from rosbags.rosbag2 import Reader, ReaderError, WriterError
 
-from beams_common import topics
-from beams_common.angles import wrap_to_pi
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.interfaces import topics
 from beams_common.ros.messages import (
     pose2d_of,
 )

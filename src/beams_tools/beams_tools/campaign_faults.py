@@ -11,9 +11,9 @@ from typing import Any
 from lifecycle_msgs.msg import Transition
 from std_srvs.srv import Trigger
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.bearing_correction import BearingCorrection
-from beams_common.calibration_file import SensorCalibration, save_calibration
+from beams_common.calibration.bearing_correction import BearingCorrection
+from beams_common.calibration.calibration_file import SensorCalibration, save_calibration
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.parameters import DRIVER_PARAMETERS
 from beams_ekf.parameters import EKF_PARAMETERS
 from beams_msgs.srv import SetPose

@@ -17,8 +17,8 @@ from lifecycle_msgs.srv import ChangeState
 from nav_msgs.msg import Odometry
 from rcl_interfaces.srv import SetParameters
 
-from beams_common import topics
-from beams_common.bearing_messages import BearingFields, nanoseconds
+from beams_common.interfaces import topics
+from beams_common.interfaces.bearing_messages import BearingFields, nanoseconds
 from beams_common.ros.messages import bearing_array, pose2d_of, seconds_to_stamp, stamp_to_seconds
 from beams_msgs.msg import BeaconBearingArray
 from beams_tools.campaign_metrics import CallRecord

@@ -70,7 +70,7 @@ class CampaignProcesses(NodeSupervisor):
 
     def active_of(self, name: str) -> str:
         """The process that is the node `name` now: of a hot standby pair, the one holding the node's role
-        (beams_common.standby), else the first of the pair still running."""
+        (beams_common.ros.standby), else the first of the pair still running."""
         node = NODES[name]
         pair = [process for process in (name, node.standby_argument) if process in self.nodes]
         running = [process for process in pair if self.pid(process) is not None]

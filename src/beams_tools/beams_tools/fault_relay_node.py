@@ -19,7 +19,7 @@ from rcl_interfaces.msg import SetParametersResult
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 
-from beams_common import topics
+from beams_common.interfaces import topics
 from beams_common.ros.messages import seconds_to_stamp, stamp_to_seconds
 from beams_common.ros.node_support import BEARINGS_QOS, run_node
 from beams_msgs.msg import BeaconBearingArray

@@ -18,7 +18,7 @@ import sys
 import textwrap
 
 from beams_calibration.parameters import CALIBRATION_PARAMETERS
-from beams_common.parameters import ParameterSpec
+from beams_common.config.parameters import ParameterSpec
 from beams_driver import serial_source
 from beams_driver.parameters import DRIVER_PARAMETERS
 from beams_ekf.parameters import EKF_PARAMETERS

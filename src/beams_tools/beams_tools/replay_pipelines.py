@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 from rosbags.rosbag2 import Reader
 
-from beams_common.bearing_intake import bearings_message_intake
-from beams_common.pose2d import Pose2D, is_finite_pose
-from beams_common.pose_intake import PoseSource, planar_pose_intake
+from beams_common.geometry.pose2d import Pose2D, is_finite_pose
+from beams_common.intake.bearing_intake import bearings_message_intake
+from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
 from beams_common.ros.messages import (
     planar_covariance,
     pose2d_of,

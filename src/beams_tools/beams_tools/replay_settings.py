@@ -9,9 +9,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from beams_common.beacon_map import BeaconMap
-from beams_common.geometry_parameters import geometry_of
-from beams_common.parameters import ROS_NODE_PARAMETERS, ParameterTable, load_parameter_file
+from beams_common.config.geometry_parameters import geometry_of
+from beams_common.config.parameters import ROS_NODE_PARAMETERS, ParameterTable, load_parameter_file
+from beams_common.geometry.beacon_map import BeaconMap
 from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
 from beams_ekf.settings import FilterSettings
 from beams_tools.robot_processes import PARAMS_FILE

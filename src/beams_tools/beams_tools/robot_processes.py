@@ -7,7 +7,7 @@ import pathlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
-from beams_common.standby import STANDBY_FLAG
+from beams_common.ros.standby import STANDBY_FLAG
 
 # beams_bringup's share/config files (the installed parameter file: replay_settings.installed_params_file)
 PARAMS_FILE = "beams_params.yaml"
@@ -34,7 +34,7 @@ class RobotNode:
     simulation_only: bool = False
     # reads the calibration file (the driver's corrections, the geometry of the filters)
     takes_calibration: bool = True
-    # runs as a pair, one process a hot standby (beams_common.standby): the node's own start-up is too
+    # runs as a pair, one process a hot standby (beams_common.ros.standby): the node's own start-up is too
     # long for the 2 s goal under load, a waiting standby's takeover is not
     hot_standby: bool = False
 

@@ -19,7 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.serial_protocol import EventKind, FrameEncoder, seconds_to_ticks
 from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_tools.fault_schedule import SERIAL_LINE_FAULTS

@@ -15,7 +15,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from beams_common.standby import role_holder_pid
+from beams_common.ros.standby import role_holder_pid
 from beams_tools.robot_processes import RESPAWN_DELAY_S
 
 EXIT_INVALID_PARAMETERS = 2  # run_node's start-up refusal (beams_common.ros.node_support)
@@ -146,7 +146,7 @@ class NodeSupervisor:
 
     def active(self, executable: str, names: Sequence[str] = ()) -> str | None:
         """Of the processes running `executable` (or of `names`), the name of the one holding its node's
-        role (beams_common.standby): the active one of a hot standby pair; None while none does."""
+        role (beams_common.ros.standby): the active one of a hot standby pair; None while none does."""
         names = names or self.processes_of(executable)
         if not names:
             raise KeyError(f"no process runs {executable}")

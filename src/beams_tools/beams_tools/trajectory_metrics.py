@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from beams_common.angles import wrap_to_pi
-from beams_common.pose2d import Pose2D, compose, inverse
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.pose2d import Pose2D, compose, inverse
 
 # Plot style of each track name (matplotlib format strings); other names get a thin line.
 STYLES = {"truth": "k-", "odometry": "C1--", "ToTal": "C0.", "EKF": "C2-"}

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import yaml
 
-from beams_common.parameters import ParameterError
+from beams_common.config.parameters import ParameterError
 from beams_ekf.parameters import EKF_PARAMETERS
 from beams_sim.simulated_match import SimulatedMatch, simulate_match
 from beams_tools.bag_events import BEARINGS_TYPE, ODOMETRY_TYPE

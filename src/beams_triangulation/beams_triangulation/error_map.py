@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from beams_common.angles import wrap_to_pi
+from beams_common.geometry.angles import wrap_to_pi
 from beams_triangulation.pose_covariance import distance_error_std_m, pose_covariance_many
 from beams_triangulation.total import MIN_ABS_D_M2, expected_bearings, triangulate_many
 

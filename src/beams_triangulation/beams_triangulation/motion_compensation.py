@@ -27,10 +27,10 @@ from collections.abc import Sequence
 import numpy as np
 from numpy.typing import ArrayLike
 
-from beams_common.angles import wrap_to_pi
-from beams_common.pose2d import between, compose
-from beams_common.pose_buffer import PoseBuffer
-from beams_common.time_jumps import TimeJumpDetector
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.pose2d import between, compose
+from beams_common.geometry.pose_buffer import PoseBuffer
+from beams_common.intake.time_jumps import TimeJumpDetector
 from beams_triangulation.total import ToTalFix, triangulate
 
 
@@ -150,6 +150,6 @@ def odometry_buffer(
 ) -> PoseBuffer:
     """The odometry poses (odom frame) the compensation reads: a stamp in the past is dropped unless
     `time_jump_confirmations` consecutive ones go back by more than ODOMETRY_TIME_JUMP_S (a bag
-    loop, not a stray message: beams_common.time_jumps), which starts the buffer over."""
+    loop, not a stray message: beams_common.intake.time_jumps), which starts the buffer over."""
     jumps = TimeJumpDetector(ODOMETRY_TIME_JUMP_S, time_jump_confirmations)
     return PoseBuffer(span_s, max_extrapolation_s, jumps)

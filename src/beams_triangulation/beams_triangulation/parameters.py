@@ -1,10 +1,10 @@
 """triangulation_node's parameters: one spec each, for the node and for the offline replay; the settings
 classes (`gating.GateConfig`, `pipeline.TriangulationSettings`) take their defaults from it."""
 
-from beams_common.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SPECS
-from beams_common.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, rates_check
-from beams_common.parameters import ParameterSpec, ParameterTable
-from beams_common.plausibility import MOTION_SPECS, STAMP_SPECS
+from beams_common.config.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SPECS
+from beams_common.config.parameters import ParameterSpec, ParameterTable
+from beams_common.intake.plausibility import MOTION_SPECS, STAMP_SPECS
+from beams_common.status.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, rates_check
 
 TRIANGULATION_PARAMETERS = ParameterTable(
     "triangulation_node",

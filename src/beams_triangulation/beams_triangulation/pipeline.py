@@ -10,12 +10,12 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from beams_common.beacon_map import BeaconMap
-from beams_common.bearing import Bearing
-from beams_common.bearing_intake import RevolutionIntake, revolution_intake
-from beams_common.plausibility import MotionLimits, motion_limits_of, odometry_step_problem
-from beams_common.pose2d import between
-from beams_common.validation import odometry_problem
+from beams_common.geometry.beacon_map import BeaconMap
+from beams_common.geometry.bearing import Bearing
+from beams_common.geometry.pose2d import between
+from beams_common.intake.bearing_intake import RevolutionIntake, revolution_intake
+from beams_common.intake.plausibility import MotionLimits, motion_limits_of, odometry_step_problem
+from beams_common.intake.validation import odometry_problem
 from beams_triangulation.gating import GateConfig
 from beams_triangulation.motion_compensation import odometry_buffer
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS

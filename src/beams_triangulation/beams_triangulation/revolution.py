@@ -3,7 +3,7 @@ with odometry, or the motion seen between revolutions in the variances), the cov
 
 `estimate_revolution` is the whole of it for one revolution; `RevolutionEstimator` runs it on a stream
 (remembering the last pose for the motion); `pipeline.TriangulationPipeline` adds the odometry and the
-wait for it. The intake (`beams_common.bearing_intake`) is the EKF's too; ToTal's policy on it: a
+wait for it. The intake (`beams_common.intake.bearing_intake`) is the EKF's too; ToTal's policy on it: a
 revolution with a beacon seen twice at one instant or an invalid measurement gives no pose (bad input);
 a repeated sighting, and a bearing of a beacon not on the map (another team's beacon in view:
 1 pose in 8 s when it made the revolution bad input), are set aside (counted by the intake) and the
@@ -18,10 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from beams_common.beacon_map import BeaconMap
-from beams_common.bearing import Bearing
-from beams_common.bearing_intake import BearingRefusal, RevolutionIntake, revolution_intake
-from beams_common.pose_buffer import twist_between
+from beams_common.geometry.beacon_map import BeaconMap
+from beams_common.geometry.bearing import Bearing
+from beams_common.geometry.pose_buffer import twist_between
+from beams_common.intake.bearing_intake import BearingRefusal, RevolutionIntake, revolution_intake
 from beams_triangulation.gating import (
     REASON_NO_TRIPLET,
     REASON_NOT_COMPENSATED,

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from beams_common.angles import wrap_to_pi
+from beams_common.geometry.angles import wrap_to_pi
 
 #: Bound on the cotangents (thesis 6.3.5): an angle of about 1e-8 rad, far below any sensor's precision,
 #: so the pseudo-singular bearings phi_ij = 0 or pi need no special case.

@@ -1,4 +1,4 @@
-"""triangulation_node's status (`beams_common.health`): tracking only while its checks pass.
+"""triangulation_node's status (`beams_common.status.health`): tracking only while its checks pass.
 
 Each pose already carries its own verdict (beams/pose: `accepted` and `reason`, the 1/|D| and standard
 deviation gates); the node's status says whether ToTal is fixing the robot at all:
@@ -15,7 +15,7 @@ deviation gates); the node's status says whether ToTal is fixing the robot at al
 from collections.abc import Mapping
 from typing import Any
 
-from beams_common.health import (
+from beams_common.status.health import (
     FAULT_HOLD_S,
     RecentFaults,
     Verdict,

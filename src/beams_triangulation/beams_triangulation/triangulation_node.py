@@ -13,7 +13,7 @@ Bad input (NaN bearing, duplicated beacon, fewer than three beacons) gives a log
 bearing of a beacon not on the map (another team's) is counted and left out, the others still count.
 The beacon map and turret offset come from the calibration file when one is given.
 
-Plausibility (`beams_common.plausibility`): a revolution whose newest bearing, or an odometry
+Plausibility (`beams_common.intake.plausibility`): a revolution whose newest bearing, or an odometry
 message, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s` ahead of the node's clock
 is refused with the reason; an odometry increment beyond `max_speed_m_per_s` or
 `max_yaw_rate_rad_per_s` restarts the odometry history (no revolution compensated across it). The
@@ -35,11 +35,12 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from visualization_msgs.msg import Marker, MarkerArray
 
-from beams_common import topics
-from beams_common.bearing_intake import bearings_message_intake
-from beams_common.calibration_file import SensorCalibration
-from beams_common.geometry_parameters import geometry_of_calibration, runtime_geometry
-from beams_common.plausibility import StampCheck, stamp_tolerance_of
+from beams_common.calibration.calibration_file import SensorCalibration
+from beams_common.config.geometry_parameters import geometry_of_calibration, runtime_geometry
+from beams_common.intake.bearing_intake import bearings_message_intake
+from beams_common.intake.plausibility import StampCheck, stamp_tolerance_of
+from beams_common.intake.validation import bounded, planar_estimate_problem
+from beams_common.interfaces import topics
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
@@ -54,7 +55,6 @@ from beams_common.ros.node_support import (
 )
 from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
 from beams_common.ros.status_topic import StatusTopic
-from beams_common.validation import bounded, planar_estimate_problem
 from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 from beams_triangulation.gating import NoPose, PoseEstimate
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS

@@ -6,9 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
-from beams_common.bearing import Bearing
-from beams_common.bearing_intake import revolution_intake
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_common.geometry.bearing import Bearing
+from beams_common.intake.bearing_intake import revolution_intake
 from beams_triangulation.gating import GateConfig, NoPose, PoseEstimate, best_triplet, gate
 from beams_triangulation.pose_covariance import pose_covariance
 from beams_triangulation.revolution import estimate_pose, estimate_revolution

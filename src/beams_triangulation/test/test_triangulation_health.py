@@ -1,7 +1,7 @@
 """triangulation_node's status model (issue 18): waiting, tracking while poses are accepted at the rate
 of the turret, degraded on implausible inputs or rates, lost without an accepted pose for a second."""
 
-from beams_common.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
+from beams_common.status.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
 from beams_triangulation.triangulation_health import TriangulationHealth
 
 VALUES = {spec.name: spec.default for spec in (*BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC)}

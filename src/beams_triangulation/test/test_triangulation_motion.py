@@ -5,9 +5,9 @@ import math
 import numpy as np
 import pytest
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.pose2d import between
-from beams_common.pose_buffer import arc_increment
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.pose2d import between
+from beams_common.geometry.pose_buffer import arc_increment
 from beams_triangulation.motion_compensation import (
     compensate_bearings,
     interpolate_pose,

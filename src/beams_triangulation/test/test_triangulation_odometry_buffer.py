@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 import yaml
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.bearing import Bearing
-from beams_common.parameters import node_section
-from beams_common.pose2d import between
-from beams_common.pose_buffer import PoseBuffer
+from beams_common.config.parameters import node_section
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.bearing import Bearing
+from beams_common.geometry.pose2d import between
+from beams_common.geometry.pose_buffer import PoseBuffer
 from beams_triangulation.gating import REASON_NOT_COMPENSATED, GateConfig, PoseEstimate
 from beams_triangulation.motion_compensation import odometry_buffer
 from beams_triangulation.pipeline import (
@@ -201,7 +201,7 @@ def test_pipeline_waits_at_most_until_the_next_revolution():
 def test_pipeline_counts_non_finite_odometry_and_keeps_the_rest():
     import math
 
-    from beams_common.beacon_map import EUROBOT_BEACON_MAP
+    from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
     from beams_triangulation.pipeline import TriangulationPipeline
 
     pipeline = TriangulationPipeline(EUROBOT_BEACON_MAP, triangulation_settings({}), (0.0, 0.0))

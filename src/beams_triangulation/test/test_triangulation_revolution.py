@@ -3,8 +3,8 @@ previous pose in the variances only (the pose is the same as without it)."""
 
 import numpy as np
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.bearing import Bearing
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.bearing import Bearing
 from beams_triangulation import revolution
 from beams_triangulation.gating import PoseEstimate
 from beams_triangulation.revolution import RevolutionEstimator, estimate_revolution

@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from beams_common.angles import wrap_to_pi
+from beams_common.geometry.angles import wrap_to_pi
 from beams_triangulation.total import (
     COT_BOUND,
     NO_FIX_INVERSE_ABS_D,

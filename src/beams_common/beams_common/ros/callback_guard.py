@@ -29,9 +29,9 @@ import rclpy
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException
 
-from beams_common.log_throttle import KeyThrottle
+from beams_common.intake.validation import bounded
 from beams_common.ros.node_logging import log_at
-from beams_common.validation import bounded
+from beams_common.status.log_throttle import KeyThrottle
 
 REPEAT_LOG_PERIOD_S = 10.0
 

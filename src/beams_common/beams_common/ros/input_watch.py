@@ -25,7 +25,7 @@ from typing import Any
 
 from rclpy.clock import Clock, ClockType
 
-from beams_common.stream_interleave import InterleaveDetector
+from beams_common.intake.stream_interleave import InterleaveDetector
 
 GRAPH_CHECK_PERIOD_S = 0.5
 INTERLEAVE_HOLD_S = 1.0  # the message check's ERROR outlives the last switch by this long

@@ -14,8 +14,8 @@ from geometry_msgs.msg import Pose, PoseWithCovariance, TransformStamped
 from std_msgs.msg import Header
 from tf2_msgs.msg import TFMessage
 
-from beams_common.bearing_messages import BearingFields, bearing_array_message
-from beams_common.pose2d import Pose2D, yaw_of_quaternion
+from beams_common.geometry.pose2d import Pose2D, yaw_of_quaternion
+from beams_common.interfaces.bearing_messages import BearingFields, bearing_array_message
 from beams_msgs.msg import BeaconBearing, BeaconBearingArray
 
 # Rows/columns of x, y and yaw in ROS's 6x6 covariance.
@@ -24,7 +24,7 @@ PLANAR_INDICES = (0, 1, 5)
 UNKNOWN_VARIANCE = 1e6
 
 
-# rclpy's classes by their ROS names, for beams_common.bearing_messages
+# rclpy's classes by their ROS names, for beams_common.interfaces.bearing_messages
 RCLPY_BEARING_TYPES = {
     "builtin_interfaces/msg/Time": Time,
     "std_msgs/msg/Header": Header,

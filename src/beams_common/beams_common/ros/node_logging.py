@@ -9,7 +9,7 @@ rclpy's per-site throttle_duration_sec: that one would also make one message's f
 
 from typing import Any
 
-from beams_common.log_throttle import KeyThrottle
+from beams_common.status.log_throttle import KeyThrottle
 
 SEVERITIES = ("info", "warn", "error")
 

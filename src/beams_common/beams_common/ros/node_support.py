@@ -24,12 +24,13 @@ from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from std_srvs.srv import Trigger
 
-from beams_common import topics
-from beams_common.calibration_file import SensorCalibration, load_calibration
-from beams_common.geometry_parameters import BeaconGeometry, geometry_of
+from beams_common.calibration.calibration_file import SensorCalibration, load_calibration
+from beams_common.config.geometry_parameters import BeaconGeometry, geometry_of
+from beams_common.intake.validation import bounded, revolution_size_problem
+from beams_common.interfaces import topics
 from beams_common.ros.node_logging import ThrottledLog
 from beams_common.ros.parameters import ParameterValidationError
-from beams_common.standby import (
+from beams_common.ros.standby import (
     STANDBY_FLAG,
     RoleLock,
     domain_id_of,
@@ -39,7 +40,6 @@ from beams_common.standby import (
     split_standby_flag,
     wait_for_role,
 )
-from beams_common.validation import bounded, revolution_size_problem
 
 EXIT_INVALID_PARAMETERS = 2
 # beams/bearings: reliable, so no revolution is lost between the driver and the filters (a best-effort
@@ -68,7 +68,7 @@ def run_node(
     callbacks passes events_executor=False: Jazzy's EventsExecutor does not run them. The environment
     variable BEAMS_EXECUTOR=single_threaded puts every node back on rclpy's SingleThreadedExecutor.
 
-    Hot standby (beams_common.standby): the process first takes its node's role (ROS_DOMAIN_ID
+    Hot standby (beams_common.ros.standby): the process first takes its node's role (ROS_DOMAIN_ID
     and the fully qualified name its remaps give to the node's own name, which is its executable's in
     this suite: test/static/test_node_names.py). Started with `--standby` before --ros-args, it waits,
     its modules imported but no rclpy context or DDS participant made, until the role is free, and only
@@ -115,7 +115,7 @@ def run_node(
 
 
 def _take_role(arguments: list[str], standby: bool, stop_signals: list[int]) -> RoleLock | None:
-    """The node's role (beams_common.standby), taken when free; a standby waits for it and gets None
+    """The node's role (beams_common.ros.standby), taken when free; a standby waits for it and gets None
     when a stop signal came first. Says in one line why a process waits, takes over or runs beside
     another instance."""
     # the executable's name (`ekf_node`, or `ekf_node.py` run as a script) is the node's

@@ -14,7 +14,7 @@ from typing import Any
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.node import Node
 
-from beams_common.parameters import ParameterError, ParameterSpec, ParameterTable
+from beams_common.config.parameters import ParameterError, ParameterSpec, ParameterTable
 
 
 class ParameterValidationError(ValueError):

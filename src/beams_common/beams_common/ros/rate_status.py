@@ -1,10 +1,10 @@
-"""An input's or output's rate (beams_common.health.RateMonitor, diagnostic_updater's FrequencyStatus)
+"""An input's or output's rate (beams_common.status.health.RateMonitor, diagnostic_updater's FrequencyStatus)
 shown on a node's /diagnostics: the rate as a value, a rate out of range as a condition
 (Diagnostics.set_condition) that holds the status with the reason: ERROR when nothing came in the
 window, WARN otherwise."""
 
-from beams_common.health import RateMonitor
 from beams_common.ros.node_support import Diagnostics
+from beams_common.status.health import RateMonitor
 
 
 class RateStatus:

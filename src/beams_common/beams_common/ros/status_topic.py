@@ -9,7 +9,7 @@ latched (transient local, depth 1): a late subscriber gets the current status at
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
-from beams_common.health import Status, Verdict
+from beams_common.status.health import Status, Verdict
 from beams_msgs.msg import LocalisationStatus
 
 STATUS_QOS = QoSProfile(
@@ -28,7 +28,7 @@ STATUS_CODES = {
 
 
 class StatusTopic:
-    """Publishes a node's verdict (beams_common.health) at once when its status or message changes,
+    """Publishes a node's verdict (beams_common.status.health) at once when its status or message changes,
     and again when STATUS_HEARTBEAT_S has passed since it last said it."""
 
     def __init__(self, node: Node, topic: str) -> None:

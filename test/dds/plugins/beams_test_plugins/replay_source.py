@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from beams_common.parameters import ParameterSpec
+from beams_common.config.parameters import ParameterSpec
 from beams_driver.edge_source import EdgeSourceKind, SourceHealth, SourceHost, SourcePoll
 from beams_driver.edges import TURRET_PERIOD_S, RevolutionEdges
 

@@ -23,10 +23,10 @@ from bisect import bisect_right
 from collections import deque
 from collections.abc import Sequence
 
-from beams_common.angles import wrap_to_pi
-from beams_common.pose2d import Pose2D, between, compose, interpolate
-from beams_common.time_jumps import StampOrder, TimeJumpDetector
-from beams_common.validation import odometry_problem
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.pose2d import Pose2D, between, compose, interpolate
+from beams_common.intake.time_jumps import StampOrder, TimeJumpDetector
+from beams_common.intake.validation import odometry_problem
 
 Twist = tuple[float, float]
 

@@ -26,8 +26,8 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
 
-from beams_common.parameters import ParameterSpec
-from beams_common.validation import bounded
+from beams_common.config.parameters import ParameterSpec
+from beams_common.intake.validation import bounded
 
 # The window (s) over which the input rates are measured (diagnostic_updater's default window is five
 # publications of a 1 Hz status: ~5 s; two seconds is twenty revolutions) and how long (s) a refusal

@@ -2,7 +2,7 @@
 
 import math
 
-from beams_common.angles import wrap_to_pi
+from beams_common.geometry.angles import wrap_to_pi
 
 Pose2D = tuple[float, float, float]
 

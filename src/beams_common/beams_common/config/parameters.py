@@ -147,10 +147,6 @@ class ParameterTable:
     def defaults(self) -> dict[str, Any]:
         return {spec.name: spec.default for spec in self.specs}
 
-    def default(self, name: str) -> Any:
-        """One parameter's default: for the settings classes whose fields are parameters."""
-        return self[name].default
-
     def require(self, **values: Any) -> None:
         """Raise ParameterError with the reason when one of these values is not valid (a settings class's
         range check, for one built without the table)."""

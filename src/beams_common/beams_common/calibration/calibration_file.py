@@ -32,10 +32,10 @@ from typing import Any
 
 import yaml
 
-from beams_common import file_schema
-from beams_common.beacon_map import BeaconMap
-from beams_common.bearing_correction import BearingCorrection
-from beams_common.calibration_checks import calibration_value_problem
+from beams_common.calibration import file_schema
+from beams_common.calibration.bearing_correction import BearingCorrection
+from beams_common.calibration.calibration_checks import calibration_value_problem
+from beams_common.geometry.beacon_map import BeaconMap
 
 FILE_FORMAT = "beams-calibration"
 FILE_VERSION = 1

@@ -29,9 +29,9 @@ from typing import Any
 
 import numpy as np
 
-from beams_common.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD
-from beams_common.pose2d import Pose2D, yaw_of_quaternion
-from beams_common.validation import SYMMETRY_TOLERANCE, bounded
+from beams_common.geometry.pose2d import Pose2D, yaw_of_quaternion
+from beams_common.intake.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD
+from beams_common.intake.validation import SYMMETRY_TOLERANCE, bounded
 
 # The (x, y, yaw) rows and columns of a row-major 6x6 ROS covariance.
 PLANAR_INDICES = (0, 1, 5)

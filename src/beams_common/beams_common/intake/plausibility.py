@@ -23,8 +23,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from beams_common.parameters import ParameterSpec
-from beams_common.pose2d import Pose2D
+from beams_common.config.parameters import ParameterSpec
+from beams_common.geometry.pose2d import Pose2D
 
 # Stamps are quantised and jittered: an increment may exceed speed x interval by this much (m, rad).
 ODOMETRY_STEP_SLACK_M = 0.02

@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Any
 
-from beams_common.bearing import Bearing, bearings_of_message
-from beams_common.validation import bearing_problem, one_sighting_per_beacon, revolution_size_problem
+from beams_common.geometry.bearing import Bearing, bearings_of_message
+from beams_common.intake.validation import bearing_problem, one_sighting_per_beacon, revolution_size_problem
 
 
 class BearingRefusal(StrEnum):

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from beams_common.angles import wrap_to_pi
+from beams_common.geometry.angles import wrap_to_pi
 
 Coefficients = tuple[float, float, float, float]
 _ZERO: Coefficients = (0.0, 0.0, 0.0, 0.0)

@@ -10,10 +10,10 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
-from beams_common.calibration_checks import calibration_nominal_problem
-from beams_common.calibration_file import SensorCalibration, load_calibration
-from beams_common.parameters import ParameterSpec
+from beams_common.calibration.calibration_checks import calibration_nominal_problem
+from beams_common.calibration.calibration_file import SensorCalibration, load_calibration
+from beams_common.config.parameters import ParameterSpec
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 
 CALIBRATION_FILE = ParameterSpec(
     "calibration_file",

@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 
 import yaml
 
-from beams_common.validation import bounded
+from beams_common.intake.validation import bounded
 
 T = TypeVar("T")
 # Longest free text accepted (labels, stages, warnings), and most items in one list of a document.

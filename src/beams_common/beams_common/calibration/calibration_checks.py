@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from beams_common.angles import wrap_to_pi
-from beams_common.beacon_map import BeaconMap
-from beams_common.bearing_correction import BearingCorrection
+from beams_common.calibration.bearing_correction import BearingCorrection
+from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.beacon_map import BeaconMap
 
 # The windows where the thesis measured and fitted the power bias (its calibration grid saw 5 to 13 deg,
 # section 7.2): a correction without its own window_range_rad is judged there.
