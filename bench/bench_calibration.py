@@ -6,13 +6,13 @@ Usage: python bench/bench_calibration.py [--seed N]
 (`rows()` is what bench/run_all.py collects.)
 """
 
-import argparse
 import math
+import sys
 import time
 import timeit
 
 import numpy as np
-from rows_table import print_rows
+from rows_table import bench_main
 from scipy.stats import spearmanr
 
 from beams_calibration.calibrate import PARAMETER_COUNT, Problem, calibrate, optimise_groups
@@ -213,12 +213,5 @@ def figure_rows(seed: int) -> list[tuple[str, float, str, str]]:
     ]
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--seed", type=int, default=DEFAULT_SEED)
-    options = parser.parse_args()
-    print_rows(rows(options.seed), unit_width=14)
-
-
 if __name__ == "__main__":
-    main()
+    sys.exit(bench_main(__doc__, rows))

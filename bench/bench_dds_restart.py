@@ -24,6 +24,7 @@ import tempfile
 import time
 
 import numpy as np
+from rows_table import bench_main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PROFILE = ROOT / "src" / "beams_bringup" / "config" / "fastdds_fast_discovery.xml"
@@ -165,12 +166,5 @@ def rows() -> list[Row]:
     return result
 
 
-def main() -> int:
-    print("| figure | value | unit | compared with |\n|---|---|---|---|")
-    for figure, value, unit, compared in rows():
-        print(f"| {figure} | {value:.4g} | {unit} | {compared} |")
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main(__doc__, rows))

@@ -11,6 +11,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+from rows_table import bench_main
 
 from beams_driver.codes import BeaconCode, code_family
 from beams_driver.decoder import BearingDecoder
@@ -167,12 +168,5 @@ def detection_rows() -> list[tuple[str, float, str, str]]:
     return rows
 
 
-def main() -> int:
-    print(f"{'figure':<50} {'value':>10} {'unit':<4} compared with")
-    for figure, value, unit, compared_with in rows():
-        print(f"{figure:<50} {value:>10.4g} {unit:<4} {compared_with}")
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main(__doc__, rows))

@@ -8,17 +8,17 @@ bench_ekf_consistency.py). "published R" is that driver's variance (for thesis_h
 the power-bias correction's part); the other modes replace it by the driver's variance model in that
 mode, with the same natural variance.
 
-Usage: python bench/bench_ekf.py [--seed N] [--duration S] [--plot PATH.png]
+Usage: python bench/bench_ekf.py [--seed N] [--duration-s S] [--plot-path PATH.png]
 (`rows()` is what bench/run_all.py collects.)
 """
 
-import argparse
 import math
 import sys
 import timeit
 from dataclasses import dataclass
 
 import numpy as np
+from rows_table import bench_main
 
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.bearing import Bearing
@@ -324,19 +324,5 @@ def _ideal_receiver_rows(seed: int, duration_s: float) -> list[tuple[str, float,
     return rows
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--seed", type=int, default=DEFAULT_SEED)
-    parser.add_argument("--duration", type=float, default=DEFAULT_DURATION_S)
-    parser.add_argument("--plot", help="write the trajectory figure to this PNG")
-    options = parser.parse_args()
-    print("| figure | value | unit | compared with |\n|---|---|---|---|")
-    for figure, value, unit, compared in rows(options.seed, options.duration, options.plot):
-        print(f"| {figure} | {value:.4g} | {unit} | {compared} |")
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main(__doc__, rows))

@@ -27,18 +27,17 @@ collects, reports both, thesis_hardware first): the EKF gets the bearings of a c
   variance plus the hardware's edge noise at the true window (the correction's part is left out).
 - ideal: the OOK noise and the constant edge noise, no bias, the driver's default variances.
 
-Usage: python bench/bench_ekf_consistency.py [--seeds N] [--duration S] [--sensor-model M ...]
+Usage: python bench/bench_ekf_consistency.py [--seeds N] [--duration-s S] [--sensor-models M ...]
 """
 
-import argparse
 import itertools
 import math
 import sys
-import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from rows_table import bench_main
 from scipy.stats import chi2
 
 from beams_common.geometry.pose2d import between
@@ -325,23 +324,5 @@ def model_rows(seeds: int, duration_s: float, sensor_model: str) -> list[tuple[s
     return table
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--seeds", type=int, default=DEFAULT_SEEDS)
-    parser.add_argument("--duration", type=float, default=DEFAULT_DURATION_S)
-    parser.add_argument(
-        "--sensor-model", nargs="+", default=list(SENSOR_MODELS), choices=SENSOR_MODELS, dest="sensor_models"
-    )
-    options = parser.parse_args()
-    started = time.monotonic()
-    print("| figure | value | unit | compared with |\n|---|---|---|---|")
-    for figure, value, unit, compared in rows(options.seeds, options.duration, tuple(options.sensor_models)):
-        print(f"| {figure} | {value:.4g} | {unit} | {compared} |")
-    print(f"({time.monotonic() - started:.0f} s)", file=sys.stderr)
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main(__doc__, rows))

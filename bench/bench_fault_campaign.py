@@ -5,13 +5,14 @@ where namespaces cannot be made: root and iproute2) (beams_tools.campaign_comman
 docs/fault_campaign.md), 20 minutes by default (`make bench`), in ROS_DOMAIN_ID 66 unless the environment
 sets one.
 
-Usage: python bench/bench_fault_campaign.py [--duration S] [--seed N] [--output DIR]
+Usage: python bench/bench_fault_campaign.py [--duration-s S] [--seed N] [--output DIR]
 """
 
-import argparse
 import os
 import pathlib
 import sys
+
+from rows_table import bench_main
 
 from beams_tools.campaign_command import CampaignConfig, CampaignResult, run_campaign
 
@@ -55,22 +56,5 @@ def rows(
     return result_rows(result)
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--duration", type=float, default=BENCH_DURATION_S, help="campaign length (s)")
-    parser.add_argument("--seed", type=int, default=BENCH_SEED)
-    parser.add_argument(
-        "--output", type=pathlib.Path, help="logs, series and report (default: a temporary directory)"
-    )
-    options = parser.parse_args()
-    print("| figure | value | unit | compared with |\n|---|---|---|---|")
-    for figure, value, unit, compared_with in rows(options.duration, options.seed, options.output):
-        shown = f"{value:.4g}" if isinstance(value, float) else str(value)
-        print(f"| {figure} | {shown} | {unit} | {compared_with} |")
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main(__doc__, rows))

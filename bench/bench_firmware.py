@@ -22,7 +22,7 @@ from beams_sim.world import EurobotTrajectory
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "test" / "hil"))
 import turret_hil
-from rows_table import print_rows
+from rows_table import bench_main
 
 SPEED_TURRET_S = 21.0
 LATENCY_TURRET_S = 5.0
@@ -174,10 +174,5 @@ def rows() -> list[tuple[str, float, str, str]]:
     ]
 
 
-def main() -> int:
-    print_rows(rows())
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main(__doc__, rows))

@@ -24,6 +24,8 @@ import sys
 import tempfile
 import time
 
+from rows_table import bench_main
+
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DEFAULT_DOMAIN_ID = "69"  # 61-69 are the developers' (test/conftest.py); the tests never use it
 KILL_ROUNDS = 3
@@ -231,5 +233,4 @@ def rows() -> list[Row]:
 
 
 if __name__ == "__main__":
-    for figure, value, unit, compared in rows():
-        print(f"{figure} | {value:.3g} | {unit} | {compared}")
+    sys.exit(bench_main(__doc__, rows))

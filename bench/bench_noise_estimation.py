@@ -10,6 +10,7 @@ import math
 import sys
 
 import numpy as np
+from rows_table import bench_main
 
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.estimate_noise import estimate
@@ -99,12 +100,5 @@ def rows() -> list[tuple[str, float, str, str]]:
     return result
 
 
-def main() -> int:
-    print(f"{'figure':<70} {'value':>10} {'unit':<8} compared with")
-    for figure, value, unit, compared_with in rows():
-        print(f"{figure:<70} {value:>10.4g} {unit:<8} {compared_with}")
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main(__doc__, rows))

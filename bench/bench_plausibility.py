@@ -19,6 +19,7 @@ from itertools import groupby
 from math import hypot
 
 import numpy as np
+from rows_table import bench_main
 
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.geometry.bearing import Bearing
@@ -108,6 +109,4 @@ def rows() -> list[Row]:
 
 
 if __name__ == "__main__":
-    for figure, value, unit, compared in rows():
-        print(f"{figure} | {value:.4g} | {unit} | {compared}")
-    sys.exit(0)
+    sys.exit(bench_main(__doc__, rows))

@@ -5,14 +5,15 @@ The bag is a simulated 90 s Eurobot match (beams_sim.simulated_match: truth and 
 one revolution of bearings at 10 Hz, so 110 input messages per second of match), written as MCAP and
 as sqlite3; the replay reads it, runs both pipelines and writes the outputs with the inputs.
 
-Usage: python bench/bench_replay.py [--duration S] [--seed N]
+Usage: python bench/bench_replay.py [--duration-s S] [--seed N]
 (`rows()` is what bench/run_all.py collects.)
 """
 
-import argparse
 import pathlib
 import sys
 import tempfile
+
+from rows_table import bench_main
 
 from beams_sim.simulated_match import simulate_match
 from beams_tools.bag_io import beams_typestore
@@ -67,18 +68,5 @@ def rows(
     return table
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--duration", type=float, default=DEFAULT_DURATION_S, help="match duration (s)")
-    parser.add_argument("--seed", type=int, default=DEFAULT_SEED, help="simulated match seed")
-    options = parser.parse_args()
-    print("| figure | value | unit | compared with |\n|---|---|---|---|")
-    for figure, value, unit, compared in rows(options.duration, options.seed):
-        print(f"| {figure} | {value:.4g} | {unit} | {compared} |")
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main(__doc__, rows))

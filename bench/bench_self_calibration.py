@@ -25,17 +25,16 @@ over the seeds, the window means of a Gaussian error of that correlation; beside
 the chi-square band chi2(3 N_eff) / N_eff), and to the 2.0-4.5 target: how many of the seeds x windows
 fall outside each.
 
-Usage: python bench/bench_self_calibration.py [--seeds N] [--duration S]
+Usage: python bench/bench_self_calibration.py [--seeds N] [--duration-s S]
 """
 
-import argparse
 import math
 import sys
-import time
 from dataclasses import dataclass, replace
 
 import numpy as np
 from bench_ekf_consistency import START_SIGMA, match_bound
+from rows_table import bench_main
 
 from beams_driver.parameters import SENSOR_PARAMETERS, corrected_variance_of, variance_model_of
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
@@ -273,20 +272,5 @@ def rows(
     return table
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--seeds", type=int, default=DEFAULT_SEEDS)
-    parser.add_argument("--duration", type=float, default=DEFAULT_DURATION_S)
-    options = parser.parse_args()
-    started = time.monotonic()
-    print("| figure | value | unit | compared with |\n|---|---|---|---|")
-    for figure, value, unit, compared in rows(options.seeds, options.duration):
-        print(f"| {figure} | {value:.4g} | {unit} | {compared} |")
-    print(f"({time.monotonic() - started:.0f} s)", file=sys.stderr)
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main(__doc__, rows))

@@ -11,7 +11,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
-from rows_table import print_rows
+from rows_table import bench_main
 
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.decoder import BearingDecoder
@@ -294,10 +294,5 @@ def rows() -> list[tuple[str, float, str, str]]:
     ]
 
 
-def main() -> int:
-    print_rows(rows())
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main(__doc__, rows))

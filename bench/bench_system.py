@@ -13,7 +13,6 @@ does, in ROS_DOMAIN_ID 68 unless the environment sets one) and measures, with a 
 Usage: python bench/bench_system.py [--flood-s S]   (`rows()` is what bench/run_all.py collects.)
 """
 
-import argparse
 import os
 import pathlib
 import signal
@@ -23,6 +22,7 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
+from rows_table import bench_main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
@@ -331,17 +331,5 @@ def rows(flood_s: float = FLOOD_S) -> list[Row]:
     return measure(flood_s)
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--flood-s", type=float, default=FLOOD_S, help="flood duration (s), default 30")
-    options = parser.parse_args()
-    print("| figure | value | unit | compared with |\n|---|---|---|---|")
-    for figure, value, unit, compared in rows(options.flood_s):
-        print(f"| {figure} | {value:.4g} | {unit} | {compared} |")
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main(__doc__, rows))

@@ -5,13 +5,13 @@ Usage: python bench/bench_triangulation.py [--seed N]
 (`rows()` is what bench/run_all.py collects.)
 """
 
-import argparse
 import math
 import sys
 import time
 import timeit
 
 import numpy as np
+from rows_table import bench_main
 
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
@@ -133,16 +133,5 @@ def rows(seed: int = DEFAULT_SEED) -> list[Row]:
     return scalar_rows() + vector_rows() + match_rows(seed)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--seed", type=int, default=DEFAULT_SEED, help="simulated match seed")
-    options = parser.parse_args(argv)
-    print(f"| {'figure':<58} | {'value':>9} | {'unit':<7} | compared with |")
-    print(f"|{'-' * 60}|{'-' * 11}|{'-' * 9}|---|")
-    for figure, value, unit, compared in rows(options.seed):
-        print(f"| {figure:<58} | {value:>9.4g} | {unit:<7} | {compared} |")
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main(__doc__, rows))

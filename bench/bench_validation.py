@@ -9,6 +9,7 @@ import sys
 import timeit
 
 import numpy as np
+from rows_table import bench_main
 
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.geometry.bearing import Bearing
@@ -82,11 +83,5 @@ def rows() -> list[Row]:
     ]
 
 
-def main() -> int:
-    for figure, value, unit, compared in rows():
-        print(f"{figure} | {value:.4g} | {unit} | {compared}")
-    return 0
-
-
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(bench_main(__doc__, rows))

@@ -1,9 +1,12 @@
-"""The table a benchmark prints when run alone: its rows (figure, value, unit, compared with), aligned.
+"""What a benchmark does when run alone: its options from its `rows` keywords, its rows printed aligned.
 
 Not a benchmark itself (run_all.py runs bench_*.py); imported by those run as scripts from bench/.
 """
 
-from collections.abc import Sequence
+import argparse
+import inspect
+import pathlib
+from collections.abc import Callable, Sequence
 
 
 def print_rows(table: Sequence[tuple[str, float, str, str]], unit_width: int = 13) -> None:
@@ -11,4 +14,19 @@ def print_rows(table: Sequence[tuple[str, float, str, str]], unit_width: int = 1
     width = max(len(figure) for figure, *_ in table)
     print(f"{'figure':<{width}} | {'value':>10} | {'unit':<{unit_width}} | compared with")
     for figure, value, unit, compared in table:
-        print(f"{figure:<{width}} | {value:>10.4g} | {unit:<{unit_width}} | {compared}")
+        shown = f"{value:>10.4g}" if isinstance(value, float | int) else f"{value!s:>10}"
+        print(f"{figure:<{width}} | {shown} | {unit:<{unit_width}} | {compared}")
+
+
+def bench_main(doc: str, rows: Callable[..., Sequence[tuple]], argv: Sequence[str] | None = None) -> int:
+    """Run `rows` with its keywords as options (`--flood-s` for `flood_s`: the default's type, a list's
+    items repeated, a path for a None default) and print the table."""
+    parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    for name, parameter in inspect.signature(rows).parameters.items():
+        default = parameter.default
+        many = isinstance(default, list | tuple)
+        kind = pathlib.Path if default is None else type(default[0] if many else default)
+        nargs = "+" if many else None
+        parser.add_argument(f"--{name.replace('_', '-')}", type=kind, default=default, nargs=nargs, dest=name)
+    print_rows(rows(**vars(parser.parse_args(argv))))
+    return 0

@@ -155,8 +155,8 @@ class WindowFit:
     """
 
     # ready after 10 s of a beacon's windows over distances spread by +-14% (std of ln d 0.14): with 30
-    # windows and no spread required, the first fits' slopes taught the curve wrongly on some matches
-    # (mean NEES over the first 30 s up to 8.4, 5.4 now; bench_self_calibration)
+    # windows and no spread required, the first fits' slopes teach the curve wrongly on some matches
+    # (the first 30 s's mean NEES in bench_self_calibration shows it)
     MIN_SAMPLES = 100
     MIN_LOG_DISTANCE_VARIANCE = 0.02
     _REMEMBERED = 16

@@ -134,8 +134,3 @@ def synthetic_match(
                 )
             )
     return SyntheticMatch(times_s, truth, odometry, bearings)
-
-
-def distance_travelled_m(poses: np.ndarray) -> float:
-    """Path length of a pose sequence (m)."""
-    return float(sum(hypot(*(poses[k, :2] - poses[k - 1, :2])) for k in range(1, len(poses))))

@@ -79,10 +79,6 @@ class RotationExperiment:
     def after(self) -> RmsFigures:
         return rms_figures("rotation experiment, after", self.errors_after)
 
-    def orientation_harmonics_rad(self, errors: np.ndarray) -> np.ndarray:
-        """Harmonics 1 and 2 of the orientation error against the robot orientation (rad)."""
-        return periodic_amplitudes(self.orientations_rad, errors[:, 2])
-
     def bearing_harmonics_rad(self, residuals: np.ndarray) -> float:
         """RMS of the periodic part (harmonics 1 and 2, eq. 7.25) of bearing residuals (n, 3) against
         the turret angle, each beacon with its own constant (its power bias at this position)."""
