@@ -258,6 +258,8 @@ class BearingEkf:
         self.gate = gate_threshold(gate_probability)
         for block, part in self._parts if old is not None and self._learnt else ():
             stale = block.stale(old, self.beacons_xy)
+            if not stale:
+                continue
             at, x, p = np.arange(part.start, part.stop)[stale], self._ekf.x, self._ekf.P
             x[at, 0] = block.prior_mean[stale]
             p[at, :], p[:, at] = 0.0, 0.0

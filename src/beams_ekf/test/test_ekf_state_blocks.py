@@ -7,6 +7,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+import pytest
 
 from beams_common.config.parameters import ParameterSpec, ParameterTable
 from beams_common.geometry.angles import wrap_to_pi
@@ -169,3 +170,25 @@ def test_a_bearing_whose_bias_is_not_modelled_yet_teaches_no_learnt_block():
     assert ekf.update_bearing(1, ekf.predicted_bearing(1)[0] + 2e-3, 1e-6).accepted
     assert np.any(ekf.estimate(OdometryErrorStates)[0] != before[0])
     np.testing.assert_array_equal(ekf.estimate(PowerBiasStates)[0], before[1])  # calibrated: no bias
+
+
+def test_a_new_map_resets_a_moved_beacons_states_and_keeps_every_other_learnt_state():
+    """A calibration reload on a filter that learnt: every block is asked which of its states the new map
+    makes stale (the pose block has none); the moved beacon's go back to their prior, the rest stay."""
+    ekf = _filter(_every_block())
+    ekf.initialise(POSE, np.eye(3) * 1e-4)
+    ekf.reset()
+    ekf.initialise(POSE, np.eye(3) * 1e-4)  # from now on the blocks' states are learnt ones
+    x, p = ekf.state()
+    x[3:, 0] = 1e-3
+    ekf.restore((x, p))
+    moved = {**MAP, 3: (MAP[3][0] + 0.01, MAP[3][1])}
+    settings = _every_block()
+    ekf.configure(moved, OFFSET, settings.process_noise, settings.gate_probability)
+    beacon, covariance = ekf.estimate(BeaconStates)
+    assert beacon.tolist() == [0.0, 0.0] and np.all(np.diag(covariance) > 0.0)
+    assert np.all(ekf.estimate(TurretOffsetStates)[0] == 1e-3)
+    assert np.all(ekf.estimate(BearingOffsetStates)[0] == 1e-3)
+    assert ekf.pose == pytest.approx(POSE)
+    ekf.configure(moved, OFFSET, settings.process_noise, settings.gate_probability)  # the same map: no change
+    assert np.all(ekf.estimate(TurretOffsetStates)[0] == 1e-3)
