@@ -56,6 +56,17 @@ def ros_env(ros_domain_id: int, monkeypatch: pytest.MonkeyPatch) -> dict[str, st
     return env
 
 
+@pytest.fixture
+def rclpy_context(ros_env):
+    """rclpy initialised in this process, in the test's own domain (nodes built in-process)."""
+    rclpy = pytest.importorskip("rclpy", reason="rclpy missing: run the tests through `make test`")
+    rclpy.init()
+    try:
+        yield rclpy
+    finally:
+        rclpy.try_shutdown()
+
+
 @dataclass
 class RosGraph:
     """An rclpy node in the test's domain, with bounded spinning."""

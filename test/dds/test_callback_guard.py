@@ -27,16 +27,6 @@ def fail(*_args, **_kwargs):
 
 
 @pytest.fixture
-def rclpy_context(ros_env):
-    rclpy = pytest.importorskip("rclpy", reason="rclpy missing: run the tests through `make test`")
-    rclpy.init()
-    try:
-        yield rclpy
-    finally:
-        rclpy.try_shutdown()
-
-
-@pytest.fixture
 def make_node(rclpy_context):
     nodes = []
 

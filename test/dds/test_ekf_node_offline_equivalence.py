@@ -19,16 +19,6 @@ FIX_COVARIANCE = np.diag([1e-4, 1e-4, 1e-4])
 FIX_DELAY_S = 0.01  # a ToTal fix arrives this long after its revolution's bearings
 
 
-@pytest.fixture
-def rclpy_context(ros_env):
-    rclpy = pytest.importorskip("rclpy", reason="rclpy missing: run the tests through `make test`")
-    rclpy.init()
-    try:
-        yield rclpy
-    finally:
-        rclpy.try_shutdown()
-
-
 def _messages(match):
     """The match as the node's topics carry it: odometry, one beams/bearings per revolution, ToTal's
     accepted fix of each revolution (the truth at its middle, off by a few mm), an operator's start."""
