@@ -10,7 +10,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -386,6 +386,25 @@ def test_old_firmware_is_an_error_that_names_the_protocol(device: FakeDevice, li
     assert [w for w in host.warnings if "protocol v1" in w] == [health.message]
 
 
+def edge_stream(
+    encoder: FrameEncoder,
+    sent: list[RevolutionEdges],
+    edge: Callable[[int, int, EventKind], tuple[EventKind, bool]],
+) -> bytearray:
+    """The revolutions as `FrameEncoder.revolutions` sends them, each edge's frame as edge(revolution,
+    index, kind) says: its kind, and whether the device numbered it but lost it."""
+    data = bytearray()
+    for revolution in sent:
+        data += encoder.event(EventKind.ZERO_REFERENCE, round(revolution.start_time_s * TIMER_HZ))
+        for index, (time_s, rising) in enumerate(
+            zip(revolution.edge_times_s, revolution.edge_rising, strict=True)
+        ):
+            kind, lost = edge(revolution.revolution, index, EventKind.RISING if rising else EventKind.FALLING)
+            data += encoder.event(kind, round(time_s * TIMER_HZ), lost=lost)
+    closing_s = sent[-1].start_time_s + sent[-1].period_s
+    return data + encoder.event(EventKind.ZERO_REFERENCE, round(closing_s * TIMER_HZ))
+
+
 @pytest.mark.parametrize("cost", ["revolution", "window"])
 def test_frames_the_turret_lost_are_counted_and_warned(
     device: FakeDevice, link: pathlib.Path, cost: str
@@ -395,19 +414,7 @@ def test_frames_the_turret_lost_are_counted_and_warned(
     (cost "window", the default: the decoder drops the windows near it), the others kept."""
     sent = simulated_revolutions(6, seed=31)
     encoder = FrameEncoder()
-    data = bytearray()
-    for revolution in sent:
-        data += encoder.event(EventKind.ZERO_REFERENCE, round(revolution.start_time_s * TIMER_HZ))
-        for index, (time_s, rising) in enumerate(
-            zip(revolution.edge_times_s, revolution.edge_rising, strict=True)
-        ):
-            kind = EventKind.RISING if rising else EventKind.FALLING
-            data += encoder.event(
-                kind, round(time_s * TIMER_HZ), lost=revolution.revolution == 2 and index < 7
-            )
-    data += encoder.event(
-        EventKind.ZERO_REFERENCE, round((sent[-1].start_time_s + sent[-1].period_s) * TIMER_HZ)
-    )
+    data = edge_stream(encoder, sent, lambda revolution, index, kind: (kind, revolution == 2 and index < 7))
     data += encoder.event(EventKind.HEARTBEAT, round((sent[-1].start_time_s + 1.5) * TIMER_HZ))  # a hello
     values = {"device": str(link), "baud_rate": 500_000, "lost_frames_cost": cost}
     source = SerialSource(values, (), FakeHost())
@@ -440,19 +447,11 @@ def test_edges_the_turret_missed_are_counted_and_warned(device: FakeDevice, link
     """The firmware's capture missed an edge (a pulse of a few us) and said so: /diagnostics counts it
     (serial_missed_edges) and warns, and the revolution is published with where it was missed."""
     sent = simulated_revolutions(4, seed=32)
-    encoder = FrameEncoder()
-    data = bytearray()
-    for revolution in sent:
-        data += encoder.event(EventKind.ZERO_REFERENCE, round(revolution.start_time_s * TIMER_HZ))
-        for index, (time_s, rising) in enumerate(
-            zip(revolution.edge_times_s, revolution.edge_rising, strict=True)
-        ):
-            missed = revolution.revolution == 2 and index == 3
-            kind = EventKind.MISSED_EDGE if missed else EventKind.RISING if rising else EventKind.FALLING
-            data += encoder.event(kind, round(time_s * TIMER_HZ))
-    data += encoder.event(
-        EventKind.ZERO_REFERENCE, round((sent[-1].start_time_s + sent[-1].period_s) * TIMER_HZ)
-    )
+
+    def missed(revolution: int, index: int, kind: EventKind) -> tuple[EventKind, bool]:
+        return (EventKind.MISSED_EDGE if revolution == 2 and index == 3 else kind), False
+
+    data = edge_stream(FrameEncoder(), sent, missed)
     source = SerialSource({"device": str(link), "baud_rate": 500_000}, (), FakeHost())
     try:
         device.write_in_background(bytes(data))
