@@ -335,6 +335,10 @@ class Drops(Counter[str]):
 
     def add(self, reason: str, count: int = 1) -> None:
         self[reason] += count
+        self.notify(reason, count)
+
+    def notify(self, reason: str, count: int = 1) -> None:
+        """Tell the listeners without counting: a loss reported elsewhere (a missed-edge frame)."""
         for listener in self.listeners:
             listener(reason, count)
 
@@ -521,8 +525,7 @@ class FrameParser:
         self.frames_ok += 1
         if kind == EventKind.MISSED_EDGE:
             self.missed_edges += 1
-            for listener in self.drops.listeners:  # heard as a drop: the windows it touches are dropped
-                listener("missed_edges", 1)
+            self.drops.notify("missed_edges")  # heard as a drop: the windows it touches are dropped
         return event
 
 
