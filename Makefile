@@ -63,9 +63,8 @@ FAST_PARALLEL := $(if $(filter-out 0 1,$(FAST_WORKERS)),-n $(FAST_WORKERS) --dis
 DDS_WORKERS ?= 2
 DDS_PARALLEL := $(if $(filter-out 0 1,$(DDS_WORKERS)),-n $(DDS_WORKERS) --dist loadfile --no-loadscope-reorder)
 # a DDS test that fails runs again, up to DDS_RERUNS times (separate processes timed on 2 shared cores:
-# the guided session's fit and the campaign's availability each failed beside another worker and passed
-# alone; on 2026-11-24 the guided session's beacon fit failed twice in one run of the merged main, beside
-# the fault campaign, and passed alone: its cause is open); -raR lists every rerun in the summary
+# the campaign's availability fails beside another worker and passes alone, its re-initialisation loops
+# after a fault); -raR lists every rerun in the summary
 DDS_RERUNS ?= 2
 test: build lint hil-if-possible
 	$(ROS_ENV) python -m pytest -m "not dds" $(FAST_PARALLEL) $(PYTEST_ARGS) || [ $$? -eq 5 ]
