@@ -4,8 +4,9 @@ synthetic data.
 Every time is a ROS stamp in seconds (the nodes' clocks: system time, one machine). The series:
 - the EKF's published estimates: rows (stamp, x, y, var_xx, cov_xy, var_yy), position and its covariance;
 - the truth: rows (stamp, x, y) from the simulator that drives the robot;
-- the EKF's status reports: rows (report stamp, tracking 1/0): tracking is /diagnostics level OK with the
-  message "tracking"; and optionally their messages (report stamp, message), which say why the time that
+- the EKF's status reports: rows (report stamp, tracking 1/0): tracking is the /diagnostics `status`
+  value "tracking", as beams/ekf/status says it (a refusal noted beside it raises the level, not the
+  status); and optionally their messages (report stamp, message), which say why the time that
   was not available was not (`unavailable_reasons`).
 
 Hazardously misleading: an estimate whose position error (against the truth interpolated at its stamp)
