@@ -24,7 +24,7 @@ import tempfile
 import time
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import Row, bench_main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PROFILE = ROOT / "src" / "beams_bringup" / "config" / "fastdds_fast_discovery.xml"
@@ -35,7 +35,6 @@ RESTARTS = 6
 PUBLISHER_SETTLE_S = 1.5
 PAUSE_AFTER_KILL_S = 0.3
 FIRST_MESSAGE_TIMEOUT_S = 10.0
-Row = tuple[str, float, str, str]
 
 PUBLISHER = """
 import time

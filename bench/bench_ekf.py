@@ -36,13 +36,11 @@ from beams_sim.simulated_match import (
     simulate_match,
     table_natural_variance_rad2,
 )
-from beams_thesis.match_replay import bearing_events
-from beams_thesis.replay import Accuracy, ReplayResult, accuracy, replay
+from beams_thesis.match_replay import match_odometry, offset_start, replay_match
+from beams_thesis.replay import Accuracy, ReplayResult, accuracy
 
 DEFAULT_SEED = 1
 DEFAULT_DURATION_S = 90.0
-# ToTal's first fix is about this good (thesis table 6.1 scale): the filter starts from it
-START_SIGMA = (0.01, 0.01, math.radians(1.0))
 
 
 @dataclass
@@ -52,23 +50,6 @@ class ModeRun:
     mode: str
     result: ReplayResult
     figures: Accuracy
-
-
-def _odometry_array(match: SimulatedMatch) -> np.ndarray:
-    o = match.odometry
-    return np.column_stack([o.x_m, o.y_m, o.theta_rad])
-
-
-def _localiser(match: SimulatedMatch) -> Localiser:
-    """ekf_node's filter (its default settings: odometry error states, the wheels' random noise)."""
-    beacons = dict(zip(match.beacon_map.ids, map(tuple, match.beacon_map.xy), strict=True))
-    return build_localiser(beacons, match.turret_offset_m, FilterSettings())
-
-
-def _start(match: SimulatedMatch) -> tuple[tuple[float, float, float], np.ndarray]:
-    """A start pose off the truth by one standard deviation of each component (deterministic)."""
-    x, y, theta = match.initial_pose
-    return (x + START_SIGMA[0], y - START_SIGMA[1], theta + START_SIGMA[2]), np.diag(np.square(START_SIGMA))
 
 
 def run_mode(match: SimulatedMatch, mode: str, config: SensorSimConfig | None = None) -> ModeRun:
@@ -86,22 +67,15 @@ def run_mode(match: SimulatedMatch, mode: str, config: SensorSimConfig | None = 
             min_burst_gap_exponent=config.min_burst_gap_exponent,
         )
         variance = lambda beacon_id, window: float(model.variance(beacon_id, window))  # noqa: E731
-    pose, covariance = _start(match)
-    result = replay(
-        _localiser(match),
-        match.odometry.stamp_s,
-        _odometry_array(match),
-        bearing_events(match.revolutions, variance),
-        match.truth_at,
-        pose,
-        covariance,
-    )
+    # ekf_node's filter (its default settings: odometry error states, the wheels' random noise)
+    localiser = build_localiser(match.beacon_map.as_dict(), match.turret_offset_m, FilterSettings())
+    result = replay_match(localiser, match, *offset_start(match), variance_rad2=variance)
     return ModeRun(mode, result, accuracy(result))
 
 
 def odometry_alone(match: SimulatedMatch) -> tuple[float, float, np.ndarray]:
     """RMS position (m) and heading (rad) of the odometry placed on the true start pose; its map poses."""
-    poses = np.array([compose(match.initial_pose, tuple(p)) for p in _odometry_array(match)])
+    poses = np.array([compose(match.initial_pose, tuple(p)) for p in match_odometry(match)])
     truth = match.ground_truth
     position = np.hypot(poses[:, 0] - truth.x_m, poses[:, 1] - truth.y_m)
     heading = np.array([wrap_to_pi(float(a)) for a in poses[:, 2] - truth.theta_rad])

@@ -53,14 +53,13 @@ from beams_sim.simulated_match import (
     sensor_config_of,
 )
 from beams_sim.world import OdometryDrift
-from beams_thesis.match_replay import match_fixes, match_odometry, replay_match
+from beams_thesis.match_replay import START_SIGMA, match_fixes, match_odometry, offset_start, replay_match
 from beams_thesis.pcrb import PcrbTrack, WheelNoiseModel, trajectory_pcrb
 from beams_thesis.replay import PoseEvent, ReplayResult
 
 DEFAULT_SEEDS = 10
 DEFAULT_DURATION_S = 90.0
 SETTLE_S = 1.0  # the initial transient left out, as bench_ekf's accuracy() does
-START_SIGMA = (0.01, 0.01, math.radians(1.0))  # ToTal's first fix (bench_ekf's start)
 OCCLUSION_START_S, OCCLUSION_S, HIDDEN_BEACONS = 30.0, 10.0, (1, 2)
 LOST_OFFSET_M, LOST_DIRECTIONS, LOST_MATCH_S = 0.05, 8, 6.0
 NEES_BAND = (float(chi2.ppf(0.025, df=3)), float(chi2.ppf(0.975, df=3)))
@@ -74,17 +73,19 @@ class Filter:
     build: Callable[[SimulatedMatch], Localiser]
 
 
-def _beacons(match: SimulatedMatch) -> dict[int, tuple[float, float]]:
-    return dict(zip(match.beacon_map.ids, map(tuple, match.beacon_map.xy), strict=True))
-
-
 FILTERS = (
-    Filter("white odometry noise", lambda m: Localiser(BearingEkf(_beacons(m), m.turret_offset_m))),
-    Filter("error states", lambda m: build_localiser(_beacons(m), m.turret_offset_m, FilterSettings())),
+    Filter(
+        "white odometry noise", lambda m: Localiser(BearingEkf(m.beacon_map.as_dict(), m.turret_offset_m))
+    ),
+    Filter(
+        "error states", lambda m: build_localiser(m.beacon_map.as_dict(), m.turret_offset_m, FilterSettings())
+    ),
     # the diagnosis: the wheels' random noise alone, without the states, cannot explain the drift
     Filter(
         "wheel noise, no error states",
-        lambda m: build_localiser(_beacons(m), m.turret_offset_m, FilterSettings(odometry_errors=None)),
+        lambda m: build_localiser(
+            m.beacon_map.as_dict(), m.turret_offset_m, FilterSettings(odometry_errors=None)
+        ),
     ),
 )
 
@@ -122,11 +123,6 @@ def true_bearing_variances(match: SimulatedMatch, config: SensorSimConfig) -> li
     return result
 
 
-def _start(match: SimulatedMatch) -> tuple[tuple[float, float, float], np.ndarray]:
-    x, y, theta = match.initial_pose
-    return (x + START_SIGMA[0], y - START_SIGMA[1], theta + START_SIGMA[2]), np.diag(np.square(START_SIGMA))
-
-
 def match_bound(match: SimulatedMatch, config: SensorSimConfig, errors_unknown: bool) -> PcrbTrack:
     """The PCRB of a match from the simulator's true noise models (see the module docstring)."""
     drift = OdometryDrift()
@@ -138,7 +134,7 @@ def match_bound(match: SimulatedMatch, config: SensorSimConfig, errors_unknown: 
         np.column_stack([truth.x_m, truth.y_m, truth.theta_rad]),
         increments,
         true_bearing_variances(match, config),
-        _beacons(match),
+        match.beacon_map.as_dict(),
         match.truth_at,
         match.turret_offset_m,
         np.diag(np.square(START_SIGMA)),
@@ -148,7 +144,7 @@ def match_bound(match: SimulatedMatch, config: SensorSimConfig, errors_unknown: 
 
 
 def run(filter_: Filter, match: SimulatedMatch, fixes: list[PoseEvent], start=None) -> ReplayResult:
-    pose, covariance = start or _start(match)
+    pose, covariance = start or offset_start(match)
     return replay_match(filter_.build(match), match, pose, covariance, fixes)
 
 

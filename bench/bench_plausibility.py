@@ -14,12 +14,11 @@ Usage: python bench/bench_plausibility.py
 """
 
 import sys
-import timeit
 from itertools import groupby
 from math import hypot
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import Row, bench_main, best_per_call_s
 
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.geometry.bearing import Bearing
@@ -34,7 +33,6 @@ from beams_ekf.localiser import build_localiser, revolution_of
 from beams_ekf.settings import FilterSettings
 from beams_thesis.synthetic import synthetic_match
 
-Row = tuple[str, float, str, str]
 FAULT_S = (3.0, 6.0)
 MATCH_S = 10.0
 
@@ -73,10 +71,6 @@ def _worst_error_m(
     return worst
 
 
-def _best_per_call_s(function, number: int, repeat: int = 7) -> float:
-    return min(timeit.repeat(function, number=number, repeat=repeat)) / number
-
-
 def rows() -> list[Row]:
     result: list[Row] = []
     # Bearings restamped 0.3-1 s late or 0.5 s early are all gated by the EKF alone here (its worst error
@@ -93,7 +87,7 @@ def rows() -> list[Row]:
     result.append(
         (
             "stamp check + odometry step check, per message",
-            _best_per_call_s(
+            best_per_call_s(
                 lambda: (
                     stamp_problem("x", 99.9, 100.0, tolerance),
                     odometry_step_problem(0.02, (0.01, 0.0, 0.01), limits),

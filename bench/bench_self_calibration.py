@@ -33,14 +33,14 @@ import sys
 from dataclasses import dataclass, replace
 
 import numpy as np
-from bench_ekf_consistency import START_SIGMA, match_bound
+from bench_ekf_consistency import match_bound
 from rows_table import bench_main
 
 from beams_driver.parameters import SENSOR_PARAMETERS, corrected_variance_of, variance_model_of
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
 from beams_ekf.power_bias_states import PowerBiasStates
 from beams_sim.simulated_match import SimulatedMatch, calibration_of, sensor_config_of, simulate_match
-from beams_thesis.match_replay import match_fixes, replay_match
+from beams_thesis.match_replay import match_fixes, offset_start, replay_match
 from beams_thesis.nees_band import NeesCorrelation, gaussian_window_band, nees_correlation, window_means
 from beams_thesis.replay import ReplayResult
 
@@ -75,21 +75,13 @@ def default_driver_match(duration_s: float, seed: int, calibrated: bool) -> Simu
     )
 
 
-def filter_of(match: SimulatedMatch, power_bias: PowerBiasStates | None) -> Localiser:
-    beacons = dict(zip(match.beacon_map.ids, map(tuple, match.beacon_map.xy), strict=True))
-    return build_localiser(beacons, match.turret_offset_m, replace(FilterSettings(), power_bias=power_bias))
-
-
 def run(
     match: SimulatedMatch, power_bias: PowerBiasStates | None, calibrated: bool
 ) -> tuple[ReplayResult, Localiser]:
-    """The replay of a match from ToTal's first fix (bench_ekf_consistency's start), and its localiser."""
-    x, y, theta = match.initial_pose
-    start = (x + START_SIGMA[0], y - START_SIGMA[1], theta + START_SIGMA[2])
-    localiser = filter_of(match, power_bias)
-    result = replay_match(
-        localiser, match, start, np.diag(np.square(START_SIGMA)), match_fixes(match), calibrated=calibrated
-    )
+    """The replay of a match from ToTal's first fix (`offset_start`), and its localiser."""
+    settings = replace(FilterSettings(), power_bias=power_bias)
+    localiser = build_localiser(match.beacon_map.as_dict(), match.turret_offset_m, settings)
+    result = replay_match(localiser, match, *offset_start(match), match_fixes(match), calibrated=calibrated)
     return result, localiser
 
 

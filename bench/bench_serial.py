@@ -7,11 +7,9 @@ Usage: python bench/bench_serial.py   (`rows()` is what bench/run_all.py collect
 """
 
 import sys
-import time
-from collections.abc import Callable
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import bench_main, best_per_call_s
 
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.decoder import BearingDecoder
@@ -34,16 +32,6 @@ from beams_sim.world import EurobotTrajectory, OdometrySimulator
 # 8N1: ten line bits per byte.
 LINK_FRAMES_PER_S = DEFAULT_BAUDRATE / 10 / FRAME_SIZE
 REVOLUTIONS = 300
-
-
-def _best_of(repeats: int, function: Callable[[], object]) -> float:
-    """Shortest wall time of several runs (s): the least disturbed by the other processes."""
-    best = float("inf")
-    for _ in range(repeats):
-        started = time.perf_counter()
-        function()
-        best = min(best, time.perf_counter() - started)
-    return best
 
 
 def _stream() -> tuple[bytes, int]:
@@ -239,17 +227,17 @@ def rows() -> list[tuple[str, float, str, str]]:
         for offset in range(0, len(data), 4096):
             parser.feed(data[offset : offset + 4096])
 
-    parse_s = _best_of(3, parse_in_chunks)
+    parse_s = best_per_call_s(parse_in_chunks, 1, 3)
     events = FrameParser().feed(data)
-    assemble_s = _best_of(3, lambda: RevolutionAssembler().feed(events))
-    encode_s = _best_of(3, _stream)  # simulation included: an upper bound on the encoder's cost
+    assemble_s = best_per_call_s(lambda: RevolutionAssembler().feed(events), 1, 3)
+    encode_s = best_per_call_s(_stream, 1, 3)  # simulation included: an upper bound on the encoder's cost
 
-    trajectory_s = _best_of(3, lambda: EurobotTrajectory.random(seed=0))
+    trajectory_s = best_per_call_s(lambda: EurobotTrajectory.random(seed=0), 1, 3)
     trajectory = EurobotTrajectory.random(seed=0)
     instants = np.random.default_rng(1).uniform(0.0, 90.0, 20000).tolist()
-    pose_s = _best_of(3, lambda: [trajectory.pose_at(t) for t in instants]) / len(instants)
-    odometry_s = _best_of(3, lambda: OdometrySimulator(trajectory).run(50.0))
-    match_s = _best_of(1, lambda: simulate_match(90.0, seed=0))
+    pose_s = best_per_call_s(lambda: [trajectory.pose_at(t) for t in instants], 1, 3) / len(instants)
+    odometry_s = best_per_call_s(lambda: OdometrySimulator(trajectory).run(50.0), 1, 3)
+    match_s = best_per_call_s(lambda: simulate_match(90.0, seed=0), 1, 1)
 
     parser_rate = frames / parse_s
     return [
