@@ -104,12 +104,7 @@ def true_bearing_variances(match: SimulatedMatch, config: SensorSimConfig) -> li
     result = []
     for revolution in match.revolutions:
         for b in revolution.bearings:
-            x, y, theta = match.truth_at(b.stamp_s)
-            c, s = math.cos(theta), math.sin(theta)
-            turret = (
-                x + c * match.turret_offset_m[0] - s * match.turret_offset_m[1],
-                y + s * match.turret_offset_m[0] + c * match.turret_offset_m[1],
-            )
+            turret = match.turret_at(b.stamp_s)
             beacon = beacons[b.beacon_id]
             window = config.window_rad(
                 math.hypot(beacon.x_m - turret[0], beacon.y_m - turret[1]), beacon.power_scale

@@ -298,21 +298,11 @@ class BearingDecoder:
 
 
 def _one_pass_per_beacon(result: DecodedRevolution) -> None:
-    """At most one bearing per beacon in a revolution: the pass whose instant is nearest the
-    revolution's middle is kept, any other is rejected as `repeated` (in place). A pass carried over the
-    zero reference whose bearing lies before it belonged to the revolution before: any pass of the
-    revolution's own turn is nearer its middle and wins (not the median instant of
-    `validation.one_sighting_per_beacon`, which can keep the older pass: a static sensor whose pose
-    changed between two revolutions then reported the previous pose's bearing, 13 deg off).
-
-    A window is decoded with the revolution in which it closes (a pass straddling the zero reference,
-    or closing within the timeout before it, is carried into the next revolution, its angle wrapped).
-    While the robot turns against the turret the beacon comes round in less than a turret period, so
-    that revolution may also close its own pass of the beacon (0.05 rad earlier at 0.5 rad/s): one turn
-    of the turret then holds two passes. The bearing is one pass's (first rising and last falling edge,
-    eq. 2.5); a revolution reports one per beacon, as `validation.one_sighting_per_beacon` keeps
-    downstream.
-    """
+    """At most one bearing per beacon in a revolution (in place): the pass whose instant is nearest the
+    revolution's middle is kept, any other is rejected as `repeated`. While the robot turns against the
+    turret, one turn of the turret may close two passes of a beacon (one carried over the zero reference); the
+    middle rule keeps the revolution's own pass, where the median instant of
+    `validation.one_sighting_per_beacon` could keep the older one."""
     middle_s = result.start_time_s + 0.5 * result.period_s
     kept: dict[int, DecodedBearing] = {}
     for bearing in result.bearings:

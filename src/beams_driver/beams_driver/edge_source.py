@@ -1,16 +1,9 @@
 """Where the driver's edges come from: the EdgeSource protocol, and how driver_node finds a source.
 
-Every source delivers RevolutionEdges (edges.py), one per turret revolution, to the same decoder and
-variance model. A source is a kind (`EdgeSourceKind`): its parameters (ParameterSpecs, declared by the
-driver only when that source is chosen) and a factory building the source from their validated values,
-the code list and a `SourceHost` (what the source may ask of the node: subscribe to a pose stream, a
-topic name, a log, the clock). This package's own kind is `serial` (serial_source.py); the installed
-packages name theirs in ENTRY_POINT_GROUP (`beams_driver.edge_sources`) of their setup.py's entry_points,
-`name = package.module:ATTRIBUTE` (`sim`, the simulated sensor, is declared by the package of the simulated
-world, which stands on this one: the driver names nothing of it). Any other source is chosen with
-`source:=package.module:EDGE_SOURCE`, with no edit to the driver (test/dds/test_edge_source_plugin.py
-plugs in a replay of recorded edges that way).
-"""
+A source is a kind (`EdgeSourceKind`): its parameters, declared only when it is chosen, and a factory building
+it from their values, the codes and a `SourceHost` (what it may ask of the node). This package's own kind is
+`serial`; installed packages name theirs in ENTRY_POINT_GROUP of their setup.py (`sim` is beams_sim's: the
+driver names nothing of the world), and `source:=package.module:EDGE_SOURCE` chooses any other."""
 
 import importlib
 from collections.abc import Callable, Mapping, Sequence

@@ -1,25 +1,12 @@
 """Edge-level simulation of the BeAMS sensor (thesis section 2.4, with the departures of section 5.6).
 
-One call to `SensorSimulator.revolution` produces the edges the microcontroller would capture during one
-turret revolution:
-
-- the turret turns at 625000 / 62400 turn/s, driven by a 625 kHz timer (62400 virtual steps, 0.1 mrad);
-  edges are captured on that timer and their angle counts from the optical-switch zero reference,
-  which the simulator puts on the robot's x axis;
-- every beacon emits its code in a loop from a random phase (no synchronisation, section 2.4.4);
-- the received power falls as 1/d^2 (eq. 2.7) over a symmetric beam P_IR(phi) (eq. 2.2-2.3, here a
-  Gaussian); the receiver sees the beacon while P_IR exceeds a threshold (eq. 2.4), so the angular
-  window shrinks with distance;
-- the receiver output is code AND window (section 3.2), OR-ed over beacons (beacons close in angle give
-  compound windows, section 2.4.5) and over stray-IR pulses; clipped bursts shorter than about 56% of
-  T_0 are not detected, and the window's first rising edge is noisier than its last falling edge (5.6);
-- two noise models: `SensorSimConfig()` (named `ideal` in driver_node: the OOK noise, the AND hypothesis
-  and constant edge noise) and `SensorSimConfig.thesis_hardware()` (sections 5.5-5.7, see `receiver`:
-  window-dependent asymmetric edge noise, AGC effects, table 5.1's window biases, a power bias);
-- injected hardware imperfections (chapter 7): power bias f(window), rotation bias f(angle), turret
-  offset from the robot centre, beacons standing where the caller says (the true positions);
-- the robot moves during the revolution: the pose is taken from pose_at(t) at each window's edges.
-"""
+`SensorSimulator.revolution` gives the edges the microcontroller captures in one turret revolution: the turret
+driven by the 625 kHz capture timer, angles from the zero reference on the robot's x axis; each beacon's code
+looped from a random phase (section 2.4.4); the window where the received power, 1/d^2 (eq. 2.7) over a
+Gaussian beam, exceeds the threshold (eq. 2.4); code AND window OR-ed over beacons (compound windows, section
+2.4.5) and stray-IR pulses. Two noise models: `SensorSimConfig()` (driver_node's `ideal`) and
+`SensorSimConfig.thesis_hardware()` (sections 5.5-5.7). Chapter 7's imperfections (power and rotation biases,
+turret offset, true beacon positions) are injected; the pose is taken at each window's edges."""
 
 import math
 from collections.abc import Callable, Collection, Sequence
@@ -86,13 +73,9 @@ class SensorSimConfig:
 
     @classmethod
     def thesis_hardware(cls, **overrides: object) -> "SensorSimConfig":
-        """The receiver the thesis measured (sections 5.5-5.7; driver_node's default `thesis_hardware`).
-
-        The edge noise is the window-dependent jitter of `HardwareNoise.thesis_hardware()` (over the
-        windows of 1-6 m, section 5.3) instead of the constant outer-edge noise; the minimum burst is 56%
-        of T0 for the family codes and falls as sqrt(T_b / G) for longer gaps G, which with the AGC's
-        extra shortening of modulated windows reproduces table 5.1's experiment column; the power bias is a
-        cubic fluctuating over the 0.23 deg range of section 5.7 (`thesis_power_bias_coefficients`).
+        """The receiver the thesis measured (sections 5.5-5.7; driver_node's default `thesis_hardware`):
+        `HardwareNoise.thesis_hardware()`'s edge noise and power bias instead of the constant outer-edge
+        noise, and the minimum burst falling as sqrt(T_b / G), which reproduce table 5.1's experiment column.
         """
         base = cls(rising_noise_rad=0.0, falling_noise_rad=0.0, hardware=HardwareNoise.thesis_hardware())
         return replace(base, **{"min_burst_gap_exponent": THESIS_MIN_BURST_GAP_EXPONENT, **overrides})
