@@ -2,8 +2,6 @@
 (target < 1 ms on one core) and the edge-level simulation of one revolution (target < 2 ms); the
 thesis-hardware and ideal noise models against table 5.1's experiment column, and the
 detection rate against the window with one or two complete codes required (section 2.5.2).
-
-Usage: python bench/bench_driver.py   (`rows()` is what bench/run_all.py collects.)
 """
 
 import sys

@@ -7,9 +7,6 @@ calibrated robot's driver publishes it (beams_sim.simulated_match.calibrated_mat
 bench_ekf_consistency.py). "published R" is that driver's variance (for thesis_hardware it includes
 the power-bias correction's part); the other modes replace it by the driver's variance model in that
 mode, with the same natural variance.
-
-Usage: python bench/bench_ekf.py [--seed N] [--duration-s S] [--plot-path PATH.png]
-(`rows()` is what bench/run_all.py collects.)
 """
 
 import math

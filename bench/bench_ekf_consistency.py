@@ -1,34 +1,17 @@
-"""EKF consistency and optimality over seeds of the simulated match: NEES, the posterior
-Cramer-Rao bound (PCRB) from the simulator's true noise models, the odometry error states (with two
-beacons hidden for 10 s) and the lost detection.
+"""EKF consistency and optimality over seeds of the simulated match: NEES, the posterior Cramer-Rao bound
+(PCRB) from the simulator's true noise models, the odometry error states (with two beacons hidden for 10 s)
+and the lost detection, for the filters of `FILTERS`, every replay with ToTal's motion-compensated fixes as
+ekf_node has them.
 
-Filters compared: "white odometry noise" (BearingEkf's own ProcessNoise defaults, no odometry error
-states), "error states" (ekf_node's defaults, FilterSettings: the
-odometry's systematic errors as states, the wheels' random noise as process noise) and "wheel noise, no
-error states" (that process noise without the states: the systematic errors are then unmodelled).
-Every replay gets ToTal's motion-compensated fixes, as ekf_node does (they only matter to a lost or
-diverging filter).
+The PCRB ("bound") uses the wheels' true random noise (WheelNoiseModel), each decoded bearing's true variance
+at the true window, and the odometry's systematic errors as unknowns with the filter's prior ("errors
+unknown") or as known ("errors known").
 
-The PCRB ("bound") uses the wheels' true random noise (WheelNoiseModel), each decoded bearing's true
-variance (the exact variance plus the natural one, at the true window the simulator used), and the
-odometry's systematic errors as unknowns with the filter's prior ("bound, errors unknown") or as known
-("bound, errors known": what an estimator told the simulator's drift could reach).
-
-Sensor models (`--sensor-model`, driver_node's sim_noise_model; `rows()`, what bench/run_all.py
-collects, reports both, thesis_hardware first): the EKF gets the bearings of a calibrated robot
-(beams_sim.simulated_match.calibrated_match):
-- thesis_hardware: the power bias of HardwareNoise removed by a perfect chapter-7 calibration (the
-  injected cubic's inverse over the experiment's windows, not a fit: beams_calibration's fit is measured
-  by bench_calibration); variances from the driver's exact model with one constant natural variance,
-  as the driver's VarianceModel holds one: the mean of the hardware's window-dependent edge noise
-  (sigma_r^2 + sigma_f^2) / 4 over the Eurobot table (table_natural_variance_rad2, a model figure, not
-  fitted to a match), plus the variance the correction adds through its slope at the decoded window
-  (CorrectedVariance: first-order, from the same model). Its bound's true bearing variance is the code
-  variance plus the hardware's edge noise at the true window (the correction's part is left out).
-- ideal: the OOK noise and the constant edge noise, no bias, the driver's default variances.
-
-Usage: python bench/bench_ekf_consistency.py [--seeds N] [--duration-s S] [--sensor-models M ...]
-"""
+Both sensor models, thesis_hardware first, give the bearings of a calibrated robot
+(beams_sim.simulated_match.calibrated_match): thesis_hardware's power bias removed by a perfect chapter-7
+calibration, the driver's exact variance with the constant natural variance of table_natural_variance_rad2
+plus what the correction adds (CorrectedVariance; left out of the bound); ideal, the OOK noise and the
+constant edge noise, no bias."""
 
 import itertools
 import math
@@ -38,7 +21,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from rows_table import bench_main
-from scipy.stats import chi2
 
 from beams_common.geometry.pose2d import between
 from beams_ekf.bearing_ekf import BearingEkf
@@ -55,14 +37,13 @@ from beams_sim.simulated_match import (
 from beams_sim.world import OdometryDrift
 from beams_thesis.match_replay import START_SIGMA, match_fixes, match_odometry, offset_start, replay_match
 from beams_thesis.pcrb import PcrbTrack, WheelNoiseModel, trajectory_pcrb
-from beams_thesis.replay import PoseEvent, ReplayResult
+from beams_thesis.replay import NEES_BAND, PoseEvent, ReplayResult
 
 DEFAULT_SEEDS = 10
 DEFAULT_DURATION_S = 90.0
 SETTLE_S = 1.0  # the initial transient left out, as bench_ekf's accuracy() does
 OCCLUSION_START_S, OCCLUSION_S, HIDDEN_BEACONS = 30.0, 10.0, (1, 2)
 LOST_OFFSET_M, LOST_DIRECTIONS, LOST_MATCH_S = 0.05, 8, 6.0
-NEES_BAND = (float(chi2.ppf(0.025, df=3)), float(chi2.ppf(0.975, df=3)))
 
 
 @dataclass(frozen=True)
@@ -74,6 +55,7 @@ class Filter:
 
 
 FILTERS = (
+    # BearingEkf's own ProcessNoise defaults; then ekf_node's (FilterSettings: systematic errors as states)
     Filter(
         "white odometry noise", lambda m: Localiser(BearingEkf(m.beacon_map.as_dict(), m.turret_offset_m))
     ),
@@ -155,9 +137,8 @@ class Pooled:
 
     def add(self, result: ReplayResult, unknown: PcrbTrack, known: PcrbTrack) -> None:
         keep = result.times_s >= result.times_s[0] + SETTLE_S
-        errors = result.errors()[keep]
-        self.errors.append(errors)
-        self.nees.append(np.einsum("ki,kij,kj->k", errors, np.linalg.inv(result.covariances[keep]), errors))
+        self.errors.append(result.errors()[keep])
+        self.nees.append(result.nees()[keep])
         self.bound_unknown.append(unknown.at(result.times_s[keep]))
         self.bound_known.append(known.at(result.times_s[keep]))
         self.lost_detections += result.counts.get("lost_detections", 0)
@@ -186,8 +167,7 @@ def occlusion_growth(result: ReplayResult) -> tuple[float, float]:
     """(largest position error during the occlusion, mean NEES during it)."""
     inside = (result.times_s >= OCCLUSION_START_S) & (result.times_s < OCCLUSION_START_S + OCCLUSION_S + 0.2)
     errors = result.errors()[inside]
-    nees = np.einsum("ki,kij,kj->k", errors, np.linalg.inv(result.covariances[inside]), errors)
-    return float(np.hypot(errors[:, 0], errors[:, 1]).max()), float(nees.mean())
+    return float(np.hypot(errors[:, 0], errors[:, 1]).max()), float(result.nees()[inside].mean())
 
 
 def lost_recovery_s(seeds: range, sensor_model: str) -> tuple[float, int]:

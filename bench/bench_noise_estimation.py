@@ -2,8 +2,6 @@
 recorded by a driver with its default natural variance (3.05e-7 rad^2); `estimate_noise`'s fit against
 the injected natural variance (fig. 5.3's edge noise, linear in the window), and the published / actual
 variance ratio per beacon before the fit and, on new recordings, from a driver configured with it.
-
-Usage: python bench/bench_noise_estimation.py   (`rows()` is what bench/run_all.py collects.)
 """
 
 import math

@@ -8,9 +8,6 @@ receiving clock, as ekf_node does:
   stamp (not among the rows: the EKF alone gates them all, see `rows`);
 - the odometry shifted by +100 m from 3 s on: with the check (`MotionLimits` defaults), re-referenced;
   without (a speed limit of 1e9 m/s), followed.
-
-Usage: python bench/bench_plausibility.py
-(`rows()` is what bench/run_all.py collects.)
 """
 
 import sys

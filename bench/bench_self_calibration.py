@@ -1,32 +1,14 @@
-"""Self-calibration of the power bias while driving: the EKF on simulated matches of the thesis
-hardware as the nodes run with their own defaults, uncalibrated or perfectly calibrated.
+"""Self-calibration of the power bias while driving: the EKF on simulated matches of the thesis hardware as
+the nodes run with their own defaults, uncalibrated (power_bias_states off, consider, estimate: `RUNS`) or
+perfectly calibrated (the bearings corrected by the simulated bias inverted, beams_sim's calibration_of), each
+over the same seeds; the self-calibrating run's figures over the periods of `PERIODS_S`.
 
-Runs, each over the same seeds (trajectory, sensor and odometry noise):
-- "uncalibrated, bias as white noise": ekf_node's defaults with power_bias_states 'off' (no bias
-  states);
-- "uncalibrated, bias considered": power_bias_states 'consider' (Schmidt-Kalman: the bias's prior carried
-  in the covariance, never estimated);
-- "uncalibrated, self-calibrating": ekf_node's defaults (power_bias_states 'estimate'), its figures over
-  the windows [1, 30), [30, 60), [60, 120), [120, 180) s of the match (after 30, 60, 120 s of
-  self-calibration);
-- "perfectly calibrated": the bearings corrected by the simulated bias inverted (beams_sim's
-  calibration_of) and flagged calibrated, the filter's defaults (its bias states then unused).
-
-The driver's variances are its defaults' (driver_node's parameter table: the thesis hardware's natural
-variance, linear in the window). The PCRB ("bound") is bench_ekf_consistency's, from the simulator's true
-noise models with the odometry's systematic errors unknown and the bias known (a calibrated sensor): the
-ratio RMS / bound says what is left to gain. The self-calibrated curve's error is the RMS over the table's
-windows of (estimated - true bias). Each mean NEES comes with its range over the seeds (one seed's
-mean over the period).
-
-Each run's 30 s windows (six in 180 s, the first from SETTLE_S) are also held to the band a consistent
-filter's window mean falls in with 95 % probability (beams_thesis.nees_band: the NEES's autocorrelation pooled
-over the seeds, the window means of a Gaussian error of that correlation; beside it N_eff = 30 s / tau and
-the chi-square band chi2(3 N_eff) / N_eff), and to the 2.0-4.5 target: how many of the seeds x windows
-fall outside each.
-
-Usage: python bench/bench_self_calibration.py [--seeds N] [--duration-s S]
-"""
+The driver's variances are its defaults'. The PCRB ("bound") is bench_ekf_consistency's, with the odometry's
+systematic errors unknown and the bias known: RMS / bound says what is left to gain. The self-calibrated
+curve's error is the RMS over the table's windows of (estimated - true bias). Each run's 30 s windows are held
+to the band a consistent filter's window mean falls in with 95 % probability (beams_thesis.nees_band, the
+NEES's autocorrelation pooled over the seeds) and to the 2.0-4.5 target: how many of the seeds x windows fall
+outside each."""
 
 import math
 import sys
@@ -85,15 +67,10 @@ def run(
     return result, localiser
 
 
-def nees(result: ReplayResult) -> np.ndarray:
-    errors = result.errors()
-    return np.einsum("ki,kij,kj->k", errors, np.linalg.inv(result.covariances), errors)
-
-
 def nees_series(result: ReplayResult) -> tuple[np.ndarray, np.ndarray]:
     """(time since the first estimate, NEES) of a replay from SETTLE_S on."""
     t = result.times_s - result.times_s[0]
-    return t[t >= SETTLE_S], nees(result)[t >= SETTLE_S]
+    return t[t >= SETTLE_S], result.nees()[t >= SETTLE_S]
 
 
 def windows_against_band(
@@ -140,7 +117,7 @@ class Pool:
 
     def add(self, result: ReplayResult, bound) -> None:
         t = result.times_s - result.times_s[0]
-        values = nees(result)
+        values = result.nees()
         self.series.append(nees_series(result))
         for period in PERIODS_S:
             keep = (t >= period[0]) & (t < period[1])

@@ -2,8 +2,6 @@
 serial link can carry, and the cost of the simulated robot and of a whole offline match; the link's
 integrity: revolutions kept under line noise, and the worst bearing error under spurious
 zero references.
-
-Usage: python bench/bench_serial.py   (`rows()` is what bench/run_all.py collects.)
 """
 
 import sys

@@ -1,8 +1,5 @@
 """ToTal benchmark (thesis ch. 6): cost of the scalar and vectorised forms, and the accuracy
 of gated poses on the simulated Eurobot match with and without odometry.
-
-Usage: python bench/bench_triangulation.py [--seed N]
-(`rows()` is what bench/run_all.py collects.)
 """
 
 import math

@@ -1,8 +1,5 @@
 """Validation benchmark: what the checks of every input and output cost per revolution, and
 what a flood costs the EKF now that a revolution over MAX_BEARINGS_PER_REVOLUTION is refused whole.
-
-Usage: python bench/bench_validation.py
-(`rows()` is what bench/run_all.py collects.)
 """
 
 import sys

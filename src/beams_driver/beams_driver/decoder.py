@@ -1,18 +1,12 @@
 """From one revolution's edges to identified bearings (thesis sections 2.4.3-2.4.5 and eq. 5.2).
 
-Windows are separated by the 4-bit timeout (a gap longer than 4 bit times, 0.44 deg, ends a window);
-inside a window every complete burst and gap is classified in bit counts and matched against the
-codes' cyclic run patterns; the code is identified by counting complete codes. Windows holding several
-codes (compound, section 2.4.5), durations that fit no code, or too few complete codes are rejected with
-a reason. An accepted window gives the bearing (phi_r + phi_f) / 2 (eq. 2.5) wrapped to (-pi, pi], the
-window phi_f - phi_r plus its mean shortening (eq. 5.2, p0 phi0 for the ideal receiver; with the minimum
-burst m of the AND hypothesis, sum over gaps of (phi_G + m)^2 / code period: `receiver.ReceiverModel`),
-its variance from the variance model at that window, and its own instant. Section 2.5.2 asks to see
-the code at least twice in the window: `min_codes_seen` complete codes (default 2). A window belongs to
-the revolution in which it closes (one straddling the zero reference is carried into the next, its
-angle wrapped); a revolution reports each beacon at most once (`repeated`: a robot turning against the
-turret brings a beacon round twice in one turn, the pass nearest the revolution's middle is kept).
-"""
+Windows are separated by the 4-bit timeout (0.44 deg); inside a window every complete burst and gap is
+classified in bit counts and matched against the codes' cyclic run patterns, and the code is identified by
+counting complete codes (section 2.5.2 asks for two: `min_codes_seen`). Compound windows (section 2.4.5),
+durations that fit no code and too few complete codes are rejected with a reason. An accepted window gives the
+bearing (phi_r + phi_f) / 2 (eq. 2.5), the window plus its mean shortening (eq. 5.2,
+`receiver.ReceiverModel`), its variance at that window and its own instant. A window belongs to the revolution
+in which it closes; a revolution reports each beacon at most once."""
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field

@@ -1,15 +1,8 @@
-"""`fault_campaign`: plays a seeded schedule of faults against the whole running suite and
-prints what it measured.
-
-The robot's processes (beams_tools.robot_processes) run over DDS with fault_relay_node between the
-publishers and the filters, wrong on request (beams_tools.campaign_processes: a node that exits without
-being killed is counted dead and respawned, as the launch file's respawn would); a probe node in this
-process records and acts (campaign_probe_node), the faults are its and the processes' timed actions
-(campaign_faults); the figures and the report are campaign_metrics'.
-
-With --hosts, the driver runs on a second host (a network namespace joined to the main computer's by one
-link, which the link_down faults cut); where namespaces cannot be made (root, iproute2) the class is
-skipped and the report says so.
+"""`fault_campaign`: plays a seeded schedule of faults against the whole running suite and prints what it
+measured (docs/fault_campaign.md): the robot's processes (campaign_processes) with fault_relay_node between
+the publishers and the filters, a probe node in this process (campaign_probe_node), the faults' timed actions
+(campaign_faults), the figures and report (campaign_metrics). With --hosts the driver runs on a second host (a
+network namespace), skipped and said so where namespaces cannot be made.
 
 Usage: fault_campaign [--seed N] [--duration S] [--output DIR] [--serial] [--hosts] [-p ekf:NAME:=VALUE ...]
 """
@@ -54,11 +47,9 @@ SIM_MAX_MATCH_S = 600.0
 
 @dataclass
 class CampaignConfig:
-    """What one campaign runs: its seed and length, where its logs go, its DDS domain, parameters added
-    to the nodes' (node -> {name: value}), instead of the seeded draw a schedule of its own, and whether
-    driver_node reads a simulated sensor on a serial port (beams_tools.serial_feed: the line's faults are
-    then drawn too) instead of its built-in simulated source, and whether the robot runs on two hosts
-    (`Hosts`: the link_down faults are then drawn too)."""
+    """What one campaign runs: seed, length, logs, DDS domain, parameters added to the nodes' (node -> {name:
+    value}), a schedule of its own instead of the seeded draw, the serial sensor (`serial`, with the line's
+    faults) and two hosts (`hosts`, with the link's faults)."""
 
     seed: int = 18
     duration_s: float = 120.0

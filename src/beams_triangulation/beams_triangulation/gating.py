@@ -1,19 +1,10 @@
 """The gates on a ToTal pose, and the choice of the triplet to trust among more than three beacons.
 
-A pose is accepted when ToTal's reliability measure 1/|D| (thesis 6.3.5, eq. 6.27) is below a threshold
-and the position standard deviation propagated from the bearing variances (`pose_covariance`) is below
-a limit. Defaults, from the error maps of the Eurobot layout (`error_map`, bearing sigma 0.1 deg as
-the driver's variance model gives): the position std stays under 5 cm on 94% of the table and grows
-without bound near the critical circumference, which crosses the table; 1/|D| < 2 m^-2 holds on 94%
-of it as well and catches the blow-up even when the published variances are wrong. Rejected poses keep
-their numbers and get the reason, so that `topic echo` shows why. With odometry in use, a revolution the
-odometry does not cover (at start-up, before the first odometry, or when odometry stops) is not
-motion-compensated: its pose is published rejected (a robot turning at 2 rad/s makes it centimetres
-off while its covariance says millimetres).
-
-One revolution's bearings to a gated pose is `revolution.estimate_revolution`; `TriangulationPipeline`
-(`pipeline`) is what the node runs on its two inputs, the offline replay too.
-"""
+A pose is accepted when ToTal's reliability measure 1/|D| (thesis 6.3.5, eq. 6.27) and the position std
+propagated from the bearing variances (`pose_covariance`) are below their limits. The defaults come from the
+Eurobot layout's error maps (`error_map`, 0.1 deg): the std stays under 5 cm, and 1/|D| under 2 m^-2, on 94%
+of the table, the latter catching the blow-up near the critical circumference even when the published
+variances are wrong. A rejected pose keeps its numbers and gets the reason, so that `topic echo` shows why."""
 
 from __future__ import annotations
 

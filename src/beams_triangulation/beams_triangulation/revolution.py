@@ -1,14 +1,9 @@
-"""One revolution's bearings to a gated pose: the bearing intake, the triplet, ToTal (motion-compensated
-with odometry, or the motion seen between revolutions in the variances), the covariance and the gates.
+"""One revolution's bearings to a gated pose: the bearing intake, the triplet, ToTal (motion-compensated with
+odometry, or the motion seen between revolutions in the variances), the covariance and the gates.
 
-`estimate_revolution` is the whole of it for one revolution; `RevolutionEstimator` runs it on a stream
-(remembering the last pose for the motion); `pipeline.TriangulationPipeline` adds the odometry and the
-wait for it. The intake (`beams_common.intake.bearing_intake`) is the EKF's too; ToTal's policy on it: a
-revolution with a beacon seen twice at one instant or an invalid measurement gives no pose (bad input);
-a repeated sighting, and a bearing of a beacon not on the map (another team's beacon in view:
-1 pose in 8 s when it made the revolution bad input), are set aside (counted by the intake) and the
-revolution's other bearings still count.
-"""
+ToTal's policy on the intake (`beams_common.intake.bearing_intake`, the EKF's too): a beacon seen twice at one
+instant or an invalid measurement gives no pose (bad input); a repeated sighting or a beacon not on the map
+(another team's beacon in view) is set aside and the revolution's other bearings still count."""
 
 from __future__ import annotations
 
@@ -143,12 +138,9 @@ def estimate_pose(
     config: GateConfig = DEFAULT_GATES,
     turret_offset_m: Sequence[float] = (0.0, 0.0),
 ) -> PoseEstimate | NoPose:
-    """Bearings taken from one pose (sensor frame) to a gated robot pose in the map frame.
-
-    Three beacons: ToTal on them; more: the triplet with the smallest propagated std (`best_triplet`);
-    fewer or bad input: NoPose.
-    The covariance propagates the bearing variances through the Jacobian of the solution.
-    """
+    """Bearings taken from one pose (sensor frame) to a gated robot pose in the map frame: ToTal on three
+    beacons, on the triplet of smallest propagated std among more (`best_triplet`); NoPose for fewer or bad
+    input."""
     if not len(beacon_ids) == len(bearings_rad) == len(variances_rad2):
         counts = (len(beacon_ids), len(bearings_rad), len(variances_rad2))
         return NoPose("{} ids, {} bearings and {} variances: the lists must match".format(*counts), True)
