@@ -21,7 +21,6 @@ from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.bearing import Bearing
 from beams_common.geometry.pose2d import compose
 from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
-from beams_driver.variance import VarianceModel
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser, revolution_of
 from beams_sim.sensor_sim import SensorSimConfig
@@ -29,6 +28,7 @@ from beams_sim.simulated_match import (
     SENSOR_MODELS,
     SimulatedMatch,
     calibrated_match,
+    default_variance_model,
     sensor_config_of,
     simulate_match,
     table_natural_variance_rad2,
@@ -55,14 +55,7 @@ def run_mode(match: SimulatedMatch, mode: str, config: SensorSimConfig | None = 
     variance = None
     if mode != "published":
         config = config or SensorSimConfig()
-        model = VarianceModel(
-            config.codes,
-            mode,
-            turret_speed_rad_s=config.turret_speed_rad_s,
-            natural_variance_rad2=table_natural_variance_rad2(config),
-            min_burst_fraction=config.min_burst_fraction,
-            min_burst_gap_exponent=config.min_burst_gap_exponent,
-        )
+        model = default_variance_model(config.codes, config, table_natural_variance_rad2(config), mode)
         variance = lambda beacon_id, window: float(model.variance(beacon_id, window))  # noqa: E731
     # ekf_node's filter (its default settings: odometry error states, the wheels' random noise)
     localiser = build_localiser(match.beacon_map.as_dict(), match.turret_offset_m, FilterSettings())

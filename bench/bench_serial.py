@@ -24,7 +24,7 @@ from beams_driver.serial_protocol import (
 )
 from beams_driver.variance import VarianceModel
 from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
-from beams_sim.simulated_match import simulate_match
+from beams_sim.simulated_match import default_variance_model, simulate_match
 from beams_sim.world import EurobotTrajectory, OdometrySimulator
 
 # 8N1: ten line bits per byte.
@@ -32,17 +32,8 @@ LINK_FRAMES_PER_S = DEFAULT_BAUDRATE / 10 / FRAME_SIZE
 REVOLUTIONS = 300
 
 
-def _stream() -> tuple[bytes, int]:
-    """REVOLUTIONS simulated revolutions (robot at (1.0, 0.7), 3 beacons) as the device sends them."""
-    config = SensorSimConfig()
-    simulator = SensorSimulator(config, EUROBOT_BEACON_MAP, np.random.default_rng(0))
-    pose = (1.0, 0.7, 0.4)
-    revolutions = [simulator.revolution(lambda t: pose, k * config.period_s) for k in range(REVOLUTIONS)]
-    data = FrameEncoder().revolutions(revolutions)
-    return data, len(data) // FRAME_SIZE
-
-
 def _simulated(count: int, seed: int) -> tuple[SensorSimConfig, list[RevolutionEdges], SensorSimulator]:
+    """`count` simulated revolutions of a robot standing at (1.0, 0.7), 3 beacons."""
     config = SensorSimConfig()
     simulator = SensorSimulator(config, EUROBOT_BEACON_MAP, np.random.default_rng(seed))
     pose = (1.0, 0.7, 0.4)
@@ -51,6 +42,12 @@ def _simulated(count: int, seed: int) -> tuple[SensorSimConfig, list[RevolutionE
         [simulator.revolution(lambda t: pose, k * config.period_s) for k in range(count)],
         simulator,
     )
+
+
+def _stream() -> tuple[bytes, int]:
+    """REVOLUTIONS simulated revolutions as the device sends them, and their frame count."""
+    data = FrameEncoder().revolutions(_simulated(REVOLUTIONS, seed=0)[1])
+    return data, len(data) // FRAME_SIZE
 
 
 def _bearings(config: SensorSimConfig, revolutions: list[RevolutionEdges]) -> dict[tuple[float, int], float]:
@@ -180,14 +177,9 @@ def spurious_zero_rows() -> list[tuple[str, float, str, str]]:
     truth = {beacon: simulator.true_bearing(beacon, pose)[0] for beacon in (1, 2, 3)}
 
     def worst(assembler: RevolutionAssembler, stream: bytes = data) -> tuple[float, float, int]:
-        receiver = config.receiver
-        variance = VarianceModel(
-            config.codes,
-            natural_variance_rad2=config.natural_variance_rad2,
-            min_burst_fraction=receiver.min_burst_fraction,
-            min_burst_gap_exponent=receiver.min_burst_gap_exponent,
+        decoder = BearingDecoder(
+            config.codes, default_variance_model(config.codes, config), receiver=config.receiver
         )
-        decoder = BearingDecoder(config.codes, variance, receiver=receiver)
         errors, sigmas, published = [], [], 0
         for revolution in _assemble(stream, assembler):
             published += 1

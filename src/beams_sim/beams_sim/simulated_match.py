@@ -20,7 +20,7 @@ from beams_common.geometry.pose2d import compose
 from beams_driver.codes import BeaconCode
 from beams_driver.decoder import BearingDecoder, DecodedRevolution, VarianceSource
 from beams_driver.edges import RevolutionEdges
-from beams_driver.variance import CorrectedVariance, EdgeVariances, VarianceModel
+from beams_driver.variance import CorrectedVariance, EdgeVariances, VarianceMode, VarianceModel
 from beams_sim.parameters import SIM_WORLD_PARAMETERS
 from beams_sim.sensor_sim import (
     BiasFunction,
@@ -159,13 +159,16 @@ def simulate_match(
 
 
 def default_variance_model(
-    codes: Sequence[BeaconCode], config: SensorSimConfig, natural_variance_rad2: float | None = None
+    codes: Sequence[BeaconCode],
+    config: SensorSimConfig,
+    natural_variance_rad2: float | None = None,
+    mode: VarianceMode = "exact",
 ) -> VarianceModel:
-    """The exact variance (chapter 4) plus a natural variance (section 5.6; default the simulated
+    """The variance of `mode` (chapter 4) plus a natural variance (section 5.6; default the simulated
     sensor's), for the receiver's minimum burst."""
     return VarianceModel(
         codes,
-        "exact",
+        mode,
         turret_speed_rad_s=config.turret_speed_rad_s,
         natural_variance_rad2=(
             config.natural_variance_rad2 if natural_variance_rad2 is None else natural_variance_rad2

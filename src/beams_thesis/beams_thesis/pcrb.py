@@ -124,15 +124,6 @@ class PcrbTrack:
             raise ValueError("the bound exists only at the odometry instants")
         return self.bounds[index]
 
-    def rms_position_m(self, times_s: np.ndarray) -> float:
-        """sqrt(mean(trace of the position bound)) over the instants: the RMS position error floor."""
-        bounds = self.at(times_s)
-        return float(np.sqrt(np.mean(bounds[:, 0, 0] + bounds[:, 1, 1])))
-
-    def rms_heading_rad(self, times_s: np.ndarray) -> float:
-        """sqrt(mean(heading bound)) over the instants: the RMS heading error floor."""
-        return float(np.sqrt(np.mean(self.at(times_s)[:, 2, 2])))
-
 
 def trajectory_pcrb(
     times_s: np.ndarray,
