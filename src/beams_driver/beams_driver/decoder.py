@@ -143,13 +143,10 @@ class BearingDecoder:
         self._last_revolution: int | None = None
 
     def decode(self, edges: RevolutionEdges) -> DecodedRevolution:
-        """Bearings and rejections of the windows that closed during this revolution.
-
-        Revolutions must come in order: a window still open at the end of a revolution (it may
-        straddle the zero reference) is carried into the next one and decoded there. A window opening
-        within the timeout of the zero reference of a revolution that does not follow the last one
-        decoded (the first, or after a gap) is rejected as truncated: its head was not seen.
-        """
+        """Bearings and rejections of the windows that closed during this revolution. Revolutions come in
+        order: a window still open at the end of one is carried into the next; one opening within the timeout
+        of the zero reference of a revolution that does not follow the last one decoded is rejected as
+        truncated (its head was not seen)."""
         result = DecodedRevolution(edges.revolution, edges.start_time_s, edges.period_s)
         omega = edges.turret_speed_rad_s
         timeout_rad = self.timeout_bits * self.bit_time_s * omega

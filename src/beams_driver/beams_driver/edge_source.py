@@ -23,11 +23,8 @@ PoseCallback = Callable[[float, Pose2D, tuple[float, float]], None]
 
 @dataclass
 class SourcePoll:
-    """What a source delivered since the last poll.
-
-    continuity_broken: the first revolution delivered does not follow the last one decoded (a
-    reconnection, a skipped revolution, a clock jump): the decoder must not join windows across it.
-    """
+    """What a source delivered since the last poll; continuity_broken: the first revolution does not follow
+    the last one decoded (a reconnection, a skip, a clock jump), so no window is joined across it."""
 
     revolutions: list[RevolutionEdges] = field(default_factory=list)
     continuity_broken: bool = False
@@ -80,12 +77,9 @@ SourceFactory = Callable[[Mapping[str, Any], Sequence[BeaconCode], SourceHost], 
 
 @dataclass(frozen=True)
 class EdgeSourceKind:
-    """A kind of source: its name, its parameters, its start-up checks across them, its factory.
-
-    poll_period_s is how often the driver polls it; receiver gives the receiver model of its edges. The
-    factory raises ValueError or OSError with the reason when the source cannot start (a missing device):
-    the driver then exits 2 with that line.
-    """
+    """A kind of source: its name, its parameters, their start-up checks, its factory, how often the driver
+    polls it and the receiver model of its edges. The factory raises ValueError or OSError with the reason
+    when the source cannot start: the driver exits 2 with that line."""
 
     name: str
     parameters: tuple[ParameterSpec, ...]

@@ -88,17 +88,13 @@ IDEAL_RECEIVER = ReceiverModel()
 class HardwareNoise:
     """The thesis hardware's receiver noise (sections 5.5-5.7), applied by the simulator to each window.
 
-    Edge noise: the receiver sees the beacon from the instant the power crosses its threshold; the AGC
-    makes that crossing jitter, much more at the window's start (the gain is high after a long silence)
-    than at its end (fig. 5.3). Modelled as zero-mean Gaussian jitter of the window's two boundaries
-    (then code AND window, so a code adds its own error on top), with variances linear in the true
-    window between the experiment's extremes (fig. 5.3: "quasi linear"), held constant outside them.
-    off_noise_gain: a modulated code's natural variance is multiplied by 1 + gain (G / T_b - 1), G its
-    longest gap: the AGC's gain recovers during OFF periods (section 5.6: the real noise of C_5b and
-    C_5c exceeds natural plus code variance). power_bias_coefficients: the bearing bias (rad) against
-    the window (rad), cubic (eq. 7.19), phi_biased = phi_real + f(w) (eq. 7.17), held constant outside
-    power_bias_range_rad (default: window_range_rad, where section 5.7 measured it).
-    """
+    Edge noise: the AGC makes the threshold crossing jitter, much more at the window's start (the gain is high
+    after a silence) than at its end (fig. 5.3): zero-mean Gaussian jitter of the two boundaries (then code
+    AND window), variances linear in the true window between the experiment's extremes, constant outside.
+    off_noise_gain: a modulated code's natural variance is multiplied by 1 + gain (G / T_b - 1), G its longest
+    gap (the AGC recovers during OFF periods, section 5.6). power_bias_coefficients: the cubic bias f(w) (rad,
+    eq. 7.19; phi_biased = phi_real + f(w), eq. 7.17), constant outside power_bias_range_rad (default
+    window_range_rad, where section 5.7 measured it)."""
 
     window_range_rad: tuple[float, float]
     power_bias_coefficients: tuple[float, float, float, float]

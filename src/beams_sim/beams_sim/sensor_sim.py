@@ -96,10 +96,8 @@ class SensorSimConfig:
 
     @property
     def natural_variance_rad2(self) -> float:
-        """Bearing variance the edge noise adds: (sigma_r^2 + sigma_f^2) / 4 (eq. 3.13, independent edges).
-
-        With the hardware noise, which grows with the window, its mean over the 1-6 m windows (C_k).
-        """
+        """Bearing variance the edge noise adds, (sigma_r^2 + sigma_f^2) / 4 (eq. 3.13, independent edges);
+        with the hardware noise, its mean over the 1-6 m windows (C_k)."""
         if self.hardware is not None:
             windows = np.linspace(*self.hardware.window_range_rad, 101)
             return float(np.mean(self.hardware.natural_variance_rad2(windows, None)))
@@ -158,12 +156,9 @@ class SensorSimulator:
         *,
         occlusion: Occlusion | None = None,
     ) -> None:
-        """beacons: true positions (SimulatedBeacons, or a BeaconMap-like object with ids and xy).
-
-        power_bias_rad(window) and rotation_bias_rad(angle) are added to the measured bearing
-        (phi_biased = phi_real + f, eq. 7.17 and 7.24); turret_offset_m is the turret centre in base_link;
-        occlusion hides beacons: a set of ids or a callable (beacon_id, time_s) -> bool.
-        """
+        """beacons: true positions (SimulatedBeacons, or a BeaconMap-like object); power_bias_rad(window) and
+        rotation_bias_rad(angle) are added to the bearing (eq. 7.17, 7.24); turret_offset_m is the turret
+        centre in base_link; occlusion: a set of hidden ids or (beacon_id, time_s) -> hidden."""
         self.config = config
         self.beacons = tuple(beacons) if _is_beacon_sequence(beacons) else beacons_from_map(beacons)
         self._codes = [config.code(b.beacon_id) for b in self.beacons]
@@ -207,11 +202,9 @@ class SensorSimulator:
     # ---- one beacon's window ----
 
     def _beacon_bursts(self, k: int, pose_at: PoseAt, t0: float) -> tuple[np.ndarray, np.ndarray]:
-        """Bursts (s from t0, unclipped) of every pass of beacon k that can reach this revolution.
-
-        A beacon near the zero reference is seen twice: the tail of the pass around t0 and the head of
-        the pass around t0 + period, each with the robot's pose at its own instants.
-        """
+        """Bursts (s from t0, unclipped) of every pass of beacon k that can reach this revolution: near the
+        zero reference, the tail of the pass around t0 and the head of the one around t0 + period, each at its
+        own pose."""
         beacon = self.beacons[k]
         omega, period = self.config.turret_speed_rad_s, self.config.period_s
         bearing, _ = self._view(beacon, pose_at(t0 + 0.5 * period))
@@ -345,12 +338,9 @@ class SensorSimulator:
         return starts, starts + durations
 
     def _capture(self, starts_rel: np.ndarray, ends_rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Timer captures (s from the zero reference) and polarities of the OR of all bursts.
-
-        Only the edges inside [0, period) belong to this revolution: a window over the zero reference
-        shows its tail at the start and the head of the next pass at the end (the decoder joins
-        consecutive revolutions).
-        """
+        """Timer captures (s from the zero reference) and polarities of the OR of all bursts, only those
+        inside [0, period): a window over the zero reference shows its tail at the start and the next pass's
+        head at the end."""
         period, tick = self.config.period_s, self.config.tick_s
         starts, ends = _union(starts_rel, ends_rel)
         captured_starts, captured_ends = np.round(starts / tick) * tick, np.round(ends / tick) * tick
@@ -393,12 +383,9 @@ def fixed_window_bearing_errors(
     min_burst_s: float = 0.0,
     phase_s: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The simulator of sections 4.3-4.4: one beacon, fixed windows, n_turns turret turns.
-
-    Turn k sees the code shifted by k * period (mod T_c): with a period coprime with T_c in ticks, T_c
-    turns visit every shift once (time stationarity). Edges are captured on the tick. Returns the bearing
-    errors (windows, turns) in s and a mask of detected windows; vectorised over windows and turns.
-    """
+    """The simulator of sections 4.3-4.4: one beacon, fixed windows, n_turns turns, turn k seeing the code
+    shifted by k * period (mod T_c; a coprime period visits every shift, time stationarity), edges on the
+    tick. Bearing errors (windows, turns) in s and the detected mask."""
     windows = np.asarray(window_s, dtype=float).reshape(-1, 1)
     starts = phase_s + np.arange(n_turns, dtype=float)[None, :] * period_s
     starts = np.round(np.mod(starts, code.duration_s) / tick_s) * tick_s

@@ -60,11 +60,8 @@ class MotionLimits:
 
 
 class EurobotTrajectory:
-    """The robot's true motion in the map frame, sampled finely and interpolated.
-
-    pose_at(t) -> (x, y, theta) and twist_at(t) -> (v, omega) (base_link: forward speed, yaw rate);
-    before 0 and after duration_s the robot stands at its first / last pose.
-    """
+    """The robot's true motion in the map frame, sampled finely and interpolated: pose_at(t) and twist_at(t)
+    (forward speed, yaw rate); before 0 and after duration_s the robot stands at its first / last pose."""
 
     def __init__(
         self,
@@ -336,13 +333,10 @@ def _random_control_points(
 
 @dataclass(frozen=True)
 class OdometryDrift:
-    """Systematic and random errors of wheel odometry (defaults: a small robot, roughly calibrated).
-
-    left/right_scale_error: reported / travelled wheel distance - 1 (wheel radius errors, a few %);
-    wheel_base_error: nominal / true wheel base - 1; slip_std: per-sample slip of each wheel, as a
-    fraction of its travel (half-normal, never negative: a slipping wheel turns more than the ground
-    moves); noise_m_per_sqrt_m: random-walk noise of each wheel's distance.
-    """
+    """Systematic and random errors of wheel odometry (defaults: a small robot, roughly calibrated): each
+    wheel's reported / travelled distance - 1, nominal / true wheel base - 1, each wheel's per-sample slip as
+    a fraction of its travel (half-normal: a slipping wheel turns more than the ground moves), and the random
+    walk of each wheel's distance."""
 
     left_scale_error: float = ODOMETRY_DRIFT["left_scale_error"][0]
     right_scale_error: float = ODOMETRY_DRIFT["right_scale_error"][0]
@@ -376,11 +370,8 @@ class PoseTwistSamples:
 
 
 class OdometrySimulator:
-    """Wheel odometry of a differential-drive robot following a trajectory, with drift (deterministic).
-
-    Use `advance(t)` to step incrementally (a node at 50 Hz) or `run(rate_hz)` for the whole match at
-    once; with the same seed and instants both give the same samples.
-    """
+    """Wheel odometry of a differential-drive robot following a trajectory, with drift (deterministic):
+    `advance(t)` step by step and `run(rate_hz)` at once give the same samples."""
 
     def __init__(
         self,

@@ -140,14 +140,9 @@ def gaussian_window_band(
     seed: int = 0,
 ) -> tuple[float, float]:
     """The Monte-Carlo band of a consistent filter's mean NEES over window_s seconds: the quantiles of the
-    window means of a stationary Gaussian error whose NEES has `correlation`'s autocorrelation.
-
-    Its `dof` components are independent, each of autocorrelation r(j) = sqrt(rho(j)) (the NEES of such
-    an error has rho(j) = r(j)^2, |C(j)|_F^2 / dof), drawn by circulant embedding (Dietrich and Newsam
-    1997: the autocorrelation on a circle, its spectrum's negative parts from the truncation set to 0).
-    Where the chi-square band matches the mean and variance only, this one has the skewness of such a
-    sum of correlated squares (heavier on the high side). What it assumes that a NEES series cannot
-    tell: the components share one autocorrelation and are uncorrelated with each other."""
+    window means of a stationary Gaussian error whose NEES has `correlation`'s autocorrelation, skew included.
+    Its `dof` components are independent, each of autocorrelation sqrt(rho(j)), drawn by circulant embedding
+    (Dietrich and Newsam 1997, the spectrum's negative parts set to 0)."""
     rho = np.clip(correlation.autocorrelation, 0.0, None)
     r = np.sqrt(rho)
     n = max(round(window_s / correlation.sample_interval_s), 1)

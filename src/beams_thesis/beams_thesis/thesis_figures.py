@@ -86,10 +86,8 @@ class RotationExperiment:
 
 
 def rotation_experiment(dataset: Dataset, model: Model | None = None) -> RotationExperiment:
-    """Figure 7.7 for a dataset of one position at several orientations.
-
-    model None fits {A, B, C, D, dx, dy} on the dataset itself by minimising err_RMS (eq. 7.27, the
-    a-priori beacons and no power bias), as section 7.3.3 does; otherwise `model` is applied as given.
+    """Figure 7.7 for a dataset of one position at several orientations: model None fits {A, B, C, D, dx, dy}
+    on the dataset by minimising err_RMS (eq. 7.27, a-priori beacons, no power bias), as section 7.3.3 does.
     """
     arrays = to_arrays(dataset)
     problem = Problem.of(arrays)

@@ -99,7 +99,6 @@ class Campaign:
             config.output_dir = pathlib.Path(tempfile.mkdtemp(prefix="fault_campaign_"))
         self.log_dir = pathlib.Path(config.output_dir)
         self.log_dir.mkdir(parents=True, exist_ok=True)
-        settings = ScheduleSettings(duration_s=config.duration_s, warmup_s=config.warmup_s)
         self.notes: list[str] = []
         problem = hosts_problem() if config.hosts else ""
         if problem:
@@ -109,7 +108,7 @@ class Campaign:
         self.schedule = (
             config.schedule
             if config.schedule is not None
-            else draw_schedule(config.seed, settings, campaign_classes(config.serial, self.hosts is not None))
+            else seeded_schedule(config, self.hosts is not None)
         )
         self.serial_link = self.log_dir / "beams_sensor"
         self.feed: SerialFeed | None = None
@@ -244,6 +243,12 @@ class Campaign:
         return result
 
 
+def seeded_schedule(config: CampaignConfig, hosts: bool) -> tuple[Fault, ...]:
+    """The schedule the campaign's seed draws, of the classes it can play (`campaign_classes`)."""
+    settings = ScheduleSettings(duration_s=config.duration_s, warmup_s=config.warmup_s)
+    return draw_schedule(config.seed, settings, campaign_classes(config.serial, hosts))
+
+
 def campaign_classes(serial: bool, hosts: bool = False) -> tuple[str, ...]:
     """The fault classes a campaign draws: the serial line's too when the driver reads a serial port, the
     hosts' link's when the robot runs on two hosts."""
@@ -314,9 +319,7 @@ def main(args: list[str] | None = None) -> int:
         hosts=options.hosts,
     )
     if options.schedule_only:
-        settings = ScheduleSettings(duration_s=config.duration_s, warmup_s=config.warmup_s)
-        hosts = config.hosts and not hosts_problem()
-        schedule = draw_schedule(config.seed, settings, campaign_classes(config.serial, hosts))
+        schedule = seeded_schedule(config, config.hosts and not hosts_problem())
         print("\n".join(fault.describe() for fault in schedule))
         return 0
     result = run_campaign(config)

@@ -165,10 +165,8 @@ def _draw(kind: str, rng: np.random.Generator) -> tuple[str, float, dict[str, An
 def draw_schedule(
     seed: int, settings: ScheduleSettings = ScheduleSettings(), classes: Sequence[str] = FAULT_CLASSES
 ) -> tuple[Fault, ...]:
-    """The faults of a campaign: the same seed and settings give the same schedule.
-
-    Raises ValueError when the campaign is too short for one fault of every class.
-    """
+    """The faults of a campaign, the same for the same seed and settings; ValueError when it is too short for
+    one fault of every class."""
     rng = np.random.default_rng(seed)
     last_end_s = settings.duration_s - settings.tail_s
     faults: list[Fault] = []

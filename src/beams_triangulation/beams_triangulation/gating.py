@@ -58,11 +58,8 @@ class PoseEstimate:
 
 @dataclass(frozen=True)
 class NoPose:
-    """Why one revolution gave no pose at all (too few beacons, bad input, robot on the critical circle).
-
-    bad_input: the message itself was wrong (unknown or duplicated id, NaN, negative variance), as
-    opposed to what happens in normal operation (a beacon hidden, the critical circumference).
-    """
+    """Why one revolution gave no pose at all (too few beacons, bad input, robot on the critical circle);
+    bad_input: the message itself was wrong (unknown or duplicated id, NaN, negative variance)."""
 
     reason: str
     bad_input: bool = False
@@ -81,14 +78,11 @@ def gate(inverse_abs_d: float, covariance: np.ndarray, config: GateConfig) -> tu
 def best_triplet(
     beacons_xy: np.ndarray, bearings_rad: np.ndarray, variances_rad2: np.ndarray, by: str = "covariance"
 ) -> tuple[int, int, int] | None:
-    """Indices of the triplet to trust among more than three beacons, or None when none gives a fix.
-
-    Every triplet is solved at once by the vectorised ToTal. by="covariance" (default) picks the
-    smallest propagated position std; by="inverse_abs_d" the largest |D|, the thesis's measure (eq.
-    6.27). On the Eurobot table with a fourth beacon at (3.062, -0.062) and 0.1 deg noise the first
-    measures better (RMS 8.3 mm against 10.4 mm, 95th percentile 13 mm against 20 mm): 1/|D| also
-    vanishes when the robot is on the line through two beacons, where the error does not.
-    """
+    """Indices of the triplet to trust among more than three beacons, or None when none gives a fix: every
+    triplet solved at once, by="covariance" (default) the smallest propagated position std, by="inverse_abs_d"
+    the largest |D| (eq. 6.27). On the Eurobot table with a fourth beacon at (3.062, -0.062) and 0.1 deg noise
+    the first measures better (RMS 8.3 mm against 10.4 mm): 1/|D| also vanishes on the line through two
+    beacons, where the error does not."""
     triplets = np.array(list(itertools.combinations(range(len(bearings_rad)), 3)))
     batch = triangulate_many(beacons_xy[triplets], bearings_rad[triplets])
     if not batch.ok.any():

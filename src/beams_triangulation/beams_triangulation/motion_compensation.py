@@ -24,11 +24,8 @@ from beams_triangulation.total import ToTalFix, triangulate
 
 
 def interpolate_pose(stamps_s: ArrayLike, poses: ArrayLike, t: float) -> tuple[float, float, float] | None:
-    """Pose at instant t, linear between the two odometry samples around it (heading on the circle).
-
-    stamps_s (n,) increasing, poses (n, 3). None when t is outside the samples (no extrapolation: a
-    bearing older or newer than the odometry cannot be compensated honestly).
-    """
+    """Pose at instant t, linear between the odometry samples around it (heading on the circle); None outside
+    them (a bearing beyond the odometry cannot be compensated honestly)."""
     stamps = np.asarray(stamps_s, dtype=float)
     samples = np.asarray(poses, dtype=float)
     if stamps.size == 0 or not stamps[0] <= t <= stamps[-1]:
@@ -59,12 +56,9 @@ def compensate_bearings(
     approx_pose_map: Sequence[float] | None = None,
     turret_offset_m: Sequence[float] = (0.0, 0.0),
 ) -> np.ndarray:
-    """Bearings (k,) measured at the odometry poses odom_at_bearings (k, 3), moved to odom_at_target.
-
-    Without approx_pose_map (the robot's map pose at the target instant, e.g. a first ToTal fix) only
-    the rotation is compensated; with it and beacons_xy (k, 2), the translation as well. Result wrapped
-    to (-pi, pi].
-    """
+    """Bearings (k,) measured at the odometry poses odom_at_bearings (k, 3), moved to odom_at_target, wrapped:
+    the rotation only, or with approx_pose_map (the robot's map pose at the target instant) and beacons_xy (k,
+    2) the translation too."""
     bearings = np.asarray(bearings_rad, dtype=float)
     odometry = np.asarray(odom_at_bearings, dtype=float).reshape(-1, 3)
     corrected = np.empty_like(bearings)

@@ -105,10 +105,8 @@ def pose_covariance_many(
     variances_rad2: ArrayLike,
     turret_offset_m: Sequence[float] = (0.0, 0.0),
 ) -> np.ndarray:
-    """Vectorised `pose_covariance`: poses (x, y, heading) arrays of shape (N,); result (N, 3, 3).
-
-    beacons_xy (3, 2) shared or (N, 3, 2); variances_rad2 (3,) or (N, 3).
-    """
+    """Vectorised `pose_covariance`: poses (x, y, heading) of shape (N,), beacons_xy (3, 2) or (N, 3, 2),
+    variances_rad2 (3,) or (N, 3); result (N, 3, 3)."""
     beacons = np.asarray(beacons_xy, dtype=float)
     x, y, heading = (np.asarray(p, dtype=float) for p in poses)
     variances = np.broadcast_to(np.asarray(variances_rad2, dtype=float), (*x.shape, 3))
