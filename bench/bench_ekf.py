@@ -1,13 +1,10 @@
-"""EKF benchmark (thesis fig. 8.1): accuracy and consistency on the simulated Eurobot match,
-the three bearing-variance modes, odometry alone and ToTal alone, and the cost of a prediction and of
-a bearing update.
+"""EKF benchmark (thesis fig. 8.1): accuracy and consistency on the simulated Eurobot match in the three
+bearing-variance modes, odometry alone and ToTal alone, and the cost of a prediction and of a bearing update.
 
-Both sensor models, thesis_hardware first (the simulator's default), then ideal: the match as a
-calibrated robot's driver publishes it (beams_sim.simulated_match.calibrated_match; see
-bench_ekf_consistency.py). "published R" is that driver's variance (for thesis_hardware it includes
-the power-bias correction's part); the other modes replace it by the driver's variance model in that
-mode, with the same natural variance.
-"""
+Both sensor models, thesis_hardware first, on the match a calibrated robot's driver publishes
+(simulated_match.calibrated_match). "published R" is that driver's variance (with the power-bias correction's
+part for thesis_hardware); the other modes replace it by the driver's model in that mode, with the same
+natural variance."""
 
 import math
 import sys

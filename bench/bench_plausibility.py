@@ -1,14 +1,9 @@
-"""Plausibility benchmark: the EKF's worst position error on a simulated match under the
-issue's well-formed-but-wrong inputs, with the checks and without them, and what the checks cost.
-
-The localiser runs the synthetic match (beams_thesis.synthetic) with its bearings' arrival instants as the
-receiving clock, as ekf_node does:
-- bearings restamped late or early (`bearing_offset_s`) from 3 s to 6 s: with the check, refused (the
-  node's `plausibility.stamp_problem` on the revolution's newest bearing); without, applied at their
-  stamp (not among the rows: the EKF alone gates them all, see `rows`);
-- the odometry shifted by +100 m from 3 s on: with the check (`MotionLimits` defaults), re-referenced;
-  without (a speed limit of 1e9 m/s), followed.
-"""
+"""Plausibility benchmark: the EKF's worst position error on the synthetic match (beams_thesis.synthetic, the
+bearings' arrival instants as the receiving clock, as ekf_node has it) under well-formed but wrong inputs,
+with the checks and without them, and what the checks cost: bearings restamped late or early
+(`bearing_offset_s`) from 3 s to 6 s, refused by `plausibility.stamp_problem` (not among the rows: the EKF
+alone gates them all, see `rows`); the odometry shifted by +100 m from 3 s on, re-referenced with
+`MotionLimits` and followed without."""
 
 import sys
 from itertools import groupby

@@ -99,11 +99,9 @@ class _NoVariance:
 
 
 class SimulatedSensor:
-    """The driver's edge-level simulator and decoder, measuring a static robot (a MeasureRevolutions).
-
-    `correction` holds the injected power and rotation biases (the simulator adds them, eq. 7.17
-    and 7.24); `beacons` are the true beacon positions; `turret_offset_m` the true turret centre.
-    """
+    """The driver's edge-level simulator and decoder measuring a static robot (a MeasureRevolutions):
+    `correction` the injected power and rotation biases (eq. 7.17, 7.24), `beacons` and `turret_offset_m` the
+    true ones."""
 
     def __init__(
         self,
@@ -146,11 +144,9 @@ def capture_dataset(
     placement_sigma: tuple[float, float] = (0.0, 0.0),
     rng: np.random.Generator | None = None,
 ) -> Dataset:
-    """Record every pose as the calibration node does: `revolutions` revolutions averaged per beacon.
-
-    placement_sigma (m, rad): the operator places the robot only that well (section 7.3.1 expects
-    about 2 mm); the robot is measured where it really stands and recorded at the reference pose.
-    """
+    """Record every pose as the calibration node does, `revolutions` revolutions averaged per beacon; the
+    operator places the robot within placement_sigma (m, rad; section 7.3.1: about 2 mm): measured where it
+    stands, recorded at the reference pose."""
     rng = rng or np.random.default_rng(0)
     sigmas = np.array([placement_sigma[0], placement_sigma[0], placement_sigma[1]])
     configurations = []

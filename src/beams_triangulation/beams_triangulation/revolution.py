@@ -77,13 +77,10 @@ def estimate_intake(
     odometry_at: OdometryAt | None = None,
     previous: PreviousPose | None = None,
 ) -> RevolutionPose:
-    """A revolution the intake sorted out to a gated pose at the mean instant of the bearings used.
-
-    odometry_at(t) gives the odometry pose (odom frame) at instant t, or None outside its samples: with
-    it the bearings are brought to that instant before ToTal (`motion_compensation`); when it does not
-    cover them, the pose is rejected (REASON_NOT_COMPENSATED). Without odometry (or when it does not
-    cover the bearings), the motion (speed, yaw rate) from the `previous` pose to this fix inflates the
-    bearing variances (`motion_variance_rad2`): the fix itself does not depend on the variances.
+    """A revolution the intake sorted out to a gated pose at the mean instant of the bearings used. With
+    odometry_at(t) (the odom pose, None outside its samples) the bearings are brought to that instant first
+    (`motion_compensation`), the pose rejected when it does not cover them (REASON_NOT_COMPENSATED); without,
+    the motion from the `previous` pose inflates the bearing variances (`motion_variance_rad2`), not the fix.
     """
     problem = bad_input(intake)
     if problem:
