@@ -1,8 +1,7 @@
 """The turret firmware in simavr: emulation speed, edge-to-host latency, the most edges a
 revolution carries before the firmware drops some at 500000 baud, and the image's flash and RAM.
 
-Needs `make hil` (firmware/build/turret.elf and the simavr harness). Usage: python bench/bench_firmware.py
-(`rows()` is what bench/run_all.py collects.)
+Needs `make hil` (firmware/build/turret.elf and the simavr harness).
 """
 
 import math
@@ -138,29 +137,14 @@ def rows() -> list[tuple[str, float, str, str]]:
             "x real time",
             f"{SPEED_TURRET_S:.0f} s of turret time, {edges_per_revolution:.0f} edges per revolution",
         ),
-        (
-            "edge to last byte on the wire, p50",
-            float(np.percentile(wire_s, 50)) * 1e3,
-            "ms",
-            "frame: 10 bytes = 0.2 ms",
-        ),
-        (
-            "edge to last byte on the wire, p99",
-            float(np.percentile(wire_s, 99)) * 1e3,
-            "ms",
-            "queue of 128 events",
-        ),
-        (
-            "edge to host read (real-time mode, pipe), p50",
-            float(np.percentile(host_s, 50)) * 1e3,
-            "ms",
-            "turret period 100 ms",
-        ),
-        (
-            "edge to host read (real-time mode, pipe), p99",
-            float(np.percentile(host_s, 99)) * 1e3,
-            "ms",
-            "turret period 100 ms",
+        *(
+            (f"edge to {where}, p{percent}", float(np.percentile(delays_s, percent)) * 1e3, "ms", compared)
+            for where, delays_s, percent, compared in (
+                ("last byte on the wire", wire_s, 50, "frame: 10 bytes = 0.2 ms"),
+                ("last byte on the wire", wire_s, 99, "queue of 128 events"),
+                ("host read (real-time mode, pipe)", host_s, 50, "turret period 100 ms"),
+                ("host read (real-time mode, pipe)", host_s, 99, "turret period 100 ms"),
+            )
         ),
         (
             "edges per revolution without loss at 500000 baud (mean, widest beam)",

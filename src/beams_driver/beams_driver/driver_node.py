@@ -1,19 +1,13 @@
 """driver_node: BeAMS bearings, once per turret revolution, from an edge source (simulated, serial, ...).
 
-Publishes `beams/bearings` (beams_msgs/BeaconBearingArray, reliable) and `/diagnostics`. The edge source
-is chosen by the `source` parameter (edge_source.py): the simulated sensor (the default) follows the
-robot's true pose on `beams/sim/ground_truth` (or a static pose) edge by edge; the serial source reads the
-sensor microcontroller's edge captures. Every source goes through the same decoder and variance model;
-the calibration file's bearing corrections (power bias, rotation bias; thesis ch. 7) are applied to the
+Publishes `beams/bearings` and `/diagnostics`. Every source (`source` parameter, edge_source.py) goes through
+the same decoder and variance model; the calibration file's corrections (thesis ch. 7) are applied to the
 published bearings.
 
-A lifecycle (managed) node: configure validates the parameters and builds the decoder, opening nothing;
-activate creates the source (opens the serial port, starts the simulation) and publishes; deactivate stops
-polling and publishing (the port stays open); cleanup releases the source; shutdown, from any state,
-releases everything. With `autostart` (the default) the node configures and activates itself at start-up
-and a parameter it cannot run with stops it (one line, exit 2); without, it waits for a lifecycle manager
-and a failed transition leaves it alive in its previous state with the reason logged.
-"""
+A lifecycle node: configure validates and builds, opening nothing; activate creates the source and publishes;
+deactivate stops polling and publishing; cleanup releases the source; shutdown releases everything. With
+`autostart` (the default) it configures and activates itself and exits 2 on a parameter it cannot run with;
+without, a failed transition leaves it in its previous state with the reason logged."""
 
 import sys
 import traceback

@@ -1,8 +1,5 @@
-"""Offline replay of odometry and bearings through a `Localiser`, in arrival order, against ground truth:
-the accuracy and consistency figures of the EKF (RMS errors, NEES against its chi-square band). Every
-input goes through the Localiser's doors as ekf_node's do: a revolution (the bearings arriving together:
-one beams/bearings message) through the bearing intake, a pose through the pose intake.
-"""
+"""Offline replay of odometry and bearings through a `Localiser`, in arrival order, against ground truth: the
+EKF's accuracy and consistency figures. Every input goes through the Localiser's intakes as ekf_node's do."""
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -17,6 +14,9 @@ from beams_common.geometry.pose2d import Pose2D
 from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
 from beams_ekf.localiser import Localiser, revolution_of
 from beams_thesis.synthetic import BearingEvent
+
+# the two-sided 95 % chi-square band (3 dof) of one consistent NEES sample
+NEES_BAND = (float(chi2.ppf(0.025, df=3)), float(chi2.ppf(0.975, df=3)))
 
 
 @dataclass(frozen=True)
@@ -44,6 +44,11 @@ class ReplayResult:
         errors = self.estimates - self.truths
         errors[:, 2] = [wrap_to_pi(float(a)) for a in errors[:, 2]]
         return errors
+
+    def nees(self) -> np.ndarray:
+        """(k,) normalised estimation error squared, e' P^-1 e."""
+        errors = self.errors()
+        return np.einsum("ki,kij,kj->k", errors, np.linalg.inv(self.covariances), errors)
 
 
 @dataclass(frozen=True)
@@ -115,9 +120,8 @@ def accuracy(result: ReplayResult, settle_s: float = 1.0) -> Accuracy:
     """Figures over the instants after `settle_s` (the initial transient excluded)."""
     keep = result.times_s >= result.times_s[0] + settle_s
     errors = result.errors()[keep]
-    covariances = result.covariances[keep]
-    nees = np.einsum("ki,kij,kj->k", errors, np.linalg.inv(covariances), errors)
-    low, high = chi2.ppf(0.025, df=3), chi2.ppf(0.975, df=3)
+    nees = result.nees()[keep]
+    low, high = NEES_BAND
     position = np.hypot(errors[:, 0], errors[:, 1])
     return Accuracy(
         rms_position_m=float(np.sqrt(np.mean(position**2))),
