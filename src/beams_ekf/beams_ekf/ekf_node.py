@@ -14,6 +14,9 @@ learnt of the sensor and the odometry is kept, as across every re-initialisation
 (std_srvs/Trigger) writes the power bias (and the turret offset and beacon coordinates, when estimated)
 learnt while driving to `self_calibration_file`.
 All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
+A (re)start resumes from `checkpoint_file` (beams_ekf.checkpoint: the learnt states and the runtime-set
+parameters, written every `checkpoint_period_s` and at a clean stop), said in the log and as `checkpoint`
+on /diagnostics, with the reason for what it did not take back.
 
 Every pose (ToTal's accepted fix, /initialpose, `~/set_pose`) goes through the one pose intake
 (`beams_common.intake.pose_intake`, as the offline replay's): in another frame than `map_frame`, non-finite,
@@ -36,6 +39,7 @@ jump or silence, a time jump, a re-initialisation after a kidnap) is degraded, n
 """
 
 import math
+import os
 import sys
 
 import numpy as np
@@ -43,6 +47,7 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
@@ -78,6 +83,13 @@ from beams_common.ros.node_support import (
 from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
 from beams_common.ros.status_topic import StatusTopic
 from beams_common.status.health import Status
+from beams_ekf.checkpoint import (
+    RuntimeChanges,
+    checkpoint_path,
+    checkpoint_text,
+    resume_from,
+    write_checkpoint,
+)
 from beams_ekf.ekf_health import WAITING_FOR_POSE, EkfHealth
 from beams_ekf.localiser import build_localiser
 from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
@@ -131,6 +143,12 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         self.create_service(Trigger, topics.SAVE_CALIBRATION, self._on_save_calibration)
         serve_calibration_reload(self, self._apply_calibration)
         apply_runtime_changes(self, EKF_PARAMETERS, self.parameters, self._prepare_parameters)
+        self.runtime_changes = RuntimeChanges(self.parameters)
+        name = self.get_fully_qualified_name()
+        self.checkpoint_path = checkpoint_path(self.parameters["checkpoint_file"], name, os.environ)
+        self._resume()
+        if self.checkpoint_path is not None:
+            self.create_timer(self.parameters["checkpoint_period_s"], self._write_checkpoint)
         self.create_timer(1.0 / rate_hz, self._publish)
         self.get_logger().info(
             f"ekf_node ready: {len(self.localiser.ekf.beacons_xy)} beacons, turret offset "
@@ -156,6 +174,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         tolerance = stamp_tolerance_of(values)
 
         def apply() -> None:
+            self.runtime_changes.record(values, changed)
             if geometry is not self.geometry:
                 self._flag_worse_calibration(geometry)
             self.geometry, self.settings, self.stamp_check.tolerance = geometry, settings, tolerance
@@ -163,6 +182,37 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
             self.health.configure(values, self._now_s())
 
         return apply
+
+    # -- checkpoint ------------------------------------------------------------------------------------
+    def _resume(self) -> None:
+        """The checkpoint's runtime-set parameters set back, then its learnt states (beams_ekf.checkpoint),
+        said in the log (WARN when some of it was refused) and as `checkpoint` on /diagnostics."""
+
+        def set_back(name: str, value: object) -> str:
+            return self.set_parameters([Parameter(name, value=value)])[0].reason
+
+        said, complete = resume_from(
+            self.checkpoint_path, self.localiser.ekf, self.parameters, set_back, lambda: self.geometry
+        )
+        (self.get_logger().info if complete else self.get_logger().warning)(said)
+        self.diagnostics.set("checkpoint", bounded(said))
+
+    def _write_checkpoint(self) -> None:
+        """The checkpoint, once there is something to keep (an untouched node leaves an older file be)."""
+        ekf, changes = self.localiser.ekf, self.runtime_changes
+        if self.checkpoint_path is None or (ekf.learnt_states() is None and not changes.recorded):
+            return
+        text = checkpoint_text(ekf, self.geometry, changes, SensorCalibration.now_utc())
+        try:
+            write_checkpoint(self.checkpoint_path, text)
+        except OSError as error:
+            self.diagnostics.refuse(
+                "checkpoints_not_written", f"{self.checkpoint_path}: {error}", level="error"
+            )
+
+    def destroy_node(self) -> None:
+        self._write_checkpoint()  # a clean stop keeps what was learnt since the last period
+        super().destroy_node()
 
     def _on_save_calibration(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """The power bias learnt so far as a chapter-7 calibration file (beams_ekf.self_calibration)."""
