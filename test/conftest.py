@@ -47,9 +47,11 @@ def ros_domain_id() -> Iterator[int]:
 
 
 @pytest.fixture
-def ros_env(ros_domain_id: int, monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
-    """Environment for node subprocesses (and this process) in the test's own domain, localhost only."""
+def ros_env(ros_domain_id: int, monkeypatch: pytest.MonkeyPatch, tmp_path: pathlib.Path) -> dict[str, str]:
+    """Environment for node subprocesses (and this process) in the test's own domain, localhost only, with
+    its own ROS_HOME (ekf_node's checkpoint: no test resumes from another's)."""
     monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain_id))
+    monkeypatch.setenv("ROS_HOME", str(tmp_path / "ros_home"))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"
@@ -221,12 +223,9 @@ def start_node(ros_env: dict[str, str], tmp_path: pathlib.Path) -> Iterator[Call
         extra_args: list[str] | None = None,
         own_process_group: bool = False,
         command_prefix: list[str] | None = None,
-        arguments: list[str] | None = None,
     ) -> NodeProcess:
-        # command_prefix runs the node through a wrapper that execs it (`ip netns exec <ns>`: another host);
-        # arguments are the program's own, before --ros-args (`--standby`)
-        executable_command = [str(executable_path(package, executable)), *(arguments or [])]
-        command = [*(command_prefix or []), *executable_command, "--ros-args"]
+        # command_prefix runs the node through a wrapper that execs it (`ip netns exec <ns>`: another host)
+        command = [*(command_prefix or []), str(executable_path(package, executable)), "--ros-args"]
         if params:
             params_file = tmp_path / f"{executable}_{len(started)}.yaml"
             params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": params}}))

@@ -1,5 +1,6 @@
-"""Each node's executable is named as the node it runs (read from the source, no ROS needed): run_node
-takes the node's role under its executable's name (beams_common.ros.standby), before the node exists."""
+"""Each node's executable is named as the node it runs (read from the source, no ROS needed): the process
+set (beams_tools.robot_processes), the supervisor's processes and their logs name a node by its executable,
+the parameter file and the graph by its node name."""
 
 import pathlib
 import re
