@@ -184,7 +184,7 @@ def test_a_killed_ekf_node_resumes_its_learnt_states_and_runtime_parameters_exac
 
     from beams_common.config.geometry_parameters import BeaconGeometry
     from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
-    from beams_ekf.checkpoint import RuntimeChanges, checkpoint_text, write_checkpoint
+    from beams_ekf.checkpoint import RuntimeChanges, save_checkpoint
     from beams_ekf.localiser import build_localiser
     from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
 
@@ -196,7 +196,7 @@ def test_a_killed_ekf_node_resumes_its_learnt_states_and_runtime_parameters_exac
     covariance = 0.5 * covariance + 1e-8 * np.ones_like(covariance)
     ekf.resume_learnt(blocks, mean, covariance)
     path = pathlib.Path(ros_env["ROS_HOME"]) / "beams" / "ekf_node_checkpoint.yaml"
-    write_checkpoint(path, checkpoint_text(ekf, geometry, RuntimeChanges(defaults), "seeded"))
+    assert save_checkpoint(path, ekf, geometry, RuntimeChanges(defaults)) == ""
     params = {"checkpoint_period_s": 1.0}
 
     first = start_node("beams_ekf", "ekf_node", params=params)

@@ -21,7 +21,7 @@ import numpy as np
 import yaml
 
 from beams_common.calibration import file_schema
-from beams_common.calibration.calibration_file import atomic_write_text
+from beams_common.calibration.calibration_file import SensorCalibration, atomic_write_text
 from beams_common.config.geometry_parameters import BeaconGeometry
 from beams_common.intake.validation import bounded
 from beams_ekf.bearing_ekf import BearingEkf
@@ -92,9 +92,20 @@ def checkpoint_text(
     return yaml.safe_dump(document, sort_keys=False, default_flow_style=None)
 
 
-def write_checkpoint(path: Path, text: str) -> None:
-    """Replace the file atomically (a crash leaves the old one or the new one, never a part)."""
-    atomic_write_text(path, text, keep_backup=False)
+def save_checkpoint(
+    path: Path | None, ekf: BearingEkf, geometry: BeaconGeometry, changes: RuntimeChanges
+) -> str:
+    """Replace the file atomically (a crash leaves the old one or the new one, never a part) once there is
+    something to keep (an untouched node leaves an older file be); why it could not, or ''."""
+    if path is None or (ekf.learnt_states() is None and not changes.recorded):
+        return ""
+    try:
+        atomic_write_text(
+            path, checkpoint_text(ekf, geometry, changes, SensorCalibration.now_utc()), keep_backup=False
+        )
+    except OSError as error:
+        return f"{path}: {error}"
+    return ""
 
 
 def read_checkpoint(path: Path) -> Mapping[str, Any] | None:

@@ -86,9 +86,8 @@ from beams_common.status.health import Status
 from beams_ekf.checkpoint import (
     RuntimeChanges,
     checkpoint_path,
-    checkpoint_text,
     resume_from,
-    write_checkpoint,
+    save_checkpoint,
 )
 from beams_ekf.ekf_health import WAITING_FOR_POSE, EkfHealth
 from beams_ekf.localiser import build_localiser
@@ -101,9 +100,43 @@ from beams_msgs.srv import SetPose
 # a calibration that disagrees with the recent bearings keeps the status degraded this long (s): the NIS
 # test then has a window of new bearings to judge it on
 CALIBRATION_FLAG_HOLD_S = 10.0
+FRAMES = ("map", "base", "odom")  # the <frame>_frame parameters
 
 
-class EkfNode(WatchedInputs, GuardedCallbacks, Node):
+class Checkpointed:
+    """ekf_node's checkpoint on the ROS side (beams_ekf.checkpoint): its runtime changes set back and its
+    learnt states resumed at start, said in the log (WARN when some was refused) and as `checkpoint` on
+    /diagnostics; saved every checkpoint_period_s and at a clean stop. Uses the node's `parameters`,
+    `localiser`, `geometry` and `diagnostics`; `runtime_changes` records the changes as they are applied."""
+
+    def _resume_checkpoint(self) -> None:
+        self.runtime_changes, name = RuntimeChanges(self.parameters), self.get_fully_qualified_name()
+        self.checkpoint_path = path = checkpoint_path(self.parameters["checkpoint_file"], name, os.environ)
+        said, complete = resume_from(
+            path, self.localiser.ekf, self.parameters, self._set_back, lambda: self.geometry
+        )
+        (self.get_logger().info if complete else self.get_logger().warning)(said)
+        self.diagnostics.set("checkpoint", bounded(said))
+        if path is not None:
+            self.create_timer(self.parameters["checkpoint_period_s"], self._save_checkpoint)
+
+    def _set_back(self, name: str, value: object) -> str:
+        """A checkpoint's runtime change set back as `ros2 param set` sets it: why it was refused, or ''."""
+        return self.set_parameters([Parameter(name, value=value)])[0].reason
+
+    def _save_checkpoint(self) -> None:
+        problem = save_checkpoint(
+            self.checkpoint_path, self.localiser.ekf, self.geometry, self.runtime_changes
+        )
+        if problem:
+            self.diagnostics.refuse("checkpoints_not_written", problem, level="error")
+
+    def destroy_node(self) -> None:
+        self._save_checkpoint()  # a clean stop keeps what was learnt since the last period
+        super().destroy_node()
+
+
+class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
     """ROS wiring of `Localiser` (see the module docstring)."""
 
     def __init__(self) -> None:
@@ -111,13 +144,9 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         self.parameters = declare_table(self, EKF_PARAMETERS)
         self.settings = filter_settings(self.parameters)
         self.geometry = geometry = startup_geometry(self.parameters)
-        beacons = geometry.beacon_map.as_dict()
-        self.localiser = build_localiser(beacons, geometry.turret_offset_m, self.settings)
-        self.map_frame = self.parameters["map_frame"]
-        self.base_frame = self.parameters["base_frame"]
-        self.odom_frame = self.parameters["odom_frame"]
-        publish_tf = self.parameters["publish_tf"]
-        rate_hz = self.parameters["publish_rate_hz"]
+        beacons, offset = geometry.beacon_map.as_dict(), geometry.turret_offset_m
+        self.localiser = build_localiser(beacons, offset, self.settings)
+        self.map_frame, self.base_frame, self.odom_frame = (self.parameters[f"{k}_frame"] for k in FRAMES)
         self.diagnostics = Diagnostics(self, "ekf")
         self.status_topic = StatusTopic(self, topics.EKF_STATUS)
         self.diagnostics.set_level("warn", WAITING_FOR_POSE)
@@ -133,7 +162,9 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
 
         self.odometry_publisher = self.create_publisher(Odometry, topics.EKF_ODOMETRY, 10)
         self.pose_publisher = self.create_publisher(PoseWithCovarianceStamped, topics.EKF_POSE, 10)
-        self.tf_publisher = self.create_publisher(TFMessage, topics.TF, TF_QOS) if publish_tf else None
+        self.tf_publisher = (
+            self.create_publisher(TFMessage, topics.TF, TF_QOS) if self.parameters["publish_tf"] else None
+        )
         self.create_subscription(Odometry, topics.ODOMETRY, self._on_odometry, qos_profile_sensor_data)
         self.create_subscription(BeaconBearingArray, topics.BEARINGS, self._on_bearings, BEARINGS_QOS)
         self.create_subscription(TriangulatedPose, topics.POSE, self._on_total_pose, 10)
@@ -143,13 +174,8 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         self.create_service(Trigger, topics.SAVE_CALIBRATION, self._on_save_calibration)
         serve_calibration_reload(self, self._apply_calibration)
         apply_runtime_changes(self, EKF_PARAMETERS, self.parameters, self._prepare_parameters)
-        self.runtime_changes = RuntimeChanges(self.parameters)
-        name = self.get_fully_qualified_name()
-        self.checkpoint_path = checkpoint_path(self.parameters["checkpoint_file"], name, os.environ)
-        self._resume()
-        if self.checkpoint_path is not None:
-            self.create_timer(self.parameters["checkpoint_period_s"], self._write_checkpoint)
-        self.create_timer(1.0 / rate_hz, self._publish)
+        self._resume_checkpoint()
+        self.create_timer(1.0 / self.parameters["publish_rate_hz"], self._publish)
         self.get_logger().info(
             f"ekf_node ready: {len(self.localiser.ekf.beacons_xy)} beacons, turret offset "
             f"{self.localiser.ekf.sensor_offset_m} m, gate {self.localiser.ekf.gate:.2f}"
@@ -182,37 +208,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
             self.health.configure(values, self._now_s())
 
         return apply
-
-    # -- checkpoint ------------------------------------------------------------------------------------
-    def _resume(self) -> None:
-        """The checkpoint's runtime-set parameters set back, then its learnt states (beams_ekf.checkpoint),
-        said in the log (WARN when some of it was refused) and as `checkpoint` on /diagnostics."""
-
-        def set_back(name: str, value: object) -> str:
-            return self.set_parameters([Parameter(name, value=value)])[0].reason
-
-        said, complete = resume_from(
-            self.checkpoint_path, self.localiser.ekf, self.parameters, set_back, lambda: self.geometry
-        )
-        (self.get_logger().info if complete else self.get_logger().warning)(said)
-        self.diagnostics.set("checkpoint", bounded(said))
-
-    def _write_checkpoint(self) -> None:
-        """The checkpoint, once there is something to keep (an untouched node leaves an older file be)."""
-        ekf, changes = self.localiser.ekf, self.runtime_changes
-        if self.checkpoint_path is None or (ekf.learnt_states() is None and not changes.recorded):
-            return
-        text = checkpoint_text(ekf, self.geometry, changes, SensorCalibration.now_utc())
-        try:
-            write_checkpoint(self.checkpoint_path, text)
-        except OSError as error:
-            self.diagnostics.refuse(
-                "checkpoints_not_written", f"{self.checkpoint_path}: {error}", level="error"
-            )
-
-    def destroy_node(self) -> None:
-        self._write_checkpoint()  # a clean stop keeps what was learnt since the last period
-        super().destroy_node()
 
     def _on_save_calibration(self, _request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """The power bias learnt so far as a chapter-7 calibration file (beams_ekf.self_calibration)."""

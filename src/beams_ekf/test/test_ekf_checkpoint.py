@@ -17,7 +17,7 @@ from beams_ekf.checkpoint import (
     checkpoint_text,
     parameters_to_restore,
     resume_from,
-    write_checkpoint,
+    save_checkpoint,
 )
 from beams_ekf.localiser import build_localiser
 from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
@@ -42,10 +42,9 @@ def learnt(ekf, seed: int = 3) -> tuple[np.ndarray, np.ndarray]:
 
 
 def saved(tmp_path: Path, ekf, geometry=GEOMETRY, changes: RuntimeChanges | None = None) -> Path:
-    path = tmp_path / "ekf_node_checkpoint.yaml"
-    write_checkpoint(
-        path, checkpoint_text(ekf, geometry, changes or RuntimeChanges(STARTUP), "2026-11-27T12:00:00Z")
-    )
+    path = tmp_path / "beams" / "ekf_node_checkpoint.yaml"
+    changes = changes or RuntimeChanges(STARTUP)
+    assert save_checkpoint(path, ekf, geometry, changes) == ""
     return path
 
 
@@ -151,3 +150,13 @@ def test_the_checkpoint_file_is_per_node_under_the_ros_home_and_off_when_empty(m
     assert checkpoint_path("", "/ekf_node", {}) is None
     assert resumed(None, filter_of()) == ("checkpoint off", True)
     assert resumed(Path("/nonexistent/ekf.yaml"), filter_of())[1]
+
+
+def test_an_untouched_filter_leaves_an_older_checkpoint_be_and_a_failed_write_says_why(tmp_path):
+    untouched = filter_of()
+    assert save_checkpoint(tmp_path / "c.yaml", untouched, GEOMETRY, RuntimeChanges(STARTUP)) == ""
+    assert not (tmp_path / "c.yaml").exists()
+    learnt(untouched)
+    (tmp_path / "file").write_text("")
+    problem = save_checkpoint(tmp_path / "file" / "c.yaml", untouched, GEOMETRY, RuntimeChanges(STARTUP))
+    assert problem.startswith(f"{tmp_path / 'file' / 'c.yaml'}: ")
