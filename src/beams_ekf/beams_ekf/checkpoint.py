@@ -144,14 +144,14 @@ def resume(ekf: BearingEkf, document: Mapping[str, Any], geometry: BeaconGeometr
     then = file_schema.mapping(document.get("learnt_against"), "learnt_against")
     differ = [key.replace("_", " ") for key in now if then.get(key) != now[key]]
     if differ:
-        raise ValueError(f"learnt against another {', '.join(differ)} than the node's")
+        raise ValueError(f"learnt against different {', '.join(differ)}")
     states = file_schema.mapping(states, "states", ("blocks", "mean", "covariance"))
     mean = _numbers(states["mean"], "states.mean")
     rows = file_schema.items(states["covariance"], "states.covariance", len(mean))
     covariance = np.array([_numbers(row, "states.covariance", len(mean)) for row in rows])
     blocks = [file_schema.text(b, "states.blocks") for b in file_schema.items(states["blocks"], "states")]
     ekf.resume_learnt(blocks, np.array(mean), covariance)
-    return f"learnt states of {bounded(', '.join(b.split('(')[0] for b in blocks), 200)}"
+    return f"resumed the learnt states of {bounded(', '.join(b.split('(')[0] for b in blocks), 200)}"
 
 
 def resume_from(
@@ -176,7 +176,7 @@ def resume_from(
             skipped.append(f"{name}: {reason}")
     restored = sorted(set(restore) - {s.split(":")[0] for s in skipped})
     try:
-        states = f"resumed the {resume(ekf, document, geometry())}"
+        states = resume(ekf, document, geometry())
     except ValueError as error:
         states, skipped = "learnt states refused", [*skipped, f"learnt states: {error}"]
     said = f"checkpoint {path} (saved {document.get('saved_utc')}): {states}; parameters set back: {restored}"
