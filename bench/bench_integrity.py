@@ -2,11 +2,13 @@
 publisher is said.
 
 The robot's four nodes run under the demo's supervisor (beams_tools.supervisor, respawn after
-RESPAWN_DELAY_S, as beams.launch.py does; their ROS_HOME, ekf_node's checkpoint, in a temporary
-directory); each node in turn is killed with SIGKILL, KILL_ROUNDS times, and the delay from the kill to
-the EKF's next beams/ekf/odometry message is timed (the EKF goes on predicting on odometry while another
-node is down; killed itself, it is respawned: its imports, rclpy's start, the node's construction and its
-checkpoint, discovery and its first fix), and the longest EKF silence in the SILENCE_WINDOW_S after it.
+RESPAWN_DELAY_S, as beams.launch.py does; their ROS_HOME, ekf_node's checkpoint, in a temporary directory),
+ekf_node as its hot standby pair (beams_common.ros.standby); each
+node in turn is killed with SIGKILL, KILL_ROUNDS times (of the EKF's pair, the active process), and the
+delay from the kill to the EKF's next beams/ekf/odometry message is timed (the EKF goes on predicting on
+odometry while another node is down; killed itself, its standby takes over: rclpy's start, the node's
+construction, discovery and its first fix), and the longest EKF silence in the SILENCE_WINDOW_S
+after it. The waiting standby's memory (RSS) and CPU are read from /proc over STANDBY_WATCH_S.
 Then a second driver_node is started in the namespace, ROUNDS times: the
 delay from the second publisher showing in this probe's graph to ERROR on ekf_node's and
 triangulation_node's /diagnostics naming both.
@@ -33,6 +35,7 @@ UP_TIMEOUT_S = 60.0
 BACK_TIMEOUT_S = 20.0
 SETTLE_S = 2.0
 SILENCE_WINDOW_S = 8.0
+STANDBY_WATCH_S = 10.0
 Row = tuple[str, float, str, str]
 
 
@@ -94,8 +97,11 @@ def kill_delays(probe: Probe, supervisor, node_names: list[str]) -> tuple[dict, 
     for _ in range(KILL_ROUNDS):
         for name in node_names:
             probe.spin_until(lambda: False, SETTLE_S, supervisor.poll)
+            process = supervisor.active(name)  # of a hot standby pair, the active one
+            if process is None:
+                raise RuntimeError(f"no process of {name} holds its role")
             killed_at = time.monotonic()
-            os.kill(supervisor.pid(name), signal.SIGKILL)
+            os.kill(supervisor.pid(process), signal.SIGKILL)
             # messages already in flight at the kill do not count
             if not probe.spin_until(
                 lambda since=killed_at + 0.2: any(t > since for t in probe.ekf_outputs),
@@ -105,11 +111,34 @@ def kill_delays(probe: Probe, supervisor, node_names: list[str]) -> tuple[dict, 
                 raise RuntimeError(f"no EKF output within {BACK_TIMEOUT_S} s of killing {name}")
             delays[name].append(min(t for t in probe.ekf_outputs if t > killed_at + 0.2) - killed_at)
             # the killed node must be running again before the next kill
-            probe.spin_until(lambda p=name: supervisor.pid(p) is not None, BACK_TIMEOUT_S, supervisor.poll)
+            probe.spin_until(lambda p=process: supervisor.pid(p) is not None, BACK_TIMEOUT_S, supervisor.poll)
             end = killed_at + SILENCE_WINDOW_S
             probe.spin_until(lambda end=end: time.monotonic() > end, 60.0, supervisor.poll)
             silences[name].append(longest_silence(probe.ekf_outputs, killed_at, end))
     return delays, silences
+
+
+def standby_figures(probe: Probe, supervisor, executable: str) -> tuple[float, float]:
+    """The waiting standby of a node's pair: its resident memory (MiB) and its CPU over STANDBY_WATCH_S
+    (% of one core), from /proc."""
+    active = supervisor.active(executable)
+    waiting = next(name for name in supervisor.processes_of(executable) if name != active)
+    pid = supervisor.pid(waiting)
+    started_s, cpu_start_s = time.monotonic(), process_cpu_s(pid)
+    probe.spin_until(lambda: False, STANDBY_WATCH_S, supervisor.poll)
+    cpu_percent = 100.0 * (process_cpu_s(pid) - cpu_start_s) / (time.monotonic() - started_s)
+    with open(f"/proc/{pid}/status") as status:
+        rss_kib = next(int(line.split()[1]) for line in status if line.startswith("VmRSS:"))
+    return rss_kib / 1024.0, cpu_percent
+
+
+def process_cpu_s(pid: int) -> float:
+    """The CPU time of every thread of a process so far (s; the scheduler's nanoseconds: a tick is 10 ms)."""
+    total_ns = 0
+    for task in os.listdir(f"/proc/{pid}/task"):
+        with open(f"/proc/{pid}/task/{task}/schedstat") as schedstat:
+            total_ns += int(schedstat.read().split()[0])
+    return total_ns * 1e-9
 
 
 def second_driver_delays(probe: Probe, supervisor, command: list[str]) -> list[float]:
@@ -167,21 +196,32 @@ def rows() -> list[Row]:
                 logs = "\n".join(n.log_path.read_text()[-2000:] for n in supervisor.nodes.values())
                 raise RuntimeError(f"no EKF output within {UP_TIMEOUT_S} s:\n{logs}")
             kills, silences = kill_delays(probe, supervisor, [node.executable for node in ROBOT_NODES])
+            standby_mib, standby_cpu_percent = standby_figures(probe, supervisor, "ekf_node")
             second = second_driver_delays(probe, supervisor, commands["driver_node"])
         finally:
             supervisor.stop()
             probe.close()
     print(f"EKF back after each kill (s): {kills}; longest EKF silence (s): {silences}", file=sys.stderr)
     print(f"second driver said after (s): {second}", file=sys.stderr)
+    print(f"ekf_node's standby: {standby_mib:.1f} MiB, {standby_cpu_percent:.3f} % CPU", file=sys.stderr)
     result: list[Row] = []
+    standby_nodes = {node.executable for node in ROBOT_NODES if node.hot_standby}
     for name, delays in kills.items():
-        goal = f"goal 2 s ({RESPAWN_DELAY_S:g} s respawn delay + start-up)"
+        how = (
+            "its hot standby's takeover"
+            if name in standby_nodes
+            else f"{RESPAWN_DELAY_S:g} s respawn delay + start-up"
+        )
+        goal = f"goal 2 s ({how})"
         result.append(
             (f"EKF output again after kill -9 of {name}, worst of {KILL_ROUNDS}", max(delays), "s", goal)
         )
         window = f"{SILENCE_WINDOW_S:g} s"
         figure = f"longest EKF silence in the {window} after kill -9 of {name}, worst of {KILL_ROUNDS}"
         result.append((figure, max(silences[name]), "s", "0.05 s (publish_rate_hz 20) when nothing stops"))
+    waiting = f"ekf_node's hot standby while it waits, over {STANDBY_WATCH_S:g} s"
+    result.append((f"{waiting}: resident memory (VmRSS)", standby_mib, "MiB", "its modules imported, no DDS"))
+    result.append((f"{waiting}: CPU", standby_cpu_percent, "% of one core", "about 0 (it blocks)"))
     result.append(
         (
             f"second driver_node said ERROR (ekf and triangulation), worst of {len(second)}",

@@ -26,7 +26,7 @@ from rows_table import bench_main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
-# the robot's nodes (beams_tools.robot_processes), one process each, with these overrides
+# the robot's nodes (beams_tools.robot_processes), one process each (no hot standby), with these overrides
 ROS_ARGUMENTS = {
     "sim_world_node": ["-p", "duration_s:=300.0"],
     "triangulation_node": ["-p", "publish_markers:=false"],
@@ -198,7 +198,7 @@ def measure(flood_s: float) -> list[Row]:
     with tempfile.TemporaryDirectory(prefix="beams_bench_system_") as log_dir:
         env = dict(os.environ, PYTHONUNBUFFERED="1", ROS_HOME=f"{log_dir}/ros_home")  # its own checkpoint
         probe = Probe()
-        commands = process_commands(INSTALL_BASE, ROS_ARGUMENTS)
+        commands = process_commands(INSTALL_BASE, ROS_ARGUMENTS, standby=False)
         # the bench restarts a node itself (restart_rows): it never polls the supervisor
         supervisor = NodeSupervisor(commands, env, pathlib.Path(log_dir))
         supervisor.start()

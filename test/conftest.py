@@ -223,9 +223,12 @@ def start_node(ros_env: dict[str, str], tmp_path: pathlib.Path) -> Iterator[Call
         extra_args: list[str] | None = None,
         own_process_group: bool = False,
         command_prefix: list[str] | None = None,
+        arguments: list[str] | None = None,
     ) -> NodeProcess:
-        # command_prefix runs the node through a wrapper that execs it (`ip netns exec <ns>`: another host)
-        command = [*(command_prefix or []), str(executable_path(package, executable)), "--ros-args"]
+        # command_prefix runs the node through a wrapper that execs it (`ip netns exec <ns>`: another host);
+        # arguments are the program's own, before --ros-args (`--standby`)
+        executable_command = [str(executable_path(package, executable)), *(arguments or [])]
+        command = [*(command_prefix or []), *executable_command, "--ros-args"]
         if params:
             params_file = tmp_path / f"{executable}_{len(started)}.yaml"
             params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": params}}))

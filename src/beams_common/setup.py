@@ -17,7 +17,7 @@ setup(
     description=(
         "Shared concepts of the BeAMS suite by sub-package: geometry, intake (input checks), status, "
         "calibration (file, schema, checks, corrections), config (parameter specs), interfaces (topics, "
-        "message builders); beams_common.ros: node runner, diagnostics, conversions."
+        "message builders); beams_common.ros: node runner, hot standby, diagnostics, conversions."
     ),
     license="Apache-2.0",
     entry_points={"console_scripts": []},

@@ -33,6 +33,8 @@ REQUIRED_MODULES = (
     "composition_interfaces.srv",
 )
 LAUNCHED_NODES = ("sim_world_node", "driver_node", "triangulation_node", "ekf_node")
+# ekf_node runs as a hot standby pair by default (ekf_standby:=true): one process more
+LAUNCHED_PROCESSES = len(LAUNCHED_NODES) + 1
 UP_TIMEOUT_S = 40.0
 STOP_TIMEOUT_S = 30.0
 CLI_TIMEOUT_S = 60.0
@@ -135,7 +137,7 @@ def test_ros2_launch_in_a_namespace_starts_every_node_and_ctrl_c_stops_them_clea
     assert status == 0, output
     for bad in ("Traceback", "process has died", "deprecated", "UserWarning"):
         assert bad not in output, f"{bad!r} in the launch output:\n{output}"
-    assert output.count("process has finished cleanly") == len(LAUNCHED_NODES), output
+    assert output.count("process has finished cleanly") == LAUNCHED_PROCESSES, output
 
 
 def test_ros2_run_topic_echo_param_and_service(ros_env, group):
@@ -189,7 +191,8 @@ def test_ros2_run_topic_echo_param_and_service(ros_env, group):
 def test_ros2_lifecycle_drives_the_driver_launched_for_a_lifecycle_manager(rclpy_node, ros_env, group):
     """`ros2 launch ... driver_autostart:=false`: every node up, the driver unconfigured and silent;
     `ros2 lifecycle get/set` configure (still silent), activate (bearings), deactivate and cleanup; a
-    transition the state does not offer is refused; Ctrl-C stops every node cleanly."""
+    transition the state does not offer is refused; Ctrl-C stops every node cleanly. Launched with
+    ekf_standby:=false too: one ekf_node process, no standby."""
     from beams_msgs.msg import BeaconBearingArray
 
     probe = subprocess.run(
@@ -207,6 +210,7 @@ def test_ros2_lifecycle_drives_the_driver_launched_for_a_lifecycle_manager(rclpy
         "beams.launch.py",
         "namespace:=robot1",
         "driver_autostart:=false",
+        "ekf_standby:=false",
     )
     driver = "/robot1/driver_node"
 
@@ -234,6 +238,8 @@ def test_ros2_lifecycle_drives_the_driver_launched_for_a_lifecycle_manager(rclpy
             assert silent(), "bearings published while inactive"
     assert rclpy_node.spin_until(lambda: len(bearings) >= 5, UP_TIMEOUT_S), launch.log()
     assert all(len(msg.bearings) == 3 for msg in bearings[-3:]), "the simulated robot sees all 3 beacons"
+    ekf_processes = [c for c in descendants(launch.process.pid).values() if "/ekf_node " in c + " "]
+    assert len(ekf_processes) == 1 and "--standby" not in ekf_processes[0], ekf_processes
 
     # a transition the state does not offer: the CLI lists the available ones, the node lives on
     refused = lifecycle("set", "cleanup")
@@ -280,10 +286,12 @@ def descendants(pid: int) -> dict[int, str]:
 
 
 def test_ros2_launch_respawns_each_killed_node_and_the_ekf_comes_back(rclpy_node, ros_env, group):
-    """Issue 18: each node launched with respawn; kill -9 each in turn, the EKF's output is back within 2 s
-    (test_respawn.py), the launch log says the process died, the killed one is respawned (ekf_node
-    resuming its checkpoint), and Ctrl-C still stops everything."""
+    """Issue 18: each node launched with respawn, ekf_node as its hot standby pair; kill -9 each in turn
+    (of the EKF, the active process), the EKF's output is back within 2 s (test_respawn.py), the launch
+    log says the process died, the killed one is respawned, and Ctrl-C still stops everything."""
     from nav_msgs.msg import Odometry
+
+    from beams_common.ros.standby import NodeIdentity, RoleLock, domain_id_of, role_name
 
     arrivals: list[float] = []
     rclpy_node.node.create_subscription(
@@ -299,16 +307,19 @@ def test_ros2_launch_respawns_each_killed_node_and_the_ekf_comes_back(rclpy_node
 
     for node in LAUNCHED_NODES:
         pids = processes(node)
-        assert len(pids) == 1, (node, descendants(launch.process.pid))
+        assert len(pids) == (2 if node == "ekf_node" else 1), (node, descendants(launch.process.pid))
+        # every node holds its role (beams_common.ros.standby): of the EKF's pair, the active one
+        holder = RoleLock(role_name(NodeIdentity("/robot1", node), domain_id_of(ros_env))).holder_pid()
+        assert holder in pids, (node, holder, pids)
         killed_at = time.monotonic()
-        os.kill(pids[0], signal.SIGKILL)
+        os.kill(holder, signal.SIGKILL)
         assert rclpy_node.spin_until(lambda since=killed_at: any(t > since + 0.2 for t in arrivals), 2.0), (
             f"no EKF output within 2 s of killing {node}:\n{launch.log()}"
         )
 
-        def respawned(name: str = node, killed: int = pids[0]) -> bool:
+        def respawned(name: str = node, before: list[int] = pids, killed: int = holder) -> bool:
             now = processes(name)
-            return len(now) == 1 and killed not in now
+            return len(now) == len(before) and killed not in now
 
         assert rclpy_node.spin_until(respawned, UP_TIMEOUT_S), f"{node} not respawned:\n{launch.log()}"
     output = launch.log()

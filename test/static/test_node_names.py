@@ -1,6 +1,5 @@
-"""Each node's executable is named as the node it runs (read from the source, no ROS needed): the process
-set (beams_tools.robot_processes), the supervisor's processes and their logs name a node by its executable,
-the parameter file and the graph by its node name."""
+"""Each node's executable is named as the node it runs (read from the source, no ROS needed): run_node
+takes the node's role under its executable's name (beams_common.ros.standby), before the node exists."""
 
 import pathlib
 import re

@@ -1,6 +1,6 @@
 """The robot's process set is described once (beams_tools.robot_processes): the launch file, the demo's
-supervisor and the fault campaign start exactly the processes it lists, one per node, with its respawn
-delay. The launch file is run on stand-ins for launch and launch_ros (the PyPI wheels lack them;
+supervisor and the fault campaign start exactly the processes it lists, with its hot standby pairs and its
+respawn delay. The launch file is run on stand-ins for launch and launch_ros (the PyPI wheels lack them;
 test_ros2_cli.py runs the real tool where it is installed); the demo's and the campaign's command lines
 are built as they run them."""
 
@@ -22,9 +22,9 @@ from beams_tools.robot_processes import (
 LAUNCH_FILE = pathlib.Path(__file__).resolve().parents[2] / "src/beams_bringup/launch/beams.launch.py"
 
 
-def described() -> dict[str, list[list[str]]]:
-    """executable -> the arguments (before --ros-args) of each of its processes: one, with none."""
-    return {node.executable: [[]] for node in ROBOT_NODES}
+def described(standby: bool) -> dict[str, list[list[str]]]:
+    """executable -> the arguments (before --ros-args) of each of its processes."""
+    return {node.executable: sorted(node.processes(standby).values()) for node in ROBOT_NODES}
 
 
 def started(commands: dict[str, list[str]]) -> dict[str, list[list[str]]]:
@@ -54,7 +54,7 @@ def _launch_stand_ins(monkeypatch) -> None:
     names = {
         "launch": ("Condition", "LaunchDescription"),
         "launch.actions": ("DeclareLaunchArgument", "SetEnvironmentVariable"),
-        "launch.conditions": ("IfCondition",),
+        "launch.conditions": ("IfCondition", "UnlessCondition"),
         "launch.substitutions": (
             "EnvironmentVariable",
             "EqualsSubstitution",
@@ -72,18 +72,20 @@ def _launch_stand_ins(monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "launch_ros", types.ModuleType("launch_ros"))
 
 
-def _runs(node_action, source: str) -> bool:
-    """Whether a Node action runs with the source `source` (the simulated robot's condition)."""
+def _runs(node_action, standby: bool, source: str) -> bool:
+    """Whether a Node action runs with its standby argument `standby` and the source `source`."""
     condition = node_action.kwargs["condition"]
     if condition is None:
         return True
-    (value,) = condition.args
-    assert type(value).__name__ == "EqualsSubstitution"
-    return source == value.args[1]
+    kind, (value,) = type(condition).__name__, condition.args
+    if type(value).__name__ == "EqualsSubstitution":  # the simulated robot's
+        return source == value.args[1]
+    return standby if kind == "IfCondition" else not standby
 
 
+@pytest.mark.parametrize("standby", [True, False])
 @pytest.mark.parametrize("source", ["sim", "serial"])
-def test_the_launch_file_starts_the_described_processes(monkeypatch, source):
+def test_the_launch_file_starts_the_described_processes(monkeypatch, standby, source):
     _launch_stand_ins(monkeypatch)
     spec = importlib.util.spec_from_file_location("beams_launch", LAUNCH_FILE)
     launch = importlib.util.module_from_spec(spec)
@@ -97,30 +99,33 @@ def test_the_launch_file_starts_the_described_processes(monkeypatch, source):
     assert all(n.kwargs["parameters"][0].args[0][-1] == PARAMS_FILE for n in nodes)
     running: dict[str, list[list[str]]] = {}
     for n in nodes:
-        if _runs(n, source):
-            running.setdefault(n.kwargs["executable"], []).append(n.kwargs.get("arguments", []))
+        if _runs(n, standby, source):
+            running.setdefault(n.kwargs["executable"], []).append(n.kwargs["arguments"])
     expected = {
         executable: arguments
-        for executable, arguments in described().items()
+        for executable, arguments in described(standby).items()
         if source == "sim" or not next(n for n in ROBOT_NODES if n.executable == executable).simulation_only
     }
     assert {executable: sorted(arguments) for executable, arguments in running.items()} == expected
+    standby_arguments = {a.args[0] for a in actions if type(a).__name__ == "DeclareLaunchArgument"}
+    assert {node.standby_argument for node in ROBOT_NODES if node.hot_standby} <= standby_arguments
     profile = next(a for a in actions if type(a).__name__ == "SetEnvironmentVariable")
     assert profile.args[1].kwargs["default_value"].args[0][-1] == DISCOVERY_PROFILE
     # the docstring says the delay
     assert f"({RESPAWN_DELAY_S:g} s)" in LAUNCH_FILE.read_text()
 
 
-def test_the_demo_supervises_the_described_processes(monkeypatch, tmp_path, fake_install):
+@pytest.mark.parametrize("standby", [True, False])
+def test_the_demo_supervises_the_described_processes(monkeypatch, tmp_path, fake_install, standby):
     from beams_bringup import demo
     from beams_sim.simulated_match import SENSOR_MODELS
     from beams_tools.supervisor import NodeSupervisor
 
     monkeypatch.setattr(demo, "installed_params_file", lambda: tmp_path / PARAMS_FILE)
     monkeypatch.setattr(demo, "INSTALL_BASE", fake_install)
-    commands = demo.node_commands(90.0, demo.sensor_setup(SENSOR_MODELS[0], tmp_path, False))
-    assert started(commands) == described()
-    assert set(commands) == {node.executable for node in ROBOT_NODES}
+    commands = demo.node_commands(90.0, demo.sensor_setup(SENSOR_MODELS[0], tmp_path, False), standby)
+    assert started(commands) == described(standby)
+    assert set(commands) == {name for node in ROBOT_NODES for name in node.processes(standby)}
     assert all(
         command[command.index("--ros-args") + 2] == str(tmp_path / PARAMS_FILE)
         for command in commands.values()
@@ -133,7 +138,7 @@ def test_the_campaign_runs_the_described_processes_and_its_relay(tmp_path, fake_
 
     campaign = Campaign(CampaignConfig(install_base=fake_install, output_dir=tmp_path))
     commands = {name: node.command for name, node in campaign.processes.nodes.items()}
-    assert started(commands) == {**described(), "fault_relay_node": [[]]}
+    assert started(commands) == {**described(True), "fault_relay_node": [[]]}
     assert campaign.processes.respawn_delay_s == RESPAWN_DELAY_S
     # ekf_node's checkpoint in the campaign's own directory: no run resumes from another's
     assert campaign.processes.env["ROS_HOME"].startswith(str(tmp_path))

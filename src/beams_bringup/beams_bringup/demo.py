@@ -1,10 +1,11 @@
 """`make demo`: a simulated Eurobot match with every BeAMS node running as its own process.
 
-Starts sim_world_node, driver_node (simulated sensor), triangulation_node and ekf_node from the install
-tree (the executables `ros2 run` starts), records every topic to an MCAP bag as `ros2 bag record` does
-(fully qualified names, the publishers' offered QoS profiles in the metadata), prints live progress (pose
-errors against the truth, bearings per second, rejected windows), stops the nodes with SIGINT and leaves
-a trajectory plot and a summary table in the output directory.
+Starts sim_world_node, driver_node (simulated sensor), triangulation_node and ekf_node with its hot
+standby (two processes, beams_common.ros.standby) from the install tree (the executables `ros2 run`
+starts), records every topic to an MCAP bag as `ros2 bag record` does (fully qualified names, the
+publishers' offered QoS profiles in the metadata), prints live progress (pose errors against the truth,
+bearings per second, rejected windows), stops the nodes with SIGINT and leaves a trajectory plot and a
+summary table in the output directory.
 
 By default every node runs with its own defaults, as a new user's robot would: the driver uncalibrated
 (WARN "uncalibrated" on /diagnostics, `calibrated: false` on beams/bearings) and the EKF estimating the
@@ -177,9 +178,9 @@ def sensor_setup(sensor_model: str, output: pathlib.Path, calibrated: bool) -> S
     return SensorSetup(sensor_model, tuple(arguments), description)
 
 
-def node_commands(duration_s: float, sensor: SensorSetup) -> dict[str, list[str]]:
+def node_commands(duration_s: float, sensor: SensorSetup, standby: bool = True) -> dict[str, list[str]]:
     """The command of each robot process (installed executable, beams_params.yaml, the demo's overrides),
-    by executable."""
+    by process name: a node with a hot standby has two (`RobotNode.processes`) unless `standby` is off."""
     params_file = installed_params_file()
     if params_file is None:
         raise FileNotFoundError(f"{PARAMS_FILE} of beams_bringup is not installed: run `make build`")
@@ -191,7 +192,7 @@ def node_commands(duration_s: float, sensor: SensorSetup) -> dict[str, list[str]
         node.executable: ["--params-file", str(params_file), *overrides.get(node.executable, ())]
         for node in ROBOT_NODES
     }
-    return process_commands(INSTALL_BASE, ros_arguments)
+    return process_commands(INSTALL_BASE, ros_arguments, standby=standby)
 
 
 def progress_line(record: MatchRecord, elapsed_s: float, bearings_per_s: float) -> str:

@@ -15,12 +15,16 @@ is back within 0.5 s) unless FASTRTPS_DEFAULT_PROFILES_FILE is already set.
 A node that dies is started again RESPAWN_DELAY_S (0.25 s) later (respawn), the driver too: with
 driver_autostart:=false it comes back unconfigured, which is what a lifecycle manager that reconnects
 to respawned nodes (nav2's attempt_respawn_reconnection) expects; a dead driver would need one anyway.
-A respawned ekf_node resumes what it learnt from its checkpoint (beams_ekf.checkpoint, ~/.ros/beams/).
+ekf_node runs as a pair (hot standby, beams_common.ros.standby): both processes start with --standby, one
+takes the node's role and runs, the other waits outside the ROS graph and becomes the EKF at once when
+the first dies, which is respawned into the waiting place; the process that becomes the EKF resumes what
+the last one learnt from its checkpoint (beams_ekf.checkpoint, ~/.ros/beams/). One ekf_node only:
+    ros2 launch beams_bringup beams.launch.py ekf_standby:=false
 """
 
-from launch import LaunchDescription
+from launch import Condition, LaunchDescription
 from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
-from launch.conditions import IfCondition
+from launch.conditions import IfCondition, UnlessCondition
 from launch.substitutions import (
     EnvironmentVariable,
     EqualsSubstitution,
@@ -50,11 +54,24 @@ ARGUMENTS = (
         "true: driver_node configures and activates itself; false: it waits unconfigured for a lifecycle "
         "manager (ros2 lifecycle set)",
     ),
+    *(
+        (
+            node.standby_argument,
+            "true",
+            f"true: {node.executable} runs as a pair, the second process a hot standby that takes over at "
+            "once when the first dies; false: one process, restarted after a death",
+        )
+        for node in ROBOT_NODES
+        if node.hot_standby
+    ),
 )
 
 
-def node_action(node: RobotNode) -> Node:
-    """A node's process; the simulated robot's runs only when the source is sim."""
+def node_action(
+    node: RobotNode, arguments: list[str] | None = None, condition: Condition | None = None
+) -> Node:
+    """One process of a node: `arguments` before --ros-args, `condition` when it runs (the simulated
+    robot's is that the source is sim)."""
     parameters = [
         PathJoinSubstitution([FindPackageShare("beams_bringup"), "config", PARAMS_FILE]),
         {"use_sim_time": LaunchConfiguration("use_sim_time")},
@@ -69,13 +86,13 @@ def node_action(node: RobotNode) -> Node:
                 "autostart": LaunchConfiguration("driver_autostart"),
             }
         )
-    condition = None
     if node.simulation_only:
         # (IfCondition(EqualsSubstitution): LaunchConfigurationEquals is deprecated since Jazzy.)
         condition = IfCondition(EqualsSubstitution(LaunchConfiguration("source"), "sim"))
     return Node(
         package=node.package,
         executable=node.executable,
+        arguments=arguments or [],
         namespace=LaunchConfiguration("namespace"),
         parameters=parameters,
         output="screen",
@@ -84,6 +101,19 @@ def node_action(node: RobotNode) -> Node:
         respawn_delay=RESPAWN_DELAY_S,
         condition=condition,
     )
+
+
+def node_actions(node: RobotNode) -> list[Node]:
+    """A node's processes: with a hot standby, the pair when its launch argument is true, else one."""
+    if not node.hot_standby:
+        return [node_action(node)]
+    if node.simulation_only:
+        raise ValueError(
+            f"{node.executable}: a simulation-only node with a hot standby needs both conditions"
+        )
+    standby = LaunchConfiguration(node.standby_argument)
+    pair = [node_action(node, arguments, IfCondition(standby)) for arguments in node.processes().values()]
+    return [*pair, node_action(node, condition=UnlessCondition(standby))]
 
 
 def discovery_profile() -> SetEnvironmentVariable:
@@ -99,4 +129,6 @@ def generate_launch_description() -> LaunchDescription:
     arguments = [
         DeclareLaunchArgument(name, default_value=value, description=text) for name, value, text in ARGUMENTS
     ]
-    return LaunchDescription([*arguments, discovery_profile(), *(node_action(node) for node in ROBOT_NODES)])
+    return LaunchDescription(
+        [*arguments, discovery_profile(), *(action for node in ROBOT_NODES for action in node_actions(node))]
+    )

@@ -134,8 +134,14 @@ class FaultPlan:
             self.at(start, label, lambda: self.hosts.set_link(False))
             self.at(end, label, lambda: self.hosts.set_link(True))
         elif fault.kind == "node_kill":
-            self.at(start, label, lambda: self.processes.signal(fault.variant, signal.SIGKILL))
-            self.at(end, label, lambda: self.processes.resume(fault.variant))
+            killed: list[str] = []
+
+            def kill(name: str = fault.variant) -> None:
+                killed.append(self.processes.active_of(name))
+                self.processes.signal(killed[-1], signal.SIGKILL)
+
+            self.at(start, label, kill)
+            self.at(end, label, lambda: killed and self.processes.resume(killed.pop()))
         else:
             raise ValueError(f"no plan for fault class {fault.kind!r}")
 

@@ -1,8 +1,9 @@
-"""The fault campaign's processes: the robot's (beams_tools.robot_processes: its nodes) and the relay, each
-with the campaign's parameters and remaps, run by the demo's supervisor (beams_tools.supervisor: a death
-respawned after RESPAWN_DELAY_S, as the launch file's respawn would); killed and restarted by the faults,
-duplicated. A process is named as its node without `_node` (`ekf`, the schedule's name); they keep their
-ROS_HOME (ekf_node's checkpoint) in the campaign's log directory, so that no run resumes from another's."""
+"""The fault campaign's processes: the robot's (beams_tools.robot_processes: its nodes, its hot standby
+pairs) and the relay, each with the campaign's parameters and remaps, run by the demo's supervisor
+(beams_tools.supervisor: a death respawned after RESPAWN_DELAY_S, as the launch file's respawn would);
+killed and restarted by the faults, duplicated. A process is named as its node without `_node` (`ekf`,
+the schedule's name), a hot standby's second as the description names it (`ekf_standby`). Their ROS_HOME
+(ekf_node's checkpoint) is in the campaign's log directory, so that no run resumes from another's."""
 
 import pathlib
 from collections.abc import Callable, Mapping
@@ -68,8 +69,16 @@ class CampaignProcesses(NodeSupervisor):
         params_file.write_text(yaml.safe_dump({"/**": {"ros__parameters": parameters}}))
         return ["--params-file", str(params_file), *arguments]
 
+    def active_of(self, name: str) -> str:
+        """The process that is the node `name` now: of a hot standby pair, the one holding the node's role
+        (beams_common.ros.standby), else the first of the pair still running."""
+        node = NODES[name]
+        pair = [process for process in (name, node.standby_argument) if process in self.nodes]
+        running = [process for process in pair if self.pid(process) is not None]
+        return self.active(node.executable, pair) or (running or pair)[0]
+
     def duplicate(self, name: str, parameters: dict[str, Any]) -> None:
-        """A second process of the node `name`."""
+        """A second process of the node `name` (no --standby: it does not wait for the role)."""
         process = f"duplicate_{name}"
         self.add(
             process,

@@ -3,8 +3,9 @@
 that exits while the supervisor is not stopping is started again, with the same command, RESPAWN_DELAY_S
 later; its log file gets a line saying so and the output of the new process. A node that refused its
 parameters at start-up (exit status 2, run_node's EXIT_INVALID_PARAMETERS) is not restarted: it would
-refuse them again. A caller's own kill (`signal`) holds a process: neither a death nor restarted until
-`resume`.
+refuse them again. A node with a hot standby is two processes (robot_processes.RobotNode.processes), each
+restarted alike; `active` names the one that holds the node's role. A caller's own kill (`signal`) holds
+a process: neither a death nor restarted until `resume`.
 """
 
 import signal
@@ -14,6 +15,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from beams_common.ros.standby import role_holder_pid
 from beams_tools.robot_processes import RESPAWN_DELAY_S
 
 EXIT_INVALID_PARAMETERS = 2  # run_node's start-up refusal (beams_common.ros.node_support)
@@ -137,6 +139,19 @@ class NodeSupervisor:
         if node.process is None or node.process.poll() is not None:
             return None
         return node.process.pid
+
+    def processes_of(self, executable: str) -> list[str]:
+        """The names of the processes running `executable` (two for a hot standby pair)."""
+        return [node.name for node in self.nodes.values() if Path(node.command[0]).name == executable]
+
+    def active(self, executable: str, names: Sequence[str] = ()) -> str | None:
+        """Of the processes running `executable` (or of `names`), the name of the one holding its node's
+        role (beams_common.ros.standby): the active one of a hot standby pair; None while none does."""
+        names = names or self.processes_of(executable)
+        if not names:
+            raise KeyError(f"no process runs {executable}")
+        holder_pid = role_holder_pid(self.nodes[names[0]].command, executable, self.env)
+        return next((name for name in names if holder_pid is not None and self.pid(name) == holder_pid), None)
 
     def stop(self) -> dict[str, int]:
         """SIGINT to every process (no restart from now on), then the exit status of each (SIGKILL after

@@ -4,6 +4,7 @@ Parameters are declared from their specs by beams_common.ros.parameters.
 """
 
 import os
+import pathlib
 import signal
 import sys
 import time
@@ -29,6 +30,16 @@ from beams_common.intake.validation import bounded, revolution_size_problem
 from beams_common.interfaces import topics
 from beams_common.ros.node_logging import ThrottledLog
 from beams_common.ros.parameters import ParameterValidationError
+from beams_common.ros.standby import (
+    STANDBY_FLAG,
+    RoleLock,
+    domain_id_of,
+    node_identity,
+    role_name,
+    signal_wakeup,
+    split_standby_flag,
+    wait_for_role,
+)
 
 EXIT_INVALID_PARAMETERS = 2
 # beams/bearings: reliable, so no revolution is lost between the driver and the filters (a best-effort
@@ -57,12 +68,24 @@ def run_node(
     callbacks passes events_executor=False: Jazzy's EventsExecutor does not run them. The environment
     variable BEAMS_EXECUTOR=single_threaded puts every node back on rclpy's SingleThreadedExecutor.
 
+    Hot standby (beams_common.ros.standby): the process first takes its node's role (ROS_DOMAIN_ID
+    and the fully qualified name its remaps give to the node's own name, which is its executable's in
+    this suite: test/static/test_node_names.py). Started with `--standby` before --ros-args, it waits,
+    its modules imported but no rclpy context or DDS participant made, until the role is free, and only
+    then starts the node; a stop signal while it waits ends it with 0. Started without, it runs whether
+    the role is free or not (a second instance: one WARN line; the graph watch of the others says the
+    duplicate, beams_common.ros.input_watch).
+
     Every stop signal, however many and whenever they come, ends in the same quiet shutdown (see
     _catch_stop_signals): returns 0 (no traceback), and EXIT_INVALID_PARAMETERS when the node refused
     its parameters at start-up.
     """
     stop_signals = _catch_stop_signals()
-    arguments = sys.argv if args is None else args
+    arguments, standby = split_standby_flag(sys.argv if args is None else args)
+    role = _take_role(arguments, standby, stop_signals)
+    if role is None:  # a standby stopped while it waited
+        _ignore_stop_signals()
+        return 0
     # No rclpy signal handlers: they shut the context down under callbacks still running (a timer's
     # publish then fails) and chain to KeyboardInterrupt; the spin loop stops on stop_signals instead.
     try:
@@ -85,8 +108,44 @@ def run_node(
         if node is not None:
             node.destroy_node()
         rclpy.try_shutdown()
+        # only now, the participant gone: a standby taking over is never in the graph beside this one
+        role.release()
         _ignore_stop_signals()
     return 0
+
+
+def _take_role(arguments: list[str], standby: bool, stop_signals: list[int]) -> RoleLock | None:
+    """The node's role (beams_common.ros.standby), taken when free; a standby waits for it and gets None
+    when a stop signal came first. Says in one line why a process waits, takes over or runs beside
+    another instance."""
+    # the executable's name (`ekf_node`, or `ekf_node.py` run as a script) is the node's
+    identity = node_identity(arguments, pathlib.Path(arguments[0] if arguments else "").stem)
+    domain_id = domain_id_of(os.environ)
+    lock = RoleLock(role_name(identity, domain_id))
+    role = f"{identity.fully_qualified_name} (ROS_DOMAIN_ID {domain_id})"
+    # before rclpy.init: rcutils logs to the console in the node's format, under the node's logger name
+    logger = rclpy.logging.get_logger(identity.logger_name)
+    if not standby:
+        if not lock.try_acquire():
+            logger.warning(
+                f"the role of {role} is held by process {lock.holder_pid()}: running anyway as a second "
+                f"instance (start it with {STANDBY_FLAG} to wait for the role instead)"
+            )
+        return lock
+    waiting_since_s = time.monotonic()
+
+    def waiting(holder_pid: int | None) -> None:
+        logger.info(
+            f"standby: waiting for the role of {role}, held by process {holder_pid}, with no DDS "
+            "participant; taking over when that process ends"
+        )
+
+    with signal_wakeup() as wakeup_fd:
+        taken = wait_for_role(lock, lambda: bool(stop_signals), waiting, wakeup_fd=wakeup_fd)
+    if not taken:
+        return None
+    logger.info(f"standby: took the role of {role} after {time.monotonic() - waiting_since_s:.2f} s")
+    return lock
 
 
 def _catch_stop_signals() -> list[int]:
