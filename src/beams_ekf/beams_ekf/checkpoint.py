@@ -1,15 +1,10 @@
-"""ekf_node's checkpoint: what the filter learnt past the pose, kept across a restart (a respawn after a
-crash or a kill -9, a clean stop and start).
+"""ekf_node's checkpoint: what the filter learnt past the pose, kept across a restart (docs/integrity.md).
 
-The file (YAML, `format: beams-ekf-checkpoint`, `version: 1`, replaced atomically by
-`calibration_file.atomic_write_text`) holds the learnt blocks' states and their joint covariance (the
-pose is not learnt: a restarted filter waits for a pose as at any start), the geometry they were learnt
-against (beacon map, turret offset, the calibration's bearing correction) and the parameters set at
-runtime, each with the start-up value it replaced. A (re)started node takes the parameters back first (a
-calibration_file among them changes the geometry), a change whose start-up value is no longer the node's
-being left out with the reason; then the states, when the filter's blocks and geometry are the file's
-(`resume`), else refused with the reason. What the blocks remember besides their states (the power
-bias's window fit) starts again.
+The file (YAML, `format: beams-ekf-checkpoint`, `version: 1`, replaced atomically) holds the learnt
+blocks' states and their joint covariance, the geometry they were learnt against and the runtime-set
+parameters, each with the start-up value it replaced. A (re)started node sets the parameters back first
+(a calibration_file among them changes the geometry), then takes the states when the filter's blocks and
+geometry are the file's; what it does not take back, it says why.
 """
 
 import os
@@ -44,14 +39,11 @@ def checkpoint_path(template: str, node_name: str, environ: Mapping[str, str]) -
 
 def learnt_against(geometry: BeaconGeometry) -> dict[str, Any]:
     """The geometry the learnt states are corrections of or were learnt with, as the file holds it."""
-    correction = geometry.calibration.bearing_correction if geometry.calibration else None
+    calibration = geometry.calibration
     return {
         "beacons": [[i, *map(float, xy)] for i, xy in geometry.beacon_map.as_dict().items()],
         "turret_offset_m": list(map(float, geometry.turret_offset_m)),
-        "bearing_correction": None
-        if correction is None
-        else [list(correction.power_bias_coefficients), list(correction.rotation_bias_coefficients)]
-        + ([list(correction.window_range_rad)] if correction.window_range_rad else []),
+        "bearing_correction": repr(calibration.bearing_correction) if calibration else None,
     }
 
 
@@ -77,10 +69,11 @@ def checkpoint_text(
 ) -> str:
     """The checkpoint's YAML: the learnt states when the filter learnt something (else none)."""
     learnt = ekf.learnt_states()
-    states = None
-    if learnt is not None:
-        blocks, mean, covariance = learnt
-        states = {"blocks": blocks, "mean": mean.tolist(), "covariance": covariance.tolist()}
+    states = (
+        None
+        if learnt is None
+        else {"blocks": learnt[0], "mean": learnt[1].tolist(), "covariance": learnt[2].tolist()}
+    )
     document = {
         "format": FILE_FORMAT,
         "version": FILE_VERSION,

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 import yaml
 
+from beams_common.calibration.bearing_correction import BearingCorrection
+from beams_common.calibration.calibration_file import SensorCalibration
 from beams_common.config.geometry_parameters import BeaconGeometry
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_ekf.checkpoint import (
@@ -23,6 +25,10 @@ from beams_ekf.localiser import build_localiser
 from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
 
 GEOMETRY = BeaconGeometry(EUROBOT_BEACON_MAP, (0.01, -0.02))
+# a calibration of the same beacons and offset: its bearing correction is part of what was learnt against
+CALIBRATION = SensorCalibration(
+    EUROBOT_BEACON_MAP, BearingCorrection((-90.46, 35.83, -4.59, 0.19)), (0.01, -0.02)
+)
 STARTUP = EKF_PARAMETERS.defaults()
 
 
@@ -77,6 +83,7 @@ def test_the_learnt_states_come_back_exactly_and_the_first_initialisation_keeps_
             "beacons",
         ),
         (BeaconGeometry(EUROBOT_BEACON_MAP, (0.0, 0.0)), {}, "turret offset"),
+        (BeaconGeometry(EUROBOT_BEACON_MAP, (0.01, -0.02), CALIBRATION), {}, "bearing correction"),
         (GEOMETRY, {"power_bias_states": "off"}, "learnt by other state blocks"),
     ],
 )
