@@ -195,8 +195,8 @@ def measure(flood_s: float) -> list[Row]:
     from beams_tools.robot_processes import process_commands
     from beams_tools.supervisor import NodeSupervisor
 
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
     with tempfile.TemporaryDirectory(prefix="beams_bench_system_") as log_dir:
+        env = dict(os.environ, PYTHONUNBUFFERED="1", ROS_HOME=f"{log_dir}/ros_home")  # its own checkpoint
         probe = Probe()
         commands = process_commands(INSTALL_BASE, ROS_ARGUMENTS, standby=False)
         # the bench restarts a node itself (restart_rows): it never polls the supervisor

@@ -317,6 +317,30 @@ class BearingEkf:
         self._initialised = True
         self._learnt = True
 
+    def learnt_states(self) -> tuple[list[str], np.ndarray, np.ndarray] | None:
+        """The learnt blocks (each its repr), their states and joint covariance (copies); None before
+        anything was learnt (or since `reset(forget_learnt=True)`)."""
+        if not self._learnt:
+            return None
+        blocks = [repr(block) for block, _ in self._parts if block.learnt]
+        return blocks, self._ekf.x[self._kept, 0].copy(), self._ekf.P[np.ix_(self._kept, self._kept)].copy()
+
+    def resume_learnt(self, blocks: list[str], mean: np.ndarray, covariance: np.ndarray) -> None:
+        """Take learnt states back (ekf_node's checkpoint), kept by the next `initialise`; ValueError when
+        the blocks are not this filter's (`learnt_states`' repr) or the covariance is no covariance."""
+        own = [repr(block) for block, _ in self._parts if block.learnt]
+        if blocks != own:
+            raise ValueError(f"learnt by other state blocks: {blocks}, the filter's are {own}")
+        covariance = np.asarray(covariance, float)
+        if (
+            np.any(np.abs(covariance - covariance.T) > 1e-12)
+            or np.linalg.eigvalsh(covariance).min(initial=0.0) < -1e-12
+        ):
+            raise ValueError("the learnt states' covariance is not symmetric positive semi-definite")
+        self._ekf.x[self._kept, 0] = mean
+        self._ekf.P[np.ix_(self._kept, self._kept)] = covariance
+        self._learnt = True
+
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """A copy of (x, P), to come back to with `restore`."""
         return self._ekf.x.copy(), self._ekf.P.copy()

@@ -59,6 +59,21 @@ EKF_PARAMETERS = ParameterTable(
         ParameterSpec(
             "publish_rate_hz", 20.0, "Rate of the published estimate (Hz).", minimum=0.1, maximum=1000.0
         ),
+        ParameterSpec(
+            "checkpoint_file",
+            "~/.ros/beams/{node}_checkpoint.yaml",
+            "Where the learnt states (pose excluded, with the geometry they were learnt against) and the "
+            "runtime-set parameters are kept for a restart (beams_ekf.checkpoint): written every "
+            "checkpoint_period_s and at a clean stop, read at start. {node}: the node's fully qualified name "
+            "(one file per node); ~/.ros: $ROS_HOME when set, where ROS keeps a robot's state; empty: off.",
+        ),
+        ParameterSpec(
+            "checkpoint_period_s",
+            20.0,
+            "Period (s) of the checkpoint's writes; a kill -9 loses what was learnt since the last one.",
+            minimum=1.0,
+            maximum=3600.0,
+        ),
     ),
     (*GEOMETRY_CHECKS, _filter_settings_check, rates_check),
 )
