@@ -357,8 +357,11 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         stats = self.localiser.stats
         for key, value in stats.counts.items():
             self.diagnostics.set(key, value)
-        since_s = float("inf")
+        since_s, level, integrity = float("inf"), None, self.health.integrity
         if estimate is not None:
+            level = integrity.level(estimate.covariance, estimate.fault_shifts, estimate.fault_covariances)
+            self.diagnostics.set("horizontal_protection_level_m", level.horizontal_m)
+            self.diagnostics.set("heading_protection_level_rad", level.heading_rad)
             self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
             self.diagnostics.set("recent_gated_bearings", self.localiser.kidnap.recent_gated_bearings)
             self.diagnostics.set("lost_nis_window_sum", self.localiser.nis_monitor.window_sum)
@@ -373,6 +376,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
             kidnap_suspected=self.localiser.kidnap.suspected,
             bearing_silence_s=since_s,
             unconfirmed=self.localiser.unconfirmed if estimate is not None else "",
+            protection=level,
         )
         self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
         self.diagnostics.set("odometry_rate_hz", self.health.odometry_rate.rate_hz(now_s))
@@ -389,7 +393,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
             self.diagnostics.publish()
         else:  # and an ERROR condition's end (a second publisher gone, its hold over) too
             self.diagnostics.publish_if_conditions_changed()
-        self.status_topic.say(verdict)
+        self.status_topic.say(verdict, integrity, level)
 
 
 def _newest_stamp_s(intake: RevolutionIntake) -> float:

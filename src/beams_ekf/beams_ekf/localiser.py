@@ -22,7 +22,7 @@ the estimate is unconfirmed until its bearings confirm it (`consistency.PoseConf
 status is degraded meanwhile); the first initialisation from ToTal is the bearings' own pose.
 """
 
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -104,6 +104,9 @@ class Localiser:
         )
         self.confirmation = PoseConfirmation(self.config.confirming_bearings)
         self._stamp_s: float | None = None
+        # the newest accepted bearings, one revolution's when every beacon is seen: (beacon, gain, shift
+        # gain * residual, innovation variance), the fault hypotheses of the protection level
+        self._recent: deque[tuple[int, np.ndarray, np.ndarray, float]] = deque(maxlen=len(ekf.beacons_xy))
 
     @property
     def initialised(self) -> bool:
@@ -131,6 +134,7 @@ class Localiser:
         self.motion_limits = settings.motion_limits
         self.default_pose_covariance = settings.default_pose_covariance
         self.ekf.configure(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability)
+        self._recent = deque(maxlen=len(self.ekf.beacons_xy))
 
     def reset(self, reason: str = "reset", forget_learnt: bool = False) -> None:
         """Forget the estimate and the odometry; the filter waits for a pose. What a BearingEkf learnt of
@@ -146,6 +150,7 @@ class Localiser:
         self._stamp_s = None
         self._time_jumps.clear()
         self.confirmation.clear()  # the next initialisation from ToTal is a first one
+        self._recent.clear()
         self.stats.counts[reason] += 1
 
     # -- odometry -------------------------------------------------------------------------------------
@@ -245,6 +250,9 @@ class Localiser:
         """Record whether a new bearing was gated (kidnap evidence) and the last accepted one."""
         if outcome.accepted:
             self.stats.last_bearing_stamp_s = bearing.stamp_s
+            if outcome.pose_gain is not None:
+                gain, variance = outcome.pose_gain, outcome.innovation_variance
+                self._recent.append((bearing.beacon_id, gain, gain * outcome.residual_rad, variance))
         if outcome.accepted or outcome.reason is BearingReason.GATED:
             self.kidnap.add(not outcome.accepted)
             if self.confirmation.add(bearing.beacon_id, not outcome.accepted):
@@ -304,6 +312,7 @@ class Localiser:
             return PoseOutcome.INVALID
         self.kidnap.clear()
         self.nis_monitor.clear()
+        self._recent.clear()
         event = _CONTINUITY_EVENTS.get(outcome)
         if operator:
             self._break_continuity("an operator's pose")
@@ -323,7 +332,29 @@ class Localiser:
         stamp_s = self._stamp_s if self._stamp_s is not None else float("nan")
         latest = self.history.latest
         odom_pose = latest[1] if latest is not None and latest[0] == stamp_s else None
-        return Estimate(stamp_s, self.ekf.pose, self.ekf.covariance, self._odometry_twist(), odom_pose)
+        covariance = self.ekf.covariance
+        estimate = Estimate(stamp_s, self.ekf.pose, covariance, self._odometry_twist(), odom_pose)
+        if self._recent:
+            estimate.fault_shifts, estimate.fault_covariances = self._fault_hypotheses(covariance)
+        return estimate
+
+    def _fault_hypotheses(self, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One faulty bearing of the recent ones, or one faulty beacon (its recent bearings together):
+        the estimate's shift from the solution without them (gain * residual, summed) and that
+        solution's covariance (P + gain gain' S, summed: the variance they took away). First order: the
+        gain and residual of each bearing's own update (docs/protection_level.md)."""
+        recent = list(self._recent)
+        groups = [[i] for i in range(len(recent))]
+        for beacon in {b for b, *_ in recent}:
+            members = [i for i, (b, *_) in enumerate(recent) if b == beacon]
+            groups += [members] if len(members) > 1 else []
+        gains = np.array([gain for _, gain, _, _ in recent])
+        added = np.array([variance for *_, variance in recent])[:, None, None] * np.einsum(
+            "ni,nj->nij", gains, gains
+        )
+        shifts = np.array([sum(recent[i][2] for i in group) for group in groups])
+        separated = np.array([covariance + added[group].sum(axis=0) for group in groups])
+        return shifts, separated
 
     def _odometry_twist(self) -> tuple[float, float, float]:
         """Robot-frame velocity over the last odometry step (zero with fewer than two samples)."""

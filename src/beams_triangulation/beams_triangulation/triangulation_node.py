@@ -224,19 +224,22 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         self.diagnostics.set("last_position_std_m", float(estimate.position_std_m))
         if not estimate.accepted:
             self.diagnostics.set("last_rejection", estimate.reason)
-        self.health.on_pose(self._now_s(), bool(estimate.accepted))
+        self.health.on_pose(self._now_s(), bool(estimate.accepted), estimate.covariance)
         self._update_status()
 
     def _update_status(self) -> None:
         """The status (`triangulation_health`): its level and message, and `status` (waiting, tracking,
         degraded or lost) as a value of its own; each pose carries its own verdict (accepted, reason)."""
         now_s = self._now_s()
-        verdict = self.health.verdict(now_s)
+        verdict, level = self.health.verdict(now_s), self.health.protection
         self.diagnostics.set("status", str(verdict.status))
+        if level is not None:
+            self.diagnostics.set("horizontal_protection_level_m", level.horizontal_m)
+            self.diagnostics.set("heading_protection_level_rad", level.heading_rad)
         self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
         self.diagnostics.set_level(verdict.level, verdict.message)
         self.diagnostics.publish_if_conditions_changed()  # an ERROR condition's end said at once
-        self.status_topic.say(verdict)
+        self.status_topic.say(verdict, self.health.integrity, level)
 
     def _markers(self, estimate: PoseEstimate, header) -> MarkerArray:
         """Beacons (spheres), the pose (arrow) and its 2-sigma position ellipse (flat cylinder)."""
