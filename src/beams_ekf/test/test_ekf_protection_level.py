@@ -11,14 +11,14 @@ from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.geometry.bearing import Bearing
 from beams_common.geometry.pose2d import Pose2D
 from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
-from beams_common.status.protection_level import INTEGRITY_SPECS, Integrity
+from beams_common.status.protection_level import Integrity
 from beams_ekf.bearing_ekf import bearing_measurement
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser, revolution_of
 
 POSE = (1.2, 0.8, 0.3)
 START = np.diag([0.02**2, 0.02**2, math.radians(1.0) ** 2])
 VARIANCE_RAD2 = math.radians(0.1) ** 2
-INTEGRITY = Integrity({spec.name: spec.default for spec in INTEGRITY_SPECS})
+INTEGRITY = Integrity.default()
 
 
 def _localiser() -> Localiser:

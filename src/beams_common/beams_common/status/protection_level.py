@@ -80,6 +80,11 @@ class Integrity:
         self.k_horizontal = math.sqrt(-2.0 * math.log(self.risk))
         self.k_heading = -NormalDist().inv_cdf(0.5 * self.risk)
 
+    @classmethod
+    def default(cls) -> "Integrity":
+        """The defaults of INTEGRITY_SPECS (the offline replays')."""
+        return cls({spec.name: spec.default for spec in INTEGRITY_SPECS})
+
     def level(
         self,
         covariance: np.ndarray,
