@@ -107,7 +107,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         publish_tf = self.parameters["publish_tf"]
         rate_hz = self.parameters["publish_rate_hz"]
         self.diagnostics = Diagnostics(self, "ekf")
-        self.status_topic = StatusTopic(self, topics.EKF_STATUS)
+        self.status_topic = StatusTopic(self, topics.EKF_STATUS, self.diagnostics)
         self.diagnostics.set_level("warn", WAITING_FOR_POSE)
         self._status = Status.WAITING  # the status last set on /diagnostics
         self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
@@ -125,7 +125,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         self.create_subscription(Odometry, topics.ODOMETRY, self._on_odometry, qos_profile_sensor_data)
         self.create_subscription(BeaconBearingArray, topics.BEARINGS, self._on_bearings, BEARINGS_QOS)
         self.create_subscription(TriangulatedPose, topics.POSE, self._on_total_pose, 10)
-        self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE, self._on_initial_pose, 10)
+        self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE, self._operator_pose, 10)
         self.create_service(SetPose, topics.SET_POSE, self._on_set_pose)
         self.create_service(Trigger, topics.RESET, self._on_reset)
         self.create_service(Trigger, topics.SAVE_CALIBRATION, self._on_save_calibration)
@@ -233,9 +233,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         that no 1 Hz report says the old status once the new estimate exists."""
         self._changed = True
         self._publish()
-
-    def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
-        self._operator_pose(msg)
 
     def _on_set_pose(self, request: SetPose.Request, response: SetPose.Response) -> SetPose.Response:
         response.success, response.message = self._operator_pose(request.pose)
@@ -360,8 +357,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         since_s, level, integrity = float("inf"), None, self.health.integrity
         if estimate is not None:
             level = integrity.level(estimate.covariance, estimate.fault_shifts, estimate.fault_covariances)
-            self.diagnostics.set("horizontal_protection_level_m", level.horizontal_m)
-            self.diagnostics.set("heading_protection_level_rad", level.heading_rad)
             self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
             self.diagnostics.set("recent_gated_bearings", self.localiser.kidnap.recent_gated_bearings)
             self.diagnostics.set("lost_nis_window_sum", self.localiser.nis_monitor.window_sum)

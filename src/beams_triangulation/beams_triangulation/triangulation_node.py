@@ -83,7 +83,7 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         apply_runtime_changes(self, TRIANGULATION_PARAMETERS, self.parameters, self._prepare_parameters)
         serve_calibration_reload(self, self._apply_calibration)
         self.diagnostics = Diagnostics(self, "triangulation")
-        self.status_topic = StatusTopic(self, topics.TRIANGULATION_STATUS)
+        self.status_topic = StatusTopic(self, topics.TRIANGULATION_STATUS, self.diagnostics)
         self.diagnostics.set_level("warn", WAITING_FOR_BEARINGS)
         self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
         self.health = TriangulationHealth(self.parameters, self._now_s(), use_odometry=self.use_odometry)
@@ -231,15 +231,12 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         """The status (`triangulation_health`): its level and message, and `status` (waiting, tracking,
         degraded or lost) as a value of its own; each pose carries its own verdict (accepted, reason)."""
         now_s = self._now_s()
-        verdict, level = self.health.verdict(now_s), self.health.protection
+        verdict = self.health.verdict(now_s)
         self.diagnostics.set("status", str(verdict.status))
-        if level is not None:
-            self.diagnostics.set("horizontal_protection_level_m", level.horizontal_m)
-            self.diagnostics.set("heading_protection_level_rad", level.heading_rad)
         self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
         self.diagnostics.set_level(verdict.level, verdict.message)
         self.diagnostics.publish_if_conditions_changed()  # an ERROR condition's end said at once
-        self.status_topic.say(verdict, self.health.integrity, level)
+        self.status_topic.say(verdict, self.health.integrity, self.health.protection)
 
     def _markers(self, estimate: PoseEstimate, header) -> MarkerArray:
         """Beacons (spheres), the pose (arrow) and its 2-sigma position ellipse (flat cylinder)."""

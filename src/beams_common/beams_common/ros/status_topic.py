@@ -12,6 +12,7 @@ import math
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
+from beams_common.ros.node_support import Diagnostics
 from beams_common.status.health import Status, Verdict
 from beams_common.status.protection_level import Integrity, ProtectionLevel
 from beams_msgs.msg import LocalisationStatus
@@ -33,16 +34,20 @@ STATUS_CODES = {
 
 class StatusTopic:
     """Publishes a node's verdict (beams_common.status.health) at once when its status or message changes,
-    and again when STATUS_HEARTBEAT_S has passed since it last said it."""
+    and again when STATUS_HEARTBEAT_S has passed since it last said it; the protection level also goes to
+    the node's `diagnostics`."""
 
-    def __init__(self, node: Node, topic: str) -> None:
-        self.node = node
+    def __init__(self, node: Node, topic: str, diagnostics: Diagnostics) -> None:
+        self.node, self.diagnostics = node, diagnostics
         self.publisher = node.create_publisher(LocalisationStatus, topic, STATUS_QOS)
         self._said: tuple[Status, str] | None = None
         self._said_ns = 0
 
     def say(self, verdict: Verdict, integrity: Integrity, level: ProtectionLevel | None) -> None:
         """The verdict with the newest estimate's protection level (None: no estimate)."""
+        if level is not None:
+            self.diagnostics.set("horizontal_protection_level_m", level.horizontal_m)
+            self.diagnostics.set("heading_protection_level_rad", level.heading_rad)
         now = self.node.get_clock().now()
         said = (verdict.status, verdict.message)
         if said == self._said and now.nanoseconds - self._said_ns < STATUS_HEARTBEAT_S * 1e9:
