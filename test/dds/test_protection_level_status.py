@@ -1,5 +1,5 @@
 """The protection level on the status topics (docs/protection_level.md): when a node's protection level
-crosses its alert limit (5 cm, 2 deg by default) its status is degraded ("unavailable for navigation")
+crosses its alert limit (5 cm, 3 deg by default) its status is degraded ("unavailable for navigation")
 with `within_alert_limits` false, and tracking again once it is back within.
 
 - ekf_node, a robot standing still: initialised by a ToTal fix of 2 cm and 1 deg (level 96 mm, 4.4 deg),

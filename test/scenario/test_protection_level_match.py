@@ -1,6 +1,6 @@
 """The protection levels on a nominal simulated match (docs/protection_level.md's figures): the
 thesis-hardware sensor after its calibration, default parameters. The EKF's level stays far within the
-default 5 cm / 2 deg alert limits (the demo stays tracking) and its error never exceeds it; ToTal's
+default 5 cm / 3 deg alert limits (the demo stays tracking) and its error never exceeds it; ToTal's
 fault-free bound is within them on nearly every accepted pose; hiding a beacon raises the EKF's level."""
 
 import math

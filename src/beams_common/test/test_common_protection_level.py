@@ -140,11 +140,11 @@ def test_the_fault_free_bound_shrinks_as_measurements_are_added(seed):
 
 def test_the_alert_limits_make_the_reason():
     integrity = _integrity(1e-5)
-    assert integrity.problem(None) == "" and integrity.problem(ProtectionLevel(0.05, math.radians(2.0))) == ""
+    assert integrity.problem(None) == "" and integrity.problem(ProtectionLevel(0.05, math.radians(3.0))) == ""
     problem = integrity.problem(ProtectionLevel(0.062, 0.01))
     assert problem == (
-        "protection level 62 mm / 0.57 deg above the alert limits 50 mm / 2.00 deg: "
+        "protection level 62 mm / 0.57 deg above the alert limits 50 mm / 3.00 deg: "
         "unavailable for navigation"
     )
-    assert not integrity.within(ProtectionLevel(0.01, math.radians(2.5)))
+    assert not integrity.within(ProtectionLevel(0.01, math.radians(3.5)))
     assert not integrity.within(ProtectionLevel(math.nan, 0.0))

@@ -43,7 +43,7 @@ INTEGRITY_SPECS = (
     ),
     ParameterSpec(
         "heading_alert_limit_rad",
-        math.radians(2.0),
+        math.radians(3.0),
         "Largest heading protection level (rad) for the status to be tracking; beyond it the status is "
         "degraded (unavailable for navigation).",
         minimum=1.0e-9,
