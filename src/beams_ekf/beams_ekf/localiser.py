@@ -104,9 +104,9 @@ class Localiser:
         )
         self.confirmation = PoseConfirmation(self.config.confirming_bearings)
         self._stamp_s: float | None = None
-        # the newest accepted bearings, one revolution's when every beacon is seen: (beacon, gain, shift
-        # gain * residual, innovation variance), the fault hypotheses of the protection level
-        self._recent: deque[tuple[int, np.ndarray, np.ndarray, float]] = deque(maxlen=len(ekf.beacons_xy))
+        # the newest accepted bearings, one revolution's when every beacon is seen: (beacon, the shift
+        # gain * residual, the variance gain gain' S taken away, flat), the protection level's hypotheses
+        self._recent: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=len(ekf.beacons_xy))
 
     @property
     def initialised(self) -> bool:
@@ -250,9 +250,10 @@ class Localiser:
         """Record whether a new bearing was gated (kidnap evidence) and the last accepted one."""
         if outcome.accepted:
             self.stats.last_bearing_stamp_s = bearing.stamp_s
-            if outcome.pose_gain is not None:
-                gain, variance = outcome.pose_gain, outcome.innovation_variance
-                self._recent.append((bearing.beacon_id, gain, gain * outcome.residual_rad, variance))
+            gain = outcome.pose_gain
+            if gain is not None:
+                taken = outcome.innovation_variance * np.outer(gain, gain).ravel()
+                self._recent.append((bearing.beacon_id, gain * outcome.residual_rad, taken))
         if outcome.accepted or outcome.reason is BearingReason.GATED:
             self.kidnap.add(not outcome.accepted)
             if self.confirmation.add(bearing.beacon_id, not outcome.accepted):
@@ -343,17 +344,13 @@ class Localiser:
         the estimate's shift from the solution without them (gain * residual, summed) and that
         solution's covariance (P + gain gain' S, summed: the variance they took away). First order: the
         gain and residual of each bearing's own update (docs/protection_level.md)."""
-        recent = list(self._recent)
-        groups = [[i] for i in range(len(recent))]
-        for beacon in {b for b, *_ in recent}:
-            members = [i for i, (b, *_) in enumerate(recent) if b == beacon]
-            groups += [members] if len(members) > 1 else []
-        gains = np.array([gain for _, gain, _, _ in recent])
-        added = np.array([variance for *_, variance in recent])[:, None, None] * np.einsum(
-            "ni,nj->nij", gains, gains
-        )
-        shifts = np.array([sum(recent[i][2] for i in group) for group in groups])
-        separated = np.array([covariance + added[group].sum(axis=0) for group in groups])
+        ids = [beacon for beacon, _, _ in self._recent]
+        # one row per hypothesis: each bearing alone, then each beacon seen more than once
+        twice = [beacon for beacon in set(ids) if ids.count(beacon) > 1]
+        members = np.vstack([np.eye(len(ids)), np.equal.outer(twice, ids).reshape(-1, len(ids))])
+        shifts = members @ np.array([shift for _, shift, _ in self._recent])
+        taken = members @ np.array([taken for _, _, taken in self._recent])
+        separated = covariance + taken.reshape(-1, 3, 3)
         return shifts, separated
 
     def _odometry_twist(self) -> tuple[float, float, float]:
