@@ -438,12 +438,14 @@ class BearingEkf:
         nis = residual * residual / innovation_variance
         if nis > self.gate:
             return BearingOutcome(False, nis, residual, BearingReason.GATED)
-        self._joseph_update(jacobian, variance_rad2, residual, innovation_variance, self._frozen)
+        gain = self._joseph_update(jacobian, variance_rad2, residual, innovation_variance, self._frozen)
         self._ekf.x[self._heading, 0] = wrap_to_pi(float(self._ekf.x[self._heading, 0]))
         # rounding drifts P from symmetric: after a wide prior (sigma 4 m) by more than the 1e-9 the
         # published-estimate invariant allows (else every later estimate is refused)
         self._ekf.P = 0.5 * (self._ekf.P + self._ekf.P.T)
-        return BearingOutcome(True, nis, residual)
+        return BearingOutcome(
+            True, nis, residual, pose_gain=gain[self._pose, 0], innovation_variance=innovation_variance
+        )
 
     def _joseph_update(
         self,
@@ -452,11 +454,11 @@ class BearingEkf:
         residual: float,
         innovation_variance: float,
         frozen: list[slice],
-    ) -> None:
+    ) -> np.ndarray:
         """x += K r, P = (I - K H) P (I - K H)' + K R K' (filterpy's form), K = P H' / S; the gain rows
         of the `frozen` states (consider parameters; the power bias for a bearing that cannot teach it;
         every learnt block for a bearing whose bias is not modelled yet) are zero (Schmidt-Kalman): the
-        Joseph form stays right for that gain."""
+        Joseph form stays right for that gain. Returns K."""
         p = self._ekf.P
         gain = (p @ jacobian.T) / innovation_variance
         for part in frozen:
@@ -464,3 +466,4 @@ class BearingEkf:
         reduce = np.eye(self.dim) - gain @ jacobian
         self._ekf.x = self._ekf.x + gain * residual
         self._ekf.P = reduce @ p @ reduce.T + variance_rad2 * (gain @ gain.T)
+        return gain

@@ -148,7 +148,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         self.localiser = build_localiser(beacons, offset, self.settings)
         self.map_frame, self.base_frame, self.odom_frame = (self.parameters[f"{k}_frame"] for k in FRAMES)
         self.diagnostics = Diagnostics(self, "ekf")
-        self.status_topic = StatusTopic(self, topics.EKF_STATUS)
+        self.status_topic = StatusTopic(self, topics.EKF_STATUS, self.diagnostics)
         self.diagnostics.set_level("warn", WAITING_FOR_POSE)
         self._status = Status.WAITING  # the status last set on /diagnostics
         self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
@@ -168,7 +168,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         self.create_subscription(Odometry, topics.ODOMETRY, self._on_odometry, qos_profile_sensor_data)
         self.create_subscription(BeaconBearingArray, topics.BEARINGS, self._on_bearings, BEARINGS_QOS)
         self.create_subscription(TriangulatedPose, topics.POSE, self._on_total_pose, 10)
-        self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE, self._on_initial_pose, 10)
+        self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE, self._operator_pose, 10)
         self.create_service(SetPose, topics.SET_POSE, self._on_set_pose)
         self.create_service(Trigger, topics.RESET, self._on_reset)
         self.create_service(Trigger, topics.SAVE_CALIBRATION, self._on_save_calibration)
@@ -278,9 +278,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         that no 1 Hz report says the old status once the new estimate exists."""
         self._changed = True
         self._publish()
-
-    def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
-        self._operator_pose(msg)
 
     def _on_set_pose(self, request: SetPose.Request, response: SetPose.Response) -> SetPose.Response:
         response.success, response.message = self._operator_pose(request.pose)
@@ -402,8 +399,9 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         stats = self.localiser.stats
         for key, value in stats.counts.items():
             self.diagnostics.set(key, value)
-        since_s = float("inf")
+        since_s, level, integrity = float("inf"), None, self.health.integrity
         if estimate is not None:
+            level = integrity.level(estimate.covariance, estimate.fault_shifts, estimate.fault_covariances)
             self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
             self.diagnostics.set("recent_gated_bearings", self.localiser.kidnap.recent_gated_bearings)
             self.diagnostics.set("lost_nis_window_sum", self.localiser.nis_monitor.window_sum)
@@ -418,6 +416,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
             kidnap_suspected=self.localiser.kidnap.suspected,
             bearing_silence_s=since_s,
             unconfirmed=self.localiser.unconfirmed if estimate is not None else "",
+            protection=level,
         )
         self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
         self.diagnostics.set("odometry_rate_hz", self.health.odometry_rate.rate_hz(now_s))
@@ -434,7 +433,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
             self.diagnostics.publish()
         else:  # and an ERROR condition's end (a second publisher gone, its hold over) too
             self.diagnostics.publish_if_conditions_changed()
-        self.status_topic.say(verdict)
+        self.status_topic.say(verdict, integrity, level)
 
 
 def _newest_stamp_s(intake: RevolutionIntake) -> float:

@@ -11,6 +11,7 @@ from beams_common.config.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SP
 from beams_common.config.parameters import ROS_NODE_PARAMETERS, ParameterSpec, ParameterTable
 from beams_common.intake.plausibility import MOTION_SPECS, STAMP_SPECS, motion_limits_of
 from beams_common.status.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, rates_check
+from beams_common.status.protection_level import INTEGRITY_SPECS
 from beams_ekf.bearing_ekf import BEARING_EKF_SPECS, process_noise_of
 from beams_ekf.settings import SETTINGS_SPECS, FilterSettings, LocaliserConfig
 from beams_ekf.state_blocks import registered_blocks
@@ -51,6 +52,7 @@ EKF_PARAMETERS = ParameterTable(
         *STAMP_SPECS,
         *BEARING_RATE_SPECS,
         ODOMETRY_RATE_SPEC,
+        *INTEGRITY_SPECS,
         *(spec for _, specs, _ in _BLOCKS for spec in specs.specs),
         ParameterSpec("map_frame", "map", "Frame of the estimate (REP-105)."),
         ParameterSpec("base_frame", "base_link", "The robot's frame (child)."),

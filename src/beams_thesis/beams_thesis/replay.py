@@ -12,6 +12,7 @@ from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.bearing import Bearing
 from beams_common.geometry.pose2d import Pose2D
 from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
+from beams_common.status.protection_level import Integrity
 from beams_ekf.localiser import Localiser, revolution_of
 from beams_thesis.synthetic import BearingEvent
 
@@ -38,6 +39,8 @@ class ReplayResult:
     covariances: np.ndarray  # (k, 3, 3)
     truths: np.ndarray  # (k, 3)
     counts: dict[str, int] = field(default_factory=dict)
+    # (k, 2) horizontal (m) and heading (rad) protection levels at the default integrity risk
+    protection_levels: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
 
     def errors(self) -> np.ndarray:
         """(k, 3) estimate - truth, heading wrapped."""
@@ -84,7 +87,8 @@ def replay(
     events = [(b.arrival_s, 0, b) for b in bearings] + [(f.arrival_s, 1, f) for f in fixes]
     events.sort(key=lambda event: event[:2])
     by_arrival = [(a, [event[2] for event in group]) for a, group in groupby(events, key=lambda e: e[0])]
-    times, estimates, covariances, truths = [], [], [], []
+    times, estimates, covariances, truths, levels = [], [], [], [], []
+    integrity = Integrity.default()
     k = 0
     for arrival_s, arrived in by_arrival:
         while k < len(odometry_times_s) and odometry_times_s[k] <= arrival_s:
@@ -107,12 +111,15 @@ def replay(
             estimates.append(estimate.pose)
             covariances.append(estimate.covariance)
             truths.append(truth_at(estimate.stamp_s))
+            level = integrity.level(estimate.covariance, estimate.fault_shifts, estimate.fault_covariances)
+            levels.append((level.horizontal_m, level.heading_rad))
     return ReplayResult(
         np.array(times),
         np.array(estimates),
         np.array(covariances),
         np.array(truths),
         dict(localiser.stats.counts),
+        np.array(levels).reshape(-1, 2),
     )
 
 
