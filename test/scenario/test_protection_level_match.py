@@ -24,8 +24,8 @@ def matches() -> list[SimulatedMatch]:
     return [calibrated_match("thesis_hardware", DURATION_S, seed) for seed in SEEDS]
 
 
-def _replay(match: SimulatedMatch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(times, position errors, protection levels (k, 2)) after SETTLE_S."""
+def _replay(match: SimulatedMatch) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(times, position errors, protection levels (k, 2), ekf_node's status is tracking) after SETTLE_S."""
     beacons = dict(zip(match.beacon_map.ids, map(tuple, match.beacon_map.xy), strict=True))
     result = replay_match(
         build_localiser(beacons, match.turret_offset_m, FilterSettings()),
@@ -36,12 +36,14 @@ def _replay(match: SimulatedMatch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     )
     keep = result.times_s >= result.times_s[0] + SETTLE_S
     errors = result.errors()[keep]
-    return result.times_s[keep], np.hypot(errors[:, 0], errors[:, 1]), result.protection_levels[keep]
+    position = np.hypot(errors[:, 0], errors[:, 1])
+    return result.times_s[keep], position, result.protection_levels[keep], result.tracking[keep]
 
 
 def test_the_ekf_level_is_millimetres_and_bounds_the_error(matches):
     for match in matches:
-        _, errors, levels = _replay(match)
+        _, errors, levels, tracking = _replay(match)
+        assert tracking.mean() > 0.99  # the levels far within the alert limits: the status stays tracking
         horizontal, heading = levels[:, 0], levels[:, 1]
         p50, p99 = 1e3 * np.percentile(horizontal, [50, 99])
         print(
@@ -67,8 +69,8 @@ def test_hiding_two_beacons_raises_the_ekf_level(matches):
         replace(r, bearings=[b for b in r.bearings if b.beacon_id == 3 or not 10.0 < b.stamp_s < 20.0])
         for r in match.revolutions
     ]
-    times, errors, levels = _replay(replace(match, revolutions=hidden))
+    times, errors, levels, _ = _replay(replace(match, revolutions=hidden))
     window = (times > 11.0) & (times < 20.0)
-    _, _, nominal = _replay(match)
+    nominal = _replay(match)[2]
     assert np.median(levels[window, 0]) > 2.0 * np.median(nominal[:, 0])
     assert np.all(errors <= levels[:, 0])

@@ -12,8 +12,10 @@ from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.bearing import Bearing
 from beams_common.geometry.pose2d import Pose2D
 from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
-from beams_common.status.protection_level import Integrity
+from beams_common.status.health import Status
+from beams_ekf.ekf_health import EkfHealth
 from beams_ekf.localiser import Localiser, revolution_of
+from beams_ekf.parameters import EKF_PARAMETERS
 from beams_thesis.synthetic import BearingEvent
 
 # the two-sided 95 % chi-square band (3 dof) of one consistent NEES sample
@@ -41,6 +43,8 @@ class ReplayResult:
     counts: dict[str, int] = field(default_factory=dict)
     # (k, 2) horizontal (m) and heading (rad) protection levels at the default integrity risk
     protection_levels: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    # (k,) True where ekf_node's status (its defaults, the arrivals as its receiving clock) says tracking
+    tracking: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     def errors(self) -> np.ndarray:
         """(k, 3) estimate - truth, heading wrapped."""
@@ -79,7 +83,8 @@ def replay(
 ) -> ReplayResult:
     """Feed odometry (arriving at its stamp), bearings and ToTal's fixes (arriving at `arrival_s`; at
     one instant the bearings first, as one revolution) in arrival order, after an operator's
-    `initial_pose` at the first odometry stamp."""
+    `initial_pose` at the first odometry stamp. Each estimate gets ekf_node's protection level and status
+    (`EkfHealth.verdict` as `_update_diagnostics` asks it, the arrival times as the receiving clock)."""
     start = planar_pose_intake(
         PoseSource.OPERATOR, float(odometry_times_s[0]), initial_pose, initial_covariance
     )
@@ -87,12 +92,13 @@ def replay(
     events = [(b.arrival_s, 0, b) for b in bearings] + [(f.arrival_s, 1, f) for f in fixes]
     events.sort(key=lambda event: event[:2])
     by_arrival = [(a, [event[2] for event in group]) for a, group in groupby(events, key=lambda e: e[0])]
-    times, estimates, covariances, truths, levels = [], [], [], [], []
-    integrity = Integrity.default()
+    times, estimates, covariances, truths, levels, tracking = [], [], [], [], [], []
+    health = EkfHealth(EKF_PARAMETERS.defaults(), float(odometry_times_s[0]))
     k = 0
     for arrival_s, arrived in by_arrival:
         while k < len(odometry_times_s) and odometry_times_s[k] <= arrival_s:
             localiser.on_odometry(float(odometry_times_s[k]), tuple(odometry_poses[k]))
+            health.on_odometry(float(odometry_times_s[k]))
             k += 1
         revolution = [
             Bearing(
@@ -102,6 +108,7 @@ def replay(
             if isinstance(b, BearingEvent)
         ]
         if revolution:
+            health.on_bearings(arrival_s)
             localiser.on_bearings(revolution_of(localiser, revolution))
         for fix in (f for f in arrived if isinstance(f, PoseEvent)):  # as ekf_node takes beams/pose
             localiser.on_pose(planar_pose_intake(PoseSource.TOTAL, fix.stamp_s, fix.pose, fix.covariance))
@@ -111,8 +118,21 @@ def replay(
             estimates.append(estimate.pose)
             covariances.append(estimate.covariance)
             truths.append(truth_at(estimate.stamp_s))
-            level = integrity.level(estimate.covariance, estimate.fault_shifts, estimate.fault_covariances)
+            level = health.integrity.level(
+                estimate.covariance, estimate.fault_shifts, estimate.fault_covariances
+            )
             levels.append((level.horizontal_m, level.heading_rad))
+            last_bearing_s = localiser.stats.last_bearing_stamp_s
+            verdict = health.verdict(
+                arrival_s,
+                initialised=True,
+                nis_lost=localiser.nis_monitor.lost,
+                kidnap_suspected=localiser.kidnap.suspected,
+                bearing_silence_s=estimate.stamp_s - last_bearing_s if last_bearing_s else float("inf"),
+                unconfirmed=localiser.unconfirmed,
+                protection=level,
+            )
+            tracking.append(verdict.status is Status.TRACKING)
     return ReplayResult(
         np.array(times),
         np.array(estimates),
@@ -120,6 +140,7 @@ def replay(
         np.array(truths),
         dict(localiser.stats.counts),
         np.array(levels).reshape(-1, 2),
+        np.array(tracking, dtype=bool),
     )
 
 
