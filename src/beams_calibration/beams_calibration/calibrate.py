@@ -509,7 +509,7 @@ def exclude_blunders(
     """The rows of the configurations to keep, and a warning naming each blunder excluded.
 
     The worst configuration after the fit is a candidate when it exceeds CANDIDATE_RATIO medians; the fit
-    is redone without it (step 7 of Algorithm 7.1, from the fit) and it is excluded when its residual
+    is redone without it (step 7 of Algorithm 7.1) and it is excluded when its residual
     against that leave-one-out prediction still does. CalibrationRefusedError when more than
     MAX_BLUNDER_FRACTION of the configurations are excluded.
     """
@@ -526,7 +526,9 @@ def exclude_blunders(
         if after_fit[worst] <= max(CANDIDATE_RATIO * np.median(after_fit), BLUNDER_FLOOR_M):
             return keep, warnings
         others = np.delete(keep, worst)
-        refitted, _ = optimise_groups(problem, fitted, list(GROUPS), fold_options, rows=others)
+        # from the fit, or from no calibration when the blunder has dragged the fit farther off
+        start = min((fitted, np.zeros(PARAMETER_COUNT)), key=lambda v: problem.objective(v, others))
+        refitted, _ = optimise_groups(problem, start, list(GROUPS), fold_options, rows=others)
         scale = float(np.median(residuals(refitted, others)))
         predicted = float(residuals(refitted, keep[worst : worst + 1])[0])
         if predicted <= max(BLUNDER_RATIO * scale, BLUNDER_FLOOR_M):
