@@ -223,17 +223,16 @@ def capture_bearing_problem(
     bearings = {o.beacon_id: o.bearing_rad for o in observations}
     fix = triangulate(beacon_map.subset(ids), [bearings.get(i, math.nan) for i in ids])
     if not fix.ok:
-        return f"the bearings give no pose for the reference pose {_pose_text(*pose)}: {fix.reason}"
+        return f"the bearings give no pose for reference pose {_pose_text(*pose)}: {fix.reason}"
     distance = math.hypot(fix.x - pose[0], fix.y - pose[1])
     turn = abs(float(wrap_to_pi(fix.heading - pose[2])))
     if distance <= CAPTURE_POSITION_TOLERANCE_M and turn <= CAPTURE_HEADING_TOLERANCE_RAD:
         return ""
     return (
-        f"the reference pose {_pose_text(*pose)} is {distance:.3f} m and {math.degrees(turn):.1f} deg from "
-        f"the pose its bearings give {_pose_text(fix.x, fix.y, fix.heading)} (ToTal on the a-priori map; "
-        f"an uncalibrated sensor is within {CAPTURE_POSITION_TOLERANCE_M} m and "
-        f"{math.degrees(CAPTURE_HEADING_TOLERANCE_RAD):.0f} deg): is the heading off by pi, "
-        "the pose mirrored or mistyped?"
+        f"reference pose {_pose_text(*pose)} is {distance:.3f} m and {math.degrees(turn):.1f} deg from "
+        f"the pose its bearings give {_pose_text(fix.x, fix.y, fix.heading)} (uncalibrated: within "
+        f"{CAPTURE_POSITION_TOLERANCE_M} m, {math.degrees(CAPTURE_HEADING_TOLERANCE_RAD):.0f} deg): "
+        "theta off by pi? mirrored? mistyped?"
     )
 
 

@@ -22,6 +22,7 @@ from beams_calibration.dataset import (
 )
 from beams_common.calibration import calibration_file
 from beams_common.geometry.beacon_map import BeaconMap
+from beams_common.intake.validation import MAX_REASON_CHARS
 
 PRIOR = BeaconMap.from_lists((1, 2, 3), (1.151, 0.600, 0.049), (0.049, 0.907, 0.049))
 
@@ -162,7 +163,8 @@ def test_a_mistyped_reference_pose_is_refused_with_both_poses(thesis_captures, n
     pose = mistake(configuration.x_m, configuration.y_m, configuration.theta_rad)
     problem = capture_bearing_problem(pose, configuration.observations, thesis_captures.beacon_map)
     stated = f"({pose[0]:.3f} m, {pose[1]:.3f} m, {math.degrees(pose[2]):.1f} deg)"
-    assert f"the reference pose {stated} is" in problem, name
+    assert problem.startswith(f"reference pose {stated} is"), name
+    assert len(f"refused: {problem} (force: true records it)") <= MAX_REASON_CHARS  # the reply is not cut
     given = re.search(r"the pose its bearings give \((\S+) m, (\S+) m, (\S+) deg\)", problem)
     assert given, problem
     x_m, y_m, theta_deg = map(float, given.groups())
