@@ -409,6 +409,10 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
         self.publisher.publish(msg)
         self.diagnostics.increment("revolutions")
         self.diagnostics.increment("bearings", len(msg.bearings))
+        # windows outside the calibrated ones: the power bias is held at its edge value, not extrapolated
+        held = int(sum(self.correction.holds_power_bias(b.angular_window) for b in decoded.bearings))
+        if held:
+            self.diagnostics.increment("bearings_power_bias_held", held)
         for rejection in decoded.rejections:
             self.diagnostics.increment(f"rejected_{rejection.kind}")
         self.diagnostics.set("calibrated", msg.calibrated)

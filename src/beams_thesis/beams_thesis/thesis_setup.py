@@ -4,7 +4,6 @@ configurations), eq. 7.23 (the rotation experiment's 24 orientations). `thesis_s
 thesis's prototype, so that `thesis_dataset` plays the part of its recordings."""
 
 import argparse
-import math
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
@@ -17,6 +16,7 @@ from beams_calibration.dataset import Configuration, Dataset, average_capture, n
 from beams_calibration.reference_layout import PRIOR_BEACONS, REFERENCE_ORIENTATIONS, REFERENCE_POSITIONS
 from beams_common.calibration.bearing_correction import (
     IDENTITY_CORRECTION,
+    THESIS_CALIBRATION_WINDOW_RANGE_RAD,
     THESIS_POWER_BIAS_COEFFICIENTS,
     THESIS_ROTATION_BIAS_COEFFICIENTS,
     BearingCorrection,
@@ -168,10 +168,6 @@ def capture_dataset(
     return Dataset(prior_map, tuple(configurations))
 
 
-# the angular windows of the calibration grid (0.3-1.3 m from the beacons: 7.4-10.3 deg), with a margin
-THESIS_GRID_WINDOW_RANGE_RAD = (math.radians(5.0), math.radians(13.0))
-
-
 def thesis_hardware_config() -> SensorSimConfig:
     """The thesis-hardware receiver (`SensorSimConfig.thesis_hardware`) with chapter 7's power bias: the cubic
     the global calibration fitted on the real recordings (figure 7.11, 0.31 deg here), since section 5.7's,
@@ -183,7 +179,7 @@ def thesis_hardware_config() -> SensorSimConfig:
     hardware = replace(
         base.hardware,
         power_bias_coefficients=THESIS_POWER_BIAS_COEFFICIENTS,
-        power_bias_range_rad=THESIS_GRID_WINDOW_RANGE_RAD,
+        power_bias_range_rad=THESIS_CALIBRATION_WINDOW_RANGE_RAD,
     )
     return SensorSimConfig.thesis_hardware(hardware=hardware)
 
