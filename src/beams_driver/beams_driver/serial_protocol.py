@@ -7,71 +7,10 @@ link: `FrameEncoder` (what the firmware, or the simulator standing in for it, se
 (bytes in, events out) and `RevolutionAssembler` (events in, `RevolutionEdges` out). The firmware is
 firmware/turret/ (docs/firmware.md).
 
-Version 2: the host assumes neither a timer rate nor a baud rate. The thesis's PIC ran a 625 kHz timer
-(62400 ticks per revolution at 10.016 turn/s); the reference board, an ATmega328P at 16 MHz, cannot make
-625 kHz, and its timer runs at 2 MHz (200000 ticks per revolution at 10 turn/s). The device says which
-in a hello frame, sent at start-up and every 262 ms; the host converts ticks to seconds with it
-and refuses a device of another protocol version with the reason. Every capture carries its 32-bit
-timer count (overflow-extended on the device; it wraps after 2^32 ticks, 35 min at 2 MHz), so the host
-never has to guess how many 16-bit wraps passed, even across lost frames. Frames leave the device in
-the order its interrupts queued them, which may differ from time order by a few ticks (a zero reference
-and an edge latched together); the host takes the difference between consecutive counts signed.
-
-Frame layout (multi-byte fields little-endian)::
-
-    offset  size  field
-    0       1     sync 1 = 0xA5
-    1       1     sync 2 = 0x5B (protocol v1 used 0x5A: the two protocols never share a frame)
-    2       1     kind: 0x01 rising edge, 0x02 falling edge, 0x03 zero reference, 0x04 heartbeat,
-                  0x05 missed edge, 0x10 hello
-    3       1     sequence number, +1 per event captured (modulo 256), numbered at capture time
-    4       4     timer count at the event (uint32, device ticks)
-    8       14    hello only: version (uint8), flags (uint8; bit 0: first hello since the device's reset),
-                  timer frequency (uint32, Hz), nominal ticks per turret revolution (uint32), events the
-                  device dropped since its reset (uint32; its ring buffer was full)
-    8 / 22  2     CRC-16/CCITT-FALSE of every byte from the kind to the end of the fields
-                  (poly 0x1021, init 0xFFFF, no reflection, xorout 0)
-
-An event frame is 10 bytes, a hello 24. The CRC is the one `binascii.crc_hqx(data, 0xFFFF)` computes
-(check value of b"123456789": 0x29B1).
-
-Kinds:
-- rising / falling edge: the receiver output went 0 -> 1 / 1 -> 0 (section 2.4.3, phi_R and phi_F);
-- zero reference: the turret passed the optical switch (section 2.4.2); it opens a revolution;
-- missed edge: the receiver's pin changed again before the firmware armed the capture for it (a pulse
-  or gap of a few us, docs/firmware.md), so an edge after the previous event and before this frame's
-  count was not captured; the host drops what it touches as it does lost frames (a host that does not
-  know the kind sees a lost frame: the gap in the sequence numbers);
-- heartbeat: sent periodically (every 32.8 ms by the firmware: once per wrap of its 16-bit timer), so
-  that a live device is never silent (no beacon in sight, the turret stopped) and consecutive frames are
-  always far less than 2^31 ticks apart;
-- hello: the device's protocol version and clock (see above); its layout is the same in every version,
-  so that a host can always tell which version a device speaks.
-
-Lost frames: the firmware numbers each event when it is captured, before it is queued; an event its
-ring buffer has no room for is dropped, and the gap in the sequence numbers tells the host (counted as
-"lost_frames"), as does the hello's dropped-events counter (`DeviceHello.dropped_events`).
-
-Examples (hex)::
-
-    hello v2,        seq 0, timer 0x00000000, 2 MHz, 200000 ticks/rev, boot, none dropped:
-                     A5 5B 10 00 00 00 00 00 02 01 80 84 1E 00 40 0D 03 00 00 00 00 00 5E 23
-    rising edge,    seq 1,   timer 0x00012345:  A5 5B 01 01 45 23 01 00 9F DF
-    falling edge,   seq 2,   timer 0x000123A1:  A5 5B 02 02 A1 23 01 00 B6 B1
-    zero reference, seq 255, timer 0xFFFFFFF0:  A5 5B 03 FF F0 FF FF FF 7E D7
-
-Link: 500000 baud, 8N1 by default (exact from 16 MHz: UBRR 3 with U2X), 5000 event frames/s at most.
-
-Host side. The parser hunts for the sync pair and checks the CRC and the kind; on a bad checksum it
-drops the candidate's sync pair and hunts again from the byte after it, so that a corrupted byte, a
-truncated frame (another sync pair starts inside the candidate) or a bad checksum costs only the frames
-it touches. Every drop is counted by reason in `FrameParser.drops`. Events before the first hello are
-dropped (the host does not know the device's clock yet). A version-1 frame (sync A5 5A, valid v1
-checksum) is recognised and counted, and a stream of them sets `FrameParser.problem`: the device runs the
-old firmware. A gap in the sequence numbers marks the next event `after_gap`, and the assembler then
-discards the revolution it falls in (its edges are incomplete). The angle of an edge is 2*pi * (ticks
-since the revolution's zero reference) / (ticks between the two zero references that bound the
-revolution) (eq. 2.1 with the measured turret speed).
+The frame layout, the kinds, examples and the host's handling of bad and lost frames are in
+docs/firmware.md ("Frames"). The angle of an edge is 2*pi * (ticks since the revolution's
+zero reference) / (ticks between the two zero references that bound the revolution) (eq. 2.1 with the
+measured turret speed).
 """
 
 import binascii
