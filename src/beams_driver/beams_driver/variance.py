@@ -35,16 +35,6 @@ GRID_POINTS_PER_BIT = 64
 _GAUSS_NODES = np.array([-1.0, 1.0]) / np.sqrt(3.0)
 
 
-def variance_bound_rad2(code: BeaconCode, turret_speed_rad_s: float = TURRET_SPEED_RAD_S) -> float:
-    """Theorem 3.1 (eq. 3.41): sigma^2 <= p0 phi0^2 / 6 (generalised to unequal gaps by the code)."""
-    return code.variance_bound_s2 * turret_speed_rad_s**2
-
-
-def edge_variance_rad2(p0: float, phi0_rad: float) -> float:
-    """Variance of one edge, sigma_r^2 = p0 phi0^2/3 - p0^2 phi0^2/4 (eq. 3.8): the first bound (eq. 3.18)."""
-    return p0 * phi0_rad**2 / 3.0 - p0**2 * phi0_rad**2 / 4.0
-
-
 # ---- section 4.2.3: the closed form for the code family ----
 
 
@@ -128,17 +118,6 @@ def family_normalized_variance(index: int, n_codes: int, window_over_phi0: Array
         chosen = k == segment
         result[chosen] = polynomial(m[chosen] - start)
     return np.where(x < 1.0, _p_0(np.minimum(x, 1.0), p0), result)
-
-
-def family_minimum_windows_over_phi0(index: int, n_codes: int, periods: Sequence[int]) -> np.ndarray:
-    """Local minima of the variance (units of phi0), eq. 4.80 (code Nc) and 4.81 (others)."""
-    root = np.sqrt(2.0) - 1.0
-    k = np.asarray(periods, dtype=float)
-    if index == n_codes:
-        return (n_codes + 1) * (1.0 + k) + root
-    period = 2 * n_codes + 2
-    starts = np.array([index + 1, 2 * n_codes + 1 - index, period], dtype=float)
-    return np.sort((starts[None, :] + root + period * k[:, None]).ravel())
 
 
 # ---- section 4.4: every shift of the code against the window ----
