@@ -483,39 +483,10 @@ class RevolutionAssembler:
     The angle of an edge is 2*pi times its ticks since the opening zero reference over the ticks of the
     whole revolution (eq. 2.1, the turret speed measured over that revolution). Times are the device's
     ticks divided by its timer frequency plus `time_offset_s` (which the owner may update to map the device
-    clock onto its own). The timer frequency and the nominal ticks per revolution come from the device's
-    hello (a HELLO event); given here, they hold until a hello says otherwise. Drops counted in `drops`
-    (revolutions unless stated):
-    - "edges_before_zero_reference": edges before the first zero reference (edges);
-    - "edges_before_hello": edges while the device's clock is unknown (edges);
-    - "revolution_with_gap": a revolution during which frames were lost or rejected (lost_frames_cost
-      "revolution", or where the loss cannot be placed);
-    - "revolution_with_lost_frames": published all the same (lost_frames_cost "window"): the interval
-      between the received events around each loss (or before a missed-edge event: the same) is in
-      `lost_angles_rad`, and the decoder rejects the windows it touches (an edge lost inside a window
-      never gives a bearing);
-    - "bad_revolution_period": a revolution whose length is implausible against the measured turret speed
-      (below), or off the nominal by more than `period_tolerance` (the turret stalled or sped up, a zero
-      reference was missed or a spurious one closed it);
-    - "edges_out_of_order": a revolution whose edges' counts go back in time (only a frame forged by
-      line noise that passed the checksum does that);
-    - "zero_reference_too_early": zero references ignored (zero references, not revolutions): one less
-      than `period_tolerance` of a turn after the revolution opened (switch bounce, noise), or a slightly
-      early one the next zero reference showed to be spurious (it closed the revolution at the measured
-      length).
-
-    The measured turret speed (section 2.4.2: the angle is eq. 2.1 with the speed measured over the
-    revolution, so a spurious zero reference that shortens a revolution by 1.2 % turns every bearing of
-    it by up to 0.075 rad): the expected length is the median of the last `MEASURED_SPANS` revolution
-    lengths within the nominal gate, the tolerance `SPAN_SIGMAS` times their robust spread (1.4826 MAD),
-    at least `min_tolerance_s`; until `MIN_MEASURED_SPANS` lengths are known, the nominal length from the
-    hello with `min_tolerance_s`. A revolution is published only when its length is within that tolerance:
-    a bearing then carries at most 2*pi*tolerance/length of error from the turret speed (1.3 mrad for
-    20 us at 10 turn/s, below the bearing's own standard deviation, about 0.7 mrad). A zero reference a
-    little early (between `period_tolerance` and the tolerance) is held until the next one says whether
-    it was spurious (the next one closes the revolution at the measured length) or the turret sped up.
-    Lengths refused but within the nominal gate still enter the estimate, so a turret whose speed really
-    changed is followed after a few revolutions.
+    clock onto its own). The clock comes from the device's hello (a HELLO event); given here, it holds
+    until a hello says otherwise. docs/serial_integrity.md says how a revolution's length is judged
+    against the measured turret speed (section 2.4.2) and what each drop reason in `drops` means (counted
+    in revolutions, but edges for "edges_before_*" and zero references for "zero_reference_too_early").
     """
 
     def __init__(

@@ -1,18 +1,9 @@
 """The real-hardware edge source: the BeAMS sensor's serial stream (see `serial_protocol`) read with pyserial.
 
 `SerialEdgeSource.read()` returns the revolutions completed by the bytes that arrived, as
-`RevolutionEdges` stamped on the host's clock, and never raises once the source is open: a device that
-disappears (unplugged, USB reset) is closed and reopened with an exponential back-off, its loss and
-return are logged and counted, and bad bytes are counted drops (see `FrameParser` and
-`RevolutionAssembler`). A device that comes back at the same path (a udev /dev/serial/by-id/ link) is
-reopened on the next read, whatever the back-off. Only `open()` raises, with a one-line message that
-says what to fix, when the device path does not exist or cannot be opened at start-up (permission
-denied, a baud rate the port refuses). Bytes that never form a valid frame (the sensor talks at
-another baud rate), a device of another protocol version (its hello, or the old firmware's v1 frames)
-and frames without a hello are reported by `stream_problem`. As an EdgeSource (`SerialSource`), it says
-ERROR on /diagnostics while no zero reference comes although frames arrive (the turret stopped, its
-switch unplugged) or no frame comes at all, and WARNs for a while after lost frames, spurious zero
-references or revolutions of implausible length (docs/serial_integrity.md).
+`RevolutionEdges` stamped on the host's clock, and never raises once the source is open: a lost device
+is reopened with an exponential back-off, bad bytes are counted drops. Only `open()` raises, with a
+one-line message that says what to fix. What a user sees of each fault is in docs/serial_integrity.md.
 
 Device time to host time: the device's timer starts anywhere, so the source maps it onto the host clock
 with the smallest observed (arrival - capture) offset, the one with the least transmission delay;
