@@ -68,13 +68,9 @@ def run_node(
     callbacks passes events_executor=False: Jazzy's EventsExecutor does not run them. The environment
     variable BEAMS_EXECUTOR=single_threaded puts every node back on rclpy's SingleThreadedExecutor.
 
-    Hot standby (beams_common.ros.standby): the process first takes its node's role (ROS_DOMAIN_ID
-    and the fully qualified name its remaps give to the node's own name, which is its executable's in
-    this suite: test/static/test_node_names.py). Started with `--standby` before --ros-args, it waits,
-    its modules imported but no rclpy context or DDS participant made, until the role is free, and only
-    then starts the node; a stop signal while it waits ends it with 0. Started without, it runs whether
-    the role is free or not (a second instance: one WARN line; the graph watch of the others says the
-    duplicate, beams_common.ros.input_watch).
+    Hot standby (beams_common.ros.standby): the process first takes its node's role; started with
+    `--standby` before --ros-args, it waits for the role before it makes any rclpy context (a stop signal
+    while it waits ends it with 0); started without, it runs beside a holder with one WARN line.
 
     Every stop signal, however many and whenever they come, ends in the same quiet shutdown (see
     _catch_stop_signals): returns 0 (no traceback), and EXIT_INVALID_PARAMETERS when the node refused
