@@ -285,16 +285,8 @@ class Drops(Counter[str]):
 class FrameParser:
     """Incremental stream parser: `feed(bytes)` returns the events of every complete, valid frame.
 
-    Drop reasons counted in `drops` (frames unless stated):
-    - "garbage_bytes": bytes skipped while hunting for a sync pair (bytes, not frames);
-    - "bad_crc": a candidate frame whose checksum does not match;
-    - "truncated": a candidate cut short by the next frame's sync pair (so its checksum fails too);
-    - "unknown_kind": an event frame with a valid checksum but a kind this host does not know;
-    - "lost_frames": frames missing according to the sequence numbers;
-    - "before_hello": events before the device's first hello (its clock is not known yet);
-    - "incompatible_device": events from a device whose hello this host refuses (`problem` says why);
-    - "protocol_v1_frames": well-formed frames of protocol version 1 (the old firmware).
-    `missed_edges` counts the device's missed-edge frames (not a drop: the frame says an edge is missing).
+    Drops are counted by reason in `drops` (docs/serial_integrity.md lists the reasons); `missed_edges`
+    counts the device's missed-edge frames (not a drop: the frame says an edge is missing).
     Byte accounting: bytes fed = FRAME_SIZE * event_frames + HELLO_SIZE * hellos + V1_FRAME_SIZE *
     protocol_v1_frames + 2 * (bad_crc + truncated) + garbage_bytes + pending bytes, where `event_frames`
     counts the well-formed event frames (used, dropped or of an unknown kind) and `hellos` the hello
@@ -485,8 +477,7 @@ class RevolutionAssembler:
     ticks divided by its timer frequency plus `time_offset_s` (which the owner may update to map the device
     clock onto its own). The clock comes from the device's hello (a HELLO event); given here, it holds
     until a hello says otherwise. docs/serial_integrity.md says how a revolution's length is judged
-    against the measured turret speed (section 2.4.2) and what each drop reason in `drops` means (counted
-    in revolutions, but edges for "edges_before_*" and zero references for "zero_reference_too_early").
+    against the measured turret speed (section 2.4.2) and what each drop reason in `drops` means.
     """
 
     def __init__(
