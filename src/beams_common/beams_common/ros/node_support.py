@@ -247,14 +247,8 @@ def serve_calibration_reload(node: Node, apply: Callable[[SensorCalibration], st
 class Diagnostics:
     """Counters and a status published on /diagnostics once a second (diagnostic_msgs).
 
-    A refusal (`refuse`) is counted, logged (each key at most once a second) and shown: the next
-    publication is at least WARN with its reason, whatever the node's status became meanwhile. A
-    condition (`set_condition`: a second publisher on an input, say) holds the status at least at its
-    level, with its reason, until it is cleared or its hold time ends; `callback_failed` is one such
-    (ERROR for CALLBACK_FAULT_HOLD_S after the last exception a callback let out). Every text is bounded
-    in length (`validation.bounded`). Under use_sim_time, while no /clock has come, a status "waiting for
-    /clock" is published on the steady (wall) clock, with a log line every WAITING_LOG_PERIOD
-    publications.
+    The status is at least as bad as the last refusal (`refuse`) and every condition in force
+    (`set_condition`, `callback_failed`); every text is bounded in length (`validation.bounded`).
     """
 
     WAITING_FOR_CLOCK = "waiting for /clock (use_sim_time is true): no time, nothing processed"
