@@ -1,13 +1,7 @@
-"""Variance of a BeAMS bearing against the angular window (thesis chapters 3 and 4).
-
-- `family_normalized_variance`: the exact piecewise model of section 4.2.3 (cases 0, A-E, eq. 4.69-4.76,
-  with the erratum of eq. 4.75 fixed), sigma^2 / (p0 phi0^2 / 6) as a function of phi_W / phi0;
-- `enumerated_variance_s2`: the method of section 4.4 for any code: every shift of the code against
-  the window, here integrated exactly (the errors are piecewise linear in the shift);
-- `VarianceModel`: what the decoder uses, per code and window, in one of three modes:
-  "exact" (closed form for the family, a precomputed enumeration lookup otherwise),
-  "bound" (theorem 3.1, p0 phi0^2 / 6) or "constant"; plus a configurable natural variance, constant or
-  linear in the window (the AGC's edge noise grows with it, section 5.5; fitted by `noise_estimation`).
+"""Variance of a BeAMS bearing against the angular window (thesis chapters 3 and 4): the family's closed
+form (section 4.2.3, eq. 4.69-4.76), the enumeration over every shift for any code (section 4.4), and
+`VarianceModel`, what the decoder uses per code and window: "exact", "bound" (theorem 3.1) or "constant",
+plus a natural variance constant or linear in the window (section 5.5, fitted by `noise_estimation`).
 """
 
 from bisect import bisect_right
