@@ -4,12 +4,6 @@
 `RevolutionEdges` stamped on the host's clock, and never raises once the source is open: a lost device
 is reopened with an exponential back-off, bad bytes are counted drops. Only `open()` raises, with a
 one-line message that says what to fix. What a user sees of each fault is in docs/serial_integrity.md.
-
-Device time to host time: the device's timer starts anywhere, so the source maps it onto the host clock
-with the smallest observed (arrival - capture) offset, the one with the least transmission delay;
-the offset may grow by `max_clock_drift` s/s to follow a device clock that runs slow. The device's
-timer frequency comes from its hello (protocol v2); a device that resets or changes its clock starts the
-mapping afresh.
 """
 
 import contextlib
@@ -330,7 +324,9 @@ class SerialEdgeSource:
         self._next_drop_log_s = now + self.drop_log_period_s
 
     def _update_clock(self, events: list[FrameEvent], arrival_s: float) -> None:
-        """Map device ticks onto the host clock with the least-delayed arrival seen so far."""
+        """Map device ticks (its timer starts anywhere) onto the host clock with the smallest (arrival -
+        capture) offset seen, the least delayed, allowed to grow by `max_clock_drift` s/s (a device clock
+        that runs slow); a device reset or a new clock starts the mapping afresh."""
         if not events or self.parser.device is None:
             return
         device = self.parser.device
