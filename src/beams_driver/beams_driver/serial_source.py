@@ -396,28 +396,24 @@ SERIAL_PARAMETERS = (
 )
 SERIAL_POLL_PERIOD_S = 0.01
 # The drops /diagnostics warns about while recent, and what each means for the operator.
-WARNED_DROPS = (
-    (
-        "lost_frames",
+WARNED_DROPS = {
+    "lost_frames": (
         "the turret lost {count} frames in the last {window} s: more edges than the link carries "
-        "(its queue overflowed) or line noise; the {cost}s they touched were dropped",
+        "(its queue overflowed) or line noise; the {cost}s they touched were dropped"
     ),
-    (
-        "zero_reference_too_early",
+    "zero_reference_too_early": (
         "{count} spurious zero references in the last {window} s (switch bounce or "
-        "noise on its line): ignored",
+        "noise on its line): ignored"
     ),
-    (
-        "missed_edges",
+    "missed_edges": (
         "the turret missed {count} receiver edges in the last {window} s (pulses or gaps of a few us: a "
-        "glitching receiver); the {cost}s they touched were dropped",
+        "glitching receiver); the {cost}s they touched were dropped"
     ),
-    (
-        "bad_revolution_period",
+    "bad_revolution_period": (
         "{count} revolutions of implausible length in the last {window} s (the turret "
-        "stalled or changed speed, or a zero reference was missed): refused",
+        "stalled or changed speed, or a zero reference was missed): refused"
     ),
-)
+}
 
 
 class SerialSource:
@@ -495,7 +491,7 @@ class SerialSource:
             )
         warnings = [
             text.format(count=recent[reason], window=f"{RECENT_DROPS_WARN_S:.0f}", cost=self.lost_frames_cost)
-            for reason, text in WARNED_DROPS
+            for reason, text in WARNED_DROPS.items()
             if recent[reason]
         ]
         if warnings:
