@@ -139,8 +139,8 @@ def crc16(data: bytes) -> int:
     return binascii.crc_hqx(data, _CRC_INIT)
 
 
-def _framed(body: bytes) -> bytes:
-    return SYNC + body + _CRC.pack(crc16(body))
+def _framed(body: bytes, sync: bytes = SYNC) -> bytes:
+    return sync + body + _CRC.pack(crc16(body))
 
 
 def encode_frame(kind: EventKind | int, sequence: int, timer: int) -> bytes:
@@ -151,8 +151,7 @@ def encode_frame(kind: EventKind | int, sequence: int, timer: int) -> bytes:
 def encode_v1_frame(kind: int, sequence: int, timer: int) -> bytes:
     """A protocol v1 frame, what the old firmware sends (sync A5 5A, kind, sequence, 16-bit timer, CRC):
     the parser recognises them to name the old firmware."""
-    body = _V1_BODY.pack(kind, sequence & 0xFF, timer % (1 << 16))
-    return V1_SYNC + body + _CRC.pack(crc16(body))
+    return _framed(_V1_BODY.pack(kind, sequence & 0xFF, timer % (1 << 16)), V1_SYNC)
 
 
 def encode_hello(sequence: int, timer: int, hello: DeviceHello) -> bytes:
@@ -188,7 +187,6 @@ class FrameEncoder:
         self.version = version
         self.dropped_events = 0
         self._heartbeat_ticks = max(1, round(HEARTBEAT_PERIOD_S * timer_hz))
-        self._heartbeats_per_hello = HEARTBEATS_PER_HELLO
         self._next_periodic: int | None = None
         self._periodic_count = 0
         self._booted = False
@@ -206,7 +204,7 @@ class FrameEncoder:
             due = self._next_periodic
             out += (
                 self._hello(due)
-                if self._periodic_count % self._heartbeats_per_hello == 0
+                if self._periodic_count % HEARTBEATS_PER_HELLO == 0
                 else self._frame(EventKind.HEARTBEAT, due)
             )
             self._next_periodic += self._heartbeat_ticks
