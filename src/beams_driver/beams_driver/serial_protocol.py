@@ -403,7 +403,9 @@ class FrameParser:
             self.problem = ""
         kind, sequence, timer = _HEADER.unpack_from(body)
         if kind == _HELLO_KIND:
-            event = self._hello(sequence, timer, DeviceHello(*_hello_fields(body)))
+            version, flags, timer_hz, ticks, dropped = _HELLO_FIELDS.unpack_from(body, _HEADER.size)
+            hello = DeviceHello(version, timer_hz, ticks, dropped, bool(flags & _HELLO_BOOT_FLAG))
+            event = self._hello(sequence, timer, hello)
         else:
             self.event_frames += 1
             event_kind = _EVENT_KIND_OF.get(kind)
@@ -456,11 +458,6 @@ class FrameParser:
             self.missed_edges += 1
             self.drops.notify("missed_edges")  # heard as a drop: the windows it touches are dropped
         return event
-
-
-def _hello_fields(body: bytes) -> tuple[int, int, int, int, bool]:
-    version, flags, timer_hz, ticks_per_revolution, dropped = _HELLO_FIELDS.unpack_from(body, _HEADER.size)
-    return version, timer_hz, ticks_per_revolution, dropped, bool(flags & _HELLO_BOOT_FLAG)
 
 
 def _clock_of(hello: DeviceHello) -> tuple[int, int]:
