@@ -4,10 +4,8 @@ Publishes `beams/bearings` and `/diagnostics`. Every source (`source` parameter,
 the same decoder and variance model; the calibration file's corrections (thesis ch. 7) are applied to the
 published bearings.
 
-A lifecycle node: configure validates and builds, opening nothing; activate creates the source and publishes;
-deactivate stops polling and publishing; cleanup releases the source; shutdown releases everything. With
-`autostart` (the default) it configures and activates itself and exits 2 on a parameter it cannot run with;
-without, a failed transition leaves it in its previous state with the reason logged."""
+A lifecycle node (its transitions and `autostart`: docs/nodes.md); a failed transition leaves it in its
+previous state with the reason logged."""
 
 import sys
 import traceback

@@ -24,17 +24,7 @@ Pose2D = tuple[float, float, float]
 START_POSE: Pose2D = tuple(SIM_WORLD_PARAMETERS.default("start_pose"))
 
 # Uniform cubic B-spline: position on a segment is [u^3 u^2 u 1] @ _BSPLINE @ [Q0 Q1 Q2 Q3].
-_BSPLINE = (
-    np.array(
-        [
-            [-1.0, 3.0, -3.0, 1.0],
-            [3.0, -6.0, 3.0, 0.0],
-            [-3.0, 0.0, 3.0, 0.0],
-            [1.0, 4.0, 1.0, 0.0],
-        ]
-    )
-    / 6.0
-)
+_BSPLINE = np.array([[-1, 3, -3, 1], [3, -6, 3, 0], [-3, 0, 3, 0], [1, 4, 1, 0]], dtype=float) / 6.0
 _SAMPLES_PER_SEGMENT = 1024
 
 

@@ -26,9 +26,7 @@ from rosbags.rosbag2 import Reader, ReaderError, WriterError
 
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.interfaces import topics
-from beams_common.ros.messages import (
-    pose2d_of,
-)
+from beams_common.ros.messages import pose2d_of
 from beams_ekf.outcomes import Estimate
 from beams_ekf.parameters import EKF_PARAMETERS
 from beams_tools.bag_events import (
