@@ -69,7 +69,8 @@ def gate(inverse_abs_d: float, covariance: np.ndarray, config: GateConfig) -> tu
     """(accepted, reason): the 1/|D| gate first (the thesis's criterion), then the propagated std."""
     if not inverse_abs_d < config.max_inverse_abs_d:
         return False, f"1/|D| = {inverse_abs_d:.3g} m^-2 above the gate {config.max_inverse_abs_d:g}"
-    std = math.sqrt(covariance[0, 0] + covariance[1, 1])
+    # Python floats: a covariance near the largest float sums to inf (refused below), not a numpy warning
+    std = math.sqrt(float(covariance[0, 0]) + float(covariance[1, 1]))
     if not std < config.max_position_std_m:
         return False, f"position std {std:.3g} m above the gate {config.max_position_std_m:g} m"
     return True, ""
