@@ -62,13 +62,14 @@ FAST_WORKERS ?= 2
 FAST_PARALLEL := $(if $(filter-out 0 1,$(FAST_WORKERS)),-n $(FAST_WORKERS) --dist loadfile --no-loadscope-reorder)
 DDS_WORKERS ?= 2
 DDS_PARALLEL := $(if $(filter-out 0 1,$(DDS_WORKERS)),-n $(DDS_WORKERS) --dist loadfile --no-loadscope-reorder)
-# a DDS test that fails runs again, up to DDS_RERUNS times (separate processes timed on 2 shared cores:
-# the campaign's availability fails beside another worker and passes alone, its re-initialisation loops
-# after a fault); -raR lists every rerun in the summary
+# a DDS test that fails runs again, up to DDS_RERUNS times (separate processes timed on 2 shared cores);
+# -raR lists every rerun in the summary. The tests marked `alone` (the fault campaign: the whole suite on
+# the two cores) run after the others, one at a time.
 DDS_RERUNS ?= 2
 test: build lint hil-if-possible
 	$(ROS_ENV) python -m pytest -m "not dds" $(FAST_PARALLEL) $(PYTEST_ARGS) || [ $$? -eq 5 ]
-	$(ROS_ENV) python -m pytest -m dds $(DDS_PARALLEL) --reruns $(DDS_RERUNS) -raR $(PYTEST_ARGS) || [ $$? -eq 5 ]
+	$(ROS_ENV) python -m pytest -m "dds and not alone" $(DDS_PARALLEL) --reruns $(DDS_RERUNS) -raR $(PYTEST_ARGS) || [ $$? -eq 5 ]
+	$(ROS_ENV) python -m pytest -m "dds and alone" --reruns $(DDS_RERUNS) -raR $(PYTEST_ARGS) || [ $$? -eq 5 ]
 
 ## test-fast: the linters, the firmware harness (when possible) and every test but the DDS tier, on
 ## FAST_WORKERS workers (FAST_WORKERS=1: one process)
