@@ -54,7 +54,8 @@ hil-if-possible:
 ## test: the linters (ruff check, ruff format --check), the firmware and its harness (when the AVR tools
 ## are installed), then every test: the tiers without DDS (unit, scenario with the firmware HIL, thesis,
 ## static) on FAST_WORKERS pytest-xdist workers, then the DDS tier with DDS_WORKERS workers side by side
-## (its tests mostly wait; each claims a ROS_DOMAIN_ID of its own); exit 0 only when all pass. A part with no test in one of the
+## (its tests mostly wait; each claims a ROS_DOMAIN_ID of its own), its `alone` tests last; exit 0 only
+## when all pass. A part with no test in one of the
 ## two runs (exit status 5) is not an error: PYTEST_ARGS="src/beams_ekf -x"
 # Whole files per worker, in collection order: conftest.py puts the longest files first (FILE_SECONDS), so
 # the workers finish together (xdist's own reordering, by number of tests, is turned off)
