@@ -30,6 +30,8 @@ from beams_common.status.health import (
 )
 from beams_common.status.protection_level import Integrity, ProtectionLevel
 from beams_ekf.consistency import ODOMETRY_SILENCE_S
+from beams_ekf.localiser import Localiser
+from beams_ekf.outcomes import Estimate
 
 # No bearing accepted for this long (s, data time): odometry alone carries the estimate.
 MAX_BEARING_SILENCE_S = 1.0
@@ -105,6 +107,37 @@ class EkfHealth:
         if bearing_silence_s > MAX_BEARING_SILENCE_S:
             degraded.append(f"no accepted bearing for {min(bearing_silence_s, 1e6):.1f} s: odometry only")
         return judge("", lost, degraded)
+
+    def judge(
+        self, now_s: float, localiser: Localiser, estimate: Estimate | None
+    ) -> tuple[ProtectionLevel | None, float, Verdict]:
+        """(protection level, bearing silence (s), verdict) of a Localiser's `estimate` (None: none yet): the
+        one reading of its tests that ekf_node and the offline replay share."""
+        if estimate is None:
+            return (
+                None,
+                float("inf"),
+                self.verdict(
+                    now_s,
+                    initialised=False,
+                    nis_lost=False,
+                    kidnap_suspected=False,
+                    bearing_silence_s=float("inf"),
+                ),
+            )
+        level = self.integrity.level(estimate.covariance, estimate.fault_shifts, estimate.fault_covariances)
+        last_s = localiser.stats.last_bearing_stamp_s
+        silence_s = estimate.stamp_s - last_s if last_s is not None else float("inf")
+        verdict = self.verdict(
+            now_s,
+            initialised=True,
+            nis_lost=localiser.nis_monitor.lost,
+            kidnap_suspected=localiser.kidnap.suspected,
+            bearing_silence_s=silence_s,
+            unconfirmed=localiser.unconfirmed,
+            protection=level,
+        )
+        return level, silence_s, verdict
 
     def _odometry_rate_problem(self, now_s: float) -> str:
         return self.odometry_rate.problem(now_s) if self._last_odometry_s is not None else ""

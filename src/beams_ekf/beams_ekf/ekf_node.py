@@ -399,25 +399,13 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         stats = self.localiser.stats
         for key, value in stats.counts.items():
             self.diagnostics.set(key, value)
-        since_s, level, integrity = float("inf"), None, self.health.integrity
+        now_s = self._now_s()
+        level, since_s, verdict = self.health.judge(now_s, self.localiser, estimate)
         if estimate is not None:
-            level = integrity.level(estimate.covariance, estimate.fault_shifts, estimate.fault_covariances)
             self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
             self.diagnostics.set("recent_gated_bearings", self.localiser.kidnap.recent_gated_bearings)
             self.diagnostics.set("lost_nis_window_sum", self.localiser.nis_monitor.window_sum)
-            if stats.last_bearing_stamp_s is not None:
-                since_s = estimate.stamp_s - stats.last_bearing_stamp_s
             self.diagnostics.set("time_since_last_bearing_s", since_s)
-        now_s = self._now_s()
-        verdict = self.health.verdict(
-            now_s,
-            initialised=estimate is not None,
-            nis_lost=self.localiser.nis_monitor.lost,
-            kidnap_suspected=self.localiser.kidnap.suspected,
-            bearing_silence_s=since_s,
-            unconfirmed=self.localiser.unconfirmed if estimate is not None else "",
-            protection=level,
-        )
         self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
         self.diagnostics.set("odometry_rate_hz", self.health.odometry_rate.rate_hz(now_s))
         changed = verdict.status is not self._status
@@ -433,7 +421,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
             self.diagnostics.publish()
         else:  # and an ERROR condition's end (a second publisher gone, its hold over) too
             self.diagnostics.publish_if_conditions_changed()
-        self.status_topic.say(verdict, integrity, level)
+        self.status_topic.say(verdict, self.health.integrity, level)
 
 
 def _newest_stamp_s(intake: RevolutionIntake) -> float:

@@ -84,7 +84,7 @@ def replay(
     """Feed odometry (arriving at its stamp), bearings and ToTal's fixes (arriving at `arrival_s`; at
     one instant the bearings first, as one revolution) in arrival order, after an operator's
     `initial_pose` at the first odometry stamp. Each estimate gets ekf_node's protection level and status
-    (`EkfHealth.verdict` as `_update_diagnostics` asks it, the arrival times as the receiving clock)."""
+    (`EkfHealth.judge`, as ekf_node's, the arrival times as the receiving clock)."""
     start = planar_pose_intake(
         PoseSource.OPERATOR, float(odometry_times_s[0]), initial_pose, initial_covariance
     )
@@ -118,20 +118,8 @@ def replay(
             estimates.append(estimate.pose)
             covariances.append(estimate.covariance)
             truths.append(truth_at(estimate.stamp_s))
-            level = health.integrity.level(
-                estimate.covariance, estimate.fault_shifts, estimate.fault_covariances
-            )
+            level, _, verdict = health.judge(arrival_s, localiser, estimate)
             levels.append((level.horizontal_m, level.heading_rad))
-            last_bearing_s = localiser.stats.last_bearing_stamp_s
-            verdict = health.verdict(
-                arrival_s,
-                initialised=True,
-                nis_lost=localiser.nis_monitor.lost,
-                kidnap_suspected=localiser.kidnap.suspected,
-                bearing_silence_s=estimate.stamp_s - last_bearing_s if last_bearing_s else float("inf"),
-                unconfirmed=localiser.unconfirmed,
-                protection=level,
-            )
             tracking.append(verdict.status is Status.TRACKING)
     return ReplayResult(
         np.array(times),
