@@ -64,8 +64,8 @@ FAST_PARALLEL := $(if $(filter-out 0 1,$(FAST_WORKERS)),-n $(FAST_WORKERS) --dis
 DDS_WORKERS ?= 2
 DDS_PARALLEL := $(if $(filter-out 0 1,$(DDS_WORKERS)),-n $(DDS_WORKERS) --dist loadfile --no-loadscope-reorder)
 # a DDS test that fails runs again, up to DDS_RERUNS times (separate processes timed on 2 shared cores);
-# -raR lists every rerun in the summary. The tests marked `alone` (the fault campaign: the whole suite on
-# the two cores) run after the others, one at a time.
+# -raR lists every rerun in the summary. The tests marked `alone` (the fault campaign, the respawn timing: the
+# whole suite on the two cores, timed) run after the others, one at a time.
 DDS_RERUNS ?= 2
 test: build lint hil-if-possible
 	$(ROS_ENV) python -m pytest -m "not dds" $(FAST_PARALLEL) $(PYTEST_ARGS) || [ $$? -eq 5 ]

@@ -8,8 +8,9 @@ The killed node's own output is seen again, and the longest silence of the EKF's
 (beams/ekf/odometry) in the SILENCE_WINDOW_S after the kill is at most EKF_BACK_S, issue 18's 2 s:
 - the driver or the triangulation killed: the EKF goes on (predicting on odometry), silent <= 0.1 s;
 - the odometry source (sim_world_node) killed: the EKF's output needs it back, RESPAWN_DELAY_S (0.25 s)
-  plus its start-up (imports 0.5 s of CPU, its 600-s trajectory 0.5 s): 1.6 s measured under a load of 4,
-  2.0-2.4 s under a load of 5 (the bound is tight there; make test reruns a failed DDS test);
+  plus its start-up (imports 0.5 s of CPU, its 600-s trajectory 0.8 s, its node 0.4 s): 1.6 s measured
+  with the machine to itself; beside the other DDS worker its start-up waits for a core, 2.2-3.7 s in
+  make test (2026-11-27), so this test is marked `alone` and runs after the others;
 - ekf_node's active process killed: its standby, its modules already imported, takes the role the
   instant the kernel frees it and starts the node (rclpy and the node's construction, 0.1 s idle; DDS
   discovery, about 0.2 s with the project's Fast DDS profile; ToTal's next fix, at most 0.1 s): 0.45 and
@@ -69,6 +70,7 @@ def supervised_robot(ros_env, tmp_path):
         assert not any("Traceback" in log for log in logs.values()), logs
 
 
+@pytest.mark.alone
 def test_each_node_killed_in_turn_and_the_ekf_twice_the_ekf_output_is_back_within_2_s(
     rclpy_node, supervised_robot
 ):
