@@ -89,6 +89,18 @@ def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
         assert len(offered[topic]) == 1, (topic, offered[topic])
         assert offered[topic][0].reliability == QosReliability.RELIABLE
         assert offered[topic][0].durability == QosDurability.VOLATILE
+    # the status topics beside the estimates, latched as the nodes publish them; the figure draws the EKF's
+    statuses = [
+        message for topic, _, message in read_messages(bag, typestore) if topic == "/beams/ekf/status"
+    ]
+    assert offered["/beams/triangulation/status"][0].durability == QosDurability.TRANSIENT_LOCAL
+    assert offered["/beams/ekf/status"][0].durability == QosDurability.TRANSIENT_LOCAL
+    # at each change and at least once a second (a loaded machine delays the timer by a fraction)
+    stamps_s = [message.header.stamp.sec + 1e-9 * message.header.stamp.nanosec for message in statuses]
+    assert len(stamps_s) >= 3 and max(np.diff(stamps_s)) <= 1.5, stamps_s
+    assert statuses[-1].status == statuses[-1].TRACKING, statuses[-1].message
+    assert 0.0 < statuses[-1].horizontal_protection_level_m < statuses[-1].horizontal_alert_limit_m
+    assert (tmp_path / "demo" / "trajectory.png").stat().st_size > 10_000
 
     replayed = replay_bag(bag, tmp_path / "like_live", typestore=typestore, start_like_live=True)
     live_total, live_ekf = live_tracks(bag, typestore)

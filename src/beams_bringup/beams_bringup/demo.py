@@ -23,7 +23,7 @@ import os
 import pathlib
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import rclpy
@@ -44,7 +44,8 @@ from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.interfaces import topics
 from beams_common.ros.messages import planar_covariance, pose2d_of
 from beams_common.ros.node_support import BEARINGS_QOS
-from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
+from beams_common.ros.status_topic import STATUS_CODES, STATUS_QOS
+from beams_msgs.msg import BeaconBearingArray, LocalisationStatus, TriangulatedPose
 from beams_sim.simulated_match import SENSOR_MODELS, calibration_of, sensor_config_of
 from beams_tools.bag_events import stamp_ns
 from beams_tools.bag_io import BagRecorder, beams_typestore, fully_qualified
@@ -54,7 +55,7 @@ from beams_tools.supervisor import NodeSupervisor
 from beams_tools.trajectory_metrics import (
     RunTracks,
     errors_against_truth,
-    plot_trajectories,
+    plot_run,
     rms,
     rms_table,
 )
@@ -70,10 +71,13 @@ TOPICS = {
     topics.POSE_COV: PoseWithCovarianceStamped,
     topics.EKF_ODOMETRY: Odometry,
     topics.EKF_POSE: PoseWithCovarianceStamped,
+    topics.EKF_STATUS: LocalisationStatus,
+    topics.TRIANGULATION_STATUS: LocalisationStatus,
     topics.MARKERS: MarkerArray,
     topics.DIAGNOSTICS: DiagnosticArray,
     topics.TF: TFMessage,
 }
+STATUS_TOPICS = (topics.EKF_STATUS, topics.TRIANGULATION_STATUS)  # latched: the current one at once
 PROGRESS_PERIOD_S = 5.0
 START_TIMEOUT_S = 30.0
 
@@ -115,8 +119,6 @@ class MatchRecord(RunTracks):
     revolutions: int = 0
     rejected_windows: int = 0
     poses_rejected: int = 0
-    # the EKF's (x, y, yaw) covariance of each beams/ekf/odometry row, for its NEES
-    ekf_covariances: list[np.ndarray] = field(default_factory=list)
     uncalibrated_revolutions: int = 0
 
     def on_message(self, topic: str, msg) -> None:
@@ -134,6 +136,10 @@ class MatchRecord(RunTracks):
             self.uncalibrated_revolutions += not msg.calibrated
             self.bearings += len(msg.bearings)
             self.rejected_windows += msg.rejected_windows
+        elif topic == topics.EKF_STATUS:
+            status = next(name for name, code in STATUS_CODES.items() if code == msg.status)
+            self.ekf_integrity.add(0, stamp_ns(msg.header.stamp), msg.horizontal_protection_level_m, status)
+            self.ekf_integrity.alert_limit_m = msg.horizontal_alert_limit_m
         elif topic == topics.POSE:
             if msg.accepted:
                 self.total.add(0, stamp_ns(msg.header.stamp), pose2d_of(msg.pose.pose))
@@ -314,7 +320,9 @@ def main() -> int:
                     recorder.write(fully_qualified(topic), ros_type_name(msg_type), stamp_ns, raw, offered)
                     record.on_message(topic, msg)
 
-                qos = BEARINGS_QOS if topic == topics.BEARINGS else 50
+                qos = {topics.BEARINGS: BEARINGS_QOS, **dict.fromkeys(STATUS_TOPICS, STATUS_QOS)}.get(
+                    topic, 50
+                )
                 node.create_subscription(msg_type, topic, on_raw, qos, raw=True)
             started = time.monotonic()
             next_progress = started + PROGRESS_PERIOD_S
@@ -344,9 +352,7 @@ def main() -> int:
 
     table = summary_table(record, sensor)
     (output / "summary.md").write_text(table + "\n")
-    plot_trajectories(
-        record.in_map("truth"), output / "trajectory.png", "BeAMS demo: simulated Eurobot match"
-    )
+    plot_run(record, "truth", output / "trajectory.png", "BeAMS demo: simulated Eurobot match")
     print()
     print(table)
     print(f"\nbag: {output / 'bag'} ({recorder.messages_written} messages, MCAP)")

@@ -151,6 +151,8 @@ class Localiser:
         self._time_jumps.clear()
         self.confirmation.clear()  # the next initialisation from ToTal is a first one
         self._recent.clear()
+        # a bearing of the data before a time jump would make the silence since the last one negative
+        self.stats.last_bearing_stamp_s = None
         self.stats.counts[reason] += 1
 
     # -- odometry -------------------------------------------------------------------------------------

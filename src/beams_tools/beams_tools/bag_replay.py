@@ -57,7 +57,7 @@ from beams_tools.replay_settings import (
     load_node_parameters,
     settings_from_parameters,
 )
-from beams_tools.trajectory_metrics import Track, plot_trajectories, rms, rms_table
+from beams_tools.trajectory_metrics import Track, plot_run, rms, rms_table
 from beams_triangulation.gating import PoseEstimate
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 from beams_triangulation.revolution import RevolutionPose
@@ -77,6 +77,11 @@ class _Run:
     namespace: str = ""
     result: ReplayResult = field(default_factory=ReplayResult)
     segment: int = 0
+
+    def __post_init__(self) -> None:
+        self.result.ekf_integrity.alert_limit_m = self.pipelines.settings.ekf_values[
+            "horizontal_alert_limit_m"
+        ]
 
     def write(self, topic: str, msgtype: str, stamp: int, message: Any) -> None:
         self.recorder.write(
@@ -113,6 +118,11 @@ class _Run:
 
     def _write_ekf(self, estimate: Estimate, stamp: int, odometry: Any) -> None:
         self.result.ekf.add(self.segment, stamp, estimate.pose)
+        self.result.ekf_covariances.append(estimate.covariance)
+        level, verdict = self.pipelines.judgement
+        self.result.ekf_integrity.add(
+            self.segment, stamp, math.nan if level is None else level.horizontal_m, verdict.status
+        )
         message = self.build.ekf_odometry(estimate, stamp, odometry, self.map_frame)
         self.write(LIVE_EKF_TOPIC, ODOMETRY_TYPE, stamp, message)
         self.write(topics.EKF_POSE, POSE_COV_TYPE, stamp, self.build.stamped(message.header, message.pose))
@@ -244,8 +254,9 @@ def summary(result: ReplayResult, live: tuple[Track, Track] | None = None) -> st
 
 
 def plot(result: ReplayResult, path: pathlib.Path) -> None:
-    """Trajectories in the map frame: truth, odometry (dead reckoning), ToTal and the EKF."""
-    plot_trajectories(result.in_map("ekf"), path, "BeAMS bag replay")
+    """Trajectories in the map frame (truth, odometry from the EKF's first pose, ToTal, the EKF) and the
+    EKF's error, 3-sigma, protection level and status against time (`plot_run`)."""
+    plot_run(result, "ekf", path, "BeAMS bag replay")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -254,7 +265,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("input_bag", type=pathlib.Path, help="rosbag2 directory (sqlite3 or MCAP)")
     parser.add_argument("output_bag", type=pathlib.Path, help="new bag directory (must not exist)")
-    parser.add_argument("--plot", type=pathlib.Path, help="trajectory plot (PNG)")
+    parser.add_argument(
+        "--plot",
+        type=pathlib.Path,
+        help="figure (PNG): the trajectories; the EKF's error, 3-sigma and protection level on its status",
+    )
     parser.add_argument(
         "--start-like-live",
         action="store_true",

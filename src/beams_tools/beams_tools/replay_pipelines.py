@@ -21,6 +21,9 @@ from beams_common.ros.messages import (
     seconds_to_stamp,
     stamp_to_seconds,
 )
+from beams_common.status.health import Verdict
+from beams_common.status.protection_level import ProtectionLevel
+from beams_ekf.ekf_health import EkfHealth
 from beams_ekf.localiser import build_localiser
 from beams_ekf.outcomes import Estimate
 from beams_tools.bag_events import LIVE_EKF_TOPIC, relative_topic, stamp_ns
@@ -67,6 +70,11 @@ class ReplayPipelines:
         self.first_odometry_s: float | None = None
         # live EKF estimates by stamp: the EKF starts from the first one at an odometry stamp of the bag
         self.live_start: dict[int, LiveStart] | None = None
+        # ekf_node's status of each estimate; its receiving clock is the newest stamp so far (a replay has
+        # no other, and a stray message stamped in the past does not turn it back)
+        self.health: EkfHealth | None = None
+        self.clock_s = -math.inf
+        self.judgement: tuple[ProtectionLevel | None, Verdict] | None = None
         self._new_triangulation()
 
     def _new_triangulation(self) -> None:
@@ -79,6 +87,7 @@ class ReplayPipelines:
         """A time jump: both pipelines start over (the EKF waits for a pose again); `flush` first."""
         self._new_triangulation()
         self.first_odometry_s = None
+        self.health, self.clock_s = None, -math.inf
         self.localiser.reset("time_jump_resets", forget_learnt=True)
 
     def flush(self) -> list[RevolutionPose]:
@@ -100,11 +109,22 @@ class ReplayPipelines:
                 planar_pose_intake(PoseSource.OPERATOR, stamp_s, start.pose, start.covariance)
             )
             self.live_start = None
+        now_s = self._received(stamp_s)
+        self.health.on_odometry(now_s)
         estimate = self.localiser.estimate()
         poses = self._total_poses(completed)  # after the odometry, as ekf_node receives them
         if not outcome.used or estimate is None or estimate.stamp_s != stamp_s:
             return None, poses
+        level, _, verdict = self.health.judge(now_s, self.localiser, estimate)
+        self.judgement = (level, verdict)
         return estimate, poses
+
+    def _received(self, stamp_s: float) -> float:
+        """The receiving clock at a message of this stamp; ekf_node's status starts with the first."""
+        self.clock_s = max(self.clock_s, stamp_s)
+        if self.health is None:
+            self.health = EkfHealth(self.settings.ekf_values, self.clock_s)
+        return self.clock_s
 
     def on_bearings(self, message: Any) -> list[RevolutionPose]:
         """One revolution to ToTal and every bearing to the EKF; the revolutions ToTal completed, their
@@ -118,6 +138,8 @@ class ReplayPipelines:
             return []
         self.counts["revolutions"] += 1
         self.counts["bearings"] += len(message.bearings)
+        now_s = self._received(stamp_to_seconds(message.header.stamp))  # before self.health: it may make it
+        self.health.on_bearings(now_s)
         # each node's intake, with its own beacon map, as the nodes take beams/bearings
         known_ids = self.triangulation.estimator.known_ids
         completed = self.triangulation.on_intake(

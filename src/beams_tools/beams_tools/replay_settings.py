@@ -48,6 +48,8 @@ class ReplaySettings:
     ekf_map: BeaconMap
     ekf_offset_m: tuple[float, float]
     ekf: FilterSettings
+    # ekf_node's validated parameter values (its status: rates, integrity risk, alert limits)
+    ekf_values: Mapping[str, Any]
 
 
 def load_node_parameters(path: pathlib.Path | None, table: ParameterTable) -> dict[str, Any]:
@@ -69,4 +71,5 @@ def settings_from_parameters(triangulation: Mapping[str, Any], ekf: Mapping[str,
         ekf_map=ekf_geometry.beacon_map,
         ekf_offset_m=ekf_geometry.turret_offset_m,
         ekf=filter_settings(ekf),
+        ekf_values=ekf,
     )

@@ -18,7 +18,13 @@ from beams_tools.bag_messages import MessageBuilder, simulated_messages, write_b
 from beams_tools.bag_replay import main, replay_bag
 from beams_tools.replay_pipelines import ReplayResult
 from beams_tools.replay_settings import load_node_parameters, settings_from_parameters
-from beams_tools.trajectory_metrics import errors_against_truth, odometry_in_map, rms
+from beams_tools.trajectory_metrics import (
+    _aligned_errors,
+    errors_against_truth,
+    odometry_in_map,
+    rms,
+    status_spans,
+)
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 
 BEAMS_MSGS = pathlib.Path(__file__).resolve().parents[2] / "beams_msgs"
@@ -94,6 +100,44 @@ def test_output_bag_holds_the_outputs_and_the_inputs(replayed, typestore, match)
     assert result.messages_out == sum(len(v) for v in by_topic.values())
 
 
+def test_each_estimate_carries_ekf_node_status_and_a_protection_level_that_bounds_its_error(replayed):
+    """Every EKF estimate of the replay is judged as ekf_node judges it (`EkfHealth.judge`): its status and
+    horizontal protection level, at least the fault-free bound 4.80 sigma of its major axis at the default
+    risk 1e-5 (docs/protection_level.md); nominal data: tracking once the bearings confirmed ToTal's first
+    fix, and the error never above the level (a Stanford plot with nothing above its diagonal)."""
+    result, _ = replayed
+    rows = result.ekf_integrity.rows
+    assert len(rows) == len(result.ekf.rows) == len(result.ekf_covariances)
+    assert [row[:2] for row in rows] == [row[:2] for row in result.ekf.rows]
+    levels = np.array([row[2] for row in rows])
+    covariances = np.array(result.ekf_covariances)
+    major_m = np.sqrt(np.linalg.eigvalsh(covariances[:, :2, :2])[:, -1])
+    assert np.all(np.isfinite(levels)) and np.all(levels >= 4.79 * major_m)
+    statuses = [row[3] for row in rows]
+    assert set(statuses) <= {"tracking", "degraded"}
+    assert statuses.count("tracking") >= 0.9 * len(statuses), statuses[:30]
+    assert statuses[-1] == "tracking"
+    index, position_m, _ = _aligned_errors(result.ekf.array(), result.truth.array())
+    assert len(index) >= 0.95 * len(rows)
+    assert np.all(position_m <= levels[index]), np.max(position_m / levels[index])
+    # the level is a bound, not the covariance restated: tight (p99 well under the 5 cm alert limit)
+    assert np.percentile(levels, 50) <= 0.02
+
+
+def test_status_spans_are_the_runs_of_equal_statuses():
+    """The plot's status band: contiguous spans from the first instant to the last, one per run."""
+    times_s = np.arange(7.0)
+    statuses = ["waiting", "degraded", "degraded", "tracking", "tracking", "tracking", "lost"]
+    assert status_spans(times_s, statuses) == [
+        (0.0, 1.0, "waiting"),
+        (1.0, 3.0, "degraded"),
+        (3.0, 6.0, "tracking"),
+        (6.0, 6.0, "lost"),
+    ]
+    assert status_spans(times_s[:3], ["tracking"] * 3) == [(0.0, 2.0, "tracking")]
+    assert status_spans(np.empty(0), []) == []
+
+
 def test_stamps_not_arrival_order(tmp_path, messages, typestore, replayed):
     """Delivery delays of up to 0.3 s (three revolutions out of order in the bag), sqlite3 storage: the
     same estimates, bit for bit, as the bag recorded in publication order."""
@@ -134,6 +178,9 @@ def test_loop_resets_cleanly(tmp_path, messages, typestore, replayed):
     first = [row[1:] for row in looped.ekf.rows if row[0] == 0]
     second = [row[1:] for row in looped.ekf.rows if row[0] == 1]
     assert first == second == [row[1:] for row in replayed[0].ekf.rows]
+    # ekf_node's status starts over with the pipelines: the second pass is judged as the first
+    judged = [[row[1:] for row in looped.ekf_integrity.rows if row[0] == segment] for segment in (0, 1)]
+    assert judged[0] == judged[1] == [row[1:] for row in replayed[0].ekf_integrity.rows]
 
 
 def test_bad_input_is_counted_and_skipped(tmp_path, messages, typestore, replayed, match):
