@@ -234,6 +234,7 @@ class BearingEkf:
         self._ekf = _OdometryEkf(dim_x=self.dim, dim_z=1)
         self._memory = [block.new_memory() for block in blocks]
         self._initialised = False
+        self.excluded_beacons: set[int] = set()
         # whether the learnt blocks hold something learnt (kept across re-initialisations and resets)
         self._learnt = False
         self.configure(beacons_xy, sensor_offset_m, blocks[0].noise, gate_probability)
@@ -436,6 +437,8 @@ class BearingEkf:
         residual = wrap_to_pi(bearing_rad - expected)
         innovation_variance = float((jacobian @ self._ekf.P @ jacobian.T)[0, 0]) + variance_rad2
         nis = residual * residual / innovation_variance
+        if beacon_id in self.excluded_beacons:
+            return BearingOutcome(False, nis, residual, BearingReason.EXCLUDED)
         if nis > self.gate:
             return BearingOutcome(False, nis, residual, BearingReason.GATED)
         gain = self._joseph_update(jacobian, variance_rad2, residual, innovation_variance, self._frozen)

@@ -6,6 +6,9 @@
 - `NisMonitor`: the filter is lost when the bearings' innovations, over a sliding window, are too large
   for its covariance.
 Either lets the next ToTal fix re-initialise the filter (`Localiser.on_pose`).
+- `BeaconExclusion`: one beacon whose bearings the gate refuses while the others' pass (moved, biased, a
+  reflection taken for it) is excluded until its bearings agree again, instead of making the filter lost
+  and re-initialising it from a ToTal fix that uses that beacon.
 - `PoseConfirmation`: after an event that breaks the estimate's continuity (an operator's pose, an
   implausible odometry step, an odometry silence, a time jump, a re-initialisation from ToTal after a
   kidnap or a lost test), the estimate is not the filter's own until its bearings confirm it: the status
@@ -13,7 +16,7 @@ Either lets the next ToTal fix re-initialise the filter (`Localiser.on_pose`).
 """
 
 from collections import deque
-from math import hypot, isfinite
+from math import hypot, isfinite, sqrt
 
 import numpy as np
 from scipy.stats import chi2
@@ -117,6 +120,78 @@ class KidnapEvidence:
 
     def clear(self) -> None:
         self._recent_gated.clear()
+
+
+class BeaconExclusion:
+    """Fault detection and exclusion of one beacon, as RAIM excludes one satellite.
+
+    `add` records each new bearing the filter judged. `gated_bearings` gated bearings of one beacon in a
+    row, with another beacon's bearing accepted since the first of them, exclude that beacon while the
+    estimate is trusted (confirmed, not kidnapped): the estimate agrees with the other beacons and not
+    with it (when every beacon's bearings are gated the robot moved: `KidnapEvidence`'s case). An excluded
+    beacon's bearings are judged without being applied (`PoseFilter.excluded_beacons`) and readmit it when
+    `readmission_bearings` of them in a row pass the gate with normalised residuals r / sqrt(S) whose
+    mean is zero within 3 sigma (|sum| <= 3 sqrt(n)): a bias that lets single bearings through (a moved
+    beacon seen along its displacement) is not readmitted. One beacon at most (a single fault: with two
+    beacons left, a second disagreeing one cannot be told from the first). `gated_bearings` 0 switches
+    the exclusion off.
+    """
+
+    def __init__(self, gated_bearings: int, readmission_bearings: int, gate: float) -> None:
+        self._gated_bearings = gated_bearings
+        self._readmission_bearings = readmission_bearings
+        self._gate = gate
+        self.excluded: int | None = None
+        self._gated_in_a_row: dict[int, int] = {}
+        self._others_agreed: dict[int, bool] = {}  # since the first of the beacon's gated bearings
+        self._agreeing: list[float] = []  # the excluded beacon's normalised residuals in a row
+
+    def add(
+        self, beacon_id: int, gated: bool, excluded: bool, normalised_residual: float, trusted: bool = True
+    ) -> str:
+        """One new bearing: gated, judged as of the excluded beacon, or (neither) accepted, with its
+        residual over its innovation's sigma; `trusted`: the estimate may be held against a beacon.
+        Returns 'excluded' or 'readmitted' when it changes the excluded beacon, '' otherwise."""
+        if excluded:
+            within = normalised_residual**2 <= self._gate
+            self._agreeing = [*self._agreeing, normalised_residual] if within else []
+            n = len(self._agreeing)
+            if n < self._readmission_bearings or abs(sum(self._agreeing)) > 3.0 * sqrt(n):
+                return ""
+            self.clear()
+            return "readmitted"
+        if not gated:
+            self._gated_in_a_row[beacon_id] = 0
+            for other in self._others_agreed:
+                self._others_agreed[other] = self._others_agreed[other] or other != beacon_id
+            return ""
+        in_a_row = self._gated_in_a_row.get(beacon_id, 0) + 1
+        self._gated_in_a_row[beacon_id] = in_a_row
+        if in_a_row == 1:
+            self._others_agreed[beacon_id] = False
+        if self.excluded is not None or not self._gated_bearings or in_a_row < self._gated_bearings:
+            return ""
+        if not (trusted and self._others_agreed[beacon_id]):
+            return ""
+        self.excluded, self._agreeing = beacon_id, []
+        return "excluded"
+
+    @property
+    def problem(self) -> str:
+        """Why the status is degraded while a beacon is excluded, or ''."""
+        if self.excluded is None:
+            return ""
+        return (
+            f"beacon {self.excluded} excluded: its bearings disagree with the other beacons' (moved, "
+            f"biased or reflected?); {len(self._agreeing)} of {self._readmission_bearings} agreeing "
+            "bearings to readmit it"
+        )
+
+    def clear(self) -> None:
+        self.excluded = None
+        self._gated_in_a_row.clear()
+        self._others_agreed.clear()
+        self._agreeing = []
 
 
 # The bearings that confirm a pose (LocaliserConfig.confirming_bearings) come from at least this many

@@ -10,8 +10,9 @@
   bearings worse), no bearing accepted for more than MAX_BEARING_SILENCE_S of data time (odometry
   alone: the covariance grows), or a pose the bearings have not confirmed since an event that broke the
   estimate's continuity (an operator's pose, an odometry jump or silence, a time jump, a
-  re-initialisation from ToTal after a kidnap or a lost test: `consistency.PoseConfirmation`), or a
-  protection level above its alert limit (`protection_level`: unavailable for navigation).
+  re-initialisation from ToTal after a kidnap or a lost test: `consistency.PoseConfirmation`), a beacon
+  excluded (`consistency.BeaconExclusion`), or a protection level above its alert limit
+  (`protection_level`: unavailable for navigation).
 - tracking: none of the above: the estimate is the filter's own, verified by its bearings.
 
 The receiving clock is the node's (ROS time: /clock under use_sim_time); pure, times passed in.
@@ -88,10 +89,12 @@ class EkfHealth:
         bearing_silence_s: float,
         unconfirmed: str = "",
         protection: ProtectionLevel | None = None,
+        excluded: str = "",
     ) -> Verdict:
         """The status now, from the filter's tests (NIS, kidnap), the time since the last accepted bearing
         (data time), why the bearings have not yet confirmed the estimate (`Localiser.unconfirmed`, ''
-        when they have), the estimate's protection level and this monitor's rates and faults."""
+        when they have), the estimate's protection level, a beacon excluded (`BeaconExclusion.problem`)
+        and this monitor's rates and faults."""
         if not initialised:
             return judge(WAITING_FOR_POSE)
         lost = []
@@ -101,7 +104,7 @@ class EkfHealth:
             lost.append("most recent bearings gated out (robot moved?): waiting for a ToTal pose")
         if self._last_odometry_s is not None and now_s - self._last_odometry_s > ODOMETRY_SILENCE_S:
             lost.append(f"no odometry for {now_s - self._last_odometry_s:.1f} s: the estimate stands still")
-        degraded = [p for p in (unconfirmed, self.integrity.problem(protection)) if p]
+        degraded = [p for p in (unconfirmed, excluded, self.integrity.problem(protection)) if p]
         degraded += [p for p in (self.bearing_rate.problem(now_s), self._odometry_rate_problem(now_s)) if p]
         degraded += self.faults.active(now_s)
         if bearing_silence_s > MAX_BEARING_SILENCE_S:
@@ -136,6 +139,7 @@ class EkfHealth:
             bearing_silence_s=silence_s,
             unconfirmed=localiser.unconfirmed,
             protection=level,
+            excluded=localiser.exclusion.problem,
         )
         return level, silence_s, verdict
 

@@ -22,6 +22,7 @@ the estimate is unconfirmed until its bearings confirm it (`consistency.PoseConf
 status is degraded meanwhile); the first initialisation from ToTal is the bearings' own pose.
 """
 
+import math
 from collections import Counter, deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -36,7 +37,13 @@ from beams_common.intake.pose_intake import PoseIntake, RefusedPose
 from beams_common.intake.time_jumps import StampOrder, TimeJumpDetector
 from beams_common.intake.validation import odometry_problem
 from beams_ekf.bearing_ekf import BearingEkf
-from beams_ekf.consistency import ODOMETRY_SILENCE_S, KidnapEvidence, NisMonitor, PoseConfirmation
+from beams_ekf.consistency import (
+    ODOMETRY_SILENCE_S,
+    BeaconExclusion,
+    KidnapEvidence,
+    NisMonitor,
+    PoseConfirmation,
+)
 from beams_ekf.late_bearings import LateBearings
 from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, PoseFilter
@@ -103,6 +110,7 @@ class Localiser:
             self.config.lost_nis_window_bearings, self.config.lost_nis_probability, ekf.gate
         )
         self.confirmation = PoseConfirmation(self.config.confirming_bearings)
+        self._clear_exclusion()
         self._stamp_s: float | None = None
         # the newest accepted bearings, one revolution's when every beacon is seen: (beacon, the shift
         # gain * residual, the variance gain gain' S taken away, flat), the protection level's hypotheses
@@ -135,6 +143,7 @@ class Localiser:
         self.default_pose_covariance = settings.default_pose_covariance
         self.ekf.configure(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability)
         self._recent = deque(maxlen=len(self.ekf.beacons_xy))
+        self._clear_exclusion()
 
     def reset(self, reason: str = "reset", forget_learnt: bool = False) -> None:
         """Forget the estimate and the odometry; the filter waits for a pose. What a BearingEkf learnt of
@@ -151,6 +160,7 @@ class Localiser:
         self._time_jumps.clear()
         self.confirmation.clear()  # the next initialisation from ToTal is a first one
         self._recent.clear()
+        self._clear_exclusion()
         # a bearing of the data before a time jump would make the silence since the last one negative
         self.stats.last_bearing_stamp_s = None
         self.stats.counts[reason] += 1
@@ -256,12 +266,30 @@ class Localiser:
             if gain is not None:
                 taken = outcome.innovation_variance * np.outer(gain, gain).ravel()
                 self._recent.append((bearing.beacon_id, gain * outcome.residual_rad, taken))
+        excluded = outcome.reason is BearingReason.EXCLUDED
+        if outcome.accepted or excluded or outcome.reason is BearingReason.GATED:
+            gated = outcome.reason is BearingReason.GATED
+            # a beacon is to blame only when the estimate is the bearings' own (confirmed, not kidnapped)
+            trusted = self.confirmation.confirmed and not self.kidnap.suspected
+            normalised = math.copysign(math.sqrt(outcome.nis), outcome.residual_rad)
+            change = self.exclusion.add(bearing.beacon_id, gated, excluded, normalised, trusted)
+            if change:
+                self.stats.counts[f"beacons_{change}"] += 1
+                excluded_id = self.exclusion.excluded
+                self.ekf.excluded_beacons = set() if excluded_id is None else {excluded_id}
         if outcome.accepted or outcome.reason is BearingReason.GATED:
             self.kidnap.add(not outcome.accepted)
             if self.confirmation.add(bearing.beacon_id, not outcome.accepted):
                 self.stats.counts["pose_confirmations"] += 1
             if self.nis_monitor.add(outcome.nis):
                 self.stats.counts["lost_detections"] += 1
+
+    def _clear_exclusion(self) -> None:
+        """Every beacon's bearings applied again (a new estimate, a new beacon map or gate)."""
+        self.exclusion = BeaconExclusion(
+            self.config.exclusion_gated_bearings, self.config.readmission_bearings, self.ekf.gate
+        )
+        self.ekf.excluded_beacons = set()
 
     # -- poses ----------------------------------------------------------------------------------------
     def on_pose(self, intake: PoseIntake) -> PoseOutcome:
@@ -296,7 +324,8 @@ class Localiser:
             pose_now, covariance, self.ekf.pose, self.ekf.covariance
         ):
             return self._initialise(stamp_s, pose_now, covariance, PoseOutcome.KIDNAP_REINITIALISED)
-        if self.nis_monitor.lost:
+        if self.nis_monitor.lost and self.exclusion.excluded is None:
+            # with a beacon excluded, ToTal's fix (which uses it) is no better than the estimate
             return self._initialise(stamp_s, pose_now, covariance, PoseOutcome.LOST_REINITIALISED)
         return PoseOutcome.IGNORED
 
@@ -316,6 +345,7 @@ class Localiser:
         self.kidnap.clear()
         self.nis_monitor.clear()
         self._recent.clear()
+        self._clear_exclusion()
         event = _CONTINUITY_EVENTS.get(outcome)
         if operator:
             self._break_continuity("an operator's pose")

@@ -25,6 +25,8 @@ class BearingReason(StrEnum):
 
     ACCEPTED = "accepted"
     GATED = "gated"
+    # of a beacon the Localiser excluded (`consistency.BeaconExclusion`): judged (its NIS), not applied
+    EXCLUDED = "excluded"
     UNINITIALISED = "uninitialised"
     UNKNOWN_BEACON = "unknown_beacon"
     INVALID_MEASUREMENT = "invalid_measurement"
@@ -65,6 +67,8 @@ class PoseFilter(Protocol):
     # the chi-square (1 dof) threshold beyond which update_bearing gates a bearing (the lost test caps
     # each bearing's NIS there)
     gate: float
+    # beacons whose bearings update_bearing judges (EXCLUDED, with their NIS) without applying them
+    excluded_beacons: set[int]
 
     @property
     def initialised(self) -> bool:

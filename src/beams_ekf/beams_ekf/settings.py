@@ -128,6 +128,25 @@ SETTINGS_SPECS = ParameterTable(
             "is degraded until then; 0 switches the check off.",
             **_ZERO_TO_1000,
         ),
+        # 2: one gated bearing of a beacon happens once a minute at the 0.999 gate; two in a row, while
+        # another beacon's bearings pass between them, is a beacon that disagrees (moved, reflected, biased)
+        ParameterSpec(
+            "exclusion_gated_bearings",
+            2,
+            "Gated bearings of one beacon in a row, another beacon's accepted between them, that exclude "
+            "that beacon (its bearings judged, not applied; the status degraded, ToTal's poses, which use "
+            "it, no longer re-initialise); 0 switches the exclusion off.",
+            **_ZERO_TO_1000,
+        ),
+        # 30: three seconds of one beacon's bearings, enough for the mean test to see a bias of a third of
+        # the innovation's sigma
+        ParameterSpec(
+            "readmission_bearings",
+            30,
+            "Bearings of an excluded beacon in a row within the gate, their normalised residuals of zero "
+            "mean (3 sigma), that readmit it.",
+            **_ONE_TO_1000,
+        ),
         ParameterSpec(
             "use_total_pose",
             True,
@@ -173,6 +192,8 @@ class LocaliserConfig:
     lost_nis_window_bearings: int = _DEFAULT("lost_nis_window_bearings")
     lost_nis_probability: float = _DEFAULT("lost_nis_probability")
     confirming_bearings: int = _DEFAULT("confirming_bearings")
+    exclusion_gated_bearings: int = _DEFAULT("exclusion_gated_bearings")
+    readmission_bearings: int = _DEFAULT("readmission_bearings")
 
     def __post_init__(self) -> None:
         if self.kidnap_gated_bearings > self.kidnap_window_bearings:

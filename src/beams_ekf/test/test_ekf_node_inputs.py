@@ -172,7 +172,7 @@ def test_declared_defaults_are_the_settings_and_the_documented_ones():
     assert {name: EKF_PARAMETERS[name].default for name in defaults} == defaults
     documented = node_section(yaml.safe_load(CONFIG.read_text()), "ekf_node")
     shared = set(defaults) & set(documented)
-    assert len(shared) == 25
+    assert len(shared) == 27
     assert {name: defaults[name] for name in shared} == {name: documented[name] for name in shared}
 
 
