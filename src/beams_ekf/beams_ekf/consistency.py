@@ -122,6 +122,11 @@ class KidnapEvidence:
         self._recent_gated.clear()
 
 
+# An excluded beacon's bearings in a row within the gate after which ToTal's fixes (which use it) may
+# re-initialise a lost filter again: one revolution of it is a single draw, three are evidence.
+AGREEING_AGAIN = 3
+
+
 class BeaconExclusion:
     """Fault detection and exclusion of one beacon, as RAIM excludes one satellite.
 
@@ -175,6 +180,12 @@ class BeaconExclusion:
             return ""
         self.excluded, self._agreeing = beacon_id, []
         return "excluded"
+
+    @property
+    def agrees_again(self) -> bool:
+        """True when no beacon is excluded, or the excluded one's last AGREEING_AGAIN bearings passed the
+        gate: a filter lost then (the two other beacons' solution drifted) may take ToTal's fix again."""
+        return self.excluded is None or len(self._agreeing) >= AGREEING_AGAIN
 
     @property
     def problem(self) -> str:

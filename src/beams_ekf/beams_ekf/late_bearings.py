@@ -56,6 +56,8 @@ class LateBearings:
         self._judged = judged
         # bearings stamped after the newest odometry, waiting for the odometry that covers them
         self._pending: list[Bearing] = []
+        # set while a replay judges bearings: filter the history again once it is done (`refilter`)
+        self.refilter_requested = False
 
     def clear(self) -> None:
         """Forget the odometry and the waiting bearings."""
@@ -113,7 +115,18 @@ class LateBearings:
                 scheduled.setdefault(index, []).append((bearing, n))
         if scheduled:
             self._replay(scheduled, outcomes)
+        if self.refilter_requested:
+            self.refilter()
         return [outcomes[n] for n in range(len(bearings))]
+
+    def refilter(self) -> None:
+        """Filter the whole history again from its oldest state: the bearings of a beacon excluded since
+        (`PoseFilter.excluded_beacons`) are then judged without being applied, their pull on the estimate
+        over the history undone (the solution without that beacon, as far back as the history goes)."""
+        self.refilter_requested = False
+        first = self._first_state_index() - len(self.history)
+        if self.ekf.initialised and first < 0:
+            self._replay({first: []}, {})
 
     def _ahead_of_odometry(self, stamp_s: float) -> bool:
         """True for a stamp after the newest odometry (past extrapolation) but within the history span."""

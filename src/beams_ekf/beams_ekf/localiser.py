@@ -277,6 +277,7 @@ class Localiser:
                 self.stats.counts[f"beacons_{change}"] += 1
                 excluded_id = self.exclusion.excluded
                 self.ekf.excluded_beacons = set() if excluded_id is None else {excluded_id}
+                self._late.refilter_requested = excluded_id is not None
         if outcome.accepted or outcome.reason is BearingReason.GATED:
             self.kidnap.add(not outcome.accepted)
             if self.confirmation.add(bearing.beacon_id, not outcome.accepted):
@@ -324,8 +325,8 @@ class Localiser:
             pose_now, covariance, self.ekf.pose, self.ekf.covariance
         ):
             return self._initialise(stamp_s, pose_now, covariance, PoseOutcome.KIDNAP_REINITIALISED)
-        if self.nis_monitor.lost and self.exclusion.excluded is None:
-            # with a beacon excluded, ToTal's fix (which uses it) is no better than the estimate
+        if self.nis_monitor.lost and self.exclusion.agrees_again:
+            # while an excluded beacon disagrees, ToTal's fix (which uses it) is no better than the estimate
             return self._initialise(stamp_s, pose_now, covariance, PoseOutcome.LOST_REINITIALISED)
         return PoseOutcome.IGNORED
 
