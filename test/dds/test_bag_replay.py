@@ -89,6 +89,32 @@ def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
         assert len(offered[topic]) == 1, (topic, offered[topic])
         assert offered[topic][0].reliability == QosReliability.RELIABLE
         assert offered[topic][0].durability == QosDurability.VOLATILE
+    # the status topics beside the estimates, latched: each message names its node and process, expires
+    # 2 s after its stamp, and the EKF's names an estimate the bag holds
+    ekf_stamps = {
+        (m.header.stamp.sec, m.header.stamp.nanosec)
+        for _, _, m in read_messages(bag, typestore, ["/beams/ekf/odometry"])
+    }
+    for topic, node in (
+        ("/beams/ekf/status", "/ekf_node"),
+        ("/beams/triangulation/status", "/triangulation_node"),
+    ):
+        assert offered[topic][0].durability == QosDurability.TRANSIENT_LOCAL, offered[topic]
+        said = [m for _, _, m in read_messages(bag, typestore, [topic])]
+        assert len(said) >= DEMO_DURATION_S / 2, (topic, len(said))  # at least once a second
+        assert {m.node for m in said} == {node} and len({m.instance for m in said}) == 1, topic
+        assert all(
+            (m.valid_until.sec - m.header.stamp.sec) * 10**9 + m.valid_until.nanosec - m.header.stamp.nanosec
+            == 2 * 10**9
+            for m in said
+        ), topic
+        assert any(m.status == 1 for m in said), [m.message for m in said[-3:]]
+    judged = [
+        (m.estimate_stamp.sec, m.estimate_stamp.nanosec)
+        for _, _, m in read_messages(bag, typestore, ["/beams/ekf/status"])
+        if m.estimate_stamp.sec
+    ]
+    assert len(judged) >= 5 and sum(stamp in ekf_stamps for stamp in judged) >= 0.9 * len(judged), judged[-5:]
 
     replayed = replay_bag(bag, tmp_path / "like_live", typestore=typestore, start_like_live=True)
     live_total, live_ekf = live_tracks(bag, typestore)

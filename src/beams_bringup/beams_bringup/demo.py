@@ -44,7 +44,7 @@ from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.interfaces import topics
 from beams_common.ros.messages import planar_covariance, pose2d_of
 from beams_common.ros.node_support import BEARINGS_QOS
-from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
+from beams_msgs.msg import BeaconBearingArray, LocalisationStatus, TriangulatedPose
 from beams_sim.simulated_match import SENSOR_MODELS, calibration_of, sensor_config_of
 from beams_tools.bag_events import stamp_ns
 from beams_tools.bag_io import BagRecorder, beams_typestore, fully_qualified
@@ -70,6 +70,8 @@ TOPICS = {
     topics.POSE_COV: PoseWithCovarianceStamped,
     topics.EKF_ODOMETRY: Odometry,
     topics.EKF_POSE: PoseWithCovarianceStamped,
+    topics.EKF_STATUS: LocalisationStatus,
+    topics.TRIANGULATION_STATUS: LocalisationStatus,
     topics.MARKERS: MarkerArray,
     topics.DIAGNOSTICS: DiagnosticArray,
     topics.TF: TFMessage,

@@ -115,22 +115,10 @@ class Drive:
         return self.localiser.on_pose(planar_pose_intake(PoseSource.OPERATOR, 0.0, pose, ONE_CM))
 
     def step(self, now_s: float) -> Step:
-        """The verdict as ekf_node's _update_diagnostics forms it, with the estimate's error."""
+        """The verdict as ekf_node's _update_diagnostics forms it (`EkfHealth.judge`), with the estimate's
+        error."""
         estimate = self.localiser.estimate()
-        last = self.localiser.stats.last_bearing_stamp_s
-        verdict = self.health.verdict(
-            now_s,
-            initialised=estimate is not None,
-            nis_lost=self.localiser.nis_monitor.lost,
-            kidnap_suspected=self.localiser.kidnap.suspected,
-            bearing_silence_s=float("inf") if estimate is None or last is None else estimate.stamp_s - last,
-            unconfirmed=self.localiser.unconfirmed if estimate is not None else "",
-            protection=None
-            if estimate is None
-            else self.health.integrity.level(
-                estimate.covariance, estimate.fault_shifts, estimate.fault_covariances
-            ),
-        )
+        _, _, verdict = self.health.judge(now_s, self.localiser, estimate)
         if estimate is None:
             return Step(now_s, verdict.status, verdict.message, float("nan"), float("nan"))
         truth = self.match.truth_at(estimate.stamp_s)
