@@ -352,7 +352,7 @@ class Diagnostics:
         self._conditions = {n: c for n, c in self._conditions.items() if c[2] is None or now_s < c[2]}
         return {name: (level, reason) for name, (level, reason, _) in self._conditions.items()}
 
-    def _errors(self) -> set[str]:
+    def _errors(self) -> "set[str]":  # the builtin: `set` is a method here
         return {name for name, (level, _) in self.active_conditions().items() if level == "error"}
 
     def callback_failed(self, site: str, summary: str) -> None:
