@@ -87,7 +87,7 @@ def test_the_status_topics_say_what_diagnostics_says_at_once_and_latched(start_n
     late: list[LocalisationStatus] = []
     node.create_subscription(LocalisationStatus, "/" + topics.EKF_STATUS, late.append, STATUS_QOS)
     assert rclpy_node.spin_until(lambda: bool(late), SAID_AT_ONCE_S + 0.5)
-    assert late[0].status == LocalisationStatus.TRACKING
+    assert late[0].status == LocalisationStatus.TRACKING, late[0].message
 
     # an operator's pose 0.5 m off the truth: degraded at once, the reason as /diagnostics gives it
     assert truth, "no ground truth received"

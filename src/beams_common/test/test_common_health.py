@@ -1,10 +1,17 @@
-"""The status model (issue 18): rates against their range, faults held, the worst check wins."""
+"""The status model: rates against their range, faults held, the worst check wins, conditions, expiry."""
 
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from beams_common.status.health import RateMonitor, RecentFaults, Status, judge
+from beams_common.status.health import (
+    STATUS_VALIDITY_S,
+    RateMonitor,
+    RecentFaults,
+    Status,
+    judge,
+    status_in_force,
+)
 
 
 def test_the_verdict_is_waiting_then_lost_then_degraded_then_tracking():
@@ -15,6 +22,36 @@ def test_the_verdict_is_waiting_then_lost_then_degraded_then_tracking():
     degraded = judge("", [], ["bearings at 3 Hz"])
     assert degraded.status is Status.DEGRADED and degraded.level == "warn"
     assert judge().status is Status.TRACKING and judge().message == "tracking" and judge().level == "ok"
+
+
+SECOND_STATUS = ("error", "2 publishers on /beams/ekf/status (this node's output): /ekf_node (x2)")
+
+
+def test_an_error_condition_makes_any_verdict_lost_with_its_reason_first_and_its_end_restores_it():
+    """The one judgement /diagnostics and the status topic say: the node's verdict under its conditions."""
+    for verdict in (judge(), judge("waiting for odometry"), judge("", [], ["bearings at 3 Hz"])):
+        assert verdict.under([]) is verdict  # no condition: the node's own verdict
+        under = verdict.under([SECOND_STATUS])
+        assert (under.status, under.level) == (Status.LOST, "error")
+        assert under.reasons == (SECOND_STATUS[1], *verdict.reasons)
+        assert under.message.startswith("lost: 2 publishers on /beams/ekf/status")
+    # an ERROR among WARNs: lost, the ERROR's reason first whatever the order given
+    mixed = judge("", [], ["rate"]).under([("warn", "odometry slow"), SECOND_STATUS])
+    assert mixed.reasons == (SECOND_STATUS[1], "odometry slow", "rate")
+    # a WARN condition degrades a tracking verdict and only adds its reason to a worse one
+    assert judge().under([("warn", "odometry slow")]) == judge("", [], ["odometry slow"])
+    lost = judge("", ["nis"]).under([("warn", "slow")])
+    assert (lost.status, lost.reasons) == (Status.LOST, ("slow", "nis"))
+
+
+def test_a_status_holds_until_its_validity_ends_then_it_is_lost():
+    """A hung node's latched status: what a consumer takes it for once valid_until has passed."""
+    assert STATUS_VALIDITY_S == 2.0
+    said_s = 100.0
+    for status in Status:
+        assert status_in_force(status, said_s + STATUS_VALIDITY_S, said_s + 1.99) is status
+        assert status_in_force(status, said_s + STATUS_VALIDITY_S, said_s + STATUS_VALIDITY_S) is status
+        assert status_in_force(status, said_s + STATUS_VALIDITY_S, said_s + 2.01) is Status.LOST
 
 
 def test_a_10_hz_input_passes_and_a_slow_or_doubled_one_fails_after_one_window():

@@ -1,6 +1,7 @@
 """ekf_node's status (`beams_common.status.health`): tracking only while its consistency checks pass.
 
-- waiting: no pose has initialised the filter (or it was reset).
+- waiting: no pose has initialised the filter (or it was reset); for odometry first, without any: a
+  ToTal fix is refused until odometry covers its stamp.
 - lost: the bearings' innovations contradict the estimate (`NisMonitor`'s chi-square test over its
   window), most recent bearings are gated out (kidnapped), or odometry stopped for longer than
   ODOMETRY_SILENCE_S (the estimate no longer follows the robot). The next ToTal fix re-initialises.
@@ -37,6 +38,10 @@ from beams_ekf.outcomes import Estimate
 # No bearing accepted for this long (s, data time): odometry alone carries the estimate.
 MAX_BEARING_SILENCE_S = 1.0
 WAITING_FOR_POSE = "waiting for an initial pose (beams/pose, /initialpose or the set_pose service)"
+WAITING_FOR_ODOMETRY = (
+    "waiting for odometry (odom): ToTal's poses (beams/pose) are taken once odometry covers their stamps; "
+    "an operator's pose (/initialpose, the set_pose service) initialises without"
+)
 
 
 class EkfHealth:
@@ -83,7 +88,6 @@ class EkfHealth:
         self,
         now_s: float,
         *,
-        initialised: bool,
         nis_lost: bool,
         kidnap_suspected: bool,
         bearing_silence_s: float,
@@ -91,12 +95,10 @@ class EkfHealth:
         protection: ProtectionLevel | None = None,
         excluded: str = "",
     ) -> Verdict:
-        """The status now, from the filter's tests (NIS, kidnap), the time since the last accepted bearing
-        (data time), why the bearings have not yet confirmed the estimate (`Localiser.unconfirmed`, ''
-        when they have), the estimate's protection level, a beacon excluded (`BeaconExclusion.problem`)
-        and this monitor's rates and faults."""
-        if not initialised:
-            return judge(WAITING_FOR_POSE)
+        """The status of an initialised filter now, from its tests (NIS, kidnap), the time since the last
+        accepted bearing (data time), why the bearings have not yet confirmed the estimate
+        (`Localiser.unconfirmed`, '' when they have), the estimate's protection level, a beacon excluded
+        (`BeaconExclusion.problem`) and this monitor's rates and faults."""
         lost = []
         if nis_lost:
             lost.append("innovations too large for the covariance (NIS test): waiting for a ToTal pose")
@@ -116,24 +118,17 @@ class EkfHealth:
     ) -> tuple[ProtectionLevel | None, float, Verdict]:
         """(protection level, bearing silence (s), verdict) of a Localiser's `estimate` (None: none yet): the
         one reading of its tests that ekf_node and the offline replay share."""
-        if estimate is None:
+        if estimate is None:  # ToTal's fix is brought to the filter's instant by the odometry since its stamp
             return (
                 None,
                 float("inf"),
-                self.verdict(
-                    now_s,
-                    initialised=False,
-                    nis_lost=False,
-                    kidnap_suspected=False,
-                    bearing_silence_s=float("inf"),
-                ),
+                judge(WAITING_FOR_ODOMETRY if localiser.history.latest is None else WAITING_FOR_POSE),
             )
         level = self.integrity.level(estimate.covariance, estimate.fault_shifts, estimate.fault_covariances)
         last_s = localiser.stats.last_bearing_stamp_s
         silence_s = estimate.stamp_s - last_s if last_s is not None else float("inf")
         verdict = self.verdict(
             now_s,
-            initialised=True,
             nis_lost=localiser.nis_monitor.lost,
             kidnap_suspected=localiser.kidnap.suspected,
             bearing_silence_s=silence_s,

@@ -89,7 +89,7 @@ from beams_ekf.checkpoint import (
     resume_from,
     save_checkpoint,
 )
-from beams_ekf.ekf_health import WAITING_FOR_POSE, EkfHealth
+from beams_ekf.ekf_health import EkfHealth
 from beams_ekf.localiser import build_localiser
 from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
 from beams_ekf.parameters import EKF_PARAMETERS, filter_settings
@@ -149,10 +149,9 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         self.map_frame, self.base_frame, self.odom_frame = (self.parameters[f"{k}_frame"] for k in FRAMES)
         self.diagnostics = Diagnostics(self, "ekf")
         self.status_topic = StatusTopic(self, topics.EKF_STATUS, self.diagnostics)
-        self.diagnostics.set_level("warn", WAITING_FOR_POSE)
-        self._status = Status.WAITING  # the status last set on /diagnostics
         self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
         self.health = EkfHealth(self.parameters, self._now_s())
+        self._update_diagnostics(None)  # waiting, said at once
         self.recent_bearings = RecentBearings()
         self._last_twist = None
         # the newest odometry header stamp, republished exactly (a float loses nanoseconds at epoch scale)
@@ -247,7 +246,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
             self._last_odometry_stamp = (stamp_s, msg.header.stamp)
         if outcome is OdometryOutcome.REFERENCE:  # a time jump resets what was published too
             self._published_stamp_s = None
-        if self.localiser.unconfirmed and self._status is Status.TRACKING:
+        if self.localiser.unconfirmed and self.diagnostics.get("status") == Status.TRACKING:
             self._status_now()  # a continuity break (odometry jump or silence, time jump): no longer tracking
 
     def _on_bearings(self, msg: BeaconBearingArray) -> None:
@@ -373,9 +372,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         self._published_stamp_s = estimate.stamp_s
         self._changed = False
         odometry = Odometry()
-        exact = self._last_odometry_stamp
-        same = exact is not None and exact[0] == estimate.stamp_s
-        odometry.header.stamp = exact[1] if same else seconds_to_stamp(estimate.stamp_s)
+        odometry.header.stamp = self._stamp_of(estimate)
         odometry.header.frame_id = self.map_frame
         odometry.child_frame_id = self.base_frame
         _fill_pose(odometry.pose, estimate)
@@ -408,20 +405,15 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
             self.diagnostics.set("time_since_last_bearing_s", since_s)
         self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
         self.diagnostics.set("odometry_rate_hz", self.health.odometry_rate.rate_hz(now_s))
-        changed = verdict.status is not self._status
-        if changed and verdict.status is Status.TRACKING:
-            # the old status's report, stamped now, closes its span: a reader that gives each estimate
-            # the first report at or after it (the fault campaign) never credits the estimates made
-            # before the change with the new "tracking"
-            self.diagnostics.publish()
-        self._status = verdict.status
-        self.diagnostics.set("status", str(verdict.status))
-        self.diagnostics.set_level(verdict.level, verdict.message)
-        if changed:  # a new status is said at once, not at the next 1 Hz report
-            self.diagnostics.publish()
-        else:  # and an ERROR condition's end (a second publisher gone, its hold over) too
-            self.diagnostics.publish_if_conditions_changed()
-        self.status_topic.say(verdict, self.health.integrity, level)
+        stamp = self._stamp_of(estimate) if estimate and math.isfinite(estimate.stamp_s) else None
+        self.status_topic.say(verdict, self.health.integrity, level, stamp)
+
+    def _stamp_of(self, estimate: Estimate) -> Time:
+        """The estimate's header stamp: the odometry's own at its instant (a float loses nanoseconds)."""
+        exact = self._last_odometry_stamp
+        if exact is not None and exact[0] == estimate.stamp_s:
+            return exact[1]
+        return seconds_to_stamp(estimate.stamp_s)
 
 
 def _newest_stamp_s(intake: RevolutionIntake) -> float:

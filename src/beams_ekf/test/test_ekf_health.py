@@ -1,12 +1,18 @@
 """ekf_node's status model (issue 18): tracking only while the filter's tests, the input rates and the
 plausibility checks pass; a sequence of inputs drives it through every status."""
 
+import numpy as np
+
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
 from beams_common.status.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
 from beams_common.status.protection_level import INTEGRITY_SPECS
-from beams_ekf.ekf_health import EkfHealth
+from beams_ekf.ekf_health import WAITING_FOR_ODOMETRY, WAITING_FOR_POSE, EkfHealth
+from beams_ekf.localiser import FilterSettings, build_localiser
+from beams_ekf.outcomes import PoseOutcome
 
 VALUES = {spec.name: spec.default for spec in (*BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, *INTEGRITY_SPECS)}
-HEALTHY = {"initialised": True, "nis_lost": False, "kidnap_suspected": False, "bearing_silence_s": 0.05}
+HEALTHY = {"nis_lost": False, "kidnap_suspected": False, "bearing_silence_s": 0.05}
 
 
 def _run(health: EkfHealth, start_s: float, end_s: float, *, bearings=True, odometry=True) -> None:
@@ -21,7 +27,8 @@ def _run(health: EkfHealth, start_s: float, end_s: float, *, bearings=True, odom
 
 def test_a_match_goes_waiting_tracking_degraded_lost_and_back():
     health = EkfHealth(VALUES, 0.0)
-    assert health.verdict(0.0, **{**HEALTHY, "initialised": False}).status is Status.WAITING
+    localiser = build_localiser(EUROBOT_BEACON_MAP.as_dict(), (0.0, 0.0), FilterSettings())
+    assert health.judge(0.0, localiser, None)[2].status is Status.WAITING
     _run(health, 0.0, 3.0)
     assert health.verdict(3.0, **HEALTHY).status is Status.TRACKING
     # bearings restamped 1 s late: refused, the status degraded with the reason while it lasts
@@ -73,3 +80,25 @@ def test_a_flagged_calibration_degrades_for_its_own_hold():
     assert "worse" in health.verdict(12.0, **HEALTHY).message
     _run(health, 12.0, 14.0)
     assert health.verdict(14.0, **HEALTHY).status is Status.TRACKING
+
+
+def test_without_odometry_the_ekf_says_it_waits_for_odometry_which_every_total_fix_needs():
+    """ToTal's fix is brought to the filter's instant by the odometry since its stamp: without odometry
+    every one is refused, so the status names odometry, not a pose, until odometry comes."""
+    localiser = build_localiser(EUROBOT_BEACON_MAP.as_dict(), (0.0, 0.0), FilterSettings())
+    health = EkfHealth(VALUES, 0.0)
+    covariance = np.diag([1e-4, 1e-4, 1e-3])
+    for k in range(5):
+        fix = planar_pose_intake(PoseSource.TOTAL, 0.1 * k, (1.0, 1.0, 0.0), covariance)
+        assert localiser.on_pose(fix) is PoseOutcome.OUTSIDE_HISTORY
+        _, _, verdict = health.judge(0.1 * k, localiser, localiser.estimate())
+        assert (verdict.status, verdict.reasons) == (Status.WAITING, (WAITING_FOR_ODOMETRY,))
+    assert localiser.stats.counts["poses_outside_history"] == 5
+    localiser.on_odometry(0.5, (0.0, 0.0, 0.0))
+    localiser.on_odometry(0.6, (0.01, 0.0, 0.0))
+    _, _, verdict = health.judge(0.6, localiser, localiser.estimate())
+    assert verdict.reasons == (WAITING_FOR_POSE,)
+    fix = planar_pose_intake(PoseSource.TOTAL, 0.55, (1.0, 1.0, 0.0), covariance)
+    assert localiser.on_pose(fix) is PoseOutcome.INITIALISED
+    _, _, verdict = health.judge(0.6, localiser, localiser.estimate())
+    assert verdict.status is not Status.WAITING

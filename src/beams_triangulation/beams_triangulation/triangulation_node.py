@@ -60,7 +60,7 @@ from beams_triangulation.gating import NoPose, PoseEstimate
 from beams_triangulation.parameters import TRIANGULATION_PARAMETERS
 from beams_triangulation.pipeline import TriangulationPipeline, triangulation_settings
 from beams_triangulation.revolution import RevolutionPose
-from beams_triangulation.triangulation_health import WAITING_FOR_BEARINGS, TriangulationHealth
+from beams_triangulation.triangulation_health import TriangulationHealth
 
 
 def estimate_pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
@@ -84,11 +84,12 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         serve_calibration_reload(self, self._apply_calibration)
         self.diagnostics = Diagnostics(self, "triangulation")
         self.status_topic = StatusTopic(self, topics.TRIANGULATION_STATUS, self.diagnostics)
-        self.diagnostics.set_level("warn", WAITING_FOR_BEARINGS)
         self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
         self.health = TriangulationHealth(self.parameters, self._now_s(), use_odometry=self.use_odometry)
         # the status follows the clock even when no pose comes (lost after a second without one)
         self.create_timer(1.0, self._update_status)
+        self._accepted_stamp = None  # the last accepted pose's header stamp
+        self._update_status()  # waiting, said at once
 
         self.pose_publisher = self.create_publisher(TriangulatedPose, topics.POSE, 10)
         self.pose_cov_publisher = self.create_publisher(PoseWithCovarianceStamped, topics.POSE_COV, 10)
@@ -211,6 +212,7 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         message.reason = estimate.reason
         self.pose_publisher.publish(message)
         if estimate.accepted:
+            self._accepted_stamp = message.header.stamp
             stamped = PoseWithCovarianceStamped(header=message.header, pose=message.pose)
             self.pose_cov_publisher.publish(stamped)
         if self.publish_markers:
@@ -232,11 +234,8 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         degraded or lost) as a value of its own; each pose carries its own verdict (accepted, reason)."""
         now_s = self._now_s()
         verdict = self.health.verdict(now_s)
-        self.diagnostics.set("status", str(verdict.status))
         self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
-        self.diagnostics.set_level(verdict.level, verdict.message)
-        self.diagnostics.publish_if_conditions_changed()  # an ERROR condition's end said at once
-        self.status_topic.say(verdict, self.health.integrity, self.health.protection)
+        self.status_topic.say(verdict, self.health.integrity, self.health.protection, self._accepted_stamp)
 
     def _markers(self, estimate: PoseEstimate, header) -> MarkerArray:
         """Beacons (spheres), the pose (arrow) and its 2-sigma position ellipse (flat cylinder)."""

@@ -11,11 +11,13 @@ odometry, ground truth, ToTal poses; not /initialpose, where any operator may pu
 - the messages: revolution counters or stamps that interleave (`stream_interleave.InterleaveDetector`),
   which also catches two sources behind one publisher (a relay) and says so the same way;
 - with the same graph check, its own outputs of those types (ekf_node's beams/ekf/odometry, which no node
-  of the suite reads): a second ekf_node in the namespace is said by the EKF itself.
+  of the suite reads) and its status topic: a second ekf_node in the namespace, or any other publisher
+  of beams/ekf/status, is said by the EKF itself.
 
 The conditions go through `Diagnostics.set_condition`: the node's status is ERROR with the reason first,
-whatever else it says. A node killed with SIGKILL stays in the graph until its DDS lease ends (5 s in
-the package's Fast DDS profile): a node respawned meanwhile is counted twice for those seconds.
+whatever else it says (a localisation node's: lost, on /diagnostics and its status topic). A node killed
+with SIGKILL stays in the graph until its DDS lease ends (5 s in the package's Fast DDS profile): a node
+respawned meanwhile is counted twice for those seconds.
 """
 
 import time
@@ -53,6 +55,8 @@ SINGLE_SOURCE_INPUTS = {
     "nav_msgs/msg/Odometry": StreamKey(_stamp_s, max_step=1.0),
     "beams_msgs/msg/TriangulatedPose": StreamKey(_stamp_s, max_step=1.0),
 }
+# the outputs a second publisher makes untrustworthy: those types, and a localisation node's status
+SINGLE_SOURCE_OUTPUTS = (*SINGLE_SOURCE_INPUTS, "beams_msgs/msg/LocalisationStatus")
 # topics where several publishers are expected whatever their type
 MANY_PUBLISHERS_ALLOWED = ("/initialpose",)
 
@@ -99,41 +103,29 @@ class WatchedInputs:
 
     def check_input_publishers(self) -> None:
         """The graph check: more than one publisher on a watched input is an ERROR condition (an input
-        the node no longer subscribes to, a driver cleaned up, is not judged)."""
-        subscribed = {subscription.topic_name for subscription in self.subscriptions}
-        for topic in self.__dict__.get("_watched_inputs", {}):
-            name = f"publishers {topic}"
-            publishers = self.get_publishers_info_by_topic(topic) if topic in subscribed else []
-            if len(publishers) > 1:
-                names = sorted(_qualified(info.node_namespace, info.node_name) for info in publishers)
-                listed = ", ".join(
-                    f"{n} (x{names.count(n)})" if names.count(n) > 1 else n for n in sorted(set(names))
-                )
-                self._show_input_condition(name, f"{len(publishers)} publishers on {topic}: {listed}", None)
-            else:
-                self._clear_input_condition(name)
-        self.check_output_publishers()
-
-    def check_output_publishers(self) -> None:
-        """The same graph check on the node's own single-source outputs: a second publisher there (a
-        second ekf_node in the namespace, whose estimates interleave with this one's on
-        beams/ekf/odometry, read by nothing in the suite) is said by the node itself, naming both."""
+        the node no longer subscribes to, a driver cleaned up, is not judged); then the same on the node's
+        own single-source outputs and its status topic (a second ekf_node in the namespace, whose
+        estimates interleave with this one's on beams/ekf/odometry, read by nothing in the suite; a
+        spoofed status): said by the node itself, naming both."""
         watched = self.__dict__.get("_watched_inputs", {})
-        for publisher in list(self.publishers):
-            topic = publisher.topic_name
-            if topic in watched or type_name(publisher.msg_type) not in SINGLE_SOURCE_INPUTS:
+        subscribed = {subscription.topic_name for subscription in self.subscriptions}
+        outputs = [
+            p.topic_name
+            for p in self.publishers
+            if p.topic_name not in watched and type_name(p.msg_type) in SINGLE_SOURCE_OUTPUTS
+        ]
+        for topic in [*watched, *outputs]:
+            publishers = self.get_publishers_info_by_topic(topic) if topic in (*subscribed, *outputs) else []
+            if len(publishers) <= 1:
+                self._clear_input_condition(f"publishers {topic}")
                 continue
-            name = f"publishers {topic}"
-            publishers = self.get_publishers_info_by_topic(topic)
-            if len(publishers) > 1:
-                names = sorted(_qualified(info.node_namespace, info.node_name) for info in publishers)
-                listed = ", ".join(
-                    f"{n} (x{names.count(n)})" if names.count(n) > 1 else n for n in sorted(set(names))
-                )
-                reason = f"{len(publishers)} publishers on {topic} (this node's output): {listed}"
-                self._show_input_condition(name, reason, None)
-            else:
-                self._clear_input_condition(name)
+            names = sorted(_qualified(info.node_namespace, info.node_name) for info in publishers)
+            listed = ", ".join(
+                f"{n} (x{names.count(n)})" if names.count(n) > 1 else n for n in sorted(set(names))
+            )
+            own = " (this node's output)" if topic in outputs else ""
+            reason = f"{len(publishers)} publishers on {topic}{own}: {listed}"
+            self._show_input_condition(f"publishers {topic}", reason, None)
 
     def _clear_input_condition(self, name: str) -> None:
         diagnostics = getattr(self, "diagnostics", None)

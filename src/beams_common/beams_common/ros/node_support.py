@@ -40,6 +40,7 @@ from beams_common.ros.standby import (
     split_standby_flag,
     wait_for_role,
 )
+from beams_common.status.health import Status, Verdict
 
 EXIT_INVALID_PARAMETERS = 2
 # beams/bearings: reliable, so no revolution is lost between the driver and the filters (a best-effort
@@ -248,7 +249,9 @@ class Diagnostics:
     """Counters and a status published on /diagnostics once a second (diagnostic_msgs).
 
     The status is at least as bad as the last refusal (`refuse`) and every condition in force
-    (`set_condition`, `callback_failed`); every text is bounded in length (`validation.bounded`).
+    (`set_condition`, `callback_failed`); a localisation node's verdict (`set_verdict`) is judged under
+    those conditions (`Verdict.under`), for /diagnostics and its status topic alike. Every text is bounded
+    in length (`validation.bounded`).
     """
 
     WAITING_FOR_CLOCK = "waiting for /clock (use_sim_time is true): no time, nothing processed"
@@ -267,6 +270,8 @@ class Diagnostics:
         self._conditions: dict[str, tuple[str, str, float | None]] = {}
         self._published_errors: set[str] = set()  # the ERROR conditions of the last publication
         self._last_sent: tuple[str, str] | None = None  # its (level, message)
+        self._verdict: Verdict | None = None  # a localisation node's status (set_verdict)
+        self.on_publish: Callable[[], None] | None = None  # told after each publication (StatusTopic)
         self._log = ThrottledLog(node.get_logger())
         self._publisher = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self._timer = node.create_timer(period_s, self.publish)
@@ -327,33 +332,28 @@ class Diagnostics:
             self.publish_if_conditions_changed()
 
     def publish_if_conditions_changed(self) -> None:
-        """Publish at once when the conditions in force differ from the last publication's at ERROR (one
-        cleared, or its hold ended): the status is said OK again as soon as it is, as an ERROR is said
-        at once (set_condition), not up to period_s later. The last publication is first repeated,
-        stamped now: it closes its span, so a reader that gives each estimate the first report at or
-        after it never credits the estimates made during the ERROR with the report after it."""
-        errors = {name for name, (level, _) in self.active_conditions().items() if level == "error"}
-        if errors == self._published_errors:
-            return
+        """Publish at once when the ERROR conditions in force differ from the last publication's (one
+        cleared, or its hold ended), as an ERROR is said at once (set_condition), not up to period_s later,
+        after the last publication repeated (`_close_span`)."""
+        if self._errors() != self._published_errors:
+            self._close_span()
+            self.publish()
+
+    def _close_span(self) -> None:
+        """The last publication repeated, stamped now: it closes its span, so a reader that gives each
+        estimate the first report at or after it never credits the estimates made before a change with
+        the report after it."""
         if self._last_sent is not None:
             self._send(*self._last_sent, self._node.get_clock().now().to_msg())
-        self.publish()
 
     def active_conditions(self) -> dict[str, tuple[str, str]]:
         """The conditions in force now: name -> (level, reason); expired ones are dropped."""
         now_s = time.monotonic()
-        expired = [
-            name
-            for name, (_, _, until_s) in self._conditions.items()
-            if until_s is not None and now_s >= until_s
-        ]
-        for name in expired:
-            del self._conditions[name]
+        self._conditions = {n: c for n, c in self._conditions.items() if c[2] is None or now_s < c[2]}
         return {name: (level, reason) for name, (level, reason, _) in self._conditions.items()}
 
-    def _held(self, name: str) -> bool:
-        """True when the condition ends by itself (a hold time), False when it lasts until cleared."""
-        return self._conditions[name][2] is not None
+    def _errors(self) -> "set[str]":  # the builtin: `set` is a method here
+        return {name for name, (level, _) in self.active_conditions().items() if level == "error"}
 
     def callback_failed(self, site: str, summary: str) -> None:
         """A callback let an exception out (the guard caught it): counted in `callback_exceptions`, kept
@@ -374,25 +374,49 @@ class Diagnostics:
         return bool(problem)
 
     def publish(self) -> None:
-        level, message = self._level, self._message
+        verdict = self.verdict()
+        if verdict is not None:  # a localisation node: its status under the conditions, as its topic says
+            self._values["status"] = str(verdict.status)
+            level, message = verdict.level, verdict.message
+        else:
+            conditions = self._ordered_conditions()
+            level = max([self._level, *(c_level for c_level, _ in conditions)], key=_LEVELS.__getitem__)
+            message = bounded("; ".join([*(reason for _, reason in conditions), self._message]))
         if self._refusal is not None:
             refusal_level, reason = self._refusal
             self._refusal = None
-            level = refusal_level if _LEVELS[refusal_level] > _LEVELS[level] else level
+            level = max(level, refusal_level, key=_LEVELS.__getitem__)
             message = bounded(f"{message}; refused {reason}")
-        conditions = self.active_conditions()
-        if conditions:
-            # the worst first, and among equals the ones held until cleared (the graph's, which name
-            # the publishers): the text is bounded, the end may be cut
-            ordered = sorted(
-                conditions, key=lambda name: (-ord(_LEVELS[conditions[name][0]]), self._held(name))
-            )
-            worst = conditions[ordered[0]][0]
-            level = worst if _LEVELS[worst] > _LEVELS[level] else level
-            message = bounded("; ".join([*(conditions[name][1] for name in ordered), message]))
-        self._published_errors = {name for name, (c_level, _) in conditions.items() if c_level == "error"}
+        self._published_errors = self._errors()
         self._send(level, message, self._node.get_clock().now().to_msg())
         self._last_sent = (level, message)
+        if self.on_publish is not None:
+            self.on_publish()
+
+    def set_verdict(self, verdict: Verdict) -> None:
+        """The node's status (beams_common.status.health), said under the conditions in force (`verdict`):
+        one other than the last said at once, not at the next tick (tracking after `_close_span`); else an
+        ERROR condition's end at once."""
+        self._verdict = verdict
+        status = self.verdict().status
+        if self._values.get("status") == status:
+            self.publish_if_conditions_changed()
+            return
+        if status is Status.TRACKING:
+            self._close_span()
+        self.publish()
+
+    def verdict(self) -> Verdict | None:
+        """The node's verdict (set_verdict) under the conditions in force (`Verdict.under`), None without."""
+        return None if self._verdict is None else self._verdict.under(self._ordered_conditions())
+
+    def _ordered_conditions(self) -> list[tuple[str, str]]:
+        """(level, reason) of the conditions in force: the worst first, and among equals the ones held until
+        cleared (the graph's, which name the publishers): the text is bounded, the end may be cut."""
+        conditions = self.active_conditions()
+        held = {name: until_s is not None for name, (_, _, until_s) in self._conditions.items()}
+        ordered = sorted(conditions, key=lambda name: (-ord(_LEVELS[conditions[name][0]]), held[name]))
+        return [conditions[name] for name in ordered]
 
     def _send(self, level: str, message: str, stamp: Any) -> None:
         status = DiagnosticStatus(

@@ -3,17 +3,24 @@
 The estimates' messages (nav_msgs/Odometry, geometry_msgs/PoseWithCovarianceStamped) have no field for
 a status, and /diagnostics is one array for every node at 1 Hz: a consumer that must not use an
 untrusted pose (a planner, `ros2 topic echo`, a bag) reads beams_msgs/LocalisationStatus instead. It is
-latched (transient local, depth 1): a late subscriber gets the current status at once. It carries the
-protection levels of the estimate when it is said (docs/protection_level.md) and the alert limits.
+latched (transient local, depth 1): a late subscriber gets the current status at once. It says the
+node's verdict under the node's conditions (`Diagnostics.verdict`: what /diagnostics says), who says it,
+until when it holds (STATUS_VALIDITY_S), the estimate it judges, its protection level
+(docs/protection_level.md) and the alert limits.
 """
 
 import math
+import os
+import socket
+import time
 
+from builtin_interfaces.msg import Time
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from beams_common.ros.node_support import Diagnostics
-from beams_common.status.health import Status, Verdict
+from beams_common.status.health import STATUS_VALIDITY_S, Status, Verdict
 from beams_common.status.protection_level import Integrity, ProtectionLevel
 from beams_msgs.msg import LocalisationStatus
 
@@ -33,26 +40,46 @@ STATUS_CODES = {
 
 
 class StatusTopic:
-    """Publishes a node's verdict (beams_common.status.health) at once when its status or message changes,
-    and again when STATUS_HEARTBEAT_S has passed since it last said it; the protection level also goes to
-    the node's `diagnostics`."""
+    """Publishes the node's verdict under its conditions at once when its status or message changes (a
+    condition set or cleared included: `Diagnostics.on_publish`), and again when STATUS_HEARTBEAT_S has
+    passed since it last said it; the protection level also goes to the node's `diagnostics`."""
 
     def __init__(self, node: Node, topic: str, diagnostics: Diagnostics) -> None:
         self.node, self.diagnostics = node, diagnostics
         self.publisher = node.create_publisher(LocalisationStatus, topic, STATUS_QOS)
+        self.identity = {
+            "node": node.get_fully_qualified_name(),
+            "instance": f"{socket.gethostname()} pid {os.getpid()} started {time.time():.6f}",
+        }
         self._said: tuple[Status, str] | None = None
         self._said_ns = 0
+        self._estimate: tuple[Integrity, ProtectionLevel | None, Time] | None = None
+        diagnostics.on_publish = self._say
 
-    def say(self, verdict: Verdict, integrity: Integrity, level: ProtectionLevel | None) -> None:
-        """The verdict with the newest estimate's protection level (None: no estimate)."""
+    def say(
+        self, verdict: Verdict, integrity: Integrity, level: ProtectionLevel | None, stamp: Time | None
+    ) -> None:
+        """The node's verdict with the newest estimate's protection level and header stamp (None: no
+        estimate), said on /diagnostics and here."""
         if level is not None:
             self.diagnostics.set("horizontal_protection_level_m", level.horizontal_m)
             self.diagnostics.set("heading_protection_level_rad", level.heading_rad)
+        self._estimate = (integrity, level, Time() if stamp is None else stamp)
+        self.diagnostics.set_verdict(verdict)
+        self._say()
+
+    def _say(self) -> None:
+        verdict = self.diagnostics.verdict()
+        if verdict is None or self._estimate is None:
+            return
+        integrity, level, stamp = self._estimate
         now = self.node.get_clock().now()
         said = (verdict.status, verdict.message)
         if said == self._said and now.nanoseconds - self._said_ns < STATUS_HEARTBEAT_S * 1e9:
             return
         message = LocalisationStatus(
+            valid_until=(now + Duration(seconds=STATUS_VALIDITY_S)).to_msg(),
+            estimate_stamp=stamp,
             status=STATUS_CODES[verdict.status],
             message=verdict.message,
             horizontal_protection_level_m=math.nan if level is None else level.horizontal_m,
@@ -62,6 +89,7 @@ class StatusTopic:
             heading_alert_limit_rad=integrity.heading_limit_rad,
             integrity_risk=integrity.risk,
             within_alert_limits=level is not None and integrity.within(level),
+            **self.identity,
         )
         message.header.stamp = now.to_msg()
         self.publisher.publish(message)

@@ -21,7 +21,7 @@ clock in seconds, passed in.
 
 import math
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import Any
@@ -69,6 +69,27 @@ class Verdict:
     @property
     def level(self) -> str:
         return DIAGNOSTIC_LEVEL[self.status]
+
+    def under(self, conditions: Sequence[tuple[str, str]]) -> "Verdict":
+        """This verdict under the node's conditions ((level, reason), Diagnostics': a second publisher, a
+        callback's exception): one at ERROR makes it lost, its reasons first; one at WARN degrades a
+        tracking one. The one judgement /diagnostics and the status topic both say."""
+        errors = [reason for level, reason in conditions if level == "error"]
+        warnings = [reason for level, reason in conditions if level == "warn"]
+        if not errors and not warnings:
+            return self
+        status = Status.LOST if errors else Status.DEGRADED if self.status is Status.TRACKING else self.status
+        return Verdict(status, (*errors, *warnings, *self.reasons))
+
+
+# A status said holds this long (s, the node's clock) after its stamp (LocalisationStatus.valid_until): a
+# node says it at least once a second, so a status past it is a node that stopped (hung or dead).
+STATUS_VALIDITY_S = 2.0
+
+
+def status_in_force(status: Status, valid_until_s: float, now_s: float) -> Status:
+    """What a consumer takes a received status for at now_s: itself until its validity ends, then lost."""
+    return status if now_s <= valid_until_s else Status.LOST
 
 
 def judge(waiting: str = "", lost: list[str] | None = None, degraded: list[str] | None = None) -> Verdict:
