@@ -16,13 +16,14 @@ Either lets the next ToTal fix re-initialise the filter (`Localiser.on_pose`).
 """
 
 from collections import deque
-from math import hypot, isfinite, sqrt
+from math import copysign, hypot, isfinite, sqrt
 
 import numpy as np
 from scipy.stats import chi2
 
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.pose2d import Pose2D
+from beams_ekf.pose_filter import BearingOutcome, BearingReason, PoseFilter
 
 
 class NisMonitor:
@@ -142,30 +143,29 @@ class BeaconExclusion:
     the exclusion off.
     """
 
-    def __init__(self, gated_bearings: int, readmission_bearings: int, gate: float) -> None:
+    def __init__(self, pose_filter: PoseFilter, gated_bearings: int, readmission_bearings: int) -> None:
+        self._filter = pose_filter
         self._gated_bearings = gated_bearings
         self._readmission_bearings = readmission_bearings
-        self._gate = gate
         self.excluded: int | None = None
         self._gated_in_a_row: dict[int, int] = {}
         self._others_agreed: dict[int, bool] = {}  # since the first of the beacon's gated bearings
         self._agreeing: list[float] = []  # the excluded beacon's normalised residuals in a row
 
-    def add(
-        self, beacon_id: int, gated: bool, excluded: bool, normalised_residual: float, trusted: bool = True
-    ) -> str:
-        """One new bearing: gated, judged as of the excluded beacon, or (neither) accepted, with its
-        residual over its innovation's sigma; `trusted`: the estimate may be held against a beacon.
-        Returns 'excluded' or 'readmitted' when it changes the excluded beacon, '' otherwise."""
-        if excluded:
-            within = normalised_residual**2 <= self._gate
+    def add(self, beacon_id: int, outcome: BearingOutcome, trusted: bool = True) -> str:
+        """One new bearing the filter judged (accepted, gated or excluded); `trusted`: the estimate may be
+        held against a beacon. Returns 'excluded' or 'readmitted' when that changes the excluded beacon
+        (the filter's `excluded_beacons` follow), '' otherwise."""
+        if outcome.reason is BearingReason.EXCLUDED:
+            normalised_residual = copysign(sqrt(outcome.nis), outcome.residual_rad)
+            within = outcome.nis <= self._filter.gate
             self._agreeing = [*self._agreeing, normalised_residual] if within else []
             n = len(self._agreeing)
             if n < self._readmission_bearings or abs(sum(self._agreeing)) > 3.0 * sqrt(n):
                 return ""
             self.clear()
             return "readmitted"
-        if not gated:
+        if outcome.reason is not BearingReason.GATED:
             self._gated_in_a_row[beacon_id] = 0
             for other in self._others_agreed:
                 self._others_agreed[other] = self._others_agreed[other] or other != beacon_id
@@ -179,6 +179,7 @@ class BeaconExclusion:
         if not (trusted and self._others_agreed[beacon_id]):
             return ""
         self.excluded, self._agreeing = beacon_id, []
+        self._filter.excluded_beacons = {beacon_id}
         return "excluded"
 
     @property
@@ -199,7 +200,9 @@ class BeaconExclusion:
         )
 
     def clear(self) -> None:
+        """Every beacon's bearings applied again (a new estimate, a new beacon map or gate)."""
         self.excluded = None
+        self._filter.excluded_beacons = set()
         self._gated_in_a_row.clear()
         self._others_agreed.clear()
         self._agreeing = []

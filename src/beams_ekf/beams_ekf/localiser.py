@@ -22,7 +22,6 @@ the estimate is unconfirmed until its bearings confirm it (`consistency.PoseConf
 status is degraded meanwhile); the first initialisation from ToTal is the bearings' own pose.
 """
 
-import math
 from collections import Counter, deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -110,7 +109,7 @@ class Localiser:
             self.config.lost_nis_window_bearings, self.config.lost_nis_probability, ekf.gate
         )
         self.confirmation = PoseConfirmation(self.config.confirming_bearings)
-        self._clear_exclusion()
+        self.exclusion = BeaconExclusion(ekf, config.exclusion_gated_bearings, config.readmission_bearings)
         self._stamp_s: float | None = None
         # the newest accepted bearings, one revolution's when every beacon is seen: (beacon, the shift
         # gain * residual, the variance gain gain' S taken away, flat), the protection level's hypotheses
@@ -143,7 +142,7 @@ class Localiser:
         self.default_pose_covariance = settings.default_pose_covariance
         self.ekf.configure(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability)
         self._recent = deque(maxlen=len(self.ekf.beacons_xy))
-        self._clear_exclusion()
+        self.exclusion.clear()
 
     def reset(self, reason: str = "reset", forget_learnt: bool = False) -> None:
         """Forget the estimate and the odometry; the filter waits for a pose. What a BearingEkf learnt of
@@ -160,7 +159,7 @@ class Localiser:
         self._time_jumps.clear()
         self.confirmation.clear()  # the next initialisation from ToTal is a first one
         self._recent.clear()
-        self._clear_exclusion()
+        self.exclusion.clear()
         # a bearing of the data before a time jump would make the silence since the last one negative
         self.stats.last_bearing_stamp_s = None
         self.stats.counts[reason] += 1
@@ -266,31 +265,19 @@ class Localiser:
             if gain is not None:
                 taken = outcome.innovation_variance * np.outer(gain, gain).ravel()
                 self._recent.append((bearing.beacon_id, gain * outcome.residual_rad, taken))
-        excluded = outcome.reason is BearingReason.EXCLUDED
-        if outcome.accepted or excluded or outcome.reason is BearingReason.GATED:
-            gated = outcome.reason is BearingReason.GATED
+        if outcome.accepted or outcome.reason in (BearingReason.GATED, BearingReason.EXCLUDED):
             # a beacon is to blame only when the estimate is the bearings' own (confirmed, not kidnapped)
             trusted = self.confirmation.confirmed and not self.kidnap.suspected
-            normalised = math.copysign(math.sqrt(outcome.nis), outcome.residual_rad)
-            change = self.exclusion.add(bearing.beacon_id, gated, excluded, normalised, trusted)
+            change = self.exclusion.add(bearing.beacon_id, outcome, trusted)
             if change:
                 self.stats.counts[f"beacons_{change}"] += 1
-                excluded_id = self.exclusion.excluded
-                self.ekf.excluded_beacons = set() if excluded_id is None else {excluded_id}
-                self._late.refilter_requested = excluded_id is not None
+                self._late.refilter_requested = change == "excluded"
         if outcome.accepted or outcome.reason is BearingReason.GATED:
             self.kidnap.add(not outcome.accepted)
             if self.confirmation.add(bearing.beacon_id, not outcome.accepted):
                 self.stats.counts["pose_confirmations"] += 1
             if self.nis_monitor.add(outcome.nis):
                 self.stats.counts["lost_detections"] += 1
-
-    def _clear_exclusion(self) -> None:
-        """Every beacon's bearings applied again (a new estimate, a new beacon map or gate)."""
-        self.exclusion = BeaconExclusion(
-            self.config.exclusion_gated_bearings, self.config.readmission_bearings, self.ekf.gate
-        )
-        self.ekf.excluded_beacons = set()
 
     # -- poses ----------------------------------------------------------------------------------------
     def on_pose(self, intake: PoseIntake) -> PoseOutcome:
@@ -346,7 +333,7 @@ class Localiser:
         self.kidnap.clear()
         self.nis_monitor.clear()
         self._recent.clear()
-        self._clear_exclusion()
+        self.exclusion.clear()
         event = _CONTINUITY_EVENTS.get(outcome)
         if operator:
             self._break_continuity("an operator's pose")
@@ -369,22 +356,8 @@ class Localiser:
         covariance = self.ekf.covariance
         estimate = Estimate(stamp_s, self.ekf.pose, covariance, self._odometry_twist(), odom_pose)
         if self._recent:
-            estimate.fault_shifts, estimate.fault_covariances = self._fault_hypotheses(covariance)
+            estimate.fault_shifts, estimate.fault_covariances = fault_hypotheses(self._recent, covariance)
         return estimate
-
-    def _fault_hypotheses(self, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """One faulty bearing of the recent ones, or one faulty beacon (its recent bearings together):
-        the estimate's shift from the solution without them (gain * residual, summed) and that
-        solution's covariance (P + gain gain' S, summed: the variance they took away). First order: the
-        gain and residual of each bearing's own update (docs/protection_level.md)."""
-        ids = [beacon for beacon, _, _ in self._recent]
-        # one row per hypothesis: each bearing alone, then each beacon seen more than once
-        twice = [beacon for beacon in set(ids) if ids.count(beacon) > 1]
-        members = np.vstack([np.eye(len(ids)), np.equal.outer(twice, ids).reshape(-1, len(ids))])
-        shifts = members @ np.array([shift for _, shift, _ in self._recent])
-        taken = members @ np.array([taken for _, _, taken in self._recent])
-        separated = covariance + taken.reshape(-1, 3, 3)
-        return shifts, separated
 
     def _odometry_twist(self) -> tuple[float, float, float]:
         """Robot-frame velocity over the last odometry step (zero with fewer than two samples)."""
@@ -393,6 +366,23 @@ class Localiser:
             return (0.0, 0.0, 0.0)
         step_s, (dx, dy, dtheta) = step
         return (dx / step_s, dy / step_s, dtheta / step_s)
+
+
+def fault_hypotheses(
+    recent: Sequence[tuple[int, np.ndarray, np.ndarray]], covariance: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """One faulty bearing of the recent ones, or one faulty beacon (its recent bearings together):
+    the estimate's shift from the solution without them (gain * residual, summed) and that
+    solution's covariance (P + gain gain' S, summed: the variance they took away). First order: the
+    gain and residual of each bearing's own update (docs/protection_level.md)."""
+    ids = [beacon for beacon, _, _ in recent]
+    # one row per hypothesis: each bearing alone, then each beacon seen more than once
+    twice = [beacon for beacon in set(ids) if ids.count(beacon) > 1]
+    members = np.vstack([np.eye(len(ids)), np.equal.outer(twice, ids).reshape(-1, len(ids))])
+    shifts = members @ np.array([shift for _, shift, _ in recent])
+    taken = members @ np.array([taken for _, _, taken in recent])
+    separated = covariance + taken.reshape(-1, 3, 3)
+    return shifts, separated
 
 
 def build_localiser(

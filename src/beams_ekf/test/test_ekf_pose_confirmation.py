@@ -22,6 +22,7 @@ from beams_ekf.ekf_health import EkfHealth
 from beams_ekf.localiser import Localiser, build_localiser, revolution_of
 from beams_ekf.outcomes import OdometryOutcome, PoseOutcome
 from beams_ekf.parameters import filter_settings
+from beams_ekf.pose_filter import BearingOutcome, BearingReason
 from beams_ekf.settings import FilterSettings, LocaliserConfig
 from beams_thesis.synthetic import SyntheticMatch, synthetic_match
 
@@ -359,31 +360,43 @@ def test_a_moved_beacon_is_never_misleading(long_match):
     assert not any(step.misleading for step in steps)
 
 
+class _Gate:
+    """The part of a PoseFilter that BeaconExclusion uses."""
+
+    def __init__(self) -> None:
+        self.gate = 10.83
+        self.excluded_beacons: set[int] = set()
+
+
 def _exclusion(gated_bearings: int = 2, readmission_bearings: int = 4) -> BeaconExclusion:
-    return BeaconExclusion(gated_bearings, readmission_bearings, gate=10.83)
+    return BeaconExclusion(_Gate(), gated_bearings, readmission_bearings)
+
+
+def _judged(reason: BearingReason, normalised_residual: float = 5.0) -> BearingOutcome:
+    return BearingOutcome(
+        reason is BearingReason.ACCEPTED, normalised_residual**2, normalised_residual, reason
+    )
+
+
+GATED, ACCEPTED = _judged(BearingReason.GATED), _judged(BearingReason.ACCEPTED, 0.5)
 
 
 def test_the_exclusion_needs_another_beacon_agreeing_and_a_trusted_estimate():
     """Every beacon gated (the robot moved: the kidnap evidence's case) or an unconfirmed estimate: no
-    beacon is blamed; one beacon gated twice with another accepted between: excluded, one at most."""
+    beacon is blamed; one beacon gated twice with another accepted between: excluded (the filter told),
+    one at most."""
     exclusion = _exclusion()
-    for beacon in (1, 2, 3, 1, 2, 3):
-        assert exclusion.add(beacon, gated=True, excluded=False, normalised_residual=5.0) == ""
+    assert [exclusion.add(beacon, GATED) for beacon in (1, 2, 3, 1, 2, 3)] == [""] * 6
     assert exclusion.excluded is None
     exclusion = _exclusion()
-    events = [
-        exclusion.add(beacon, gated=beacon == 2, excluded=False, normalised_residual=5.0, trusted=False)
-        for beacon in (1, 2, 3, 1, 2, 3)
-    ]
+    events = [exclusion.add(b, GATED if b == 2 else ACCEPTED, trusted=False) for b in (1, 2, 3, 1, 2, 3)]
     assert events == [""] * 6 and exclusion.excluded is None
     exclusion = _exclusion()
-    events = [
-        exclusion.add(beacon, gated=beacon != 1, excluded=False, normalised_residual=5.0)
-        for beacon in (1, 2, 3, 1, 2, 3)
-    ]
+    events = [exclusion.add(b, ACCEPTED if b == 1 else GATED) for b in (1, 2, 3, 1, 2, 3)]
     assert events == ["", "", "", "", "excluded", ""] and exclusion.excluded == 2
+    assert exclusion._filter.excluded_beacons == {2}
     assert "beacon 2 excluded" in exclusion.problem
-    assert _exclusion(gated_bearings=0).add(2, True, False, 5.0) == "" and not _exclusion(0).problem
+    assert _exclusion(gated_bearings=0).add(2, GATED) == "" and not _exclusion(0).problem
 
 
 def test_an_excluded_beacon_is_readmitted_by_agreeing_bearings_of_zero_mean_only():
@@ -391,8 +404,12 @@ def test_an_excluded_beacon_is_readmitted_by_agreeing_bearings_of_zero_mean_only
     ones: after readmission_bearings in a row; one beyond the gate starts the count again."""
     exclusion = _exclusion()
     for beacon in (2, 1, 2):
-        exclusion.add(beacon, gated=beacon == 2, excluded=False, normalised_residual=5.0)
+        exclusion.add(beacon, GATED if beacon == 2 else ACCEPTED)
     assert exclusion.excluded == 2
-    assert [exclusion.add(2, False, True, 2.5) for _ in range(20)] == [""] * 20
-    events = [exclusion.add(2, False, True, z) for z in (1.0, -1.0, 5.0, 0.5, -0.5, 1.0, -1.0)]
+    biased = _judged(BearingReason.EXCLUDED, 2.5)
+    assert [exclusion.add(2, biased) for _ in range(20)] == [""] * 20
+    events = [
+        exclusion.add(2, _judged(BearingReason.EXCLUDED, z)) for z in (1.0, -1.0, 5.0, 0.5, -0.5, 1.0, -1.0)
+    ]
     assert events == ["", "", "", "", "", "", "readmitted"] and exclusion.excluded is None
+    assert exclusion._filter.excluded_beacons == set()
