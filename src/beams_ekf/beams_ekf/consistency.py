@@ -148,6 +148,8 @@ class BeaconExclusion:
         self._gated_bearings = gated_bearings
         self._readmission_bearings = readmission_bearings
         self.excluded: int | None = None
+        # the beacon whose gated bearings call for an exclusion; `exclude` names the one excluded
+        self.suspect: int | None = None
         self._gated_in_a_row: dict[int, int] = {}
         self._others_agreed: dict[int, bool] = {}  # since the first of the beacon's gated bearings
         self._agreeing: list[float] = []  # the excluded beacon's normalised residuals in a row
@@ -176,11 +178,15 @@ class BeaconExclusion:
             self._others_agreed[beacon_id] = False
         if self.excluded is not None or not self._gated_bearings or in_a_row < self._gated_bearings:
             return ""
-        if not (trusted and self._others_agreed[beacon_id]):
-            return ""
-        self.excluded, self._agreeing = beacon_id, []
+        if trusted and self._others_agreed[beacon_id]:
+            self.suspect = beacon_id
+        return ""
+
+    def exclude(self, beacon_id: int) -> None:
+        """Exclude this beacon (the suspect or, on the history's evidence, the one that pulled the estimate
+        towards the suspect's disagreement: `LateBearings`)."""
+        self.excluded, self.suspect, self._agreeing = beacon_id, None, []
         self._filter.excluded_beacons = {beacon_id}
-        return "excluded"
 
     @property
     def agrees_again(self) -> bool:
@@ -201,7 +207,7 @@ class BeaconExclusion:
 
     def clear(self) -> None:
         """Every beacon's bearings applied again (a new estimate, a new beacon map or gate)."""
-        self.excluded = None
+        self.excluded = self.suspect = None
         self._filter.excluded_beacons = set()
         self._gated_in_a_row.clear()
         self._others_agreed.clear()

@@ -13,6 +13,7 @@ after the newest odometry waits for the odometry that covers it.
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -56,8 +57,10 @@ class LateBearings:
         self._judged = judged
         # bearings stamped after the newest odometry, waiting for the odometry that covers them
         self._pending: list[Bearing] = []
-        # set while a replay judges bearings: filter the history again once it is done (`refilter`)
-        self.refilter_requested = False
+        # the Localiser's BeaconExclusion: a beacon it suspects is chosen and excluded once a replay is done
+        self.exclusion: Any = None
+        # capped NIS of the bearings filtered again by the current replay (`refilter`'s score)
+        self._replayed_nis: list[float] = []
 
     def clear(self) -> None:
         """Forget the odometry and the waiting bearings."""
@@ -101,7 +104,14 @@ class LateBearings:
         if not self.ekf.initialised:
             return [self._count(rejected(BearingReason.UNINITIALISED)) for _ in bearings]
         if len(self.history) == 0:  # no odometry: the robot is taken as still
-            return [self._count(self._apply(bearing, (0.0, 0.0, 0.0))) for bearing in bearings]
+            judged = [self._count(self._apply(bearing, (0.0, 0.0, 0.0))) for bearing in bearings]
+        else:
+            judged = self._apply_at_stamps(bearings)
+        if self.exclusion is not None and self.exclusion.suspect is not None:
+            self._exclude_best()
+        return judged
+
+    def _apply_at_stamps(self, bearings: Sequence[Bearing]) -> list[BearingOutcome]:
         outcomes: dict[int, BearingOutcome] = {}
         scheduled: dict[int, list[tuple[Bearing, int]]] = {}  # history index -> (bearing, input index)
         first_state = self._first_state_index()
@@ -115,18 +125,33 @@ class LateBearings:
                 scheduled.setdefault(index, []).append((bearing, n))
         if scheduled:
             self._replay(scheduled, outcomes)
-        if self.refilter_requested:
-            self.refilter()
         return [outcomes[n] for n in range(len(bearings))]
 
-    def refilter(self) -> None:
+    def _exclude_best(self) -> None:
+        """Exclude the beacon whose exclusion leaves the others' bearings over the history most consistent
+        (the lowest mean capped NIS), the suspect on a tie: a beacon whose error grew from inside the gate
+        has pulled the estimate until another's bearings were gated, and that one is then the suspect."""
+        scores = {}
+        for beacon in self.ekf.beacons_xy:
+            self.ekf.excluded_beacons = {beacon}
+            scores[beacon] = self.refilter()
+        suspect = self.exclusion.suspect
+        best = min(scores, key=lambda b: (scores[b], b != suspect))
+        self.exclusion.exclude(best)
+        self.refilter()
+        self._counts["beacons_excluded"] += 1
+
+    def refilter(self) -> float:
         """Filter the whole history again from its oldest state: the bearings of a beacon excluded since
         (`PoseFilter.excluded_beacons`) are then judged without being applied, their pull on the estimate
-        over the history undone (the solution without that beacon, as far back as the history goes)."""
-        self.refilter_requested = False
+        over the history undone (the solution without that beacon, as far back as the history goes).
+        Returns the mean NIS, capped at the gate, of the other bearings filtered again (inf: none)."""
+        self._replayed_nis = []
         first = self._first_state_index() - len(self.history)
         if self.ekf.initialised and first < 0:
             self._replay({first: []}, {})
+        nis = self._replayed_nis
+        return sum(nis) / len(nis) if nis else float("inf")
 
     def _ahead_of_odometry(self, stamp_s: float) -> bool:
         """True for a stamp after the newest odometry (past extrapolation) but within the history span."""
@@ -186,6 +211,8 @@ class LateBearings:
                         outcomes[n] = self._count(rejected(BearingReason.OUTSIDE_HISTORY))
                     continue
                 outcome = self._apply(bearing, between(pose0, then))
+                if n is None and outcome.reason in (BearingReason.ACCEPTED, BearingReason.GATED):
+                    self._replayed_nis.append(min(outcome.nis, self.ekf.gate))
                 kept.append(bearing)
                 if n is not None:
                     outcomes[n] = self._count(outcome)

@@ -110,6 +110,7 @@ class Localiser:
         )
         self.confirmation = PoseConfirmation(self.config.confirming_bearings)
         self.exclusion = BeaconExclusion(ekf, config.exclusion_gated_bearings, config.readmission_bearings)
+        self._late.exclusion = self.exclusion
         self._stamp_s: float | None = None
         # the newest accepted bearings, one revolution's when every beacon is seen: (beacon, the shift
         # gain * residual, the variance gain gain' S taken away, flat), the protection level's hypotheses
@@ -271,7 +272,6 @@ class Localiser:
             change = self.exclusion.add(bearing.beacon_id, outcome, trusted)
             if change:
                 self.stats.counts[f"beacons_{change}"] += 1
-                self._late.refilter_requested = change == "excluded"
         if outcome.accepted or outcome.reason is BearingReason.GATED:
             self.kidnap.add(not outcome.accepted)
             if self.confirmation.add(bearing.beacon_id, not outcome.accepted):

@@ -386,26 +386,36 @@ def test_the_exclusion_needs_another_beacon_agreeing_and_a_trusted_estimate():
     beacon is blamed; one beacon gated twice with another accepted between: excluded (the filter told),
     one at most."""
     exclusion = _exclusion()
-    assert [exclusion.add(beacon, GATED) for beacon in (1, 2, 3, 1, 2, 3)] == [""] * 6
-    assert exclusion.excluded is None
+    for beacon in (1, 2, 3, 1, 2, 3):
+        exclusion.add(beacon, GATED)
+    assert exclusion.suspect is None
     exclusion = _exclusion()
-    events = [exclusion.add(b, GATED if b == 2 else ACCEPTED, trusted=False) for b in (1, 2, 3, 1, 2, 3)]
-    assert events == [""] * 6 and exclusion.excluded is None
+    for beacon in (1, 2, 3, 1, 2, 3):
+        exclusion.add(beacon, GATED if beacon == 2 else ACCEPTED, trusted=False)
+    assert exclusion.suspect is None
     exclusion = _exclusion()
-    events = [exclusion.add(b, ACCEPTED if b == 1 else GATED) for b in (1, 2, 3, 1, 2, 3)]
-    assert events == ["", "", "", "", "excluded", ""] and exclusion.excluded == 2
-    assert exclusion._filter.excluded_beacons == {2}
-    assert "beacon 2 excluded" in exclusion.problem
-    assert _exclusion(gated_bearings=0).add(2, GATED) == "" and not _exclusion(0).problem
+    suspects = []
+    for beacon in (1, 2, 3, 1, 2):
+        exclusion.add(beacon, ACCEPTED if beacon == 1 else GATED)
+        suspects.append(exclusion.suspect)
+    assert suspects == [None, None, None, None, 2] and exclusion.excluded is None
+    exclusion.exclude(2)  # LateBearings' choice on the history's evidence
+    assert exclusion.excluded == 2 and exclusion.suspect is None
+    assert exclusion._filter.excluded_beacons == {2} and "beacon 2 excluded" in exclusion.problem
+    exclusion.add(3, GATED)
+    exclusion.add(3, GATED)  # one beacon at most
+    assert exclusion.suspect is None
+    off = _exclusion(gated_bearings=0)
+    for beacon in (2, 1, 2):
+        off.add(beacon, GATED if beacon == 2 else ACCEPTED)
+    assert off.suspect is None and not off.problem
 
 
 def test_an_excluded_beacon_is_readmitted_by_agreeing_bearings_of_zero_mean_only():
     """Within the gate but all on one side (a bias smaller than the gate): never readmitted; zero-mean
     ones: after readmission_bearings in a row; one beyond the gate starts the count again."""
     exclusion = _exclusion()
-    for beacon in (2, 1, 2):
-        exclusion.add(beacon, GATED if beacon == 2 else ACCEPTED)
-    assert exclusion.excluded == 2
+    exclusion.exclude(2)
     biased = _judged(BearingReason.EXCLUDED, 2.5)
     assert [exclusion.add(2, biased) for _ in range(20)] == [""] * 20
     events = [
