@@ -120,16 +120,23 @@ class TurretPins:
         return schedule.records.tobytes()
 
 
-def match_time_of(trajectory: EurobotTrajectory, pose: Pose2D) -> float:
+def match_time_of(trajectory: EurobotTrajectory, pose: Pose2D) -> float | None:
     """The instant of the match at which the trajectory passes through pose (the nearest point of its
-    sampled path, position and heading): where sim_world_node's match is, from one ground-truth pose."""
+    sampled path, position and heading): where sim_world_node's match is, from one ground-truth pose;
+    None while the robot rests there before moving on (any instant of the rest fits)."""
     states = trajectory.states_at(np.arange(0.0, trajectory.duration_s, 1e-3))
     start, segment = states[:-1, :2], np.diff(states[:, :2], axis=0)
-    length2 = np.maximum(np.sum(segment**2, axis=1), 1e-30)
-    fraction = np.clip(np.sum((np.asarray(pose[:2]) - start) * segment, axis=1) / length2, 0.0, 1.0)
+    length2 = np.sum(segment**2, axis=1)
+    fraction = np.clip(
+        np.sum((np.asarray(pose[:2]) - start) * segment, axis=1) / np.maximum(length2, 1e-30), 0, 1
+    )
     off_m = np.hypot(*(start + fraction[:, None] * segment - pose[:2]).T)
-    off_rad = np.abs(np.angle(np.exp(1j * (states[:-1, 2] - pose[2]))))
+    heading = states[:-1, 2] + fraction * np.diff(states[:, 2])
+    off_rad = np.abs(np.angle(np.exp(1j * (heading - pose[2]))))
     best = int(np.argmin(off_m + 0.1 * off_rad))
+    moving = length2 > 0.0
+    if not moving[best] and moving[best:].any():
+        return None
     return (best + float(fraction[best])) * 1e-3
 
 

@@ -8,11 +8,13 @@ reads the firmware's frames as from the board. The receiver's and the zero refer
 robot of sim_world_node's match: the node declares sim_world_node's parameters (one parameter file serves
 both) for the same trajectory, placed on the match's clock by ground-truth poses (match_time_of), and the
 edge-level simulator's revolutions are written to the harness a second ahead of the emulation. Exit 2
-when the harness or the image is missing (`make hil`), 0 on Ctrl-C or SIGTERM. docs/firmware.md.
+when the harness or the image is missing (`make hil`) or the ground truth is another trajectory, 0 on
+Ctrl-C or SIGTERM. docs/firmware.md.
 """
 
 import argparse
 import contextlib
+import math
 import os
 import pathlib
 import signal
@@ -49,6 +51,7 @@ from beams_sim.world import EurobotTrajectory
 LEAD_S = 1.0  # the schedule is written this far ahead of the emulation
 START_DELAY_S = 0.5  # from the harness's start to its cycle 0 (the first chunk is written meanwhile)
 SYNC_POSES = 3  # ground-truth poses whose median places the trajectory on the match's clock
+TRUTH_OFF_PATH_M = 0.01  # a ground-truth pose this far from the trajectory is another match's
 
 
 def parse(argv: list[str]) -> argparse.Namespace:
@@ -61,18 +64,30 @@ def parse(argv: list[str]) -> argparse.Namespace:
 
 
 def match_origin_s(node: Node, trajectory: EurobotTrajectory) -> float:
-    """The system time of the match's start, from sim_world_node's ground truth."""
+    """The system time of the match's start, from sim_world_node's ground truth; SystemExit when that
+    truth is not this trajectory (other parameters)."""
     origins: list[float] = []
+    off_m: list[float] = []
 
     def on_truth(message: Odometry) -> None:
-        match_s = match_time_of(trajectory, pose2d_of(message.pose.pose))
+        pose = pose2d_of(message.pose.pose)
+        match_s = match_time_of(trajectory, pose)
+        if match_s is None:
+            return  # the robot rests: its instant is the next moving pose's
         origins.append(stamp_to_seconds(message.header.stamp) - match_s)
+        off_m.append(math.dist(trajectory.pose_at(match_s)[:2], pose[:2]))
 
     subscription = node.create_subscription(Odometry, topics.GROUND_TRUTH, on_truth, 10)
     node.get_logger().info(f"waiting for {node.resolve_topic_name(topics.GROUND_TRUTH)} (sim_world_node)")
     while len(origins) < SYNC_POSES:
         rclpy.spin_once(node, timeout_sec=0.1)
     node.destroy_subscription(subscription)
+    if max(off_m) > TRUTH_OFF_PATH_M:
+        node.get_logger().error(
+            f"the ground truth is {max(off_m):.3f} m off this trajectory: give virtual_turret the "
+            "parameters of sim_world_node (trajectory, trajectory_seed, duration_s, ...)"
+        )
+        sys.exit(2)
     return statistics.median(origins)
 
 
