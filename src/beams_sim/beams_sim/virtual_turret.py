@@ -7,8 +7,10 @@ the CPU cycles of a schedule. `schedule_of(revolutions)` turns simulated revolut
 virtual_turret_command.py), the HIL test and the firmware's bench build whole runs with it.
 """
 
+import math
 import os
 import pathlib
+import statistics
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -138,6 +140,32 @@ def match_time_of(trajectory: EurobotTrajectory, pose: Pose2D) -> float | None:
     if not moving[best] and moving[best:].any():
         return None
     return (best + float(fraction[best])) * 1e-3
+
+
+class MatchClock:
+    """sim_world_node's match clock, from its ground truth: the system time of the match's start (the
+    median over SYNC_POSES moving poses), then how far each later truth pose is off the trajectory at its
+    instant (another match: other parameters, or a match started over)."""
+
+    SYNC_POSES = 3
+
+    def __init__(self, trajectory: EurobotTrajectory) -> None:
+        self.trajectory = trajectory
+        self.origins_s: list[float] = []
+        self.origin_s: float | None = None
+        self.off_m = 0.0
+
+    def on_truth(self, stamp_s: float, pose: Pose2D) -> None:
+        if self.origin_s is not None:
+            self.off_m = max(
+                self.off_m, math.dist(self.trajectory.pose_at(stamp_s - self.origin_s)[:2], pose[:2])
+            )
+            return
+        match_s = match_time_of(self.trajectory, pose)
+        if match_s is not None:  # a resting robot's instant is the next moving pose's
+            self.origins_s.append(stamp_s - match_s)
+        if len(self.origins_s) == self.SYNC_POSES:
+            self.origin_s = statistics.median(self.origins_s)
 
 
 def repository_root() -> pathlib.Path:

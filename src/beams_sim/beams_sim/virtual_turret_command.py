@@ -14,11 +14,9 @@ Ctrl-C or SIGTERM. docs/firmware.md.
 
 import argparse
 import contextlib
-import math
 import os
 import pathlib
 import signal
-import statistics
 import subprocess
 import sys
 import time
@@ -39,18 +37,16 @@ from beams_sim.virtual_turret import (
     CPU_HZ,
     PERIOD_S,
     START_CYCLE,
+    MatchClock,
     TurretPins,
     default_firmware,
     default_harness,
     harness_command,
-    match_time_of,
     missing,
 )
-from beams_sim.world import EurobotTrajectory
 
 LEAD_S = 1.0  # the schedule is written this far ahead of the emulation
 START_DELAY_S = 0.5  # from the harness's start to its cycle 0 (the first chunk is written meanwhile)
-SYNC_POSES = 3  # ground-truth poses whose median places the trajectory on the match's clock
 TRUTH_OFF_PATH_M = 0.01  # a ground-truth pose this far from the trajectory is another match's
 
 
@@ -63,52 +59,45 @@ def parse(argv: list[str]) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def match_origin_s(node: Node, trajectory: EurobotTrajectory) -> float:
-    """The system time of the match's start, from sim_world_node's ground truth; SystemExit when that
-    truth is not this trajectory (other parameters)."""
-    origins: list[float] = []
-    off_m: list[float] = []
-
-    def on_truth(message: Odometry) -> None:
-        pose = pose2d_of(message.pose.pose)
-        match_s = match_time_of(trajectory, pose)
-        if match_s is None:
-            return  # the robot rests: its instant is the next moving pose's
-        origins.append(stamp_to_seconds(message.header.stamp) - match_s)
-        off_m.append(math.dist(trajectory.pose_at(match_s)[:2], pose[:2]))
-
-    subscription = node.create_subscription(Odometry, topics.GROUND_TRUTH, on_truth, 10)
-    node.get_logger().info(f"waiting for {node.resolve_topic_name(topics.GROUND_TRUTH)} (sim_world_node)")
-    while len(origins) < SYNC_POSES:
-        rclpy.spin_once(node, timeout_sec=0.1)
-    node.destroy_subscription(subscription)
-    if max(off_m) > TRUTH_OFF_PATH_M:
-        node.get_logger().error(
-            f"the ground truth is {max(off_m):.3f} m off this trajectory: give virtual_turret the "
-            "parameters of sim_world_node (trajectory, trajectory_seed, duration_s, ...)"
-        )
-        sys.exit(2)
-    return statistics.median(origins)
-
-
 def run(node: Node, options: argparse.Namespace, master: int) -> int:
-    """Emulate until the harness ends (its status) or an interrupt."""
+    """Emulate until the harness ends (its status), an interrupt, or a ground truth off the trajectory
+    (SystemExit 2)."""
     trajectory = trajectory_of(declare_table(node, SIM_WORLD_PARAMETERS))
-    origin_s = match_origin_s(node, trajectory)
+    clock = MatchClock(trajectory)
+    node.create_subscription(
+        Odometry,
+        topics.GROUND_TRUTH,
+        lambda m: clock.on_truth(stamp_to_seconds(m.header.stamp), pose2d_of(m.pose.pose)),
+        10,
+    )
+    node.get_logger().info(f"waiting for {node.resolve_topic_name(topics.GROUND_TRUTH)} (sim_world_node)")
+    while clock.origin_s is None:
+        rclpy.spin_once(node, timeout_sec=0.1)
     start_at_s = time.time() + START_DELAY_S
     zero_s = start_at_s + START_CYCLE / CPU_HZ  # the system time of turret time 0
-    pins = TurretPins(lambda t: trajectory.pose_at(zero_s + t - origin_s), EUROBOT_BEACON_MAP, options.seed)
+    pins = TurretPins(
+        lambda t: trajectory.pose_at(zero_s + t - clock.origin_s), EUROBOT_BEACON_MAP, options.seed
+    )
     command = harness_command(
         options.harness, options.firmware, "-", 0, out_fd=master, realtime=True, start_at_s=start_at_s
     )
     harness = subprocess.Popen(command, stdin=subprocess.PIPE, pass_fds=(master,))
-    node.get_logger().info(f"the firmware runs, match time {start_at_s - origin_s:.3f} s at its cycle 0")
+    node.get_logger().info(
+        f"the firmware runs, match time {start_at_s - clock.origin_s:.3f} s at its cycle 0"
+    )
     try:
         while harness.poll() is None:
             with contextlib.suppress(BrokenPipeError):
                 harness.stdin.write(pins.until(time.time() - zero_s + LEAD_S))
                 harness.stdin.flush()
-            time.sleep(PERIOD_S)
+            rclpy.spin_once(node, timeout_sec=PERIOD_S)
+            if clock.off_m > TRUTH_OFF_PATH_M:
+                node.get_logger().error(
+                    f"the ground truth is {clock.off_m:.3f} m off this trajectory: give virtual_turret "
+                    "sim_world_node's parameters (trajectory, trajectory_seed, ...), and restart it with "
+                    "the match"
+                )
+                sys.exit(2)
     finally:
         with contextlib.suppress(BrokenPipeError):
             harness.stdin.close()  # its end of the schedule: the harness stops
