@@ -5,8 +5,8 @@
 
 It prints the pty's path (and links it at --link); `driver_node source:=serial device:=<that path>` then
 reads the firmware's frames as from the board. The receiver's and the zero reference's pins follow the
-robot of sim_world_node's match: the node declares sim_world_node's parameters (one parameter file serves
-both) for the same trajectory, placed on the match's clock by ground-truth poses (match_time_of), and the
+robot of sim_world_node's match: the node declares sim_world_node's parameters (the same values give the
+same trajectory), placed on the match's clock by ground-truth poses (match_time_of), and the
 edge-level simulator's revolutions are written to the harness a second ahead of the emulation. Exit 2
 when the harness or the image is missing (`make hil`) or the ground truth is another trajectory, 0 on
 Ctrl-C or SIGTERM. docs/firmware.md.
@@ -123,7 +123,8 @@ def main(argv: list[str] | None = None) -> None:
     if options.link:
         options.link.unlink(missing_ok=True)
         options.link.symlink_to(os.ttyname(slave))
-    print(f"virtual_turret: the turret's serial line is {options.link or os.ttyname(slave)}", flush=True)
+    linked = f" (linked at {options.link})" if options.link else ""
+    print(f"virtual_turret: the turret's serial line is {os.ttyname(slave)}{linked}", flush=True)
 
     def interrupt(_signal: int, _frame: object) -> None:
         raise KeyboardInterrupt
