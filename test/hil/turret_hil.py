@@ -1,8 +1,8 @@
 """The turret firmware in simavr, driven by the project's edge-level simulator (issue 20).
 
-`schedule_of(revolutions)` turns simulated revolutions into pin levels at exact CPU cycles (the receiver
-on PB0 = ICP1, the zero reference on PD2 = INT0); `run_harness` runs firmware/build/turret.elf under
-test/hil/turret_hil.c (built by `make hil`) with that schedule and returns what the UART sent. Used by
+The schedule of pin levels and the harness's command line are beams_sim.virtual_turret's (the virtual
+turret runs the same in real time); `run_harness` runs firmware/build/turret.elf under
+test/hil/turret_hil.c (built by `make hil`) with a schedule and returns what the UART sent. Used by
 test/dds/test_firmware_hil.py and bench/bench_firmware.py.
 """
 
@@ -10,41 +10,38 @@ import os
 import pathlib
 import subprocess
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
 from beams_driver.edges import RevolutionEdges
-from beams_driver.serial_protocol import FIRMWARE_TICKS_PER_REVOLUTION, FIRMWARE_TIMER_HZ, EventKind
+from beams_driver.serial_protocol import EventKind
+from beams_sim import virtual_turret
 from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
+from beams_sim.virtual_turret import (  # noqa: F401 (the tests' and the bench's names)
+    CPU_HZ,
+    CYCLES_PER_TICK,
+    PERIOD_S,
+    PIN_RECEIVER,
+    PIN_ZERO_REFERENCE,
+    RECORD,
+    START_CYCLE,
+    TICKS_PER_REVOLUTION,
+    TIMER_HZ,
+    ZERO_PULSE_S,
+    Schedule,
+    cycle_of,
+    schedule_of,
+    turret_config,
+)
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 FIRMWARE_ELF = ROOT / "firmware" / "build" / "turret.elf"
 HARNESS = pathlib.Path(os.environ.get("BEAMS_HIL_HARNESS", ROOT / "build" / "hil" / "turret_hil"))
-CPU_HZ = 16_000_000
-TIMER_HZ = FIRMWARE_TIMER_HZ  # what its hello says
-CYCLES_PER_TICK = CPU_HZ // TIMER_HZ
-TICKS_PER_REVOLUTION = FIRMWARE_TICKS_PER_REVOLUTION  # 800 microsteps x 2 x 125 ticks: 10 turn/s
-PERIOD_S = TICKS_PER_REVOLUTION / TIMER_HZ
-# The firmware's boot (set-up, the boot hello) is over long before the first injected level.
-START_CYCLE = CPU_HZ // 20
-ZERO_PULSE_S = 50e-6  # how long the optical switch stays on
-PIN_RECEIVER, PIN_ZERO_REFERENCE = 0, 1
-_RECORD = np.dtype([("cycle", "<u8"), ("pin", "u1"), ("level", "u1"), ("pad", "V6")])
 
 
 def missing() -> str:
     """Why the HIL tests cannot run here ("" when they can)."""
-    if not FIRMWARE_ELF.exists():
-        return f"{FIRMWARE_ELF} is not built (make firmware; avr-gcc from scripts/bootstrap.sh)"
-    if not HARNESS.exists():
-        return f"{HARNESS} is not built (make hil; libsimavr-dev from scripts/bootstrap.sh)"
-    return ""
-
-
-def turret_config(**overrides: object) -> SensorSimConfig:
-    """The thesis-hardware receiver on the firmware's clock: 0.1 s turns captured on 0.5 us ticks."""
-    return SensorSimConfig.thesis_hardware(period_s=PERIOD_S, tick_s=1.0 / TIMER_HZ, **overrides)
+    return virtual_turret.missing(HARNESS, FIRMWARE_ELF)
 
 
 def simulate(
@@ -54,64 +51,6 @@ def simulate(
     simulator = SensorSimulator(config, beacons, np.random.default_rng(seed))
     count = int(duration_s / config.period_s)
     return [simulator.revolution(pose_at, k * config.period_s) for k in range(count)]
-
-
-@dataclass
-class Schedule:
-    """Pin levels at cycles, and the captures the firmware should report: kind and injected cycle."""
-
-    records: np.ndarray
-    kinds: list[EventKind]
-    cycles: np.ndarray
-    end_cycle: int
-
-    def write(self, path: pathlib.Path) -> pathlib.Path:
-        self.records.tofile(path)
-        return path
-
-
-def cycle_of(time_s: float | np.ndarray) -> np.ndarray:
-    """The CPU cycle of an instant of turret time (0 s is START_CYCLE)."""
-    return START_CYCLE + np.rint(np.asarray(time_s, dtype=float) * CPU_HZ).astype(np.int64)
-
-
-def schedule_of(revolutions: Sequence[RevolutionEdges]) -> Schedule:
-    """Each revolution's zero reference (a pulse on INT0) and its receiver edges (levels on ICP1), and the
-    closing zero reference of the last one."""
-    last = revolutions[-1]
-    zero_times = [r.start_time_s for r in revolutions] + [last.start_time_s + last.period_s]
-    edge_times = np.concatenate([r.edge_times_s for r in revolutions])
-    edge_rising = np.concatenate([r.edge_rising for r in revolutions])
-    zero_cycles = cycle_of(zero_times)
-    edge_cycles = cycle_of(edge_times)
-    pins = np.concatenate(
-        [np.full(2 * zero_cycles.size, PIN_ZERO_REFERENCE), np.full(edge_cycles.size, PIN_RECEIVER)]
-    )
-    cycles = np.concatenate([zero_cycles, zero_cycles + round(ZERO_PULSE_S * CPU_HZ), edge_cycles])
-    levels = np.concatenate([np.ones(zero_cycles.size), np.zeros(zero_cycles.size), edge_rising])
-    # the pins' levels before the first event (the receiver is high if its first edge falls), set once the
-    # firmware runs, whatever simavr made of its port set-up
-    receiver_level = int(edge_rising.size > 0 and not edge_rising[0])
-    pins = np.concatenate([[PIN_RECEIVER, PIN_ZERO_REFERENCE], pins])
-    cycles = np.concatenate([[START_CYCLE // 2] * 2, cycles])
-    levels = np.concatenate([[receiver_level, 0], levels])
-    order = np.argsort(cycles, kind="stable")
-    records = np.zeros(cycles.size, _RECORD)
-    records["cycle"], records["pin"], records["level"] = cycles[order], pins[order], levels[order]
-    capture_cycles = np.concatenate([zero_cycles, edge_cycles])
-    kinds = [EventKind.ZERO_REFERENCE] * zero_cycles.size + [
-        EventKind.RISING if rising else EventKind.FALLING for rising in edge_rising.tolist()
-    ]
-    if receiver_level:  # the firmware armed for a rising edge at boot, and sees this one
-        capture_cycles = np.concatenate([[START_CYCLE // 2], capture_cycles])
-        kinds = [EventKind.RISING, *kinds]
-    capture_order = np.argsort(capture_cycles, kind="stable")
-    return Schedule(
-        records,
-        [kinds[i] for i in capture_order],
-        capture_cycles[capture_order],
-        int(cycles.max()) + CPU_HZ // 20,
-    )
 
 
 def receiver_schedule(cycles: np.ndarray, rising: np.ndarray, zero_cycles: Sequence[int] = ()) -> Schedule:
@@ -125,7 +64,7 @@ def receiver_schedule(cycles: np.ndarray, rising: np.ndarray, zero_cycles: Seque
     pulse = round(ZERO_PULSE_S * CPU_HZ)
     at = np.concatenate([[START_CYCLE // 2] * 2, cycles, zero_cycles, zero_cycles + pulse])
     levels = np.concatenate([[0, 0], rising, np.ones(zero_cycles.size), np.zeros(zero_cycles.size)])
-    records = np.zeros(at.size, _RECORD)
+    records = np.zeros(at.size, RECORD)
     records_order = np.argsort(at, kind="stable")
     records["cycle"], records["pin"], records["level"] = (
         at[records_order],
@@ -142,25 +81,9 @@ def receiver_schedule(cycles: np.ndarray, rising: np.ndarray, zero_cycles: Seque
 
 
 def harness_command(
-    schedule_path: pathlib.Path,
-    end_cycle: int,
-    *,
-    out_fd: int | None = None,
-    byte_log: pathlib.Path | None = None,
-    realtime: bool = False,
-    firmware: pathlib.Path = FIRMWARE_ELF,
-    step_log: pathlib.Path | None = None,
+    schedule_path: pathlib.Path, end_cycle: int, *, firmware: pathlib.Path = FIRMWARE_ELF, **options: object
 ) -> list[str]:
-    command = [str(HARNESS), str(firmware), str(schedule_path), str(end_cycle)]
-    if step_log is not None:
-        command += ["--step-log", str(step_log)]
-    if out_fd is not None:
-        command += ["--out-fd", str(out_fd)]
-    if byte_log is not None:
-        command += ["--byte-log", str(byte_log)]
-    if realtime:
-        command.append("--realtime")
-    return command
+    return virtual_turret.harness_command(HARNESS, firmware, schedule_path, end_cycle, **options)
 
 
 def run_harness(
