@@ -400,7 +400,7 @@ def test_driver_node_reads_the_emulated_turret_and_the_ekf_localises(
     assert active, "driver_node did not open the pty"
     rclpy_node.spin_for(1.0)  # the other nodes' discovery
     command = turret_hil.harness_command(
-        schedule.write(tmp_path / "schedule.bin"), schedule.end_cycle, out_fd=master, realtime=True
+        schedule.write(tmp_path / "schedule.bin"), schedule.end_cycle, "--out-fd", master, "--realtime"
     )
     started_s = time.time()
     harness = subprocess.Popen(command, pass_fds=(master,), stderr=subprocess.PIPE)

@@ -1,89 +1,104 @@
-"""The turret firmware in simavr, driven by the project's edge-level simulator (issue 20).
-
-The schedule of pin levels and the harness's command line are beams_sim.virtual_turret's (the virtual
-turret runs the same in real time); `run_harness` runs firmware/build/turret.elf under
-test/hil/turret_hil.c (built by `make hil`) with a schedule and returns what the UART sent. Used by
-test/dds/test_firmware_hil.py and bench/bench_firmware.py.
+"""The turret firmware in simavr over a schedule of pin levels (beams_sim.virtual_turret's, which the
+virtual turret runs in real time): `run_harness` runs firmware/build/turret.elf under test/hil/turret_hil.c
+(built by `make hil`) and returns what the UART sent; a `Schedule` says which captures the firmware should
+report. Used by test/dds/test_firmware_hil.py and bench/bench_firmware.py.
 """
 
-import os
 import pathlib
 import subprocess
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
 from beams_driver.edges import RevolutionEdges
-from beams_driver.serial_protocol import EventKind
+from beams_driver.serial_protocol import FIRMWARE_TICKS_PER_REVOLUTION, FIRMWARE_TIMER_HZ, EventKind
 from beams_sim import virtual_turret
-from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
+from beams_sim.sensor_sim import SensorSimConfig
 from beams_sim.virtual_turret import (  # noqa: F401 (the tests' and the bench's names)
     CPU_HZ,
-    CYCLES_PER_TICK,
     PERIOD_S,
     PIN_RECEIVER,
     PIN_ZERO_REFERENCE,
     RECORD,
+    ROOT,
     START_CYCLE,
-    TICKS_PER_REVOLUTION,
-    TIMER_HZ,
     ZERO_PULSE_S,
-    Schedule,
+    TurretPins,
     cycle_of,
-    schedule_of,
+    harness_command,
+    missing,
     turret_config,
 )
 
-ROOT = pathlib.Path(__file__).resolve().parents[2]
-FIRMWARE_ELF = ROOT / "firmware" / "build" / "turret.elf"
-HARNESS = pathlib.Path(os.environ.get("BEAMS_HIL_HARNESS", ROOT / "build" / "hil" / "turret_hil"))
+FIRMWARE_ELF = virtual_turret.FIRMWARE
+TIMER_HZ = FIRMWARE_TIMER_HZ  # what its hello says
+CYCLES_PER_TICK = CPU_HZ // TIMER_HZ
+TICKS_PER_REVOLUTION = FIRMWARE_TICKS_PER_REVOLUTION  # 800 microsteps x 2 x 125 ticks: 10 turn/s
 
 
-def missing() -> str:
-    """Why the HIL tests cannot run here ("" when they can)."""
-    return virtual_turret.missing(HARNESS, FIRMWARE_ELF)
+@dataclass
+class Schedule:
+    """Pin levels at cycles, and the captures the firmware should report: kind and injected cycle."""
+
+    records: np.ndarray
+    kinds: list[EventKind]
+    cycles: np.ndarray
+    end_cycle: int
+
+    @classmethod
+    def of(cls, records: np.ndarray) -> "Schedule":
+        """The captures of the records: every zero-reference pulse, every change of the receiver's level
+        (low before the schedule: the firmware armed for a rising edge at boot)."""
+        kinds, cycles, level = [], [], 0
+        for cycle, pin, value in zip(*(records[f].tolist() for f in ("cycle", "pin", "level")), strict=True):
+            if pin == PIN_ZERO_REFERENCE and value:
+                kinds.append(EventKind.ZERO_REFERENCE)
+            elif pin == PIN_RECEIVER and value != level:
+                kinds.append(EventKind.RISING if value else EventKind.FALLING)
+                level = value
+            else:
+                continue
+            cycles.append(cycle)
+        return cls(
+            records, kinds, np.array(cycles, dtype=np.int64), int(records["cycle"].max()) + CPU_HZ // 20
+        )
+
+    def write(self, path: pathlib.Path) -> pathlib.Path:
+        self.records.tofile(path)
+        return path
 
 
 def simulate(
     duration_s: float, pose_at, seed: int, config: SensorSimConfig, beacons
 ) -> list[RevolutionEdges]:
     """The revolutions of duration_s of turret time, the first opened at 0 s."""
-    simulator = SensorSimulator(config, beacons, np.random.default_rng(seed))
-    count = int(duration_s / config.period_s)
-    return [simulator.revolution(pose_at, k * config.period_s) for k in range(count)]
+    return TurretPins(pose_at, beacons, seed, config).simulate(int(duration_s / PERIOD_S) * PERIOD_S)
+
+
+def schedule_of(revolutions: Sequence[RevolutionEdges]) -> Schedule:
+    """Each revolution's zero reference and receiver edges, and the closing zero reference of the last."""
+    return Schedule.of(virtual_turret.schedule_of(revolutions))
 
 
 def receiver_schedule(cycles: np.ndarray, rising: np.ndarray, zero_cycles: Sequence[int] = ()) -> Schedule:
     """Levels on the receiver's pin at these cycles (it starts low), and zero references (pulses on the
     switch's pin) opening at zero_cycles."""
-    order = np.argsort(cycles, kind="stable")
-    cycles, rising = np.asarray(cycles, dtype=np.int64)[order], np.asarray(rising, dtype=bool)[order]
     zero_cycles = np.asarray(zero_cycles, dtype=np.int64)
-    pins = np.concatenate([[PIN_RECEIVER, PIN_ZERO_REFERENCE], np.full(cycles.size, PIN_RECEIVER)])
-    pins = np.concatenate([pins, np.full(2 * zero_cycles.size, PIN_ZERO_REFERENCE)])
-    pulse = round(ZERO_PULSE_S * CPU_HZ)
-    at = np.concatenate([[START_CYCLE // 2] * 2, cycles, zero_cycles, zero_cycles + pulse])
-    levels = np.concatenate([[0, 0], rising, np.ones(zero_cycles.size), np.zeros(zero_cycles.size)])
-    records = np.zeros(at.size, RECORD)
-    records_order = np.argsort(at, kind="stable")
-    records["cycle"], records["pin"], records["level"] = (
-        at[records_order],
-        pins[records_order],
-        levels[records_order],
-    )
-    captures = np.concatenate([cycles, zero_cycles])
-    kinds = [EventKind.RISING if r else EventKind.FALLING for r in rising.tolist()]
-    kinds += [EventKind.ZERO_REFERENCE] * zero_cycles.size
-    capture_order = np.argsort(captures, kind="stable")
-    return Schedule(
-        records, [kinds[i] for i in capture_order], captures[capture_order], int(at.max()) + CPU_HZ // 20
-    )
-
-
-def harness_command(
-    schedule_path: pathlib.Path, end_cycle: int, *, firmware: pathlib.Path = FIRMWARE_ELF, **options: object
-) -> list[str]:
-    return virtual_turret.harness_command(HARNESS, firmware, schedule_path, end_cycle, **options)
+    parts = [
+        ([START_CYCLE // 2] * 2, [PIN_RECEIVER, PIN_ZERO_REFERENCE], [0, 0]),
+        (cycles, [PIN_RECEIVER] * len(cycles), rising),
+        (zero_cycles, [PIN_ZERO_REFERENCE] * zero_cycles.size, [1] * zero_cycles.size),
+        (
+            zero_cycles + round(ZERO_PULSE_S * CPU_HZ),
+            [PIN_ZERO_REFERENCE] * zero_cycles.size,
+            [0] * zero_cycles.size,
+        ),
+    ]
+    records = np.zeros(sum(len(p[0]) for p in parts), RECORD)
+    for i, field in enumerate(("cycle", "pin", "level")):
+        records[field] = np.concatenate([np.asarray(p[i], dtype=np.int64) for p in parts])
+    return Schedule.of(records[np.argsort(records["cycle"], kind="stable")])
 
 
 def run_harness(
@@ -93,8 +108,9 @@ def run_harness(
     records (cycle, byte) or an empty array)."""
     path = schedule.write(workdir / "schedule.bin")
     log_path = workdir / "bytes.bin" if byte_log else None
+    options = ("--byte-log", log_path) if log_path else ()
     result = subprocess.run(
-        harness_command(path, schedule.end_cycle, byte_log=log_path, firmware=firmware),
+        harness_command(path, schedule.end_cycle, *options, firmware=firmware),
         capture_output=True,
         timeout=600,
         check=False,
@@ -117,7 +133,7 @@ def step_toggles(
     schedule = workdir / "no_edges.bin"
     schedule.write_bytes(b"")
     log = workdir / "steps.bin"
-    command = harness_command(schedule, round(duration_s * CPU_HZ), firmware=firmware, step_log=log)
+    command = harness_command(schedule, round(duration_s * CPU_HZ), "--step-log", log, firmware=firmware)
     result = subprocess.run(command, capture_output=True, timeout=600, check=False)
     if result.returncode != 0:
         raise RuntimeError(f"turret_hil exited {result.returncode}: {result.stderr.decode(errors='replace')}")

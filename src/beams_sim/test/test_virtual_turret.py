@@ -3,7 +3,7 @@ ground-truth pose places the trajectory on the match's clock."""
 
 import numpy as np
 
-from beams_common.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_sim.sensor_sim import SensorSimulator
 from beams_sim.virtual_turret import (
     PERIOD_S,
@@ -25,10 +25,10 @@ def test_the_chunks_are_the_whole_runs_schedule() -> None:
     whole = schedule_of(
         [simulator.revolution(trajectory.pose_at, k * PERIOD_S) for k in range(10)], closed=False
     )
-    assert b"".join(chunks) == whole.records.tobytes()
+    assert b"".join(chunks) == whole.tobytes()
     # the chunks after the first carry no initial levels: every record is at or after its revolution
-    later = np.frombuffer(b"".join(chunks[1:]), whole.records.dtype)
-    assert later["cycle"].min() >= whole.records["cycle"][2]
+    later = np.frombuffer(b"".join(chunks[1:]), whole.dtype)
+    assert later["cycle"].min() >= whole["cycle"][2]
 
 
 def test_one_pose_gives_the_instant_of_the_match() -> None:
