@@ -5,6 +5,8 @@ Simulated robot and sensor (the embedded default):
 A real robot (the serial sensor; the robot publishes its wheel odometry on `odom`):
     ros2 launch beams_bringup beams.launch.py source:=serial device:=/dev/ttyUSB0 \
         calibration_file:=/home/robot/beams_calibration.yaml
+The turret's firmware in simavr (`make hil`) on a pty linked at `device`, following the simulated robot:
+    ros2 launch beams_bringup beams.launch.py source:=serial device:=/tmp/beams_turret virtual_turret:=true
 Leave the driver (a lifecycle node) to a lifecycle manager: it then waits unconfigured for
 `ros2 lifecycle set /<namespace>/driver_node configure` (then `activate`) or a manager's calls:
     ros2 launch beams_bringup beams.launch.py driver_autostart:=false
@@ -28,6 +30,7 @@ from launch.substitutions import (
     EnvironmentVariable,
     EqualsSubstitution,
     LaunchConfiguration,
+    OrSubstitution,
     PathJoinSubstitution,
 )
 from launch_ros.actions import Node
@@ -47,6 +50,7 @@ ARGUMENTS = (
     ("device", "/dev/ttyUSB0", "serial device of the sensor (source:=serial)"),
     ("calibration_file", "", "calibration file written by beams_calibration"),
     ("use_sim_time", "false", "follow /clock (rosbag replay)"),
+    ("virtual_turret", "false", "true: the simulated robot, and the turret's firmware in simavr on `device`"),
     (
         "driver_autostart",
         "true",
@@ -70,7 +74,7 @@ def node_action(
     node: RobotNode, arguments: list[str] | None = None, condition: Condition | None = None
 ) -> Node:
     """One process of a node: `arguments` before --ros-args, `condition` when it runs (the simulated
-    robot's is that the source is sim)."""
+    robot's is that the source is sim, or the virtual turret follows it)."""
     parameters = [
         PathJoinSubstitution([FindPackageShare("beams_bringup"), "config", PARAMS_FILE]),
         {"use_sim_time": LaunchConfiguration("use_sim_time")},
@@ -87,7 +91,8 @@ def node_action(
         )
     if node.simulation_only:
         # (IfCondition(EqualsSubstitution): LaunchConfigurationEquals is deprecated since Jazzy.)
-        condition = IfCondition(EqualsSubstitution(LaunchConfiguration("source"), "sim"))
+        simulated = EqualsSubstitution(LaunchConfiguration("source"), "sim")
+        condition = IfCondition(OrSubstitution(simulated, LaunchConfiguration("virtual_turret")))
     return Node(
         package=node.package,
         executable=node.executable,
@@ -99,6 +104,18 @@ def node_action(
         respawn=True,
         respawn_delay=RESPAWN_DELAY_S,
         condition=condition,
+    )
+
+
+def virtual_turret() -> Node:
+    """The turret firmware in simavr (docs/firmware.md), its pty linked at `device`: virtual_turret:=true."""
+    return Node(
+        package="beams_sim",
+        executable="virtual_turret",
+        arguments=["--link", LaunchConfiguration("device")],
+        namespace=LaunchConfiguration("namespace"),
+        output="screen",
+        condition=IfCondition(LaunchConfiguration("virtual_turret")),
     )
 
 
@@ -129,5 +146,10 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument(name, default_value=value, description=text) for name, value, text in ARGUMENTS
     ]
     return LaunchDescription(
-        [*arguments, discovery_profile(), *(action for node in ROBOT_NODES for action in node_actions(node))]
+        [
+            *arguments,
+            discovery_profile(),
+            *(action for node in ROBOT_NODES for action in node_actions(node)),
+            virtual_turret(),
+        ]
     )
