@@ -25,6 +25,7 @@ PERIOD_S = FIRMWARE_TICKS_PER_REVOLUTION / FIRMWARE_TIMER_HZ
 START_CYCLE = CPU_HZ // 20  # turret time 0: the firmware's boot (set-up, hello) is long over
 ZERO_PULSE_S = 50e-6  # how long the optical switch stays on
 PIN_RECEIVER, PIN_ZERO_REFERENCE = 0, 1
+SYNC_SPEED_MPS = 0.05  # the match clock is taken from a pose at least this fast (a 1 um pose: 20 us)
 RECORD = np.dtype([("cycle", "<u8"), ("pin", "u1"), ("level", "u1"), ("pad", "V6")])
 ROOT = next(
     (p for p in pathlib.Path(__file__).resolve().parents if (p / "firmware" / "turret").is_dir()),
@@ -99,7 +100,8 @@ class TurretPins:
 
 def match_time_of(trajectory: EurobotTrajectory, pose: Pose2D) -> float | None:
     """The instant of the match at which the trajectory passes through pose (the nearest point of its
-    path sampled every ms, position and heading); None while the robot rests there before moving on."""
+    path sampled every ms, position and heading); None where the robot moves slower than SYNC_SPEED_MPS
+    before moving faster: a pose there places the instant poorly (a start from rest, a turn in place)."""
     states = trajectory.states_at(np.arange(0.0, trajectory.duration_s, 1e-3))
     start, segment = states[:-1, :2], np.diff(states[:, :2], axis=0)
     length2 = np.sum(segment**2, axis=1)
@@ -109,15 +111,16 @@ def match_time_of(trajectory: EurobotTrajectory, pose: Pose2D) -> float | None:
     off_m = np.hypot(*(start + fraction[:, None] * segment - pose[:2]).T)
     heading = states[:-1, 2] + fraction * np.diff(states[:, 2])
     best = int(np.argmin(off_m + 0.1 * np.abs(np.angle(np.exp(1j * (heading - pose[2]))))))
-    if length2[best] == 0.0 and (length2[best:] > 0.0).any():
+    slow = length2 < (SYNC_SPEED_MPS * 1e-3) ** 2
+    if slow[best] and not slow[best:].all():
         return None
     return (best + float(fraction[best])) * 1e-3
 
 
 class MatchClock:
     """sim_world_node's match on the system clock, from its ground truth: the time of the match's start
-    (from the first moving pose), then the farthest a later pose is off the trajectory at its instant
-    (another match)."""
+    (from the first pose match_time_of places), then the farthest a later pose is off the trajectory at
+    its instant (another match)."""
 
     def __init__(self, trajectory: EurobotTrajectory) -> None:
         self.trajectory = trajectory

@@ -73,7 +73,7 @@ def run(node: Node, options: argparse.Namespace, master: int) -> int:
     )  # fmt: skip
     harness = subprocess.Popen(command, stdin=subprocess.PIPE, pass_fds=(master,))
     node.get_logger().info(
-        f"the firmware runs, match time {start_at_s - clock.origin_s:.3f} s at its cycle 0"
+        f"the firmware's cycle 0 at {start_at_s:.6f} s, match time {start_at_s - clock.origin_s:.6f} s"
     )
     try:
         while harness.poll() is None and clock.off_m <= TRUTH_OFF_PATH_M:

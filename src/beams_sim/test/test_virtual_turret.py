@@ -7,6 +7,7 @@ from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_sim.sensor_sim import SensorSimulator
 from beams_sim.virtual_turret import (
     PERIOD_S,
+    SYNC_SPEED_MPS,
     MatchClock,
     TurretPins,
     match_time_of,
@@ -35,7 +36,7 @@ def test_one_pose_gives_the_instant_of_the_match() -> None:
     trajectory = EurobotTrajectory.random(seed=2, duration_s=60.0)
     for match_s in np.random.default_rng(1).uniform(0.5, 59.5, 20):
         found = match_time_of(trajectory, trajectory.pose_at(float(match_s)))
-        moving = trajectory.twist_at(float(match_s))[0] > 0.0
+        moving = trajectory.twist_at(float(match_s))[0] > SYNC_SPEED_MPS
         assert abs(found - match_s) < 1e-6 if moving else found is None
     # standing still for good (the path's end, the match's): an instant of that rest, the last pose
     found = match_time_of(trajectory, trajectory.pose_at(70.0))
