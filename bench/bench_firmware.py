@@ -34,9 +34,7 @@ BEAM_SIGMAS_DEG = np.arange(5.0, 14.01, 0.25)
 
 def _revolutions(duration_s: float, seed: int, **config: object):
     trajectory = EurobotTrajectory.random(seed=seed)
-    return turret_hil.simulate(
-        duration_s, trajectory.pose_at, seed, turret_hil.turret_config(**config), EUROBOT_BEACON_MAP
-    )
+    return turret_hil.simulate(duration_s, trajectory.pose_at, seed, EUROBOT_BEACON_MAP, **config)
 
 
 def emulation_speed(workdir: pathlib.Path) -> tuple[float, float]:
@@ -130,37 +128,22 @@ def rows() -> list[tuple[str, float, str, str]]:
     flash, ram = image_size()
     link_frames = BAUD / 10 / FRAME_SIZE / 10.0
     emulated_frames = BAUD / EMULATED_BITS_PER_BYTE / FRAME_SIZE / 10.0
-    return [
+    table = [
         (
             "simavr emulation speed, turret firmware (16 MHz ATmega328P)",
             speed,
             "x real time",
             f"{SPEED_TURRET_S:.0f} s of turret time, {edges_per_revolution:.0f} edges per revolution",
-        ),
-        (
-            "edge to last byte on the wire, p50",
-            float(np.percentile(wire_s, 50)) * 1e3,
-            "ms",
-            "frame: 10 bytes = 0.2 ms",
-        ),
-        (
-            "edge to last byte on the wire, p99",
-            float(np.percentile(wire_s, 99)) * 1e3,
-            "ms",
-            "queue of 128 events",
-        ),
-        (
-            "edge to host read (real-time mode, pipe), p50",
-            float(np.percentile(host_s, 50)) * 1e3,
-            "ms",
-            "turret period 100 ms",
-        ),
-        (
-            "edge to host read (real-time mode, pipe), p99",
-            float(np.percentile(host_s, 99)) * 1e3,
-            "ms",
-            "turret period 100 ms",
-        ),
+        )
+    ]
+    for what, delays_s, compared in (
+        ("edge to last byte on the wire", wire_s, ("frame: 10 bytes = 0.2 ms", "queue of 128 events")),
+        ("edge to host read (real-time mode, pipe)", host_s, ("turret period 100 ms",) * 2),
+    ):
+        for q, against in zip((50, 99), compared, strict=True):
+            table.append((f"{what}, p{q}", float(np.percentile(delays_s, q)) * 1e3, "ms", against))
+    return [
+        *table,
         (
             "edges per revolution without loss at 500000 baud (mean, widest beam)",
             mean_edges,

@@ -9,8 +9,10 @@ does, in ROS_DOMAIN_ID 68 unless the environment sets one) and measures, with a 
 - a flood: the probe republishes the driver's revolutions at 10x the rate for 30 s (stamps moved to
   now) on top of the driver's own, then each node's peak RSS (VmHWM) and the RSS growth during the flood;
 - kill -9 (and SIGTERM) and restart of the triangulation and of the EKF: the delay to their first output.
+`--source virtual_turret`: driver_node reads the turret firmware in simavr on a pty (beams_sim's
+virtual_turret, `make hil`; its CPU includes simavr's), every row named so.
 
-Usage: python bench/bench_system.py [--flood-s S]   (`rows()` is what bench/run_all.py collects.)
+Usage: python bench/bench_system.py [--flood-s S] [--source virtual_turret]   (`rows()`: bench/run_all.py)
 """
 
 import os
@@ -38,6 +40,7 @@ CPU_WINDOW_S = 10.0
 FLOOD_RATE_FACTOR = 10
 FLOOD_S = 30.0
 RESTARTS = 4
+RECOVERY = "recovery within 2 s"
 Row = tuple[str, float, str, str]  # figure, value, unit, compared with
 REVOLUTION_RATE_HZ = 10.0
 LATENCY_TARGET_MS = 10.0
@@ -58,9 +61,10 @@ class Arrivals:
 
 
 def cpu_seconds(pid: int) -> float:
-    """utime + stime of a process (s), fields 14 and 15 of /proc/<pid>/stat."""
+    """utime + stime of a process and its running children (s), fields 14 and 15 of /proc/<pid>/stat."""
     fields = pathlib.Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS_HZ
+    children = pathlib.Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS_HZ + sum(cpu_seconds(int(c)) for c in children)
 
 
 def memory_kb(pid: int) -> dict[str, int]:
@@ -189,7 +193,7 @@ def restamped(msg, now_ns: int):
     return copy
 
 
-def measure(flood_s: float) -> list[Row]:
+def rows(flood_s: float = FLOOD_S, source: str = "sim") -> list[Row]:
     os.environ.setdefault("ROS_DOMAIN_ID", DEFAULT_DOMAIN_ID)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     from beams_tools.robot_processes import process_commands
@@ -198,15 +202,26 @@ def measure(flood_s: float) -> list[Row]:
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     with tempfile.TemporaryDirectory(prefix="beams_bench_system_") as log_dir:
         probe = Probe()
-        commands = process_commands(INSTALL_BASE, ROS_ARGUMENTS, standby=False)
+        link, turret = pathlib.Path(log_dir) / "turret", {}
+        ros_arguments = dict(ROS_ARGUMENTS)
+        if source == "virtual_turret":  # started first: driver_node opens its pty's link
+            turret = {source: [f"{INSTALL_BASE}/beams_sim/lib/beams_sim/virtual_turret", "--link", str(link)]}
+            ros_arguments["driver_node"] = ["-p", "source:=serial", "-p", f"device:={link}"]
+        elif source != "sim":
+            raise ValueError(f"source: sim or virtual_turret, not {source!r}")
         # the bench restarts a node itself (restart_rows): it never polls the supervisor
-        supervisor = NodeSupervisor(commands, env, pathlib.Path(log_dir))
+        supervisor = NodeSupervisor(turret, env, pathlib.Path(log_dir))
         supervisor.start()
         try:
+            if turret and not probe.spin_until(link.exists, START_TIMEOUT_S):
+                raise RuntimeError(f"no virtual turret at {link}; logs in {log_dir}")
+            for name, command in process_commands(INSTALL_BASE, ros_arguments, standby=False).items():
+                supervisor.add(name, command)
             if not probe.spin_until(lambda: len(probe.arrivals.ekf) > 50, START_TIMEOUT_S):
                 raise RuntimeError(f"no EKF output within {START_TIMEOUT_S} s; logs in {log_dir}")
-            rows = latency_and_cpu_rows(probe, supervisor) + flood_rows(probe, supervisor, flood_s)
-            return rows + restart_rows(probe, supervisor)
+            table = latency_and_cpu_rows(probe, supervisor) + flood_rows(probe, supervisor, flood_s)
+            table += restart_rows(probe, supervisor)
+            return table if source == "sim" else [(f"{source}: {figure}", *rest) for figure, *rest in table]
         finally:
             supervisor.stop()
             probe.close()
@@ -232,13 +247,9 @@ def latency_and_cpu_rows(probe: Probe, supervisor) -> list[Row]:
     ):
         rows.append((f"latency {what}, p50", float(np.percentile(delays, 50)), "ms", compared))
         rows.append((f"latency {what}, p99", float(np.percentile(delays, 99)), "ms", compared))
+    received = len(causes) / window_s
     rows.append(
-        (
-            "revolutions received during the latency window",
-            len(causes) / window_s,
-            "1/s",
-            f"nominal {REVOLUTION_RATE_HZ:g}",
-        )
+        ("revolutions received during the latency window", received, "1/s", f"nominal {REVOLUTION_RATE_HZ:g}")
     )
     for name in pids:
         share = 100.0 * (cpu_after[name] - cpu_before[name]) / window_s
@@ -255,25 +266,15 @@ def flood_rows(probe: Probe, supervisor, flood_s: float) -> list[Row]:
     published = probe.flood(flood_s, FLOOD_RATE_FACTOR * REVOLUTION_RATE_HZ)
     cpu_after = {name: cpu_seconds(pid) for name, pid in pids.items() if supervisor.pid(name) is not None}
     probe.spin_for(1.0)
+    compared = f"{FLOOD_RATE_FACTOR}x nominal, on top of the driver's"
     rows.append(
-        (
-            f"flood: revolutions published by the bench in {flood_s:g} s",
-            published / flood_s,
-            "1/s",
-            f"{FLOOD_RATE_FACTOR}x nominal, on top of the driver's",
-        )
+        (f"flood: revolutions published by the bench in {flood_s:g} s", published / flood_s, "1/s", compared)
     )
     for name, pid in pids.items():
         alive = supervisor.pid(name) is not None
         memory = memory_kb(pid) if alive else {"VmHWM": float("nan"), "VmRSS": float("nan")}
-        rows.append(
-            (
-                f"flood: {name} peak RSS (VmHWM)",
-                memory["VmHWM"] / 1024,
-                "MiB",
-                "bounded" if alive else "NODE DIED",
-            )
-        )
+        state = "bounded" if alive else "NODE DIED"
+        rows.append((f"flood: {name} peak RSS (VmHWM)", memory["VmHWM"] / 1024, "MiB", state))
         growth_mib = (memory["VmRSS"] - rss_before[name]) / 1024
         share = 100.0 * (cpu_after.get(name, float("nan")) - cpu_before[name]) / flood_s
         rows.append((f"flood: CPU {name}", share, "% of one core", "2-core machine"))
@@ -304,31 +305,17 @@ def restart_rows(probe: Probe, supervisor) -> list[Row]:
                 from_ready.append(first - ready)
                 from_start.append(first - started)
                 probe.spin_for(1.0)
-            rows += [
+            for what, value, compared in (
+                (f"ready -> first output, median of {RESTARTS}", float(np.median(from_ready)), RECOVERY),
+                (f"ready -> first output, max of {RESTARTS}", max(from_ready), RECOVERY),
                 (
-                    f"restart after {how}: {executable} ready -> first output, median of {RESTARTS}",
-                    float(np.median(from_ready)),
-                    "s",
-                    "recovery within 2 s",
-                ),
-                (
-                    f"restart after {how}: {executable} ready -> first output, max of {RESTARTS}",
-                    max(from_ready),
-                    "s",
-                    "recovery within 2 s",
-                ),
-                (
-                    f"restart after {how}: {executable} process start -> first output, max of {RESTARTS}",
+                    f"process start -> first output, max of {RESTARTS}",
                     max(from_start),
-                    "s",
                     "Python and rclpy start-up included",
                 ),
-            ]
+            ):
+                rows.append((f"restart after {how}: {executable} {what}", value, "s", compared))
     return rows
-
-
-def rows(flood_s: float = FLOOD_S) -> list[Row]:
-    return measure(flood_s)
 
 
 if __name__ == "__main__":

@@ -14,7 +14,6 @@ import numpy as np
 from beams_driver.edges import RevolutionEdges
 from beams_driver.serial_protocol import FIRMWARE_TICKS_PER_REVOLUTION, FIRMWARE_TIMER_HZ, EventKind
 from beams_sim import virtual_turret
-from beams_sim.sensor_sim import SensorSimConfig
 from beams_sim.virtual_turret import (  # noqa: F401 (the tests' and the bench's names)
     CPU_HZ,
     PERIOD_S,
@@ -69,11 +68,9 @@ class Schedule:
         return path
 
 
-def simulate(
-    duration_s: float, pose_at, seed: int, config: SensorSimConfig, beacons
-) -> list[RevolutionEdges]:
-    """The revolutions of duration_s of turret time, the first opened at 0 s."""
-    return TurretPins(pose_at, beacons, seed, config).simulate(int(duration_s / PERIOD_S) * PERIOD_S)
+def simulate(duration_s: float, pose_at, seed: int, beacons, **overrides: object) -> list[RevolutionEdges]:
+    """The revolutions of duration_s of turret time, the first opened at 0 s (turret_config's overrides)."""
+    return TurretPins(pose_at, beacons, seed, **overrides).simulate(int(duration_s / PERIOD_S) * PERIOD_S)
 
 
 def schedule_of(revolutions: Sequence[RevolutionEdges]) -> Schedule:

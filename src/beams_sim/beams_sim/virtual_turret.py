@@ -1,11 +1,6 @@
-"""The turret firmware's pins, driven by the edge-level simulator: the one schedule of the simavr harness.
-
-test/hil/turret_hil.c (built by `make hil`) runs firmware/build/turret.elf on an emulated ATmega328P at
-16 MHz and sets the receiver's pin (PB0 = ICP1) and the zero reference's (PD2 = INT0) at the CPU cycles
-of a schedule: `schedule_of` writes it from simulated revolutions, `TurretPins` revolution after
-revolution (the virtual turret, virtual_turret_command), `MatchClock` places sim_world_node's match on
-the system clock from its ground truth. The HIL tests and bench_firmware run whole schedules.
-"""
+"""The turret firmware's pins driven by the edge-level simulator: the schedule of test/hil/turret_hil.c
+(`make hil`: turret.elf on an emulated ATmega328P, the receiver on PB0 = ICP1, the zero reference on
+PD2 = INT0), for the HIL tests, bench_firmware and the virtual turret (virtual_turret_command)."""
 
 import math
 import os
@@ -27,12 +22,10 @@ ZERO_PULSE_S = 50e-6  # how long the optical switch stays on
 PIN_RECEIVER, PIN_ZERO_REFERENCE = 0, 1
 SYNC_SPEED_MPS = 0.05  # the match clock is taken from a pose at least this fast (a 1 um pose: 20 us)
 RECORD = np.dtype([("cycle", "<u8"), ("pin", "u1"), ("level", "u1"), ("pad", "V6")])
-ROOT = next(
-    (p for p in pathlib.Path(__file__).resolve().parents if (p / "firmware" / "turret").is_dir()),
-    pathlib.Path.cwd(),
-)  # the working copy colcon installed this package into
-HARNESS = pathlib.Path(os.environ.get("BEAMS_HIL_HARNESS", ROOT / "build" / "hil" / "turret_hil"))
-FIRMWARE = ROOT / "firmware" / "build" / "turret.elf"
+# the working copy colcon installed this package into
+ROOT = next((p for p in pathlib.Path(__file__).parents if (p / "firmware/turret").is_dir()), pathlib.Path())
+HARNESS = pathlib.Path(os.environ.get("BEAMS_HIL_HARNESS", ROOT / "build/hil/turret_hil"))
+FIRMWARE = ROOT / "firmware/build/turret.elf"
 
 
 def turret_config(**overrides: object) -> SensorSimConfig:
@@ -45,9 +38,7 @@ def cycle_of(time_s: float | Sequence[float] | np.ndarray) -> np.ndarray:
     return START_CYCLE + np.rint(np.asarray(time_s, dtype=float) * CPU_HZ).astype(np.int64)
 
 
-def schedule_of(
-    revolutions: Sequence[RevolutionEdges], first: bool = True, closed: bool = True
-) -> np.ndarray:
+def schedule_of(revolutions: list[RevolutionEdges], first: bool = True, closed: bool = True) -> np.ndarray:
     """The RECORDs of each revolution's zero reference (a pulse on INT0) and receiver edges (levels on
     ICP1), in cycle order; `closed`: the last one's closing zero reference too; `first`: the pins' levels
     before them, set once the firmware runs (the receiver high when its first edge falls)."""
@@ -74,22 +65,16 @@ class TurretPins:
     time)`: the sensor simulator's revolutions, and their schedule in chunks."""
 
     def __init__(
-        self,
-        pose_at: Callable[[float], Pose2D],
-        beacons: object,
-        seed: int,
-        config: SensorSimConfig | None = None,
+        self, pose_at: Callable[[float], Pose2D], beacons: object, seed: int, **config: object
     ) -> None:
-        self.pose_at = pose_at
-        self.simulator = SensorSimulator(config or turret_config(), beacons, np.random.default_rng(seed))
+        self.pose_at = pose_at  # config: turret_config's overrides
+        self.simulator = SensorSimulator(turret_config(**config), beacons, np.random.default_rng(seed))
         self.revolutions = 0
 
     def simulate(self, turret_s: float) -> list[RevolutionEdges]:
         """The revolutions that start before turret_s and were not simulated yet."""
-        start, self.revolutions = (
-            self.revolutions,
-            max(self.revolutions, math.ceil(turret_s / PERIOD_S - 1e-9)),
-        )
+        start = self.revolutions
+        self.revolutions = max(start, math.ceil(turret_s / PERIOD_S - 1e-9))
         return [self.simulator.revolution(self.pose_at, k * PERIOD_S) for k in range(start, self.revolutions)]
 
     def until(self, turret_s: float) -> bytes:
@@ -105,9 +90,8 @@ def match_time_of(trajectory: EurobotTrajectory, pose: Pose2D) -> float | None:
     states = trajectory.states_at(np.arange(0.0, trajectory.duration_s, 1e-3))
     start, segment = states[:-1, :2], np.diff(states[:, :2], axis=0)
     length2 = np.sum(segment**2, axis=1)
-    fraction = np.clip(
-        np.sum((np.asarray(pose[:2]) - start) * segment, axis=1) / np.maximum(length2, 1e-30), 0, 1
-    )
+    along = np.sum((np.asarray(pose[:2]) - start) * segment, axis=1)
+    fraction = np.clip(along / np.maximum(length2, 1e-30), 0, 1)
     off_m = np.hypot(*(start + fraction[:, None] * segment - pose[:2]).T)
     heading = states[:-1, 2] + fraction * np.diff(states[:, 2])
     best = int(np.argmin(off_m + 0.1 * np.abs(np.angle(np.exp(1j * (heading - pose[2]))))))
@@ -123,32 +107,25 @@ class MatchClock:
     its instant (another match)."""
 
     def __init__(self, trajectory: EurobotTrajectory) -> None:
-        self.trajectory = trajectory
-        self.origin_s: float | None = None
-        self.off_m = 0.0
+        self.trajectory, self.origin_s, self.off_m = trajectory, None, 0.0
 
     def on_truth(self, stamp_s: float, pose: Pose2D) -> None:
-        if self.origin_s is None:
-            match_s = match_time_of(self.trajectory, pose)
-            self.origin_s = None if match_s is None else stamp_s - match_s
-        else:
+        if self.origin_s is not None:
             off_m = math.dist(self.trajectory.pose_at(stamp_s - self.origin_s)[:2], pose[:2])
             self.off_m = max(self.off_m, off_m)
+        elif (match_s := match_time_of(self.trajectory, pose)) is not None:
+            self.origin_s = stamp_s - match_s
 
 
-def missing(harness: pathlib.Path = HARNESS, firmware: pathlib.Path = FIRMWARE) -> str:
+def missing(firmware: pathlib.Path = FIRMWARE) -> str:
     """Why the firmware cannot run in simavr here ("" when it can)."""
-    absent = " and ".join(str(path) for path in (firmware, harness) if not path.exists())
+    absent = " and ".join(str(path) for path in (firmware, HARNESS) if not path.exists())
     return absent and f"{absent} not built (make hil; avr-gcc, libsimavr-dev: scripts/bootstrap.sh)"
 
 
 def harness_command(
-    schedule: object,
-    end_cycle: int,
-    *options: object,
-    harness: pathlib.Path = HARNESS,
-    firmware: pathlib.Path = FIRMWARE,
+    schedule: object, end_cycle: int, *options: object, firmware: object = FIRMWARE
 ) -> list[str]:
     """turret_hil's command line (its options: test/hil/turret_hil.c); schedule "-" and end_cycle 0 read
     the schedule from stdin until its end."""
-    return [str(value) for value in (harness, firmware, schedule, end_cycle, *options)]
+    return [str(value) for value in (HARNESS, firmware, schedule, end_cycle, *options)]

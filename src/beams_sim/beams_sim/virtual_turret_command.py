@@ -1,12 +1,8 @@
-"""virtual_turret: the shipped turret firmware in simavr, in real time, on a pseudo-terminal.
-
-    ros2 run beams_sim virtual_turret [--link PATH] [--seed N] [--harness PATH] [--firmware PATH]
-
-It prints the pty's path (and links it at --link) for `driver_node source:=serial device:=<path>`. The
-firmware's pins follow sim_world_node's robot: its trajectory from sim_world_node's parameters, its match
-clock from the ground truth, the simulator's revolutions written to the harness LEAD_S ahead. Exit 1
-without `make hil`'s harness and image, 2 once the ground truth leaves the trajectory (the match started
-over), 0 on Ctrl-C or SIGTERM. docs/firmware.md.
+"""virtual_turret: the turret firmware in simavr in real time on a pty (docs/firmware.md), for
+`driver_node source:=serial device:=<its path or --link>`. Its pins follow sim_world_node's robot: the
+trajectory from sim_world_node's parameters, the match clock from the ground truth, the simulator's
+revolutions written LEAD_S ahead. Exit 1 without `make hil`'s harness and image, 2 once the ground truth
+leaves the trajectory (the match started over), 0 on Ctrl-C or SIGTERM.
 """
 
 import argparse
@@ -32,27 +28,22 @@ from beams_common.interfaces import topics
 from beams_common.ros.messages import pose2d_of, stamp_to_seconds
 from beams_sim import virtual_turret as turret
 from beams_sim.parameters import SIM_WORLD_PARAMETERS
-from beams_sim.world import EurobotTrajectory, trajectory_of
+from beams_sim.world import trajectory_of
 
 LEAD_S = 1.0  # the schedule is written this far ahead of the emulation
 START_DELAY_S = 0.5  # from the harness's start to its cycle 0 (the first chunk is written meanwhile)
 TRUTH_OFF_PATH_M = 0.01  # a ground-truth pose this far from the trajectory is another match's
 
 
-def sim_world_trajectory(node: Node) -> EurobotTrajectory:
-    """The trajectory of sim_world_node (of this namespace), from its parameters."""
-    client = AsyncParameterClient(node, "sim_world_node")
-    node.get_logger().info("waiting for sim_world_node")
-    client.wait_for_services()
-    future = client.get_parameters(list(SIM_WORLD_PARAMETERS.names))
-    rclpy.spin_until_future_complete(node, future)
-    values = map(parameter_value_to_python, future.result().values)
-    return trajectory_of(dict(zip(SIM_WORLD_PARAMETERS.names, values, strict=True)))
-
-
 def run(node: Node, options: argparse.Namespace, master: int) -> int:
     """Emulate until the harness ends (its status), an interrupt, or a ground truth off the trajectory (2)."""
-    trajectory = sim_world_trajectory(node)
+    world = AsyncParameterClient(node, "sim_world_node")  # of this namespace
+    node.get_logger().info("waiting for sim_world_node")
+    world.wait_for_services()
+    future = world.get_parameters(list(SIM_WORLD_PARAMETERS.names))
+    rclpy.spin_until_future_complete(node, future)
+    values = map(parameter_value_to_python, future.result().values)
+    trajectory = trajectory_of(dict(zip(SIM_WORLD_PARAMETERS.names, values, strict=True)))
     clock = turret.MatchClock(trajectory)
     node.create_subscription(
         Odometry,
@@ -69,12 +60,10 @@ def run(node: Node, options: argparse.Namespace, master: int) -> int:
     )
     command = turret.harness_command(
         "-", 0, "--out-fd", master, "--realtime", "--start-at", f"{start_at_s:.6f}",
-        harness=options.harness, firmware=options.firmware,
+        firmware=options.firmware,
     )  # fmt: skip
     harness = subprocess.Popen(command, stdin=subprocess.PIPE, pass_fds=(master,))
-    node.get_logger().info(
-        f"the firmware's cycle 0 at {start_at_s:.6f} s, match time {start_at_s - clock.origin_s:.6f} s"
-    )
+    node.get_logger().info(f"cycle 0 at {start_at_s:.6f} s, match time {start_at_s - clock.origin_s:.6f} s")
     try:
         while harness.poll() is None and clock.off_m <= TRUTH_OFF_PATH_M:
             with contextlib.suppress(BrokenPipeError):
@@ -86,9 +75,7 @@ def run(node: Node, options: argparse.Namespace, master: int) -> int:
             harness.stdin.close()  # the schedule's end: the harness stops
         harness.wait()
     if clock.off_m > TRUTH_OFF_PATH_M:
-        node.get_logger().error(
-            f"the ground truth is {clock.off_m:.3f} m off the trajectory (a new match?): restart me"
-        )
+        node.get_logger().error(f"the ground truth is {clock.off_m:.3f} m off the trajectory: a new match?")
         return 2
     return 0 if harness.returncode == -signal.SIGINT else harness.returncode  # a terminal's Ctrl-C
 
@@ -98,12 +85,9 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="virtual_turret", description=__doc__.split("\n")[0])
     parser.add_argument("--link", type=pathlib.Path, help="a symbolic link to the pty, made and removed")
     parser.add_argument("--seed", type=int, default=1, help="seed of the simulated sensor's noise")
-    parser.add_argument("--harness", type=pathlib.Path, default=turret.HARNESS, help="turret_hil (make hil)")
-    parser.add_argument(
-        "--firmware", type=pathlib.Path, default=turret.FIRMWARE, help="turret.elf (make hil)"
-    )
+    parser.add_argument("--firmware", type=pathlib.Path, default=turret.FIRMWARE, help="turret.elf")
     options = parser.parse_args(remove_ros_args(argv)[1:])
-    why = turret.missing(options.harness, options.firmware)
+    why = turret.missing(options.firmware)
     if options.link and options.link.exists() and not options.link.is_symlink():
         why = f"{options.link} exists and is not a link"  # a real device's path, say
     if why:
@@ -115,12 +99,8 @@ def main(argv: list[str] | None = None) -> None:
         options.link.unlink(missing_ok=True)
         options.link.symlink_to(os.ttyname(slave))
     print(f"virtual_turret: the turret's serial line is {os.ttyname(slave)} {options.link or ''}", flush=True)
-
-    def interrupt(_signal: int, _frame: object) -> None:
-        raise KeyboardInterrupt
-
     for stop in (signal.SIGINT, signal.SIGTERM):  # SIGINT too: a shell's background job ignores it
-        signal.signal(stop, interrupt)
+        signal.signal(stop, signal.default_int_handler)  # KeyboardInterrupt
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = Node("virtual_turret")
     status = 0
