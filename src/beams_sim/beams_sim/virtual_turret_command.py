@@ -58,10 +58,8 @@ def run(node: Node, options: argparse.Namespace, master: int) -> int:
     pins = turret.TurretPins(
         lambda t: trajectory.pose_at(zero_s + t - clock.origin_s), EUROBOT_BEACON_MAP, options.seed
     )
-    command = turret.harness_command(
-        "-", 0, "--out-fd", master, "--realtime", "--start-at", f"{start_at_s:.6f}",
-        firmware=options.firmware,
-    )  # fmt: skip
+    flags = ("--out-fd", master, "--realtime", "--start-at", f"{start_at_s:.6f}")
+    command = turret.harness_command("-", 0, *flags, firmware=options.firmware)
     harness = subprocess.Popen(command, stdin=subprocess.PIPE, pass_fds=(master,))
     node.get_logger().info(f"cycle 0 at {start_at_s:.6f} s, match time {start_at_s - clock.origin_s:.6f} s")
     try:
