@@ -54,7 +54,8 @@ hil-if-possible:
 ## test: the linters (ruff check, ruff format --check), the firmware and its harness (when the AVR tools
 ## are installed), then every test: the tiers without DDS (unit, scenario with the firmware HIL, thesis,
 ## static) on FAST_WORKERS pytest-xdist workers, then the DDS tier with DDS_WORKERS workers side by side
-## (its tests mostly wait; each claims a ROS_DOMAIN_ID of its own); exit 0 only when all pass. A part with no test in one of the
+## (its tests mostly wait; each claims a ROS_DOMAIN_ID of its own), its `alone` tests last; exit 0 only
+## when all pass. A part with no test in one of the
 ## two runs (exit status 5) is not an error: PYTEST_ARGS="src/beams_ekf -x"
 # Whole files per worker, in collection order: conftest.py puts the longest files first (FILE_SECONDS), so
 # the workers finish together (xdist's own reordering, by number of tests, is turned off)
@@ -62,14 +63,14 @@ FAST_WORKERS ?= 2
 FAST_PARALLEL := $(if $(filter-out 0 1,$(FAST_WORKERS)),-n $(FAST_WORKERS) --dist loadfile --no-loadscope-reorder)
 DDS_WORKERS ?= 2
 DDS_PARALLEL := $(if $(filter-out 0 1,$(DDS_WORKERS)),-n $(DDS_WORKERS) --dist loadfile --no-loadscope-reorder)
-# a DDS test that fails runs again, up to DDS_RERUNS times (separate processes timed on 2 shared cores:
-# the guided session's fit and the campaign's availability each failed beside another worker and passed
-# alone; on 2026-11-24 the guided session's beacon fit failed twice in one run of the merged main, beside
-# the fault campaign, and passed alone: its cause is open); -raR lists every rerun in the summary
+# a DDS test that fails runs again, up to DDS_RERUNS times (separate processes timed on 2 shared cores);
+# -raR lists every rerun in the summary. The tests marked `alone` (the fault campaign, the respawn timing: the
+# whole suite on the two cores, timed) run after the others, one at a time.
 DDS_RERUNS ?= 2
 test: build lint hil-if-possible
 	$(ROS_ENV) python -m pytest -m "not dds" $(FAST_PARALLEL) $(PYTEST_ARGS) || [ $$? -eq 5 ]
-	$(ROS_ENV) python -m pytest -m dds $(DDS_PARALLEL) --reruns $(DDS_RERUNS) -raR $(PYTEST_ARGS) || [ $$? -eq 5 ]
+	$(ROS_ENV) python -m pytest -m "dds and not alone" $(DDS_PARALLEL) --reruns $(DDS_RERUNS) -raR $(PYTEST_ARGS) || [ $$? -eq 5 ]
+	$(ROS_ENV) python -m pytest -m "dds and alone" --reruns $(DDS_RERUNS) -raR $(PYTEST_ARGS) || [ $$? -eq 5 ]
 
 ## test-fast: the linters, the firmware harness (when possible) and every test but the DDS tier, on
 ## FAST_WORKERS workers (FAST_WORKERS=1: one process)

@@ -1,9 +1,6 @@
 """Calibration benchmark (thesis chapter 7): the whole calibration of the thesis's 48
 configurations, measured by the driver's simulated sensor with thesis-sized biases, its cost; table 7.5
 and figures 7.7 and 7.10 on the stand-in for the thesis's recordings (`thesis_setup.thesis_dataset`).
-
-Usage: python bench/bench_calibration.py [--seed N]
-(`rows()` is what bench/run_all.py collects.)
 """
 
 import math

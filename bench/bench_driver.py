@@ -2,16 +2,12 @@
 (target < 1 ms on one core) and the edge-level simulation of one revolution (target < 2 ms); the
 thesis-hardware and ideal noise models against table 5.1's experiment column, and the
 detection rate against the window with one or two complete codes required (section 2.5.2).
-
-Usage: python bench/bench_driver.py   (`rows()` is what bench/run_all.py collects.)
 """
 
 import sys
-import time
-from collections.abc import Callable
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import bench_main, best_per_call_s
 
 from beams_driver.codes import BeaconCode, code_family
 from beams_driver.decoder import BearingDecoder
@@ -43,17 +39,6 @@ BEACONS = [
 ]
 
 
-def _per_call(repeats: int, calls: int, function: Callable[[], object]) -> float:
-    """Best (least disturbed) mean time per call (s) over several rounds of `calls` calls."""
-    best = float("inf")
-    for _ in range(repeats):
-        started = time.perf_counter()
-        for _ in range(calls):
-            function()
-        best = min(best, (time.perf_counter() - started) / calls)
-    return best
-
-
 def rows() -> list[tuple[str, float, str, str]]:
     """(figure, value, unit, compared with) for the table of BENCHMARKS.md."""
     config = SensorSimConfig()
@@ -74,14 +59,16 @@ def rows() -> list[tuple[str, float, str, str]]:
         for revolution in revolutions:
             decoder.decode(revolution)
 
-    decode_s = _per_call(5, 1, decode_all) / REVOLUTIONS
+    decode_s = best_per_call_s(decode_all, 1, 5) / REVOLUTIONS
     counter = iter(range(10**9))
-    simulate_s = _per_call(5, 100, lambda: simulator.revolution(pose_at, next(counter) * config.period_s))
+    simulate_s = best_per_call_s(
+        lambda: simulator.revolution(pose_at, next(counter) * config.period_s), 100, 5
+    )
     custom = VarianceModel([BeaconCode.from_string(9, "11111001111100")])
-    lookup_s = _per_call(5, 2000, lambda: custom.variance(9, 0.1))
-    closed_s = _per_call(5, 2000, lambda: model.variance(3, 0.1))
+    lookup_s = best_per_call_s(lambda: custom.variance(9, 0.1), 2000, 5)
+    closed_s = best_per_call_s(lambda: model.variance(3, 0.1), 2000, 5)
     windows = np.linspace(0.0, 13.0, 131) * codes[0].bit_time_s
-    sweep_s = _per_call(3, 1, lambda: fixed_window_bearing_errors(codes[2], windows, 998401e-7, 3696))
+    sweep_s = best_per_call_s(lambda: fixed_window_bearing_errors(codes[2], windows, 998401e-7, 3696), 1, 3)
     return [
         (
             "decode + variance, 1 revolution, 5 beacons",

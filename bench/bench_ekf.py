@@ -1,16 +1,10 @@
-"""EKF benchmark (thesis fig. 8.1): accuracy and consistency on the simulated Eurobot match,
-the three bearing-variance modes, odometry alone and ToTal alone, and the cost of a prediction and of
-a bearing update.
+"""EKF benchmark (thesis fig. 8.1): accuracy and consistency on the simulated Eurobot match in the three
+bearing-variance modes, odometry alone and ToTal alone, and the cost of a prediction and of a bearing update.
 
-Both sensor models, thesis_hardware first (the simulator's default), then ideal: the match as a
-calibrated robot's driver publishes it (beams_sim.simulated_match.calibrated_match; see
-bench_ekf_consistency.py). "published R" is that driver's variance (for thesis_hardware it includes
-the power-bias correction's part); the other modes replace it by the driver's variance model in that
-mode, with the same natural variance.
-
-Usage: python bench/bench_ekf.py [--seed N] [--duration-s S] [--plot-path PATH.png]
-(`rows()` is what bench/run_all.py collects.)
-"""
+Both sensor models, thesis_hardware first, on the match a calibrated robot's driver publishes
+(simulated_match.calibrated_match). "published R" is that driver's variance (with the power-bias correction's
+part for thesis_hardware); the other modes replace it by the driver's model in that mode, with the same
+natural variance."""
 
 import math
 import sys
@@ -24,7 +18,6 @@ from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.bearing import Bearing
 from beams_common.geometry.pose2d import compose
 from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
-from beams_driver.variance import VarianceModel
 from beams_ekf.bearing_ekf import BearingEkf
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser, revolution_of
 from beams_sim.sensor_sim import SensorSimConfig
@@ -32,17 +25,16 @@ from beams_sim.simulated_match import (
     SENSOR_MODELS,
     SimulatedMatch,
     calibrated_match,
+    default_variance_model,
     sensor_config_of,
     simulate_match,
     table_natural_variance_rad2,
 )
-from beams_thesis.match_replay import bearing_events
-from beams_thesis.replay import Accuracy, ReplayResult, accuracy, replay
+from beams_thesis.match_replay import match_odometry, offset_start, replay_match
+from beams_thesis.replay import Accuracy, ReplayResult, accuracy
 
 DEFAULT_SEED = 1
 DEFAULT_DURATION_S = 90.0
-# ToTal's first fix is about this good (thesis table 6.1 scale): the filter starts from it
-START_SIGMA = (0.01, 0.01, math.radians(1.0))
 
 
 @dataclass
@@ -54,54 +46,23 @@ class ModeRun:
     figures: Accuracy
 
 
-def _odometry_array(match: SimulatedMatch) -> np.ndarray:
-    o = match.odometry
-    return np.column_stack([o.x_m, o.y_m, o.theta_rad])
-
-
-def _localiser(match: SimulatedMatch) -> Localiser:
-    """ekf_node's filter (its default settings: odometry error states, the wheels' random noise)."""
-    beacons = dict(zip(match.beacon_map.ids, map(tuple, match.beacon_map.xy), strict=True))
-    return build_localiser(beacons, match.turret_offset_m, FilterSettings())
-
-
-def _start(match: SimulatedMatch) -> tuple[tuple[float, float, float], np.ndarray]:
-    """A start pose off the truth by one standard deviation of each component (deterministic)."""
-    x, y, theta = match.initial_pose
-    return (x + START_SIGMA[0], y - START_SIGMA[1], theta + START_SIGMA[2]), np.diag(np.square(START_SIGMA))
-
-
 def run_mode(match: SimulatedMatch, mode: str, config: SensorSimConfig | None = None) -> ModeRun:
     """Replay the match with the variance of `mode` ("published" keeps the decoder's exact variance)
     for the sensor `config` the match was simulated with."""
     variance = None
     if mode != "published":
         config = config or SensorSimConfig()
-        model = VarianceModel(
-            config.codes,
-            mode,
-            turret_speed_rad_s=config.turret_speed_rad_s,
-            natural_variance_rad2=table_natural_variance_rad2(config),
-            min_burst_fraction=config.min_burst_fraction,
-            min_burst_gap_exponent=config.min_burst_gap_exponent,
-        )
+        model = default_variance_model(config.codes, config, table_natural_variance_rad2(config), mode)
         variance = lambda beacon_id, window: float(model.variance(beacon_id, window))  # noqa: E731
-    pose, covariance = _start(match)
-    result = replay(
-        _localiser(match),
-        match.odometry.stamp_s,
-        _odometry_array(match),
-        bearing_events(match.revolutions, variance),
-        match.truth_at,
-        pose,
-        covariance,
-    )
+    # ekf_node's filter (its default settings: odometry error states, the wheels' random noise)
+    localiser = build_localiser(match.beacon_map.as_dict(), match.turret_offset_m, FilterSettings())
+    result = replay_match(localiser, match, *offset_start(match), variance_rad2=variance)
     return ModeRun(mode, result, accuracy(result))
 
 
 def odometry_alone(match: SimulatedMatch) -> tuple[float, float, np.ndarray]:
     """RMS position (m) and heading (rad) of the odometry placed on the true start pose; its map poses."""
-    poses = np.array([compose(match.initial_pose, tuple(p)) for p in _odometry_array(match)])
+    poses = np.array([compose(match.initial_pose, tuple(p)) for p in match_odometry(match)])
     truth = match.ground_truth
     position = np.hypot(poses[:, 0] - truth.x_m, poses[:, 1] - truth.y_m)
     heading = np.array([wrap_to_pi(float(a)) for a in poses[:, 2] - truth.theta_rad])

@@ -1,34 +1,17 @@
-"""EKF consistency and optimality over seeds of the simulated match: NEES, the posterior
-Cramer-Rao bound (PCRB) from the simulator's true noise models, the odometry error states (with two
-beacons hidden for 10 s) and the lost detection.
+"""EKF consistency and optimality over seeds of the simulated match: NEES, the posterior Cramer-Rao bound
+(PCRB) from the simulator's true noise models, the odometry error states (with two beacons hidden for 10 s)
+and the lost detection, for the filters of `FILTERS`, every replay with ToTal's motion-compensated fixes as
+ekf_node has them.
 
-Filters compared: "white odometry noise" (BearingEkf's own ProcessNoise defaults, no odometry error
-states), "error states" (ekf_node's defaults, FilterSettings: the
-odometry's systematic errors as states, the wheels' random noise as process noise) and "wheel noise, no
-error states" (that process noise without the states: the systematic errors are then unmodelled).
-Every replay gets ToTal's motion-compensated fixes, as ekf_node does (they only matter to a lost or
-diverging filter).
+The PCRB ("bound") uses the wheels' true random noise (WheelNoiseModel), each decoded bearing's true variance
+at the true window, and the odometry's systematic errors as unknowns with the filter's prior ("errors
+unknown") or as known ("errors known").
 
-The PCRB ("bound") uses the wheels' true random noise (WheelNoiseModel), each decoded bearing's true
-variance (the exact variance plus the natural one, at the true window the simulator used), and the
-odometry's systematic errors as unknowns with the filter's prior ("bound, errors unknown") or as known
-("bound, errors known": what an estimator told the simulator's drift could reach).
-
-Sensor models (`--sensor-model`, driver_node's sim_noise_model; `rows()`, what bench/run_all.py
-collects, reports both, thesis_hardware first): the EKF gets the bearings of a calibrated robot
-(beams_sim.simulated_match.calibrated_match):
-- thesis_hardware: the power bias of HardwareNoise removed by a perfect chapter-7 calibration (the
-  injected cubic's inverse over the experiment's windows, not a fit: beams_calibration's fit is measured
-  by bench_calibration); variances from the driver's exact model with one constant natural variance,
-  as the driver's VarianceModel holds one: the mean of the hardware's window-dependent edge noise
-  (sigma_r^2 + sigma_f^2) / 4 over the Eurobot table (table_natural_variance_rad2, a model figure, not
-  fitted to a match), plus the variance the correction adds through its slope at the decoded window
-  (CorrectedVariance: first-order, from the same model). Its bound's true bearing variance is the code
-  variance plus the hardware's edge noise at the true window (the correction's part is left out).
-- ideal: the OOK noise and the constant edge noise, no bias, the driver's default variances.
-
-Usage: python bench/bench_ekf_consistency.py [--seeds N] [--duration-s S] [--sensor-models M ...]
-"""
+Both sensor models, thesis_hardware first, give the bearings of a calibrated robot
+(beams_sim.simulated_match.calibrated_match): thesis_hardware's power bias removed by a perfect chapter-7
+calibration, the driver's exact variance with the constant natural variance of table_natural_variance_rad2
+plus what the correction adds (CorrectedVariance; left out of the bound); ideal, the OOK noise and the
+constant edge noise, no bias."""
 
 import itertools
 import math
@@ -38,7 +21,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from rows_table import bench_main
-from scipy.stats import chi2
 
 from beams_common.geometry.pose2d import between
 from beams_ekf.bearing_ekf import BearingEkf
@@ -53,17 +35,15 @@ from beams_sim.simulated_match import (
     sensor_config_of,
 )
 from beams_sim.world import OdometryDrift
-from beams_thesis.match_replay import match_fixes, match_odometry, replay_match
+from beams_thesis.match_replay import START_SIGMA, match_fixes, match_odometry, offset_start, replay_match
 from beams_thesis.pcrb import PcrbTrack, WheelNoiseModel, trajectory_pcrb
-from beams_thesis.replay import PoseEvent, ReplayResult
+from beams_thesis.replay import NEES_BAND, PoseEvent, ReplayResult
 
 DEFAULT_SEEDS = 10
 DEFAULT_DURATION_S = 90.0
 SETTLE_S = 1.0  # the initial transient left out, as bench_ekf's accuracy() does
-START_SIGMA = (0.01, 0.01, math.radians(1.0))  # ToTal's first fix (bench_ekf's start)
 OCCLUSION_START_S, OCCLUSION_S, HIDDEN_BEACONS = 30.0, 10.0, (1, 2)
 LOST_OFFSET_M, LOST_DIRECTIONS, LOST_MATCH_S = 0.05, 8, 6.0
-NEES_BAND = (float(chi2.ppf(0.025, df=3)), float(chi2.ppf(0.975, df=3)))
 
 
 @dataclass(frozen=True)
@@ -74,17 +54,20 @@ class Filter:
     build: Callable[[SimulatedMatch], Localiser]
 
 
-def _beacons(match: SimulatedMatch) -> dict[int, tuple[float, float]]:
-    return dict(zip(match.beacon_map.ids, map(tuple, match.beacon_map.xy), strict=True))
-
-
 FILTERS = (
-    Filter("white odometry noise", lambda m: Localiser(BearingEkf(_beacons(m), m.turret_offset_m))),
-    Filter("error states", lambda m: build_localiser(_beacons(m), m.turret_offset_m, FilterSettings())),
+    # BearingEkf's own ProcessNoise defaults; then ekf_node's (FilterSettings: systematic errors as states)
+    Filter(
+        "white odometry noise", lambda m: Localiser(BearingEkf(m.beacon_map.as_dict(), m.turret_offset_m))
+    ),
+    Filter(
+        "error states", lambda m: build_localiser(m.beacon_map.as_dict(), m.turret_offset_m, FilterSettings())
+    ),
     # the diagnosis: the wheels' random noise alone, without the states, cannot explain the drift
     Filter(
         "wheel noise, no error states",
-        lambda m: build_localiser(_beacons(m), m.turret_offset_m, FilterSettings(odometry_errors=None)),
+        lambda m: build_localiser(
+            m.beacon_map.as_dict(), m.turret_offset_m, FilterSettings(odometry_errors=None)
+        ),
     ),
 )
 
@@ -103,12 +86,7 @@ def true_bearing_variances(match: SimulatedMatch, config: SensorSimConfig) -> li
     result = []
     for revolution in match.revolutions:
         for b in revolution.bearings:
-            x, y, theta = match.truth_at(b.stamp_s)
-            c, s = math.cos(theta), math.sin(theta)
-            turret = (
-                x + c * match.turret_offset_m[0] - s * match.turret_offset_m[1],
-                y + s * match.turret_offset_m[0] + c * match.turret_offset_m[1],
-            )
+            turret = match.turret_at(b.stamp_s)
             beacon = beacons[b.beacon_id]
             window = config.window_rad(
                 math.hypot(beacon.x_m - turret[0], beacon.y_m - turret[1]), beacon.power_scale
@@ -122,11 +100,6 @@ def true_bearing_variances(match: SimulatedMatch, config: SensorSimConfig) -> li
     return result
 
 
-def _start(match: SimulatedMatch) -> tuple[tuple[float, float, float], np.ndarray]:
-    x, y, theta = match.initial_pose
-    return (x + START_SIGMA[0], y - START_SIGMA[1], theta + START_SIGMA[2]), np.diag(np.square(START_SIGMA))
-
-
 def match_bound(match: SimulatedMatch, config: SensorSimConfig, errors_unknown: bool) -> PcrbTrack:
     """The PCRB of a match from the simulator's true noise models (see the module docstring)."""
     drift = OdometryDrift()
@@ -138,7 +111,7 @@ def match_bound(match: SimulatedMatch, config: SensorSimConfig, errors_unknown: 
         np.column_stack([truth.x_m, truth.y_m, truth.theta_rad]),
         increments,
         true_bearing_variances(match, config),
-        _beacons(match),
+        match.beacon_map.as_dict(),
         match.truth_at,
         match.turret_offset_m,
         np.diag(np.square(START_SIGMA)),
@@ -148,7 +121,7 @@ def match_bound(match: SimulatedMatch, config: SensorSimConfig, errors_unknown: 
 
 
 def run(filter_: Filter, match: SimulatedMatch, fixes: list[PoseEvent], start=None) -> ReplayResult:
-    pose, covariance = start or _start(match)
+    pose, covariance = start or offset_start(match)
     return replay_match(filter_.build(match), match, pose, covariance, fixes)
 
 
@@ -164,9 +137,8 @@ class Pooled:
 
     def add(self, result: ReplayResult, unknown: PcrbTrack, known: PcrbTrack) -> None:
         keep = result.times_s >= result.times_s[0] + SETTLE_S
-        errors = result.errors()[keep]
-        self.errors.append(errors)
-        self.nees.append(np.einsum("ki,kij,kj->k", errors, np.linalg.inv(result.covariances[keep]), errors))
+        self.errors.append(result.errors()[keep])
+        self.nees.append(result.nees()[keep])
         self.bound_unknown.append(unknown.at(result.times_s[keep]))
         self.bound_known.append(known.at(result.times_s[keep]))
         self.lost_detections += result.counts.get("lost_detections", 0)
@@ -195,8 +167,7 @@ def occlusion_growth(result: ReplayResult) -> tuple[float, float]:
     """(largest position error during the occlusion, mean NEES during it)."""
     inside = (result.times_s >= OCCLUSION_START_S) & (result.times_s < OCCLUSION_START_S + OCCLUSION_S + 0.2)
     errors = result.errors()[inside]
-    nees = np.einsum("ki,kij,kj->k", errors, np.linalg.inv(result.covariances[inside]), errors)
-    return float(np.hypot(errors[:, 0], errors[:, 1]).max()), float(nees.mean())
+    return float(np.hypot(errors[:, 0], errors[:, 1]).max()), float(result.nees()[inside].mean())
 
 
 def lost_recovery_s(seeds: range, sensor_model: str) -> tuple[float, int]:

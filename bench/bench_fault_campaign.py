@@ -4,8 +4,6 @@ network namespace whose link to the rest the link_down faults cut; skipped, and 
 where namespaces cannot be made: root and iproute2) (beams_tools.campaign_command;
 docs/fault_campaign.md), 20 minutes by default (`make bench`), in ROS_DOMAIN_ID 66 unless the environment
 sets one.
-
-Usage: python bench/bench_fault_campaign.py [--duration-s S] [--seed N] [--output DIR]
 """
 
 import os

@@ -1,8 +1,7 @@
 """The turret firmware in simavr: emulation speed, edge-to-host latency, the most edges a
 revolution carries before the firmware drops some at 500000 baud, and the image's flash and RAM.
 
-Needs `make hil` (firmware/build/turret.elf and the simavr harness). Usage: python bench/bench_firmware.py
-(`rows()` is what bench/run_all.py collects.)
+Needs `make hil` (firmware/build/turret.elf and the simavr harness).
 """
 
 import math
@@ -128,22 +127,22 @@ def rows() -> list[tuple[str, float, str, str]]:
     flash, ram = image_size()
     link_frames = BAUD / 10 / FRAME_SIZE / 10.0
     emulated_frames = BAUD / EMULATED_BITS_PER_BYTE / FRAME_SIZE / 10.0
-    table = [
+    return [
         (
             "simavr emulation speed, turret firmware (16 MHz ATmega328P)",
             speed,
             "x real time",
             f"{SPEED_TURRET_S:.0f} s of turret time, {edges_per_revolution:.0f} edges per revolution",
-        )
-    ]
-    for what, delays_s, compared in (
-        ("edge to last byte on the wire", wire_s, ("frame: 10 bytes = 0.2 ms", "queue of 128 events")),
-        ("edge to host read (real-time mode, pipe)", host_s, ("turret period 100 ms",) * 2),
-    ):
-        for q, against in zip((50, 99), compared, strict=True):
-            table.append((f"{what}, p{q}", float(np.percentile(delays_s, q)) * 1e3, "ms", against))
-    return [
-        *table,
+        ),
+        *(
+            (f"edge to {where}, p{percent}", float(np.percentile(delays_s, percent)) * 1e3, "ms", compared)
+            for where, delays_s, percent, compared in (
+                ("last byte on the wire", wire_s, 50, "frame: 10 bytes = 0.2 ms"),
+                ("last byte on the wire", wire_s, 99, "queue of 128 events"),
+                ("host read (real-time mode, pipe)", host_s, 50, "turret period 100 ms"),
+                ("host read (real-time mode, pipe)", host_s, 99, "turret period 100 ms"),
+            )
+        ),
         (
             "edges per revolution without loss at 500000 baud (mean, widest beam)",
             mean_edges,

@@ -2,7 +2,8 @@
 publisher is said.
 
 The robot's four nodes run under the demo's supervisor (beams_tools.supervisor, respawn after
-RESPAWN_DELAY_S, as beams.launch.py does), ekf_node as its hot standby pair (beams_common.ros.standby); each
+RESPAWN_DELAY_S, as beams.launch.py does; their ROS_HOME, ekf_node's checkpoint, in a temporary directory),
+ekf_node as its hot standby pair (beams_common.ros.standby); each
 node in turn is killed with SIGKILL, KILL_ROUNDS times (of the EKF's pair, the active process), and the
 delay from the kill to the EKF's next beams/ekf/odometry message is timed (the EKF goes on predicting on
 odometry while another node is down; killed itself, its standby takes over: rclpy's start, the node's
@@ -182,9 +183,9 @@ def rows() -> list[Row]:
     from beams_tools.robot_processes import RESPAWN_DELAY_S, ROBOT_NODES
     from beams_tools.supervisor import NodeSupervisor
 
-    env = dict(os.environ)
     with tempfile.TemporaryDirectory() as directory:
         output = pathlib.Path(directory)
+        env = {**os.environ, "ROS_HOME": str(output / "ros_home")}
         # the plain defaults a user gets: uncalibrated, self-calibrating (make demo without --calibrated)
         commands = node_commands(600.0, sensor_setup(SENSOR_MODELS[0], output, calibrated=False))
         supervisor = NodeSupervisor(commands, env, output)

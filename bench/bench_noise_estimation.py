@@ -2,8 +2,6 @@
 recorded by a driver with its default natural variance (3.05e-7 rad^2); `estimate_noise`'s fit against
 the injected natural variance (fig. 5.3's edge noise, linear in the window), and the published / actual
 variance ratio per beacon before the fit and, on new recordings, from a driver configured with it.
-
-Usage: python bench/bench_noise_estimation.py   (`rows()` is what bench/run_all.py collects.)
 """
 
 import math
@@ -40,8 +38,7 @@ def _recordings(values: dict, seed0: int) -> list:
 
 
 def _injected_rad2(window_rad: float) -> float:
-    rising, falling = HARDWARE.hardware.edge_std_rad(window_rad, None)
-    return float(rising**2 + falling**2) / 4.0
+    return float(HARDWARE.hardware.natural_variance_rad2(window_rad, None))
 
 
 def rows() -> list[tuple[str, float, str, str]]:
@@ -51,8 +48,7 @@ def rows() -> list[tuple[str, float, str, str]]:
     fit = report.fit
     windows = np.array([s.mean_window_rad for s in report.spreads])
     errors = [fit.at(w) / _injected_rad2(w) - 1.0 for w in windows]
-    low, high = HARDWARE.hardware.window_range_rad
-    injected_slope = (_injected_rad2(high) - _injected_rad2(low)) / (high - low)
+    injected_slope = HARDWARE.hardware.natural_variance_line()[1]
     result = [
         (
             "noise estimation: natural variance at the mean window",

@@ -1,25 +1,16 @@
-"""Plausibility benchmark: the EKF's worst position error on a simulated match under the
-issue's well-formed-but-wrong inputs, with the checks and without them, and what the checks cost.
-
-The localiser runs the synthetic match (beams_thesis.synthetic) with its bearings' arrival instants as the
-receiving clock, as ekf_node does:
-- bearings restamped late or early (`bearing_offset_s`) from 3 s to 6 s: with the check, refused (the
-  node's `plausibility.stamp_problem` on the revolution's newest bearing); without, applied at their
-  stamp (not among the rows: the EKF alone gates them all, see `rows`);
-- the odometry shifted by +100 m from 3 s on: with the check (`MotionLimits` defaults), re-referenced;
-  without (a speed limit of 1e9 m/s), followed.
-
-Usage: python bench/bench_plausibility.py
-(`rows()` is what bench/run_all.py collects.)
-"""
+"""Plausibility benchmark: the EKF's worst position error on the synthetic match (beams_thesis.synthetic, the
+bearings' arrival instants as the receiving clock, as ekf_node has it) under well-formed but wrong inputs,
+with the checks and without them, and what the checks cost: bearings restamped late or early
+(`bearing_offset_s`) from 3 s to 6 s, refused by `plausibility.stamp_problem` (not among the rows: the EKF
+alone gates them all, see `rows`); the odometry shifted by +100 m from 3 s on, re-referenced with
+`MotionLimits` and followed without."""
 
 import sys
-import timeit
 from itertools import groupby
 from math import hypot
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import Row, bench_main, best_per_call_s
 
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.geometry.bearing import Bearing
@@ -34,7 +25,6 @@ from beams_ekf.localiser import build_localiser, revolution_of
 from beams_ekf.settings import FilterSettings
 from beams_thesis.synthetic import synthetic_match
 
-Row = tuple[str, float, str, str]
 FAULT_S = (3.0, 6.0)
 MATCH_S = 10.0
 
@@ -73,10 +63,6 @@ def _worst_error_m(
     return worst
 
 
-def _best_per_call_s(function, number: int, repeat: int = 7) -> float:
-    return min(timeit.repeat(function, number=number, repeat=repeat)) / number
-
-
 def rows() -> list[Row]:
     result: list[Row] = []
     # Bearings restamped 0.3-1 s late or 0.5 s early are all gated by the EKF alone here (its worst error
@@ -93,7 +79,7 @@ def rows() -> list[Row]:
     result.append(
         (
             "stamp check + odometry step check, per message",
-            _best_per_call_s(
+            best_per_call_s(
                 lambda: (
                     stamp_problem("x", 99.9, 100.0, tolerance),
                     odometry_step_problem(0.02, (0.01, 0.0, 0.01), limits),

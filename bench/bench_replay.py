@@ -4,9 +4,6 @@ EKF over a recorded match, as input messages per second and as a multiple of rea
 The bag is a simulated 90 s Eurobot match (beams_sim.simulated_match: truth and odometry at 50 Hz,
 one revolution of bearings at 10 Hz, so 110 input messages per second of match), written as MCAP and
 as sqlite3; the replay reads it, runs both pipelines and writes the outputs with the inputs.
-
-Usage: python bench/bench_replay.py [--duration-s S] [--seed N]
-(`rows()` is what bench/run_all.py collects.)
 """
 
 import pathlib

@@ -1,46 +1,28 @@
-"""Self-calibration of the power bias while driving: the EKF on simulated matches of the thesis
-hardware as the nodes run with their own defaults, uncalibrated or perfectly calibrated.
+"""Self-calibration of the power bias while driving: the EKF on simulated matches of the thesis hardware as
+the nodes run with their own defaults, uncalibrated (power_bias_states off, consider, estimate: `RUNS`) or
+perfectly calibrated (the bearings corrected by the simulated bias inverted, beams_sim's calibration_of), each
+over the same seeds; the self-calibrating run's figures over the periods of `PERIODS_S`.
 
-Runs, each over the same seeds (trajectory, sensor and odometry noise):
-- "uncalibrated, bias as white noise": ekf_node's defaults with power_bias_states 'off' (no bias
-  states);
-- "uncalibrated, bias considered": power_bias_states 'consider' (Schmidt-Kalman: the bias's prior carried
-  in the covariance, never estimated);
-- "uncalibrated, self-calibrating": ekf_node's defaults (power_bias_states 'estimate'), its figures over
-  the windows [1, 30), [30, 60), [60, 120), [120, 180) s of the match (after 30, 60, 120 s of
-  self-calibration);
-- "perfectly calibrated": the bearings corrected by the simulated bias inverted (beams_sim's
-  calibration_of) and flagged calibrated, the filter's defaults (its bias states then unused).
-
-The driver's variances are its defaults' (driver_node's parameter table: the thesis hardware's natural
-variance, linear in the window). The PCRB ("bound") is bench_ekf_consistency's, from the simulator's true
-noise models with the odometry's systematic errors unknown and the bias known (a calibrated sensor): the
-ratio RMS / bound says what is left to gain. The self-calibrated curve's error is the RMS over the table's
-windows of (estimated - true bias). Each mean NEES comes with its range over the seeds (one seed's
-mean over the period).
-
-Each run's 30 s windows (six in 180 s, the first from SETTLE_S) are also held to the band a consistent
-filter's window mean falls in with 95 % probability (beams_thesis.nees_band: the NEES's autocorrelation pooled
-over the seeds, the window means of a Gaussian error of that correlation; beside it N_eff = 30 s / tau and
-the chi-square band chi2(3 N_eff) / N_eff), and to the 2.0-4.5 target: how many of the seeds x windows
-fall outside each.
-
-Usage: python bench/bench_self_calibration.py [--seeds N] [--duration-s S]
-"""
+The driver's variances are its defaults'. The PCRB ("bound") is bench_ekf_consistency's, with the odometry's
+systematic errors unknown and the bias known: RMS / bound says what is left to gain. The self-calibrated
+curve's error is the RMS over the table's windows of (estimated - true bias). Each run's 30 s windows are held
+to the band a consistent filter's window mean falls in with 95 % probability (beams_thesis.nees_band, the
+NEES's autocorrelation pooled over the seeds) and to the 2.0-4.5 target: how many of the seeds x windows fall
+outside each."""
 
 import math
 import sys
 from dataclasses import dataclass, replace
 
 import numpy as np
-from bench_ekf_consistency import START_SIGMA, match_bound
+from bench_ekf_consistency import match_bound
 from rows_table import bench_main
 
 from beams_driver.parameters import SENSOR_PARAMETERS, corrected_variance_of, variance_model_of
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
 from beams_ekf.power_bias_states import PowerBiasStates
 from beams_sim.simulated_match import SimulatedMatch, calibration_of, sensor_config_of, simulate_match
-from beams_thesis.match_replay import match_fixes, replay_match
+from beams_thesis.match_replay import match_fixes, offset_start, replay_match
 from beams_thesis.nees_band import NeesCorrelation, gaussian_window_band, nees_correlation, window_means
 from beams_thesis.replay import ReplayResult
 
@@ -75,33 +57,20 @@ def default_driver_match(duration_s: float, seed: int, calibrated: bool) -> Simu
     )
 
 
-def filter_of(match: SimulatedMatch, power_bias: PowerBiasStates | None) -> Localiser:
-    beacons = dict(zip(match.beacon_map.ids, map(tuple, match.beacon_map.xy), strict=True))
-    return build_localiser(beacons, match.turret_offset_m, replace(FilterSettings(), power_bias=power_bias))
-
-
 def run(
     match: SimulatedMatch, power_bias: PowerBiasStates | None, calibrated: bool
 ) -> tuple[ReplayResult, Localiser]:
-    """The replay of a match from ToTal's first fix (bench_ekf_consistency's start), and its localiser."""
-    x, y, theta = match.initial_pose
-    start = (x + START_SIGMA[0], y - START_SIGMA[1], theta + START_SIGMA[2])
-    localiser = filter_of(match, power_bias)
-    result = replay_match(
-        localiser, match, start, np.diag(np.square(START_SIGMA)), match_fixes(match), calibrated=calibrated
-    )
+    """The replay of a match from ToTal's first fix (`offset_start`), and its localiser."""
+    settings = replace(FilterSettings(), power_bias=power_bias)
+    localiser = build_localiser(match.beacon_map.as_dict(), match.turret_offset_m, settings)
+    result = replay_match(localiser, match, *offset_start(match), match_fixes(match), calibrated=calibrated)
     return result, localiser
-
-
-def nees(result: ReplayResult) -> np.ndarray:
-    errors = result.errors()
-    return np.einsum("ki,kij,kj->k", errors, np.linalg.inv(result.covariances), errors)
 
 
 def nees_series(result: ReplayResult) -> tuple[np.ndarray, np.ndarray]:
     """(time since the first estimate, NEES) of a replay from SETTLE_S on."""
     t = result.times_s - result.times_s[0]
-    return t[t >= SETTLE_S], nees(result)[t >= SETTLE_S]
+    return t[t >= SETTLE_S], result.nees()[t >= SETTLE_S]
 
 
 def windows_against_band(
@@ -148,7 +117,7 @@ class Pool:
 
     def add(self, result: ReplayResult, bound) -> None:
         t = result.times_s - result.times_s[0]
-        values = nees(result)
+        values = result.nees()
         self.series.append(nees_series(result))
         for period in PERIODS_S:
             keep = (t >= period[0]) & (t < period[1])

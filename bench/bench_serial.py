@@ -2,16 +2,12 @@
 serial link can carry, and the cost of the simulated robot and of a whole offline match; the link's
 integrity: revolutions kept under line noise, and the worst bearing error under spurious
 zero references.
-
-Usage: python bench/bench_serial.py   (`rows()` is what bench/run_all.py collects.)
 """
 
 import sys
-import time
-from collections.abc import Callable
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import bench_main, best_per_call_s
 
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.decoder import BearingDecoder
@@ -28,7 +24,7 @@ from beams_driver.serial_protocol import (
 )
 from beams_driver.variance import VarianceModel
 from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
-from beams_sim.simulated_match import simulate_match
+from beams_sim.simulated_match import default_variance_model, simulate_match
 from beams_sim.world import EurobotTrajectory, OdometrySimulator
 
 # 8N1: ten line bits per byte.
@@ -36,27 +32,8 @@ LINK_FRAMES_PER_S = DEFAULT_BAUDRATE / 10 / FRAME_SIZE
 REVOLUTIONS = 300
 
 
-def _best_of(repeats: int, function: Callable[[], object]) -> float:
-    """Shortest wall time of several runs (s): the least disturbed by the other processes."""
-    best = float("inf")
-    for _ in range(repeats):
-        started = time.perf_counter()
-        function()
-        best = min(best, time.perf_counter() - started)
-    return best
-
-
-def _stream() -> tuple[bytes, int]:
-    """REVOLUTIONS simulated revolutions (robot at (1.0, 0.7), 3 beacons) as the device sends them."""
-    config = SensorSimConfig()
-    simulator = SensorSimulator(config, EUROBOT_BEACON_MAP, np.random.default_rng(0))
-    pose = (1.0, 0.7, 0.4)
-    revolutions = [simulator.revolution(lambda t: pose, k * config.period_s) for k in range(REVOLUTIONS)]
-    data = FrameEncoder().revolutions(revolutions)
-    return data, len(data) // FRAME_SIZE
-
-
 def _simulated(count: int, seed: int) -> tuple[SensorSimConfig, list[RevolutionEdges], SensorSimulator]:
+    """`count` simulated revolutions of a robot standing at (1.0, 0.7), 3 beacons."""
     config = SensorSimConfig()
     simulator = SensorSimulator(config, EUROBOT_BEACON_MAP, np.random.default_rng(seed))
     pose = (1.0, 0.7, 0.4)
@@ -65,6 +42,12 @@ def _simulated(count: int, seed: int) -> tuple[SensorSimConfig, list[RevolutionE
         [simulator.revolution(lambda t: pose, k * config.period_s) for k in range(count)],
         simulator,
     )
+
+
+def _stream() -> tuple[bytes, int]:
+    """REVOLUTIONS simulated revolutions as the device sends them, and their frame count."""
+    data = FrameEncoder().revolutions(_simulated(REVOLUTIONS, seed=0)[1])
+    return data, len(data) // FRAME_SIZE
 
 
 def _bearings(config: SensorSimConfig, revolutions: list[RevolutionEdges]) -> dict[tuple[float, int], float]:
@@ -194,14 +177,9 @@ def spurious_zero_rows() -> list[tuple[str, float, str, str]]:
     truth = {beacon: simulator.true_bearing(beacon, pose)[0] for beacon in (1, 2, 3)}
 
     def worst(assembler: RevolutionAssembler, stream: bytes = data) -> tuple[float, float, int]:
-        receiver = config.receiver
-        variance = VarianceModel(
-            config.codes,
-            natural_variance_rad2=config.natural_variance_rad2,
-            min_burst_fraction=receiver.min_burst_fraction,
-            min_burst_gap_exponent=receiver.min_burst_gap_exponent,
+        decoder = BearingDecoder(
+            config.codes, default_variance_model(config.codes, config), receiver=config.receiver
         )
-        decoder = BearingDecoder(config.codes, variance, receiver=receiver)
         errors, sigmas, published = [], [], 0
         for revolution in _assemble(stream, assembler):
             published += 1
@@ -239,17 +217,17 @@ def rows() -> list[tuple[str, float, str, str]]:
         for offset in range(0, len(data), 4096):
             parser.feed(data[offset : offset + 4096])
 
-    parse_s = _best_of(3, parse_in_chunks)
+    parse_s = best_per_call_s(parse_in_chunks, 1, 3)
     events = FrameParser().feed(data)
-    assemble_s = _best_of(3, lambda: RevolutionAssembler().feed(events))
-    encode_s = _best_of(3, _stream)  # simulation included: an upper bound on the encoder's cost
+    assemble_s = best_per_call_s(lambda: RevolutionAssembler().feed(events), 1, 3)
+    encode_s = best_per_call_s(_stream, 1, 3)  # simulation included: an upper bound on the encoder's cost
 
-    trajectory_s = _best_of(3, lambda: EurobotTrajectory.random(seed=0))
+    trajectory_s = best_per_call_s(lambda: EurobotTrajectory.random(seed=0), 1, 3)
     trajectory = EurobotTrajectory.random(seed=0)
     instants = np.random.default_rng(1).uniform(0.0, 90.0, 20000).tolist()
-    pose_s = _best_of(3, lambda: [trajectory.pose_at(t) for t in instants]) / len(instants)
-    odometry_s = _best_of(3, lambda: OdometrySimulator(trajectory).run(50.0))
-    match_s = _best_of(1, lambda: simulate_match(90.0, seed=0))
+    pose_s = best_per_call_s(lambda: [trajectory.pose_at(t) for t in instants], 1, 3) / len(instants)
+    odometry_s = best_per_call_s(lambda: OdometrySimulator(trajectory).run(50.0), 1, 3)
+    match_s = best_per_call_s(lambda: simulate_match(90.0, seed=0), 1, 1)
 
     parser_rate = frames / parse_s
     return [

@@ -199,8 +199,8 @@ def rows(flood_s: float = FLOOD_S, source: str = "sim") -> list[Row]:
     from beams_tools.robot_processes import process_commands
     from beams_tools.supervisor import NodeSupervisor
 
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
     with tempfile.TemporaryDirectory(prefix="beams_bench_system_") as log_dir:
+        env = dict(os.environ, PYTHONUNBUFFERED="1", ROS_HOME=f"{log_dir}/ros_home")  # its own checkpoint
         probe = Probe()
         link, turret = pathlib.Path(log_dir) / "turret", {}
         ros_arguments = dict(ROS_ARGUMENTS)

@@ -1,17 +1,12 @@
 """ToTal benchmark (thesis ch. 6): cost of the scalar and vectorised forms, and the accuracy
 of gated poses on the simulated Eurobot match with and without odometry.
-
-Usage: python bench/bench_triangulation.py [--seed N]
-(`rows()` is what bench/run_all.py collects.)
 """
 
 import math
 import sys
-import time
-import timeit
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import Row, bench_main, best_per_call_s
 
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
@@ -25,12 +20,6 @@ from beams_triangulation.total import expected_bearings, triangulate, triangulat
 THESIS_BEACONS = np.array([[0.0, 1.0], [-0.866, -0.5], [0.866, -0.5]])
 VECTOR_COUNT = 1_000_000
 DEFAULT_SEED = 4
-Row = tuple[str, float, str, str]
-
-
-def _best_per_call_s(function, number: int, repeat: int = 7) -> float:
-    """Fastest of `repeat` timings (the machine is shared: the minimum is the least disturbed)."""
-    return min(timeit.repeat(function, number=number, repeat=repeat)) / number
 
 
 def scalar_rows() -> list[Row]:
@@ -45,13 +34,13 @@ def scalar_rows() -> list[Row]:
     return [
         (
             "ToTal scalar call: pose + covariance + gate",
-            _best_per_call_s(full_call, 20_000) * 1e6,
+            best_per_call_s(full_call, 20_000) * 1e6,
             "us",
             "under 10 us in CPython",
         ),
         (
             "ToTal scalar call: pose only (triangulate)",
-            _best_per_call_s(lambda: triangulate(beacons, bearings), 20_000) * 1e6,
+            best_per_call_s(lambda: triangulate(beacons, bearings), 20_000) * 1e6,
             "us",
             "-",
         ),
@@ -63,14 +52,10 @@ def vector_rows() -> list[Row]:
     x, y = rng.uniform(-2.0, 2.0, (2, VECTOR_COUNT))
     heading = rng.uniform(-np.pi, np.pi, VECTOR_COUNT)
     bearings = expected_bearings(THESIS_BEACONS, (x, y, heading))
-    best_total = best_covariance = math.inf
-    for _ in range(5):
-        start = time.perf_counter()
-        triangulate_many(THESIS_BEACONS, bearings)
-        best_total = min(best_total, time.perf_counter() - start)
-        start = time.perf_counter()
-        pose_covariance_many(THESIS_BEACONS, (x, y, heading), [1e-6] * 3)
-        best_covariance = min(best_covariance, time.perf_counter() - start)
+    best_total = best_per_call_s(lambda: triangulate_many(THESIS_BEACONS, bearings), 1, 5)
+    best_covariance = best_per_call_s(
+        lambda: pose_covariance_many(THESIS_BEACONS, (x, y, heading), [1e-6] * 3), 1, 5
+    )
     return [
         (
             "ToTal vectorised, 10^6 triplets, one core",

@@ -1,15 +1,11 @@
 """Validation benchmark: what the checks of every input and output cost per revolution, and
 what a flood costs the EKF now that a revolution over MAX_BEARINGS_PER_REVOLUTION is refused whole.
-
-Usage: python bench/bench_validation.py
-(`rows()` is what bench/run_all.py collects.)
 """
 
 import sys
-import timeit
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import Row, bench_main, best_per_call_s
 
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.geometry.bearing import Bearing
@@ -19,14 +15,8 @@ from beams_common.intake.validation import bearing_problem, one_sighting_per_bea
 from beams_ekf.localiser import FilterSettings, build_localiser
 from beams_triangulation.total import expected_bearings
 
-Row = tuple[str, float, str, str]
 TRUE_POSE = (1.2, 0.8, 0.4)
 FLOOD_BEARINGS = 10_000
-
-
-def _best_per_call_s(function, number: int, repeat: int = 7) -> float:
-    """Fastest of `repeat` timings (the machine is shared: the minimum is the least disturbed)."""
-    return min(timeit.repeat(function, number=number, repeat=repeat)) / number
 
 
 def _revolution(count: int) -> list[Bearing]:
@@ -52,18 +42,18 @@ def rows() -> list[Row]:
 
     flood = _revolution(FLOOD_BEARINGS)
     # what the EKF did without the intake's size rule (every bearing of the message kept) and does now
-    all_through = _best_per_call_s(lambda: _localiser().on_bearings(RevolutionIntake(flood)), 1, repeat=3)
-    refused = _best_per_call_s(lambda: _localiser().on_bearings(revolution_intake(flood, ids)), 5, repeat=3)
+    all_through = best_per_call_s(lambda: _localiser().on_bearings(RevolutionIntake(flood)), 1, repeat=3)
+    refused = best_per_call_s(lambda: _localiser().on_bearings(revolution_intake(flood, ids)), 5, repeat=3)
     return [
         (
             "input checks of a 3-bearing revolution (bearing rule, one sighting per beacon)",
-            _best_per_call_s(input_checks, 20_000) * 1e6,
+            best_per_call_s(input_checks, 20_000) * 1e6,
             "us",
             "ToTal scalar call (bench_triangulation)",
         ),
         (
             "output check of a pose (finite, covariance SPD)",
-            _best_per_call_s(lambda: planar_estimate_problem(TRUE_POSE, covariance), 20_000) * 1e6,
+            best_per_call_s(lambda: planar_estimate_problem(TRUE_POSE, covariance), 20_000) * 1e6,
             "us",
             "-",
         ),

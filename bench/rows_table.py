@@ -6,7 +6,16 @@ Not a benchmark itself (run_all.py runs bench_*.py); imported by those run as sc
 import argparse
 import inspect
 import pathlib
+import timeit
 from collections.abc import Callable, Sequence
+
+Row = tuple[str, float, str, str]
+
+
+def best_per_call_s(function: Callable[[], object], number: int, repeat: int = 7) -> float:
+    """Fastest mean time per call (s) of `repeat` rounds of `number` calls: the machine is shared, the
+    least disturbed round is the figure."""
+    return min(timeit.repeat(function, number=number, repeat=repeat)) / number
 
 
 def print_rows(table: Sequence[tuple[str, float, str, str]], unit_width: int = 13) -> None:

@@ -47,9 +47,11 @@ def ros_domain_id() -> Iterator[int]:
 
 
 @pytest.fixture
-def ros_env(ros_domain_id: int, monkeypatch: pytest.MonkeyPatch) -> dict[str, str]:
-    """Environment for node subprocesses (and this process) in the test's own domain, localhost only."""
+def ros_env(ros_domain_id: int, monkeypatch: pytest.MonkeyPatch, tmp_path: pathlib.Path) -> dict[str, str]:
+    """Environment for node subprocesses (and this process) in the test's own domain, localhost only, with
+    its own ROS_HOME (ekf_node's checkpoint: no test resumes from another's)."""
     monkeypatch.setenv("ROS_DOMAIN_ID", str(ros_domain_id))
+    monkeypatch.setenv("ROS_HOME", str(tmp_path / "ros_home"))
     monkeypatch.setenv("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     env = dict(os.environ)
     env["PYTHONUNBUFFERED"] = "1"

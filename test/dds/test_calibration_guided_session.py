@@ -3,8 +3,10 @@ capture, skip and stop; the next session resumes, captures every pose of the pla
 (--yes) and calibrates; the dataset holds the plan, the calibration file is written and the RMS drops.
 
 The session runs as a rehearsal (--simulate): it moves the simulated robot (the driver follows
-beams/sim/ground_truth) to each pose it asks for. The plan is reduced to table 7.2's four corner
-positions at eq. 7.3's four orientations, 20 revolutions each, to keep the run near 60 s.
+beams/sim/ground_truth) to each pose it asks for. The plan is reduced to six of table 7.2's
+positions at two of eq. 7.3's orientations, 50 revolutions each, to keep the run near 60 s: the four
+corners alone leave the beacons ill-determined (an ideal sensor's fit lands 0.5-2.4 times the prior's
+error away from the truth in 7 of 20 simulated datasets; six positions, within 0.14 times in all 20).
 """
 
 import re
@@ -15,7 +17,7 @@ import pytest
 
 REVOLUTIONS = 50
 SESSION_TIMEOUT_S = 150.0
-SESSION_ARGS = ["--positions", "4", "--orientations", "4", "--revolutions", str(REVOLUTIONS), "--simulate"]
+SESSION_ARGS = ["--positions", "6", "--orientations", "2", "--revolutions", str(REVOLUTIONS), "--simulate"]
 
 
 def _session(installed_executable, ros_env, answers: str, *extra: str) -> subprocess.CompletedProcess:
@@ -60,29 +62,29 @@ def test_a_guided_session_captures_the_plan_resumes_and_calibrates(
     }
     start_node("beams_driver", "driver_node", driver)
     start_node("beams_calibration", "calibration_node", calibration)
-    plan = reference_plan(THESIS_AREA, positions=4, orientations=4)
-    assert [p.position for p in plan[::4]] == [1, 2, 10, 11]
+    plan = reference_plan(THESIS_AREA, positions=6, orientations=2)
+    assert [p.position for p in plan[::2]] == [1, 2, 6, 8, 10, 11]
 
-    # The person: captures P1 O1, skips P1 O2, captures P1 O3, stops at P1 O4.
+    # The person: captures P1 O1, skips P1 O2, captures P2 O1, stops at P2 O2.
     first = _session(installed_executable, ros_env, "\ns\n\nq\n")
     assert first.returncode == 1, first.stdout + first.stderr
-    assert "pose 1 of 16: P1 O1: robot centre (base_link) at x = 0.120 m, y = 0.840 m" in first.stdout
+    assert "pose 1 of 12: P1 O1: robot centre (base_link) at x = 0.120 m, y = 0.840 m" in first.stdout
     assert first.stdout.count("OK configuration") == 2 and "REFUSED" not in first.stdout
     assert re.search(rf"\] +[1-9]\d*% ~\d+/{REVOLUTIONS} revolutions", first.stdout), first.stdout
-    assert "plan: 2 of 16 poses captured, 1 skipped" in first.stdout
+    assert "plan: 2 of 12 poses captured, 1 skipped" in first.stdout
     recorded = _poses(load_dataset(tmp_path / "dataset.yaml"))
     np.testing.assert_allclose(recorded, [plan[0].pose, plan[2].pose], atol=1e-12)
     assert not (tmp_path / "calibration.yaml").exists()
 
     second = _session(installed_executable, ros_env, "", "--yes")
     assert second.returncode == 0, second.stdout + second.stderr
-    assert "dataset " + str(tmp_path / "dataset.yaml") + ": 2 configurations; 2 of the 16" in second.stdout
-    assert second.stdout.count("OK configuration") == 14 and "REFUSED" not in second.stdout
-    assert "plan: 16 of 16 poses captured, 0 skipped" in second.stdout
+    assert "dataset " + str(tmp_path / "dataset.yaml") + ": 2 configurations; 2 of the 12" in second.stdout
+    assert second.stdout.count("OK configuration") == 10 and "REFUSED" not in second.stdout
+    assert "plan: 12 of 12 poses captured, 0 skipped" in second.stdout
 
     dataset = load_dataset(tmp_path / "dataset.yaml")
     recorded = _poses(dataset)
-    assert len(recorded) == len(plan) == 16
+    assert len(recorded) == len(plan) == 12
     assert all(sum(poses_match(p.pose, r) for r in recorded) == 1 for p in plan)
     assert all(c.revolutions == REVOLUTIONS and len(c.observations) == 3 for c in dataset.configurations)
 

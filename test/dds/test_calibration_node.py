@@ -3,6 +3,7 @@ refuses a capture with a hidden beacon, lists and clears the dataset, and calibr
 calibration file (refusing one too small)."""
 
 import math
+import re
 
 import numpy as np
 
@@ -81,6 +82,21 @@ def test_capture_list_and_clear(start_node, rclpy_node, tmp_path):
         np.angle(np.exp(1j * (np.array(measured) - expected))), 0.0, atol=math.radians(0.1)
     )
     assert all(0.1 < configuration.observation(i).window_rad < 0.25 for i in (1, 2, 3))
+
+    # a mistyped reference pose beside the same bearings: refused, the pose and the one they give said
+    x, y, theta = POSE
+    for mistake in (
+        (x, y, theta + math.pi),
+        (x + 0.5, y, theta),
+        (x, 0.95 - y, -theta),
+    ):  # pi, 0.5 m, mirrored
+        refused = _capture(rclpy_node, *mistake)
+        assert not refused.success and refused.configurations == 1, refused.message
+        stated = f"({mistake[0]:.3f} m, {mistake[1]:.3f} m, {math.degrees(mistake[2]):.1f} deg)"
+        assert f"reference pose {stated} is" in refused.message, refused.message
+        given = re.search(r"its bearings give \((\S+) m, (\S+) m, (\S+) deg\)", refused.message)
+        assert given and math.hypot(float(given[1]) - x, float(given[2]) - y) < 0.01, refused.message
+        assert abs(float(given[3]) - math.degrees(theta)) < 1.0 and refused.message.endswith("records it)")
 
     refused = _capture(rclpy_node, float("nan"), 0.0, 0.0)
     assert not refused.success and "not finite" in refused.message and refused.configurations == 1

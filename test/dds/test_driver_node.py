@@ -139,7 +139,9 @@ def test_serial_source_through_a_pseudo_terminal(rclpy_node, start_node, tmp_pat
 
 
 def test_reloaded_calibration_corrects_the_published_bearings(rclpy_node, start_node, tmp_path):
-    """A calibration file written while the driver runs is applied on `~/reload_calibration` (issue 6)."""
+    """A calibration file written while the driver runs is applied on `~/reload_calibration` (issue 6);
+    windows outside its power bias's fitted range are counted (bearings_power_bias_held)."""
+    from diagnostic_msgs.msg import DiagnosticArray
     from std_srvs.srv import Trigger
 
     from beams_common.calibration.bearing_correction import BearingCorrection
@@ -166,13 +168,17 @@ def test_reloaded_calibration_corrects_the_published_bearings(rclpy_node, start_
 
     before = mean_error(collect_revolutions(rclpy_node, 20))
     constant_power_bias_rad = 0.01  # d, the constant of eq. 7.19's cubic: every bearing moves by -d
-    correction = BearingCorrection(power_bias_coefficients=(0.0, 0.0, 0.0, constant_power_bias_rad))
+    # fitted on windows wider than the table's: held at its edge value, each bearing counted
+    correction = BearingCorrection((0.0, 0.0, 0.0, constant_power_bias_rad), window_range_rad=(0.3, 0.4))
     save_calibration(SensorCalibration(beacon_map=EUROBOT_BEACON_MAP, bearing_correction=correction), path)
     reply = rclpy_node.call(Trigger, "/driver_node/reload_calibration", Trigger.Request(), WAIT_S)
     assert reply.success, reply.message
     rclpy_node.received.clear()
+    rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
     after = mean_error(collect_revolutions(rclpy_node, 20))
     assert after - before == pytest.approx(-constant_power_bias_rad, abs=0.002)
+    held = lambda: int(rclpy_node.diagnostic_values("driver").get("bearings_power_bias_held", 0)) > 0  # noqa: E731
+    assert rclpy_node.spin_until(held, WAIT_S), rclpy_node.diagnostic_values("driver")
 
     path.unlink()
     refused = rclpy_node.call(Trigger, "/driver_node/reload_calibration", Trigger.Request(), WAIT_S)

@@ -69,7 +69,7 @@ def _node_estimates(node, odometry, revolutions, fixes, initial):
     up to it, then the bearings, then the fixes); the estimate after each instant."""
     clock = {"now_s": 0.0}
     node._now_s = lambda: clock["now_s"]
-    node._on_initial_pose(initial)
+    node._operator_pose(initial)
     arrivals = sorted(
         [(a, 0, m) for a, m in revolutions] + [(a, 1, m) for a, m in fixes], key=lambda e: e[:2]
     )

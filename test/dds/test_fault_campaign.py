@@ -13,8 +13,16 @@ operator's wrong pose (well-formed, 0.5 m off, claiming 1 cm) is never found out
 seconds of misleading time, each second of it an error of about those 0.5 m inside those faults' windows.
 """
 
+import math
+
 import numpy as np
 import pytest
+
+# The campaign runs the whole suite (eight processes) on the machine's two cores: beside another DDS
+# worker its revolutions and ToTal poses come more than the 0.25 s stamp tolerance late and are refused
+# (35.9-71.3 % available outside the windows in make test on 2026-11-27, 88.0 % alone): make test runs it
+# alone, after the others.
+pytestmark = pytest.mark.alone
 
 CAMPAIGN_SEED = 18
 CAMPAIGN_S = 120.0
@@ -24,12 +32,15 @@ CAMPAIGN_S = 120.0
 # fault. What it measures is mostly the EKF's lost -> re-initialised from ToTal -> lost again loops just
 # after a fault's window, each one to two seconds of "pose not yet confirmed" (93.7-98.9 % on
 # 2026-11-24; on 2026-11-27 on this machine 87.6-89.3 % alone, the code of either day, and 81.1-90.1 % in
-# make test beside the other DDS worker).
+# make test beside the other DDS worker; 88.0 % alone after the protection level and the checkpoint).
 MIN_AVAILABILITY_OUTSIDE = 0.80
 # lost detection off (its NIS window 0), the kidnap test never reached, the per-bearing gate at its widest,
-# an operator's pose taken as confirmed at once (issue 18's confirmation by the bearings off)
+# an operator's pose taken as confirmed at once (issue 18's confirmation by the bearings off), the
+# protection level's alert limits at their widest
 CHECKS_OFF = {
     "confirming_bearings": 0,
+    "horizontal_alert_limit_m": 100.0,
+    "heading_alert_limit_rad": math.pi,
     "lost_nis_window_bearings": 0,
     "kidnap_gated_bearings": 1000,
     "kidnap_window_bearings": 1000,

@@ -24,7 +24,6 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "bench"))
 from bench_self_calibration import (
     bias_curve_error_rad,
     default_driver_match,
-    nees,
     nees_series,
     run,
     windows_against_band,
@@ -77,7 +76,7 @@ def _period(result, start_s: float, end_s: float) -> tuple[float, float]:
     t = result.times_s - result.times_s[0]
     keep = (t >= start_s) & (t < end_s)
     errors = result.errors()[keep]
-    return float(np.sqrt(np.mean(errors[:, 0] ** 2 + errors[:, 1] ** 2))), float(nees(result)[keep].mean())
+    return float(np.sqrt(np.mean(errors[:, 0] ** 2 + errors[:, 1] ** 2))), float(result.nees()[keep].mean())
 
 
 SEEDS = (0, 1, 2)
@@ -91,7 +90,7 @@ def _pooled(results, start_s: float, end_s: float) -> tuple[float, float]:
         t = result.times_s - result.times_s[0]
         keep = (t >= start_s) & (t < end_s)
         errors.append(result.errors()[keep])
-        values.append(nees(result)[keep])
+        values.append(result.nees()[keep])
     errors = np.concatenate(errors)
     return float(np.sqrt(np.mean(errors[:, 0] ** 2 + errors[:, 1] ** 2))), float(
         np.concatenate(values).mean()

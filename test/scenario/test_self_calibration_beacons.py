@@ -26,10 +26,10 @@ from beams_ekf.power_bias_states import PowerBiasStates
 from beams_ekf.self_calibration import save_self_calibration
 from beams_sim.sensor_sim import SimulatedBeacon, beacons_from_map
 from beams_sim.simulated_match import sensor_config_of, simulate_match
-from beams_thesis.match_replay import match_fixes, replay_match
+from beams_thesis.match_replay import START_SIGMA, match_fixes, replay_match
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "bench"))
-from bench_self_calibration import START_SIGMA, default_driver_match, nees, run
+from bench_self_calibration import default_driver_match, run
 
 NEES_BAND = (2.0, 4.5)
 TRUE_XY = (1.5, -0.062)
@@ -59,7 +59,7 @@ def _replay(states: BeaconStates | None, seed: int = 0):
 
 def _window_nees(result, start_s: float, end_s: float) -> float:
     t = result.times_s - result.times_s[0]
-    return float(nees(result)[(t >= start_s) & (t < end_s)].mean())
+    return float(result.nees()[(t >= start_s) & (t < end_s)].mean())
 
 
 @pytest.fixture(scope="module")

@@ -154,6 +154,8 @@ def test_the_campaign_runs_the_described_processes_and_its_relay(tmp_path, fake_
     commands = {name: node.command for name, node in campaign.processes.nodes.items()}
     assert started(commands) == {**described(True), "fault_relay_node": [[]]}
     assert campaign.processes.respawn_delay_s == RESPAWN_DELAY_S
+    # ekf_node's checkpoint in the campaign's own directory: no run resumes from another's
+    assert campaign.processes.env["ROS_HOME"].startswith(str(tmp_path))
     # a node's first process is named as the schedule names the node (a kill's, a duplicate's)
     assert {node.name for node in ROBOT_NODES} <= set(commands)
 

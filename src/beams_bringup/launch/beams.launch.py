@@ -19,7 +19,8 @@ driver_autostart:=false it comes back unconfigured, which is what a lifecycle ma
 to respawned nodes (nav2's attempt_respawn_reconnection) expects; a dead driver would need one anyway.
 ekf_node runs as a pair (hot standby, beams_common.ros.standby): both processes start with --standby, one
 takes the node's role and runs, the other waits outside the ROS graph and becomes the EKF at once when
-the first dies, which is respawned into the waiting place. One ekf_node only:
+the first dies, which is respawned into the waiting place; the process that becomes the EKF resumes what
+the last one learnt from its checkpoint (beams_ekf.checkpoint, ~/.ros/beams/). One ekf_node only:
     ros2 launch beams_bringup beams.launch.py ekf_standby:=false
 """
 

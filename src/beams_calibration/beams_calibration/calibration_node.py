@@ -5,7 +5,8 @@ node's name: `/calibration_node/calibrate`):
 
 - `capture_reference` (beams_msgs/CaptureReference): the operator has placed the robot at a known pose;
   average that many revolutions per beacon and append the configuration to the dataset file
-  (atomically); refused, with the reason, when a beacon is missing or the bearings spread (robot moved);
+  (atomically); refused, with the reason, when a beacon is missing, the bearings spread (robot moved) or
+  the pose is not the one the bearings give (`dataset.capture_bearing_problem`: both poses said);
 - `calibrate` (beams_msgs/Calibrate): Algorithm 7.1 on the dataset, then the calibration file (and the
   PNG figures when `plots_directory` is set); refused when the dataset cannot support it;
 - `list_configurations` (beams_msgs/ListConfigurations) and `clear_dataset` (std_srvs/Trigger; the
@@ -44,6 +45,7 @@ from beams_calibration.dataset import (
     DatasetError,
     append_configuration,
     average_capture,
+    capture_bearing_problem,
     capture_pose_problem,
     load_dataset,
     now_utc,
@@ -203,6 +205,9 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
                 min_seen_fraction=self.min_seen_fraction,
                 max_spread_rad=self.max_spread_rad,
             )
+            mismatch = capture_bearing_problem(pose, observations, dataset_map)
+            if mismatch and not request.force:
+                raise DatasetError(f"{mismatch} (force: true records it)")
             configuration = Configuration(*map(float, pose), observations, revolutions, now_utc())
             dataset = append_configuration(self.dataset_file, dataset_map, configuration)
         except (OSError, DatasetError) as error:

@@ -39,6 +39,7 @@ from beams_common.calibration import file_schema
 from beams_common.calibration.calibration_file import SensorCalibration, atomic_write_text
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.beacon_map import BeaconMap
+from beams_triangulation.total import triangulate
 
 DATASET_FORMAT = "beams-calibration-dataset"
 DATASET_VERSION = 1
@@ -124,10 +125,22 @@ class CalibrationArrays:
     windows_rad: np.ndarray  # (n, 3) mean angular windows
     beacon_ids: tuple[int, ...]  # the beacons, in the columns' order
     beacons_xy: np.ndarray  # (3, 2) a-priori coordinates
+    names: tuple[str, ...] = ()  # each row's configuration, as a warning names it
 
     @property
     def count(self) -> int:
         return int(self.poses.shape[0])
+
+    def subset(self, rows: np.ndarray) -> "CalibrationArrays":
+        """The configurations of `rows` only."""
+        names = tuple(self.names[k] for k in rows) if self.names else ()
+        return replace(
+            self,
+            poses=self.poses[rows],
+            bearings_rad=self.bearings_rad[rows],
+            windows_rad=self.windows_rad[rows],
+            names=names,
+        )
 
 
 def to_arrays(dataset: Dataset, beacon_ids: Sequence[int] | None = None) -> CalibrationArrays:
@@ -135,7 +148,12 @@ def to_arrays(dataset: Dataset, beacon_ids: Sequence[int] | None = None) -> Cali
     ids = tuple(beacon_ids) if beacon_ids is not None else dataset.beacon_map.ids[:3]
     if len(ids) != 3:
         raise DatasetError(f"calibration uses exactly three beacons (thesis ch. 7), got {list(ids)}")
-    rows = [c for c in dataset.configurations if all(c.observation(i) is not None for i in ids)]
+    numbered = [
+        (k, c)
+        for k, c in enumerate(dataset.configurations, 1)
+        if all(c.observation(i) is not None for i in ids)
+    ]
+    rows = [c for _, c in numbered]
     poses = np.array([(c.x_m, c.y_m, c.theta_rad) for c in rows], dtype=float).reshape(-1, 3)
     bearings = np.array([[c.observation(i).bearing_rad for i in ids] for c in rows], dtype=float)
     windows = np.array([[c.observation(i).window_rad for i in ids] for c in rows], dtype=float)
@@ -145,6 +163,10 @@ def to_arrays(dataset: Dataset, beacon_ids: Sequence[int] | None = None) -> Cali
         windows_rad=windows.reshape(-1, 3),
         beacon_ids=ids,
         beacons_xy=dataset.beacon_map.subset(ids),
+        names=tuple(
+            f"configuration {k}{f' [{c.label}]' if c.label else ''} {_pose_text(c.x_m, c.y_m, c.theta_rad)}"
+            for k, c in numbered
+        ),
     )
 
 
@@ -175,6 +197,43 @@ def capture_pose_problem(
     if abs(theta_rad) > MAX_CAPTURE_HEADING_RAD:
         return f"the heading {theta_rad:.4g} rad is beyond one turn: give it in (-pi, pi] or [0, 2 pi)"
     return ""
+
+
+# A reference pose is compared with the pose its mean bearings give (ToTal, uncalibrated, on the a-priori
+# map): farther than an uncalibrated sensor explains, it is a mistyped pose. The thesis's sensor is 8.75 mm
+# and 0.43 deg RMS off uncalibrated (table 7.5, line 1); the simulated thesis-hardware sensor's worst of the
+# 48 configurations of section 7.3.1 is 34 mm and 1.9 deg off, and the a-priori map adds a few mm. The
+# power bias, common to the three bearings, turns the heading without moving the position: up to 3.7 deg
+# at 13 deg windows (fig. 7.11). A heading off by pi, a mirrored pose or one half a metre off is far beyond.
+CAPTURE_POSITION_TOLERANCE_M = 0.1
+CAPTURE_HEADING_TOLERANCE_RAD = math.radians(5.0)
+
+
+def _pose_text(x_m: float, y_m: float, theta_rad: float) -> str:
+    return f"({x_m:.3f} m, {y_m:.3f} m, {math.degrees(theta_rad):.1f} deg)"
+
+
+def capture_bearing_problem(
+    pose: tuple[float, float, float], observations: Sequence[BeaconObservation], beacon_map: BeaconMap
+) -> str:
+    """Why a reference pose is not the one its mean bearings give, or '': ToTal (Algorithm 6.1) on the
+    map's first three beacons (those Algorithm 7.1 uses), within CAPTURE_POSITION_TOLERANCE_M and
+    CAPTURE_HEADING_TOLERANCE_RAD; the reason states both poses."""
+    ids = beacon_map.ids[:3]
+    bearings = {o.beacon_id: o.bearing_rad for o in observations}
+    fix = triangulate(beacon_map.subset(ids), [bearings.get(i, math.nan) for i in ids])
+    if not fix.ok:
+        return f"the bearings give no pose for reference pose {_pose_text(*pose)}: {fix.reason}"
+    distance = math.hypot(fix.x - pose[0], fix.y - pose[1])
+    turn = abs(float(wrap_to_pi(fix.heading - pose[2])))
+    if distance <= CAPTURE_POSITION_TOLERANCE_M and turn <= CAPTURE_HEADING_TOLERANCE_RAD:
+        return ""
+    return (
+        f"reference pose {_pose_text(*pose)} is {distance:.3f} m and {math.degrees(turn):.1f} deg from "
+        f"the pose its bearings give {_pose_text(fix.x, fix.y, fix.heading)} (uncalibrated: within "
+        f"{CAPTURE_POSITION_TOLERANCE_M} m, {math.degrees(CAPTURE_HEADING_TOLERANCE_RAD):.0f} deg): "
+        "theta off by pi? mirrored? mistyped?"
+    )
 
 
 # --- capture: averaging revolutions into one configuration ------------------------------------

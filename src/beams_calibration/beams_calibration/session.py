@@ -306,7 +306,10 @@ _HINTS = (
         re.compile(r"revolutions received in time|no revolution"),
         "start the driver (without calibration_file)",
     ),
-    (re.compile(r"outside the beacons' table|beyond one turn"), "check the pose; --force records it anyway"),
+    (
+        re.compile(r"outside the beacons' table|beyond one turn|its bearings give"),
+        "check the pose; --force records it anyway",
+    ),
     (re.compile(r"busy"), "another capture or calibration is running: wait and retry"),
 )
 

@@ -102,7 +102,9 @@ def _parser() -> argparse.ArgumentParser:
         default=DEFAULT_MAX_ATTEMPTS,
         help="with --yes, captures tried per pose before skipping it",
     )
-    parser.add_argument("--force", action="store_true", help="record poses outside the beacons' table")
+    parser.add_argument(
+        "--force", action="store_true", help="record poses outside the beacons' table or off their bearings"
+    )
     parser.add_argument(
         "--dry-run", action="store_true", help="calibrate without writing the calibration file"
     )

@@ -29,6 +29,7 @@ from beams_calibration.calibrate import (
 from beams_calibration.dataset import Dataset, to_arrays
 from beams_common.calibration.bearing_correction import BearingCorrection
 from beams_common.calibration.calibration_file import load_calibration, save_calibration
+from beams_common.geometry.beacon_map import BeaconMap
 from beams_thesis import thesis_setup
 
 INJECTED = BearingCorrection((-89.93, 36.64, -4.93, 0.22), (8.79e-4, -1.01e-3, -1.03e-3, -1.74e-3))
@@ -197,3 +198,54 @@ def test_implausible_parameters_are_reported():
         )
         == []
     )
+
+
+def _with_blunder(dataset: Dataset, index: int, beacon_index: int, error_rad: float) -> Dataset:
+    """The dataset with one configuration's bearing of one beacon off by error_rad."""
+    configuration = dataset.configurations[index]
+    observations = list(configuration.observations)
+    wrong = observations[beacon_index]
+    observations[beacon_index] = replace(wrong, bearing_rad=wrong.bearing_rad + error_rad)
+    configurations = list(dataset.configurations)
+    configurations[index] = replace(configuration, observations=tuple(observations))
+    return replace(dataset, configurations=tuple(configurations))
+
+
+@pytest.mark.parametrize("error_rad", [0.02, 1.0])
+def test_a_blunder_is_named_and_excluded(biased, error_rad):
+    dataset, clean, _ = biased
+    progress: list[str] = []
+    result = calibrate(
+        _with_blunder(dataset, 17, 1, error_rad), leave_one_out=False, progress=progress.append
+    )
+    blunders = [warning for warning in result.warnings if "blunder" in warning]
+    assert len(blunders) == 1 and blunders[0].startswith(
+        "configuration 18 [C18] (0.200 m, 0.520 m, 90.0 deg)"
+    )
+    assert any(line == f"warning: {blunders[0]}" for line in progress)
+    assert result.poses.shape[0] == 47 and result.stages[0].stage == "no calibration"
+    # the calibration of the other 47 configurations is the clean one's
+    assert result.after.position_rms_m < 1.2 * clean.after.position_rms_m
+    windows = np.linspace(*clean.correction.window_range_rad, 20)
+    bias_change = np.asarray(result.correction.power_bias(windows)) - clean.correction.power_bias(windows)
+    assert np.max(np.abs(bias_change)) < 1e-3
+
+
+def test_a_dataset_with_many_blunders_is_refused(biased):
+    dataset, _, _ = biased
+    for index in (3, 11, 19, 27, 35, 43):
+        dataset = _with_blunder(dataset, index, 0, 0.3)
+    with pytest.raises(CalibrationRefusedError, match=r"5 of 48 configurations disagree with the others"):
+        calibrate(dataset, leave_one_out=False)
+
+
+def test_a_calibration_a_node_would_refuse_is_refused_before_any_file():
+    # the a-priori map has beacon 2 7 cm off: the calibration finds it where it stands, beyond the 5 cm a
+    # node accepts as a correction of its nominal map (calibration_checks.calibration_nominal_problem)
+    prior = thesis_setup.PRIOR_BEACONS
+    off = BeaconMap.from_lists(prior.ids, prior.xy[:, 0] + np.array([0.0, 0.07, 0.0]), prior.xy[:, 1])
+    dataset = thesis_setup.geometric_dataset(thesis_setup.reference_poses(), prior_map=off)
+    with pytest.raises(
+        CalibrationRefusedError, match=r"a node would refuse its file: calibrated beacon 2 is"
+    ):
+        calibrate(dataset, leave_one_out=False)

@@ -2,6 +2,7 @@
 
 import math
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -14,12 +15,14 @@ from beams_calibration.dataset import (
     DatasetError,
     append_configuration,
     average_capture,
+    capture_bearing_problem,
     load_dataset,
     save_dataset,
     to_arrays,
 )
 from beams_common.calibration import calibration_file
 from beams_common.geometry.beacon_map import BeaconMap
+from beams_common.intake.validation import MAX_REASON_CHARS
 
 PRIOR = BeaconMap.from_lists((1, 2, 3), (1.151, 0.600, 0.049), (0.049, 0.907, 0.049))
 
@@ -126,3 +129,44 @@ def test_arrays_keep_configurations_with_the_three_beacons():
     np.testing.assert_array_equal(arrays.poses[:, 0], [0.1, 0.3])
     np.testing.assert_allclose(arrays.bearings_rad[0], [-0.5, 0.0, 0.5])
     np.testing.assert_allclose(arrays.windows_rad[1], [0.13, 0.14, 0.15])
+
+
+@pytest.fixture(scope="module")
+def thesis_captures():
+    """The 48 configurations of section 7.3.1 captured by the thesis-hardware sensor (uncalibrated, its
+    power and rotation biases, turret offset, beacons where table 7.3 found them, placement error), on
+    table 7.1's a-priori map."""
+    from beams_thesis import thesis_setup
+
+    return thesis_setup.thesis_dataset(5, revolutions=20)
+
+
+def test_a_correct_capture_with_the_thesis_hardware_sensor_passes(thesis_captures):
+    for c in thesis_captures.configurations:
+        assert (
+            capture_bearing_problem((c.x_m, c.y_m, c.theta_rad), c.observations, thesis_captures.beacon_map)
+            == ""
+        )
+
+
+@pytest.mark.parametrize(
+    ("name", "mistake"),
+    [
+        ("theta off by pi", lambda x, y, theta: (x, y, theta + math.pi)),
+        ("half a metre off", lambda x, y, theta: (x + 0.5, y, theta)),
+        # the grid mirrored about the table's middle (x = 0.6 m), as if read from the other side
+        ("mirrored", lambda x, y, theta: (1.2 - x, y, math.pi - theta)),
+    ],
+)
+def test_a_mistyped_reference_pose_is_refused_with_both_poses(thesis_captures, name, mistake):
+    configuration = thesis_captures.configurations[4]  # (1.08, 0.84), theta 0: far from its mirror image
+    pose = mistake(configuration.x_m, configuration.y_m, configuration.theta_rad)
+    problem = capture_bearing_problem(pose, configuration.observations, thesis_captures.beacon_map)
+    stated = f"({pose[0]:.3f} m, {pose[1]:.3f} m, {math.degrees(pose[2]):.1f} deg)"
+    assert problem.startswith(f"reference pose {stated} is"), name
+    assert len(f"refused: {problem} (force: true records it)") <= MAX_REASON_CHARS  # the reply is not cut
+    given = re.search(r"the pose its bearings give \((\S+) m, (\S+) m, (\S+) deg\)", problem)
+    assert given, problem
+    x_m, y_m, theta_deg = map(float, given.groups())
+    assert math.hypot(x_m - configuration.x_m, y_m - configuration.y_m) < 0.05
+    assert abs(theta_deg - math.degrees(configuration.theta_rad)) < 3.0

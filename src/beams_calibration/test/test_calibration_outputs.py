@@ -52,14 +52,24 @@ def test_a_sound_calibration_is_not_a_regression(result: CalibrationResult):
     assert rms_regression(result, 1.0) == ""
 
 
-def test_a_calibration_that_makes_the_rms_worse_is_refused():
+def test_a_calibration_that_makes_the_rms_worse_is_refused(result: CalibrationResult):
     """Issue 15: a configuration at x = 1e6, y = -1e6, theta = 100 rad in the dataset; the fit answered
-    success although the RMS got worse (here the orientation RMS, 6 deg -> 93 deg)."""
+    success although the RMS got worse (6 deg -> 93 deg). It is now named and excluded as a blunder; a
+    result worse than no calibration is still refused."""
     dataset = _dataset()
     wrong = replace(dataset.configurations[0], x_m=1e6, y_m=-1e6, theta_rad=100.0)
     outcome = calibrate(dataset.with_configuration(wrong), leave_one_out=False)
-    assert outcome.after.orientation_rms_rad > outcome.before.orientation_rms_rad
-    assert "makes the RMS worse" in rms_regression(outcome, 1.0)
+    assert len(outcome.warnings) == 1
+    assert outcome.warnings[0].startswith("configuration 25 (1000000.000 m, -1000000.000 m, 5729.6 deg) ")
+    assert "excluded as a blunder" in outcome.warnings[0] and rms_regression(outcome, 1.0) == ""
+    assert outcome.after.position_rms_m < 0.1 * outcome.before.position_rms_m
+    worse = replace(
+        result,
+        stages=(result.after, result.before),
+        errors_before=result.errors_after,
+        errors_after=result.errors_before,
+    )
+    assert "makes the RMS worse" in rms_regression(worse, 1.0)
 
 
 def test_outputs_are_written_together_and_the_previous_calibration_kept(result, tmp_path: Path):

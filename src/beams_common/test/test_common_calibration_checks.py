@@ -2,6 +2,7 @@
 loaded; a calibration against its nominal geometry; a calibration that makes recent bearings worse."""
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -9,7 +10,11 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from beams_common.calibration.bearing_correction import THESIS_CORRECTION, BearingCorrection
+from beams_common.calibration.bearing_correction import (
+    THESIS_CALIBRATION_WINDOW_RANGE_RAD,
+    THESIS_CORRECTION,
+    BearingCorrection,
+)
 from beams_common.calibration.calibration_checks import (
     MAX_BEACON_CORRECTION_M,
     MAX_ROTATION_BIAS_RAD,
@@ -26,6 +31,7 @@ from beams_common.calibration.calibration_file import (
     CalibrationFileError,
     SensorCalibration,
     load_calibration,
+    node_refusal,
     save_calibration,
 )
 from beams_common.config.geometry_parameters import geometry_of
@@ -91,7 +97,21 @@ def test_loading_refuses_an_implausible_file_and_names_it(tmp_path):
     with pytest.raises(CalibrationFileError, match=r"calibration\.yaml: implausible, rotation_bias reaches"):
         load_calibration(path)
     path = _write(tmp_path, THESIS_CORRECTION, THESIS_OFFSET_M)
-    assert load_calibration(path).bearing_correction == THESIS_CORRECTION
+    # written without its window range: loaded with the thesis's calibration windows (calibration_file)
+    ranged = replace(THESIS_CORRECTION, window_range_rad=THESIS_CALIBRATION_WINDOW_RANGE_RAD)
+    assert load_calibration(path).bearing_correction == ranged
+
+
+def test_a_node_refusal_is_known_before_the_file_is_written():
+    """node_refusal runs the start-up checks (schema, values, nominal geometry) on a calibration."""
+    far = BeaconMap.from_lists((1, 2, 3), (-0.062, -0.062, 2.5), (-0.062, 2.062, 1.0))
+    calibration = SensorCalibration(far, THESIS_CORRECTION, THESIS_OFFSET_M)
+    assert node_refusal(calibration, far, (0.0, 0.0)) == ""
+    assert "beacon 3 is 0.562 m from its nominal position" in node_refusal(
+        calibration, EUROBOT_BEACON_MAP, (0.0, 0.0)
+    )
+    rotated = SensorCalibration(far, BearingCorrection(rotation_bias_coefficients=(3.0, 0.0, 0.0, 0.0)))
+    assert "rotation_bias reaches" in node_refusal(rotated, far, (0.0, 0.0))
 
 
 def _nominal(**changes):

@@ -5,10 +5,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
+from hypothesis import given
+from hypothesis import strategies as st
 
 from beams_common.calibration import calibration_file
 from beams_common.calibration.bearing_correction import (
     IDENTITY_CORRECTION,
+    THESIS_CALIBRATION_WINDOW_RANGE_RAD,
     THESIS_CORRECTION,
     BearingCorrection,
 )
@@ -120,6 +124,48 @@ def test_power_bias_is_clamped_to_the_fitted_window_range():
     assert clamped.power_bias(0.12) == THESIS_CORRECTION.power_bias(0.12)
     with pytest.raises(ValueError, match="low < high"):
         BearingCorrection(window_range_rad=(0.2, 0.1))
+
+
+# A cubic near 0 over the thesis's 5-13 deg windows (roots at 5, 9 and 13 deg) that reaches -1.2 rad at a
+# 0.04 rad window and +2.6 rad at 0.3 rad: checked over the windows it applies to, it passes.
+WILD_CUBIC = tuple(1167.0 * np.poly(np.radians([5.0, 9.0, 13.0])))
+
+
+@given(
+    st.lists(st.floats(-500.0, 500.0), min_size=4, max_size=4),
+    st.floats(0.01, 0.3).flatmap(lambda low: st.tuples(st.just(low), st.floats(low + 1e-3, 0.6))),
+    st.floats(0.0, 1.0),
+    st.floats(-3.0, 3.0),
+)
+def test_outside_its_fitted_range_the_power_bias_is_held_at_the_edge_value(
+    coefficients, window_range, w, phi
+):
+    correction = BearingCorrection(coefficients, (1e-3, 0.0, 0.0, 2e-3), window_range)
+    low, high = window_range
+    edge = min(max(w, low), high)
+    assert correction.power_bias(w) == correction.power_bias(edge)
+    assert correction.correct(phi, w) == correction.correct(phi, edge)
+    assert correction.holds_power_bias(w) == (w != edge and any(coefficients))  # a zero bias holds nothing
+    if w != edge:
+        assert correction.power_bias_slope(w) == 0.0
+
+
+def test_a_file_without_its_window_range_holds_the_power_bias_outside_the_thesis_windows(tmp_path):
+    document = calibration_file.calibration_to_dict(
+        SensorCalibration(THESIS_MAP, BearingCorrection(WILD_CUBIC, window_range_rad=(0.01, 0.5)))
+    )
+    del document["power_bias"]["window_range_rad"]
+    path = tmp_path / "old.yaml"
+    path.write_text(yaml.safe_dump(document))
+    correction = load_calibration(path).bearing_correction  # accepted: small over 5-13 deg
+    assert correction.window_range_rad == THESIS_CALIBRATION_WINDOW_RANGE_RAD
+    unheld = BearingCorrection(WILD_CUBIC)
+    assert unheld.power_bias(0.04) == pytest.approx(-1.2, abs=0.05)
+    assert unheld.power_bias(0.3) == pytest.approx(2.6, abs=0.05)
+    low, high = THESIS_CALIBRATION_WINDOW_RANGE_RAD
+    assert correction.power_bias(0.04) == unheld.power_bias(low) and abs(correction.power_bias(0.04)) < 1e-9
+    assert correction.power_bias(0.3) == unheld.power_bias(high) and abs(correction.power_bias(0.3)) < 1e-9
+    assert correction.holds_power_bias(np.array([0.04, 0.1, 0.3])).tolist() == [True, False, True]
 
 
 def test_scalars_give_floats_arrays_give_arrays():

@@ -1,10 +1,7 @@
-"""BeAMS beacon codes: the family of eq. 2.6 and validated custom code lists (thesis section 2.4.4).
-
-A code is a periodic On-Off-Keying bit sequence sent continuously by a beacon (no synchronisation with
-the receiver). The family C_i = [1^i 0 1^(2Nc-i) 0], i = 1..Nc, with a bit time of 30.8 us (14 periods
-of the 455 kHz carrier, the TSOP7000's best sensitivity) is the thesis's choice; any other list must
-meet the receiver and loop-emission constraints of section 2.4.4, which `validate_codes` checks.
-"""
+"""BeAMS beacon codes: the family of eq. 2.6 and validated custom code lists (thesis section 2.4.4). The
+family C_i = [1^i 0 1^(2Nc-i) 0], i = 1..Nc, at 30.8 us a bit (14 periods of the 455 kHz carrier, the
+TSOP7000's best sensitivity), is the thesis's choice; any other list must meet the constraints
+`validate_codes` checks."""
 
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -226,11 +223,9 @@ def _receiver_problems(
 def bursts_in_window(
     code: BeaconCode, start_s: float, end_s: float, min_burst_s: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Bursts (start, end) (s, code time) the receiver outputs for the window [start_s, end_s].
-
-    The code's period starts at code time 0 on runs_bits[0]; clipped leading and trailing bursts shorter
-    than min_burst_s are not detected (the 'AND hypothesis' departure measured in section 5.6).
-    """
+    """Bursts (start, end) (s, code time) the receiver outputs for the window [start_s, end_s], the code's
+    period starting at 0 on runs_bits[0]; clipped outer bursts shorter than min_burst_s are not detected (the
+    'AND hypothesis' departure of section 5.6)."""
     period_s = code.duration_s
     on_start, on_end = code.on_intervals_s
     first, last = int(np.floor(start_s / period_s)), int(np.floor(end_s / period_s))
@@ -244,10 +239,8 @@ def bursts_in_window(
 def first_last_edges(
     code: BeaconCode, start_s: np.ndarray, end_s: np.ndarray, min_burst_s: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """First rising and last falling edge (s, code time) of code AND window, vectorised over windows.
-
-    Returns (rising_s, falling_s, detected); where nothing is detected the edges are meaningless.
-    """
+    """(rising_s, falling_s, detected): the first rising and last falling edge (code time) of code AND window,
+    vectorised over windows; meaningless where nothing is detected."""
     start = np.asarray(start_s, dtype=float)
     end = np.asarray(end_s, dtype=float)
     starts, ends = _periodic_bursts(code)

@@ -1,18 +1,12 @@
 """From one revolution's edges to identified bearings (thesis sections 2.4.3-2.4.5 and eq. 5.2).
 
-Windows are separated by the 4-bit timeout (a gap longer than 4 bit times, 0.44 deg, ends a window);
-inside a window every complete burst and gap is classified in bit counts and matched against the
-codes' cyclic run patterns; the code is identified by counting complete codes. Windows holding several
-codes (compound, section 2.4.5), durations that fit no code, or too few complete codes are rejected with
-a reason. An accepted window gives the bearing (phi_r + phi_f) / 2 (eq. 2.5) wrapped to (-pi, pi], the
-window phi_f - phi_r plus its mean shortening (eq. 5.2, p0 phi0 for the ideal receiver; with the minimum
-burst m of the AND hypothesis, sum over gaps of (phi_G + m)^2 / code period: `receiver.ReceiverModel`),
-its variance from the variance model at that window, and its own instant. Section 2.5.2 asks to see
-the code at least twice in the window: `min_codes_seen` complete codes (default 2). A window belongs to
-the revolution in which it closes (one straddling the zero reference is carried into the next, its
-angle wrapped); a revolution reports each beacon at most once (`repeated`: a robot turning against the
-turret brings a beacon round twice in one turn, the pass nearest the revolution's middle is kept).
-"""
+Windows are separated by the 4-bit timeout (0.44 deg); inside a window every complete burst and gap is
+classified in bit counts and matched against the codes' cyclic run patterns, and the code is identified by
+counting complete codes (section 2.5.2 asks for two: `min_codes_seen`). Compound windows (section 2.4.5),
+durations that fit no code and too few complete codes are rejected with a reason. An accepted window gives the
+bearing (phi_r + phi_f) / 2 (eq. 2.5), the window plus its mean shortening (eq. 5.2,
+`receiver.ReceiverModel`), its variance at that window and its own instant. A window belongs to the revolution
+in which it closes; a revolution reports each beacon at most once."""
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -149,13 +143,10 @@ class BearingDecoder:
         self._last_revolution: int | None = None
 
     def decode(self, edges: RevolutionEdges) -> DecodedRevolution:
-        """Bearings and rejections of the windows that closed during this revolution.
-
-        Revolutions must come in order: a window still open at the end of a revolution (it may
-        straddle the zero reference) is carried into the next one and decoded there. A window opening
-        within the timeout of the zero reference of a revolution that does not follow the last one
-        decoded (the first, or after a gap) is rejected as truncated: its head was not seen.
-        """
+        """Bearings and rejections of the windows that closed during this revolution. Revolutions come in
+        order: a window still open at the end of one is carried into the next; one opening within the timeout
+        of the zero reference of a revolution that does not follow the last one decoded is rejected as
+        truncated (its head was not seen)."""
         result = DecodedRevolution(edges.revolution, edges.start_time_s, edges.period_s)
         omega = edges.turret_speed_rad_s
         timeout_rad = self.timeout_bits * self.bit_time_s * omega
@@ -298,21 +289,11 @@ class BearingDecoder:
 
 
 def _one_pass_per_beacon(result: DecodedRevolution) -> None:
-    """At most one bearing per beacon in a revolution: the pass whose instant is nearest the
-    revolution's middle is kept, any other is rejected as `repeated` (in place). A pass carried over the
-    zero reference whose bearing lies before it belonged to the revolution before: any pass of the
-    revolution's own turn is nearer its middle and wins (not the median instant of
-    `validation.one_sighting_per_beacon`, which can keep the older pass: a static sensor whose pose
-    changed between two revolutions then reported the previous pose's bearing, 13 deg off).
-
-    A window is decoded with the revolution in which it closes (a pass straddling the zero reference,
-    or closing within the timeout before it, is carried into the next revolution, its angle wrapped).
-    While the robot turns against the turret the beacon comes round in less than a turret period, so
-    that revolution may also close its own pass of the beacon (0.05 rad earlier at 0.5 rad/s): one turn
-    of the turret then holds two passes. The bearing is one pass's (first rising and last falling edge,
-    eq. 2.5); a revolution reports one per beacon, as `validation.one_sighting_per_beacon` keeps
-    downstream.
-    """
+    """At most one bearing per beacon in a revolution (in place): the pass whose instant is nearest the
+    revolution's middle is kept, any other is rejected as `repeated`. While the robot turns against the
+    turret, one turn of the turret may close two passes of a beacon (one carried over the zero reference); the
+    middle rule keeps the revolution's own pass, where the median instant of
+    `validation.one_sighting_per_beacon` could keep the older one."""
     middle_s = result.start_time_s + 0.5 * result.period_s
     kept: dict[int, DecodedBearing] = {}
     for bearing in result.bearings:

@@ -1,19 +1,11 @@
 """driver_node: BeAMS bearings, once per turret revolution, from an edge source (simulated, serial, ...).
 
-Publishes `beams/bearings` (beams_msgs/BeaconBearingArray, reliable) and `/diagnostics`. The edge source
-is chosen by the `source` parameter (edge_source.py): the simulated sensor (the default) follows the
-robot's true pose on `beams/sim/ground_truth` (or a static pose) edge by edge; the serial source reads the
-sensor microcontroller's edge captures. Every source goes through the same decoder and variance model;
-the calibration file's bearing corrections (power bias, rotation bias; thesis ch. 7) are applied to the
+Publishes `beams/bearings` and `/diagnostics`. Every source (`source` parameter, edge_source.py) goes through
+the same decoder and variance model; the calibration file's corrections (thesis ch. 7) are applied to the
 published bearings.
 
-A lifecycle (managed) node: configure validates the parameters and builds the decoder, opening nothing;
-activate creates the source (opens the serial port, starts the simulation) and publishes; deactivate stops
-polling and publishing (the port stays open); cleanup releases the source; shutdown, from any state,
-releases everything. With `autostart` (the default) the node configures and activates itself at start-up
-and a parameter it cannot run with stops it (one line, exit 2); without, it waits for a lifecycle manager
-and a failed transition leaves it alive in its previous state with the reason logged.
-"""
+A lifecycle node (its transitions and `autostart`: docs/nodes.md); a failed transition leaves it in its
+previous state with the reason logged."""
 
 import sys
 import traceback
@@ -415,6 +407,10 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
         self.publisher.publish(msg)
         self.diagnostics.increment("revolutions")
         self.diagnostics.increment("bearings", len(msg.bearings))
+        # windows outside the calibrated ones: the power bias is held at its edge value, not extrapolated
+        held = int(sum(self.correction.holds_power_bias(b.angular_window) for b in decoded.bearings))
+        if held:
+            self.diagnostics.increment("bearings_power_bias_held", held)
         for rejection in decoded.rejections:
             self.diagnostics.increment(f"rejected_{rejection.kind}")
         self.diagnostics.set("calibrated", msg.calibrated)

@@ -1,16 +1,9 @@
 """Where the driver's edges come from: the EdgeSource protocol, and how driver_node finds a source.
 
-Every source delivers RevolutionEdges (edges.py), one per turret revolution, to the same decoder and
-variance model. A source is a kind (`EdgeSourceKind`): its parameters (ParameterSpecs, declared by the
-driver only when that source is chosen) and a factory building the source from their validated values,
-the code list and a `SourceHost` (what the source may ask of the node: subscribe to a pose stream, a
-topic name, a log, the clock). This package's own kind is `serial` (serial_source.py); the installed
-packages name theirs in ENTRY_POINT_GROUP (`beams_driver.edge_sources`) of their setup.py's entry_points,
-`name = package.module:ATTRIBUTE` (`sim`, the simulated sensor, is declared by the package of the simulated
-world, which stands on this one: the driver names nothing of it). Any other source is chosen with
-`source:=package.module:EDGE_SOURCE`, with no edit to the driver (test/dds/test_edge_source_plugin.py
-plugs in a replay of recorded edges that way).
-"""
+A source is a kind (`EdgeSourceKind`): its parameters, declared only when it is chosen, and a factory building
+it from their values, the codes and a `SourceHost` (what it may ask of the node). This package's own kind is
+`serial`; installed packages name theirs in ENTRY_POINT_GROUP of their setup.py (`sim` is beams_sim's: the
+driver names nothing of the world), and `source:=package.module:EDGE_SOURCE` chooses any other."""
 
 import importlib
 from collections.abc import Callable, Mapping, Sequence
@@ -30,11 +23,8 @@ PoseCallback = Callable[[float, Pose2D, tuple[float, float]], None]
 
 @dataclass
 class SourcePoll:
-    """What a source delivered since the last poll.
-
-    continuity_broken: the first revolution delivered does not follow the last one decoded (a
-    reconnection, a skipped revolution, a clock jump): the decoder must not join windows across it.
-    """
+    """What a source delivered since the last poll; continuity_broken: the first revolution does not follow
+    the last one decoded (a reconnection, a skip, a clock jump), so no window is joined across it."""
 
     revolutions: list[RevolutionEdges] = field(default_factory=list)
     continuity_broken: bool = False
@@ -87,12 +77,9 @@ SourceFactory = Callable[[Mapping[str, Any], Sequence[BeaconCode], SourceHost], 
 
 @dataclass(frozen=True)
 class EdgeSourceKind:
-    """A kind of source: its name, its parameters, its start-up checks across them, its factory.
-
-    poll_period_s is how often the driver polls it; receiver gives the receiver model of its edges. The
-    factory raises ValueError or OSError with the reason when the source cannot start (a missing device):
-    the driver then exits 2 with that line.
-    """
+    """A kind of source: its name, its parameters, their start-up checks, its factory, how often the driver
+    polls it and the receiver model of its edges. The factory raises ValueError or OSError with the reason
+    when the source cannot start: the driver exits 2 with that line."""
 
     name: str
     parameters: tuple[ParameterSpec, ...]

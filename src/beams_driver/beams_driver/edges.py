@@ -1,9 +1,6 @@
-"""The raw output of the BeAMS sensor for one turret revolution: timed receiver edges (section 2.4.1).
-
-The microcontroller latches the common timer on every edge of the receiver output and on the optical
-switch (the zero reference); since the timer also drives the turret, each capture is both an instant
-and a turret angle (eq. 2.1). Every source (simulator, serial device) delivers this; the decoder reads it.
-"""
+"""The raw output of the BeAMS sensor for one turret revolution: timed receiver edges (section 2.4.1). The
+timer that latches each edge also drives the turret, so each capture is both an instant and a turret angle
+(eq. 2.1)."""
 
 from dataclasses import dataclass, field
 

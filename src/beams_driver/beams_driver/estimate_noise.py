@@ -1,18 +1,15 @@
 """estimate_noise: a sensor's natural variance from bags of a still robot; the published variances checked.
 
-Record the robot standing still at one pose for about 60 s (`ros2 bag record /beams/bearings`), at a few
-poses spread over the table (near and far beacons: the natural variance grows with the angular window,
-thesis section 5.5), one bag per pose, then
+Record the robot standing still for about 60 s at each of a few poses spread over the table (near and far
+beacons: the natural variance grows with the window, thesis section 5.5), one bag of /beams/bearings per pose,
+then
 
-    estimate_noise pose1_bag pose2_bag pose3_bag -o noise.yaml --plot noise.png
+estimate_noise pose1_bag pose2_bag pose3_bag -o noise.yaml --plot noise.png
 
-It prints, per pose and beacon, the bearings' observed spread against the published variance (ratio
-s^2 / mean published, 95% chi-square band, verdict against 0.8-1.25) and what the fitted natural
-variance gives; writes the fit as a driver parameter file (`--params-file noise.yaml`) and a plot.
-Bad input (no bearings, a robot that moved, a bag it cannot read) is one line and exit status 2.
-The codes and the receiver come from the driver's parameter file (`--driver-params`, default the
-driver's defaults: code family 5, the thesis hardware's receiver).
-"""
+It prints, per pose and beacon, the observed spread against the published and the fitted variance (ratio, 95%
+chi-square band, verdict against 0.8-1.25), and writes the fit as a driver parameter file and a plot. Bad
+input is one line and exit status 2. The codes and the receiver are the driver's (`--driver-params`, default
+its defaults)."""
 
 import argparse
 import math

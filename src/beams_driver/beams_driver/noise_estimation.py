@@ -1,19 +1,9 @@
-"""A sensor's natural variance from a still robot's bearings, and a check of the published variances.
-
-Thesis sections 5.5-5.8: a bearing's variance is the code's artificial variance at its angular window
-(chapter 4, `variance.VarianceModel`) plus the natural variance of the receiver's edges; the natural
-part is what the observed spread of the bearings leaves once the code's exact variance at that window is
-taken away, and on the thesis's hardware it grows with the window (fig. 5.3: the AGC's rising edge).
-
-- `beacon_spread`: one beacon seen from one still pose over N revolutions: sample variance of the
-  bearings, mean window, mean published variance; refuses a robot that moved (spread or drift too large).
-- `fit_natural_variance`: natural_g = s_g^2 - sigma_exact^2(mean window_g) for each (pose, beacon), then a
-  weighted least-squares fit, constant or linear in the window; the linear model is kept only when its
-  slope is significant (|slope| / standard error >= slope_z_threshold) over at least three windows.
-- `variance_check`: the ratio of the sample variance to the mean variance a model predicts (the published
-  one, or the fitted one), with its confidence band from the chi-square law of the sample variance,
-  (n - 1) s^2 / sigma^2 ~ chi2(n - 1), and a verdict against the 0.8-1.25 band a filter tolerates.
-"""
+"""A sensor's natural variance from a still robot's bearings, and a check of the published variances (thesis
+sections 5.5-5.8): a bearing's variance is the code's artificial variance at its window (chapter 4,
+`variance.VarianceModel`) plus the receiver edges' natural variance, which is what the bearings' observed
+spread leaves once the code's exact variance is taken away; on the thesis's hardware it grows with the window
+(fig. 5.3). `beacon_spread` measures one beacon from one still pose, `fit_natural_variance` fits the natural
+variance, `variance_check` holds a model's variance to the spread."""
 
 import math
 from collections.abc import Mapping, Sequence

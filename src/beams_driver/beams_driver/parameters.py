@@ -1,11 +1,7 @@
-"""driver_node's parameters: one spec each (the chosen edge source adds its own, edge_source.py).
-
-Runtime-changeable: the variance model (mode, natural variance and its window slope, constant variance:
-the next revolution's bearings get them), the frame and the calibration file (its corrections are applied
-at once). The codes and the source define what the sensor is and stay read-only. `autostart` (read-only)
-is the lifecycle's: the node declares it first and alone (LIFECYCLE_PARAMETERS), so it knows whether to
-exit or to wait for a lifecycle manager when another parameter is bad; DRIVER_PARAMETERS holds them all.
-"""
+"""driver_node's parameters: one spec each (the chosen edge source adds its own, edge_source.py). The variance
+model, the frame and the calibration file change at runtime; the codes and the source stay read-only.
+`autostart` is declared first and alone (LIFECYCLE_PARAMETERS), so that the node knows whether to exit or wait
+when another parameter is bad."""
 
 from collections.abc import Mapping
 from typing import Any

@@ -1,17 +1,7 @@
-"""What the infrared receiver does to code AND window (thesis sections 5.5-5.7), for simulator and decoder.
-
-- `ReceiverModel`: the systematic part the decoder and the variance model must know: the minimum burst
-  that triggers the receiver (the "AND hypothesis", section 5.6) and the mean window shortening it
-  causes (eq. 5.2 generalised), plus any inward shift of the window's outer edges. The driver describes
-  the receiver its edges come through with it (`ReceiverModel.thesis_hardware()`: the receiver the thesis
-  measured, the real one's default); the simulated sensor derives it from its noise.
-- `HardwareNoise`: the thesis hardware's receiver noise as chapter 5 measured it: asymmetric edge noise
-  growing with the window (fig. 5.3), a natural noise growing with the code's OFF periods (the AGC,
-  section 5.6), a small extra window shortening of modulated signals (table 5.1), and a power bias of
-  the bearing against the window fluctuating within 0.23 deg (section 5.7, fig. 5.6), a cubic
-  (eq. 7.19) so that the chapter-7 calibration can remove it; `HardwareNoise.thesis_hardware()` is the
-  thesis's, the driver's default variances and the simulator's `thesis_hardware` noise.
-"""
+"""What the infrared receiver does to code AND window (thesis sections 5.5-5.7), for simulator and decoder:
+`ReceiverModel`, the systematic part (minimum burst, mean window shortening) the decoder and the variance
+model must know; `HardwareNoise`, the thesis hardware's noise as chapter 5 measured it, which the simulator
+applies and the driver's default variances take."""
 
 import math
 from dataclasses import dataclass
@@ -44,12 +34,10 @@ THESIS_WINDOW_RANGE_RAD = (0.03804832377144775, 0.13957318546672076)
 class ReceiverModel:
     """Minimum detectable burst and mean window shortening of a receiver (sections 5.3 and 5.6).
 
-    The minimum burst for a code whose shortest gap is G (s) and bit time T_b is
-    min_burst_fraction * T_b * (G / T_b)^min_burst_gap_exponent: exponent 1 scales it with the gap
-    (the simulator's original AND hypothesis), -0.5 lets a longer OFF period (the AGC's gain
-    recovering) lower it; both give the thesis's 56% of T0 for the family codes, whose gaps are one bit.
-    outer_shortening_s moves the window's first rising and last falling edges inwards by half of it each.
-    """
+    The minimum burst of a code of shortest gap G and bit time T_b is min_burst_fraction * T_b * (G /
+    T_b)^min_burst_gap_exponent: exponent 1 scales it with the gap, -0.5 lets a longer OFF period (the AGC's
+    gain recovering) lower it; both give the thesis's 56% of T0 for the one-bit gaps of the family.
+    outer_shortening_s moves the window's outer edges inwards by half of it each."""
 
     min_burst_fraction: float = 0.0
     min_burst_gap_exponent: float = 1.0
@@ -61,10 +49,8 @@ class ReceiverModel:
 
     @classmethod
     def thesis_hardware(cls, period_s: float = TURRET_PERIOD_S) -> "ReceiverModel":
-        """The receiver the thesis measured (sections 5.5-5.7), on a turret of this period (s): the minimum
-        burst of 56% of T0 falling as sqrt(T_b / G), and table 5.1's extra shortening of modulated
-        windows as turret time. What the driver assumes of real hardware (serial sources) and what
-        the simulator's `thesis_hardware` noise model emulates."""
+        """The receiver the thesis measured (sections 5.5-5.7) on a turret of this period (s): what the driver
+        assumes of real hardware and the simulator's `thesis_hardware` noise emulates."""
         turret_speed_rad_s = 2.0 * np.pi / period_s
         return cls(
             THESIS_MIN_BURST_FRACTION,
@@ -102,17 +88,13 @@ IDEAL_RECEIVER = ReceiverModel()
 class HardwareNoise:
     """The thesis hardware's receiver noise (sections 5.5-5.7), applied by the simulator to each window.
 
-    Edge noise: the receiver sees the beacon from the instant the power crosses its threshold; the AGC
-    makes that crossing jitter, much more at the window's start (the gain is high after a long silence)
-    than at its end (fig. 5.3). Modelled as zero-mean Gaussian jitter of the window's two boundaries
-    (then code AND window, so a code adds its own error on top), with variances linear in the true
-    window between the experiment's extremes (fig. 5.3: "quasi linear"), held constant outside them.
-    off_noise_gain: a modulated code's natural variance is multiplied by 1 + gain (G / T_b - 1), G its
-    longest gap: the AGC's gain recovers during OFF periods (section 5.6: the real noise of C_5b and
-    C_5c exceeds natural plus code variance). power_bias_coefficients: the bearing bias (rad) against
-    the window (rad), cubic (eq. 7.19), phi_biased = phi_real + f(w) (eq. 7.17), held constant outside
-    power_bias_range_rad (default: window_range_rad, where section 5.7 measured it).
-    """
+    Edge noise: the AGC makes the threshold crossing jitter, much more at the window's start (the gain is high
+    after a silence) than at its end (fig. 5.3): zero-mean Gaussian jitter of the two boundaries (then code
+    AND window), variances linear in the true window between the experiment's extremes, constant outside.
+    off_noise_gain: a modulated code's natural variance is multiplied by 1 + gain (G / T_b - 1), G its longest
+    gap (the AGC recovers during OFF periods, section 5.6). power_bias_coefficients: the cubic bias f(w) (rad,
+    eq. 7.19; phi_biased = phi_real + f(w), eq. 7.17), constant outside power_bias_range_rad (default
+    window_range_rad, where section 5.7 measured it)."""
 
     window_range_rad: tuple[float, float]
     power_bias_coefficients: tuple[float, float, float, float]

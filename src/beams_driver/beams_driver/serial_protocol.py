@@ -7,71 +7,10 @@ link: `FrameEncoder` (what the firmware, or the simulator standing in for it, se
 (bytes in, events out) and `RevolutionAssembler` (events in, `RevolutionEdges` out). The firmware is
 firmware/turret/ (docs/firmware.md).
 
-Version 2: the host assumes neither a timer rate nor a baud rate. The thesis's PIC ran a 625 kHz timer
-(62400 ticks per revolution at 10.016 turn/s); the reference board, an ATmega328P at 16 MHz, cannot make
-625 kHz, and its timer runs at 2 MHz (200000 ticks per revolution at 10 turn/s). The device says which
-in a hello frame, sent at start-up and every 262 ms; the host converts ticks to seconds with it
-and refuses a device of another protocol version with the reason. Every capture carries its 32-bit
-timer count (overflow-extended on the device; it wraps after 2^32 ticks, 35 min at 2 MHz), so the host
-never has to guess how many 16-bit wraps passed, even across lost frames. Frames leave the device in
-the order its interrupts queued them, which may differ from time order by a few ticks (a zero reference
-and an edge latched together); the host takes the difference between consecutive counts signed.
-
-Frame layout (multi-byte fields little-endian)::
-
-    offset  size  field
-    0       1     sync 1 = 0xA5
-    1       1     sync 2 = 0x5B (protocol v1 used 0x5A: the two protocols never share a frame)
-    2       1     kind: 0x01 rising edge, 0x02 falling edge, 0x03 zero reference, 0x04 heartbeat,
-                  0x05 missed edge, 0x10 hello
-    3       1     sequence number, +1 per event captured (modulo 256), numbered at capture time
-    4       4     timer count at the event (uint32, device ticks)
-    8       14    hello only: version (uint8), flags (uint8; bit 0: first hello since the device's reset),
-                  timer frequency (uint32, Hz), nominal ticks per turret revolution (uint32), events the
-                  device dropped since its reset (uint32; its ring buffer was full)
-    8 / 22  2     CRC-16/CCITT-FALSE of every byte from the kind to the end of the fields
-                  (poly 0x1021, init 0xFFFF, no reflection, xorout 0)
-
-An event frame is 10 bytes, a hello 24. The CRC is the one `binascii.crc_hqx(data, 0xFFFF)` computes
-(check value of b"123456789": 0x29B1).
-
-Kinds:
-- rising / falling edge: the receiver output went 0 -> 1 / 1 -> 0 (section 2.4.3, phi_R and phi_F);
-- zero reference: the turret passed the optical switch (section 2.4.2); it opens a revolution;
-- missed edge: the receiver's pin changed again before the firmware armed the capture for it (a pulse
-  or gap of a few us, docs/firmware.md), so an edge after the previous event and before this frame's
-  count was not captured; the host drops what it touches as it does lost frames (a host that does not
-  know the kind sees a lost frame: the gap in the sequence numbers);
-- heartbeat: sent periodically (every 32.8 ms by the firmware: once per wrap of its 16-bit timer), so
-  that a live device is never silent (no beacon in sight, the turret stopped) and consecutive frames are
-  always far less than 2^31 ticks apart;
-- hello: the device's protocol version and clock (see above); its layout is the same in every version,
-  so that a host can always tell which version a device speaks.
-
-Lost frames: the firmware numbers each event when it is captured, before it is queued; an event its
-ring buffer has no room for is dropped, and the gap in the sequence numbers tells the host (counted as
-"lost_frames"), as does the hello's dropped-events counter (`DeviceHello.dropped_events`).
-
-Examples (hex)::
-
-    hello v2,        seq 0, timer 0x00000000, 2 MHz, 200000 ticks/rev, boot, none dropped:
-                     A5 5B 10 00 00 00 00 00 02 01 80 84 1E 00 40 0D 03 00 00 00 00 00 5E 23
-    rising edge,    seq 1,   timer 0x00012345:  A5 5B 01 01 45 23 01 00 9F DF
-    falling edge,   seq 2,   timer 0x000123A1:  A5 5B 02 02 A1 23 01 00 B6 B1
-    zero reference, seq 255, timer 0xFFFFFFF0:  A5 5B 03 FF F0 FF FF FF 7E D7
-
-Link: 500000 baud, 8N1 by default (exact from 16 MHz: UBRR 3 with U2X), 5000 event frames/s at most.
-
-Host side. The parser hunts for the sync pair and checks the CRC and the kind; on a bad checksum it
-drops the candidate's sync pair and hunts again from the byte after it, so that a corrupted byte, a
-truncated frame (another sync pair starts inside the candidate) or a bad checksum costs only the frames
-it touches. Every drop is counted by reason in `FrameParser.drops`. Events before the first hello are
-dropped (the host does not know the device's clock yet). A version-1 frame (sync A5 5A, valid v1
-checksum) is recognised and counted, and a stream of them sets `FrameParser.problem`: the device runs the
-old firmware. A gap in the sequence numbers marks the next event `after_gap`, and the assembler then
-discards the revolution it falls in (its edges are incomplete). The angle of an edge is 2*pi * (ticks
-since the revolution's zero reference) / (ticks between the two zero references that bound the
-revolution) (eq. 2.1 with the measured turret speed).
+The frame layout, the kinds, examples and the host's handling of bad and lost frames are in
+docs/firmware.md ("Frames"). The angle of an edge is 2*pi * (ticks since the revolution's
+zero reference) / (ticks between the two zero references that bound the revolution) (eq. 2.1 with the
+measured turret speed).
 """
 
 import binascii
@@ -200,8 +139,8 @@ def crc16(data: bytes) -> int:
     return binascii.crc_hqx(data, _CRC_INIT)
 
 
-def _framed(body: bytes) -> bytes:
-    return SYNC + body + _CRC.pack(crc16(body))
+def _framed(body: bytes, sync: bytes = SYNC) -> bytes:
+    return sync + body + _CRC.pack(crc16(body))
 
 
 def encode_frame(kind: EventKind | int, sequence: int, timer: int) -> bytes:
@@ -212,8 +151,7 @@ def encode_frame(kind: EventKind | int, sequence: int, timer: int) -> bytes:
 def encode_v1_frame(kind: int, sequence: int, timer: int) -> bytes:
     """A protocol v1 frame, what the old firmware sends (sync A5 5A, kind, sequence, 16-bit timer, CRC):
     the parser recognises them to name the old firmware."""
-    body = _V1_BODY.pack(kind, sequence & 0xFF, timer % (1 << 16))
-    return V1_SYNC + body + _CRC.pack(crc16(body))
+    return _framed(_V1_BODY.pack(kind, sequence & 0xFF, timer % (1 << 16)), V1_SYNC)
 
 
 def encode_hello(sequence: int, timer: int, hello: DeviceHello) -> bytes:
@@ -249,7 +187,6 @@ class FrameEncoder:
         self.version = version
         self.dropped_events = 0
         self._heartbeat_ticks = max(1, round(HEARTBEAT_PERIOD_S * timer_hz))
-        self._heartbeats_per_hello = HEARTBEATS_PER_HELLO
         self._next_periodic: int | None = None
         self._periodic_count = 0
         self._booted = False
@@ -267,7 +204,7 @@ class FrameEncoder:
             due = self._next_periodic
             out += (
                 self._hello(due)
-                if self._periodic_count % self._heartbeats_per_hello == 0
+                if self._periodic_count % HEARTBEATS_PER_HELLO == 0
                 else self._frame(EventKind.HEARTBEAT, due)
             )
             self._next_periodic += self._heartbeat_ticks
@@ -346,16 +283,8 @@ class Drops(Counter[str]):
 class FrameParser:
     """Incremental stream parser: `feed(bytes)` returns the events of every complete, valid frame.
 
-    Drop reasons counted in `drops` (frames unless stated):
-    - "garbage_bytes": bytes skipped while hunting for a sync pair (bytes, not frames);
-    - "bad_crc": a candidate frame whose checksum does not match;
-    - "truncated": a candidate cut short by the next frame's sync pair (so its checksum fails too);
-    - "unknown_kind": an event frame with a valid checksum but a kind this host does not know;
-    - "lost_frames": frames missing according to the sequence numbers;
-    - "before_hello": events before the device's first hello (its clock is not known yet);
-    - "incompatible_device": events from a device whose hello this host refuses (`problem` says why);
-    - "protocol_v1_frames": well-formed frames of protocol version 1 (the old firmware).
-    `missed_edges` counts the device's missed-edge frames (not a drop: the frame says an edge is missing).
+    Drops are counted by reason in `drops` (docs/serial_integrity.md lists the reasons); `missed_edges`
+    counts the device's missed-edge frames (not a drop: the frame says an edge is missing).
     Byte accounting: bytes fed = FRAME_SIZE * event_frames + HELLO_SIZE * hellos + V1_FRAME_SIZE *
     protocol_v1_frames + 2 * (bad_crc + truncated) + garbage_bytes + pending bytes, where `event_frames`
     counts the well-formed event frames (used, dropped or of an unknown kind) and `hellos` the hello
@@ -474,7 +403,9 @@ class FrameParser:
             self.problem = ""
         kind, sequence, timer = _HEADER.unpack_from(body)
         if kind == _HELLO_KIND:
-            event = self._hello(sequence, timer, DeviceHello(*_hello_fields(body)))
+            version, flags, timer_hz, ticks, dropped = _HELLO_FIELDS.unpack_from(body, _HEADER.size)
+            hello = DeviceHello(version, timer_hz, ticks, dropped, bool(flags & _HELLO_BOOT_FLAG))
+            event = self._hello(sequence, timer, hello)
         else:
             self.event_frames += 1
             event_kind = _EVENT_KIND_OF.get(kind)
@@ -529,11 +460,6 @@ class FrameParser:
         return event
 
 
-def _hello_fields(body: bytes) -> tuple[int, int, int, int, bool]:
-    version, flags, timer_hz, ticks_per_revolution, dropped = _HELLO_FIELDS.unpack_from(body, _HEADER.size)
-    return version, timer_hz, ticks_per_revolution, dropped, bool(flags & _HELLO_BOOT_FLAG)
-
-
 def _clock_of(hello: DeviceHello) -> tuple[int, int]:
     return hello.timer_hz, hello.ticks_per_revolution
 
@@ -544,39 +470,9 @@ class RevolutionAssembler:
     The angle of an edge is 2*pi times its ticks since the opening zero reference over the ticks of the
     whole revolution (eq. 2.1, the turret speed measured over that revolution). Times are the device's
     ticks divided by its timer frequency plus `time_offset_s` (which the owner may update to map the device
-    clock onto its own). The timer frequency and the nominal ticks per revolution come from the device's
-    hello (a HELLO event); given here, they hold until a hello says otherwise. Drops counted in `drops`
-    (revolutions unless stated):
-    - "edges_before_zero_reference": edges before the first zero reference (edges);
-    - "edges_before_hello": edges while the device's clock is unknown (edges);
-    - "revolution_with_gap": a revolution during which frames were lost or rejected (lost_frames_cost
-      "revolution", or where the loss cannot be placed);
-    - "revolution_with_lost_frames": published all the same (lost_frames_cost "window"): the interval
-      between the received events around each loss (or before a missed-edge event: the same) is in
-      `lost_angles_rad`, and the decoder rejects the windows it touches (an edge lost inside a window
-      never gives a bearing);
-    - "bad_revolution_period": a revolution whose length is implausible against the measured turret speed
-      (below), or off the nominal by more than `period_tolerance` (the turret stalled or sped up, a zero
-      reference was missed or a spurious one closed it);
-    - "edges_out_of_order": a revolution whose edges' counts go back in time (only a frame forged by
-      line noise that passed the checksum does that);
-    - "zero_reference_too_early": zero references ignored (zero references, not revolutions): one less
-      than `period_tolerance` of a turn after the revolution opened (switch bounce, noise), or a slightly
-      early one the next zero reference showed to be spurious (it closed the revolution at the measured
-      length).
-
-    The measured turret speed (section 2.4.2: the angle is eq. 2.1 with the speed measured over the
-    revolution, so a spurious zero reference that shortens a revolution by 1.2 % turns every bearing of
-    it by up to 0.075 rad): the expected length is the median of the last `MEASURED_SPANS` revolution
-    lengths within the nominal gate, the tolerance `SPAN_SIGMAS` times their robust spread (1.4826 MAD),
-    at least `min_tolerance_s`; until `MIN_MEASURED_SPANS` lengths are known, the nominal length from the
-    hello with `min_tolerance_s`. A revolution is published only when its length is within that tolerance:
-    a bearing then carries at most 2*pi*tolerance/length of error from the turret speed (1.3 mrad for
-    20 us at 10 turn/s, below the bearing's own standard deviation, about 0.7 mrad). A zero reference a
-    little early (between `period_tolerance` and the tolerance) is held until the next one says whether
-    it was spurious (the next one closes the revolution at the measured length) or the turret sped up.
-    Lengths refused but within the nominal gate still enter the estimate, so a turret whose speed really
-    changed is followed after a few revolutions.
+    clock onto its own). The clock comes from the device's hello (a HELLO event); given here, it holds
+    until a hello says otherwise. docs/serial_integrity.md says how a revolution's length is judged
+    against the measured turret speed (section 2.4.2) and what each drop reason in `drops` means.
     """
 
     def __init__(

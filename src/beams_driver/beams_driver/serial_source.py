@@ -1,24 +1,9 @@
 """The real-hardware edge source: the BeAMS sensor's serial stream (see `serial_protocol`) read with pyserial.
 
 `SerialEdgeSource.read()` returns the revolutions completed by the bytes that arrived, as
-`RevolutionEdges` stamped on the host's clock, and never raises once the source is open: a device that
-disappears (unplugged, USB reset) is closed and reopened with an exponential back-off, its loss and
-return are logged and counted, and bad bytes are counted drops (see `FrameParser` and
-`RevolutionAssembler`). A device that comes back at the same path (a udev /dev/serial/by-id/ link) is
-reopened on the next read, whatever the back-off. Only `open()` raises, with a one-line message that
-says what to fix, when the device path does not exist or cannot be opened at start-up (permission
-denied, a baud rate the port refuses). Bytes that never form a valid frame (the sensor talks at
-another baud rate), a device of another protocol version (its hello, or the old firmware's v1 frames)
-and frames without a hello are reported by `stream_problem`. As an EdgeSource (`SerialSource`), it says
-ERROR on /diagnostics while no zero reference comes although frames arrive (the turret stopped, its
-switch unplugged) or no frame comes at all, and WARNs for a while after lost frames, spurious zero
-references or revolutions of implausible length (docs/serial_integrity.md).
-
-Device time to host time: the device's timer starts anywhere, so the source maps it onto the host clock
-with the smallest observed (arrival - capture) offset, the one with the least transmission delay;
-the offset may grow by `max_clock_drift` s/s to follow a device clock that runs slow. The device's
-timer frequency comes from its hello (protocol v2); a device that resets or changes its clock starts the
-mapping afresh.
+`RevolutionEdges` stamped on the host's clock, and never raises once the source is open: a lost device
+is reopened with an exponential back-off, bad bytes are counted drops. Only `open()` raises, with a
+one-line message that says what to fix. What a user sees of each fault is in docs/serial_integrity.md.
 """
 
 import contextlib
@@ -339,7 +324,9 @@ class SerialEdgeSource:
         self._next_drop_log_s = now + self.drop_log_period_s
 
     def _update_clock(self, events: list[FrameEvent], arrival_s: float) -> None:
-        """Map device ticks onto the host clock with the least-delayed arrival seen so far."""
+        """Map device ticks (its timer starts anywhere) onto the host clock with the smallest (arrival -
+        capture) offset seen, the least delayed, allowed to grow by `max_clock_drift` s/s (a device clock
+        that runs slow); a device reset or a new clock starts the mapping afresh."""
         if not events or self.parser.device is None:
             return
         device = self.parser.device
@@ -409,28 +396,24 @@ SERIAL_PARAMETERS = (
 )
 SERIAL_POLL_PERIOD_S = 0.01
 # The drops /diagnostics warns about while recent, and what each means for the operator.
-WARNED_DROPS = (
-    (
-        "lost_frames",
+WARNED_DROPS = {
+    "lost_frames": (
         "the turret lost {count} frames in the last {window} s: more edges than the link carries "
-        "(its queue overflowed) or line noise; the {cost}s they touched were dropped",
+        "(its queue overflowed) or line noise; the {cost}s they touched were dropped"
     ),
-    (
-        "zero_reference_too_early",
+    "zero_reference_too_early": (
         "{count} spurious zero references in the last {window} s (switch bounce or "
-        "noise on its line): ignored",
+        "noise on its line): ignored"
     ),
-    (
-        "missed_edges",
+    "missed_edges": (
         "the turret missed {count} receiver edges in the last {window} s (pulses or gaps of a few us: a "
-        "glitching receiver); the {cost}s they touched were dropped",
+        "glitching receiver); the {cost}s they touched were dropped"
     ),
-    (
-        "bad_revolution_period",
+    "bad_revolution_period": (
         "{count} revolutions of implausible length in the last {window} s (the turret "
-        "stalled or changed speed, or a zero reference was missed): refused",
+        "stalled or changed speed, or a zero reference was missed): refused"
     ),
-)
+}
 
 
 class SerialSource:
@@ -508,7 +491,7 @@ class SerialSource:
             )
         warnings = [
             text.format(count=recent[reason], window=f"{RECENT_DROPS_WARN_S:.0f}", cost=self.lost_frames_cost)
-            for reason, text in WARNED_DROPS
+            for reason, text in WARNED_DROPS.items()
             if recent[reason]
         ]
         if warnings:

@@ -1,13 +1,7 @@
-"""Variance of a BeAMS bearing against the angular window (thesis chapters 3 and 4).
-
-- `family_normalized_variance`: the exact piecewise model of section 4.2.3 (cases 0, A-E, eq. 4.69-4.76,
-  with the erratum of eq. 4.75 fixed), sigma^2 / (p0 phi0^2 / 6) as a function of phi_W / phi0;
-- `enumerated_variance_s2`: the method of section 4.4 for any code: every shift of the code against
-  the window, here integrated exactly (the errors are piecewise linear in the shift);
-- `VarianceModel`: what the decoder uses, per code and window, in one of three modes:
-  "exact" (closed form for the family, a precomputed enumeration lookup otherwise),
-  "bound" (theorem 3.1, p0 phi0^2 / 6) or "constant"; plus a configurable natural variance, constant or
-  linear in the window (the AGC's edge noise grows with it, section 5.5; fitted by `noise_estimation`).
+"""Variance of a BeAMS bearing against the angular window (thesis chapters 3 and 4): the family's closed
+form (section 4.2.3, eq. 4.69-4.76), the enumeration over every shift for any code (section 4.4), and
+`VarianceModel`, what the decoder uses per code and window: "exact", "bound" (theorem 3.1) or "constant",
+plus a natural variance constant or linear in the window (section 5.5, fitted by `noise_estimation`).
 """
 
 from bisect import bisect_right
@@ -33,16 +27,6 @@ MEASURED_VARIANCE_RAD2 = 5.49e-3 * np.radians(1.0) ** 2
 # 64th of a bit stay within 1e-3 of the bound.
 GRID_POINTS_PER_BIT = 64
 _GAUSS_NODES = np.array([-1.0, 1.0]) / np.sqrt(3.0)
-
-
-def variance_bound_rad2(code: BeaconCode, turret_speed_rad_s: float = TURRET_SPEED_RAD_S) -> float:
-    """Theorem 3.1 (eq. 3.41): sigma^2 <= p0 phi0^2 / 6 (generalised to unequal gaps by the code)."""
-    return code.variance_bound_s2 * turret_speed_rad_s**2
-
-
-def edge_variance_rad2(p0: float, phi0_rad: float) -> float:
-    """Variance of one edge, sigma_r^2 = p0 phi0^2/3 - p0^2 phi0^2/4 (eq. 3.8): the first bound (eq. 3.18)."""
-    return p0 * phi0_rad**2 / 3.0 - p0**2 * phi0_rad**2 / 4.0
 
 
 # ---- section 4.2.3: the closed form for the code family ----
@@ -128,17 +112,6 @@ def family_normalized_variance(index: int, n_codes: int, window_over_phi0: Array
         chosen = k == segment
         result[chosen] = polynomial(m[chosen] - start)
     return np.where(x < 1.0, _p_0(np.minimum(x, 1.0), p0), result)
-
-
-def family_minimum_windows_over_phi0(index: int, n_codes: int, periods: Sequence[int]) -> np.ndarray:
-    """Local minima of the variance (units of phi0), eq. 4.80 (code Nc) and 4.81 (others)."""
-    root = np.sqrt(2.0) - 1.0
-    k = np.asarray(periods, dtype=float)
-    if index == n_codes:
-        return (n_codes + 1) * (1.0 + k) + root
-    period = 2 * n_codes + 2
-    starts = np.array([index + 1, 2 * n_codes + 1 - index, period], dtype=float)
-    return np.sort((starts[None, :] + root + period * k[:, None]).ravel())
 
 
 # ---- section 4.4: every shift of the code against the window ----

@@ -9,6 +9,7 @@ import itertools
 import math
 import re
 from collections.abc import Iterable
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -117,8 +118,10 @@ def test_crc_is_ccitt_false() -> None:
         (encode_frame(EventKind.ZERO_REFERENCE, 255, 0xFFFFFFF0), "A5 5B 03 FF"),
     ],
 )
-def test_docstring_examples_are_what_the_encoder_sends(frame: bytes, documented_prefix: str) -> None:
-    text = re.sub(r"\s+", " ", serial_protocol.__doc__)
+def test_documented_examples_are_what_the_encoder_sends(frame: bytes, documented_prefix: str) -> None:
+    """The examples of docs/firmware.md ("Frames")."""
+    firmware_doc = Path(__file__).resolve().parents[3] / "docs" / "firmware.md"
+    text = re.sub(r"\s+", " ", firmware_doc.read_text())
     documented = re.findall(rf"{documented_prefix}(?: [0-9A-F]{{2}})+", text)
     assert [frame.hex(" ").upper()] == documented
 

@@ -1,18 +1,17 @@
 """The variance of a bearing against the angular window, held to chapters 3-5 of the thesis."""
 
+from collections.abc import Sequence
+
 import numpy as np
 import pytest
 
-from beams_driver.codes import code_family, codes_from_strings, family_code
+from beams_driver.codes import BeaconCode, code_family, codes_from_strings, family_code
 from beams_driver.edges import TURRET_SPEED_RAD_S
 from beams_driver.variance import (
     MEASURED_VARIANCE_RAD2,
     VarianceModel,
-    edge_variance_rad2,
     enumerated_variance_s2,
-    family_minimum_windows_over_phi0,
     family_normalized_variance,
-    variance_bound_rad2,
 )
 from beams_sim.sensor_sim import (
     SensorSimConfig,
@@ -26,6 +25,27 @@ PHI0_RAD = CODES[0].bit_time_s * TURRET_SPEED_RAD_S
 TICK_S = 100e-9
 COPRIME_PERIOD_S = 998401 * TICK_S
 REAL_PERIOD_S = 998400 * TICK_S
+
+
+def variance_bound_rad2(code: BeaconCode, turret_speed_rad_s: float = TURRET_SPEED_RAD_S) -> float:
+    """Theorem 3.1 (eq. 3.41): sigma^2 <= p0 phi0^2 / 6 (generalised to unequal gaps by the code)."""
+    return code.variance_bound_s2 * turret_speed_rad_s**2
+
+
+def edge_variance_rad2(p0: float, phi0_rad: float) -> float:
+    """Variance of one edge, sigma_r^2 = p0 phi0^2/3 - p0^2 phi0^2/4 (eq. 3.8): the first bound (eq. 3.18)."""
+    return p0 * phi0_rad**2 / 3.0 - p0**2 * phi0_rad**2 / 4.0
+
+
+def family_minimum_windows_over_phi0(index: int, n_codes: int, periods: Sequence[int]) -> np.ndarray:
+    """Local minima of the variance (units of phi0), eq. 4.80 (code Nc) and 4.81 (others)."""
+    root = np.sqrt(2.0) - 1.0
+    k = np.asarray(periods, dtype=float)
+    if index == n_codes:
+        return (n_codes + 1) * (1.0 + k) + root
+    period = 2 * n_codes + 2
+    starts = np.array([index + 1, 2 * n_codes + 1 - index, period], dtype=float)
+    return np.sort((starts[None, :] + root + period * k[:, None]).ravel())
 
 
 def _simulated_normalized_variance(code, windows_s, period_s, n_turns):

@@ -2,12 +2,12 @@
 
 The thesis measures the beacons' coordinates by hand (chapter 7 calibrates them with the turret offset
 from 48 reference poses). With three beacons fixed, the map frame is defined and a further beacon's
-coordinates are observable from a moving robot's bearings and odometry (beams_thesis.observability: to
-0.2 mm of a 1 cm prior in 60 s; docs/self_calibration.md). The states are the correction (dx, dy) (m)
-of each listed beacon's configured coordinates, zero-mean with `prior_sigma_m`; the bearing model
-(`bearing_ekf.bearing_measurement`, the EKF of thesis fig. 8.1) then sees the beacon at the configured
-position plus its correction. Freeing a beacon when fewer than three others stay fixed would leave the
-frame itself (two translations, one rotation) unobservable: refused.
+coordinates are observable from a moving robot's bearings and odometry (to 0.2 mm of a 1 cm prior in
+60 s: docs/self_calibration.md, test/scenario/test_self_calibration_observability.py). The states are
+the correction (dx, dy) (m) of each listed beacon's configured coordinates, zero-mean with
+`prior_sigma_m`; the bearing model (`bearing_ekf.bearing_measurement`, the EKF of thesis fig. 8.1) then
+sees the beacon at the configured position plus its correction. Freeing a beacon when fewer than three
+others stay fixed would leave the frame itself (two translations, one rotation) unobservable: refused.
 """
 
 from collections.abc import Iterable, Mapping

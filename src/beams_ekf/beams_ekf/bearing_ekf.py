@@ -317,6 +317,30 @@ class BearingEkf:
         self._initialised = True
         self._learnt = True
 
+    def learnt_states(self) -> tuple[list[str], np.ndarray, np.ndarray] | None:
+        """The learnt blocks (each its repr), their states and joint covariance (copies); None before
+        anything was learnt (or since `reset(forget_learnt=True)`)."""
+        if not self._learnt:
+            return None
+        blocks = [repr(block) for block, _ in self._parts if block.learnt]
+        return blocks, self._ekf.x[self._kept, 0].copy(), self._ekf.P[np.ix_(self._kept, self._kept)].copy()
+
+    def resume_learnt(self, blocks: list[str], mean: np.ndarray, covariance: np.ndarray) -> None:
+        """Take learnt states back (ekf_node's checkpoint), kept by the next `initialise`; ValueError when
+        the blocks are not this filter's (`learnt_states`' repr) or the covariance is no covariance."""
+        own = [repr(block) for block, _ in self._parts if block.learnt]
+        if blocks != own:
+            raise ValueError(f"learnt by other state blocks: {blocks}, the filter's are {own}")
+        covariance = np.asarray(covariance, float)
+        if (
+            np.any(np.abs(covariance - covariance.T) > 1e-12)
+            or np.linalg.eigvalsh(covariance).min(initial=0.0) < -1e-12
+        ):
+            raise ValueError("the learnt states' covariance is not symmetric positive semi-definite")
+        self._ekf.x[self._kept, 0] = mean
+        self._ekf.P[np.ix_(self._kept, self._kept)] = covariance
+        self._learnt = True
+
     def state(self) -> tuple[np.ndarray, np.ndarray]:
         """A copy of (x, P), to come back to with `restore`."""
         return self._ekf.x.copy(), self._ekf.P.copy()
@@ -414,12 +438,14 @@ class BearingEkf:
         nis = residual * residual / innovation_variance
         if nis > self.gate:
             return BearingOutcome(False, nis, residual, BearingReason.GATED)
-        self._joseph_update(jacobian, variance_rad2, residual, innovation_variance, self._frozen)
+        gain = self._joseph_update(jacobian, variance_rad2, residual, innovation_variance, self._frozen)
         self._ekf.x[self._heading, 0] = wrap_to_pi(float(self._ekf.x[self._heading, 0]))
         # rounding drifts P from symmetric: after a wide prior (sigma 4 m) by more than the 1e-9 the
         # published-estimate invariant allows (else every later estimate is refused)
         self._ekf.P = 0.5 * (self._ekf.P + self._ekf.P.T)
-        return BearingOutcome(True, nis, residual)
+        return BearingOutcome(
+            True, nis, residual, pose_gain=gain[self._pose, 0], innovation_variance=innovation_variance
+        )
 
     def _joseph_update(
         self,
@@ -428,11 +454,11 @@ class BearingEkf:
         residual: float,
         innovation_variance: float,
         frozen: list[slice],
-    ) -> None:
+    ) -> np.ndarray:
         """x += K r, P = (I - K H) P (I - K H)' + K R K' (filterpy's form), K = P H' / S; the gain rows
         of the `frozen` states (consider parameters; the power bias for a bearing that cannot teach it;
         every learnt block for a bearing whose bias is not modelled yet) are zero (Schmidt-Kalman): the
-        Joseph form stays right for that gain."""
+        Joseph form stays right for that gain. Returns K."""
         p = self._ekf.P
         gain = (p @ jacobian.T) / innovation_variance
         for part in frozen:
@@ -440,3 +466,4 @@ class BearingEkf:
         reduce = np.eye(self.dim) - gain @ jacobian
         self._ekf.x = self._ekf.x + gain * residual
         self._ekf.P = reduce @ p @ reduce.T + variance_rad2 * (gain @ gain.T)
+        return gain

@@ -10,7 +10,8 @@
   bearings worse), no bearing accepted for more than MAX_BEARING_SILENCE_S of data time (odometry
   alone: the covariance grows), or a pose the bearings have not confirmed since an event that broke the
   estimate's continuity (an operator's pose, an odometry jump or silence, a time jump, a
-  re-initialisation from ToTal after a kidnap or a lost test: `consistency.PoseConfirmation`).
+  re-initialisation from ToTal after a kidnap or a lost test: `consistency.PoseConfirmation`), or a
+  protection level above its alert limit (`protection_level`: unavailable for navigation).
 - tracking: none of the above: the estimate is the filter's own, verified by its bearings.
 
 The receiving clock is the node's (ROS time: /clock under use_sim_time); pure, times passed in.
@@ -27,7 +28,10 @@ from beams_common.status.health import (
     judge,
     odometry_rate_monitor,
 )
+from beams_common.status.protection_level import Integrity, ProtectionLevel
 from beams_ekf.consistency import ODOMETRY_SILENCE_S
+from beams_ekf.localiser import Localiser
+from beams_ekf.outcomes import Estimate
 
 # No bearing accepted for this long (s, data time): odometry alone carries the estimate.
 MAX_BEARING_SILENCE_S = 1.0
@@ -43,7 +47,9 @@ class EkfHealth:
         self.configure(values, now_s)
 
     def configure(self, values: Mapping[str, Any], now_s: float) -> None:
-        """New rate ranges (a runtime change): the rates are measured again from now."""
+        """New rate ranges and integrity settings (a runtime change): the rates are measured again from
+        now."""
+        self.integrity = Integrity(values)
         self.bearing_rate = bearing_rate_monitor(values)
         self.odometry_rate = odometry_rate_monitor(values)
         self.bearing_rate.start(now_s)
@@ -81,10 +87,11 @@ class EkfHealth:
         kidnap_suspected: bool,
         bearing_silence_s: float,
         unconfirmed: str = "",
+        protection: ProtectionLevel | None = None,
     ) -> Verdict:
         """The status now, from the filter's tests (NIS, kidnap), the time since the last accepted bearing
         (data time), why the bearings have not yet confirmed the estimate (`Localiser.unconfirmed`, ''
-        when they have) and this monitor's rates and faults."""
+        when they have), the estimate's protection level and this monitor's rates and faults."""
         if not initialised:
             return judge(WAITING_FOR_POSE)
         lost = []
@@ -94,12 +101,43 @@ class EkfHealth:
             lost.append("most recent bearings gated out (robot moved?): waiting for a ToTal pose")
         if self._last_odometry_s is not None and now_s - self._last_odometry_s > ODOMETRY_SILENCE_S:
             lost.append(f"no odometry for {now_s - self._last_odometry_s:.1f} s: the estimate stands still")
-        degraded = [unconfirmed] if unconfirmed else []
+        degraded = [p for p in (unconfirmed, self.integrity.problem(protection)) if p]
         degraded += [p for p in (self.bearing_rate.problem(now_s), self._odometry_rate_problem(now_s)) if p]
         degraded += self.faults.active(now_s)
         if bearing_silence_s > MAX_BEARING_SILENCE_S:
             degraded.append(f"no accepted bearing for {min(bearing_silence_s, 1e6):.1f} s: odometry only")
         return judge("", lost, degraded)
+
+    def judge(
+        self, now_s: float, localiser: Localiser, estimate: Estimate | None
+    ) -> tuple[ProtectionLevel | None, float, Verdict]:
+        """(protection level, bearing silence (s), verdict) of a Localiser's `estimate` (None: none yet): the
+        one reading of its tests that ekf_node and the offline replay share."""
+        if estimate is None:
+            return (
+                None,
+                float("inf"),
+                self.verdict(
+                    now_s,
+                    initialised=False,
+                    nis_lost=False,
+                    kidnap_suspected=False,
+                    bearing_silence_s=float("inf"),
+                ),
+            )
+        level = self.integrity.level(estimate.covariance, estimate.fault_shifts, estimate.fault_covariances)
+        last_s = localiser.stats.last_bearing_stamp_s
+        silence_s = estimate.stamp_s - last_s if last_s is not None else float("inf")
+        verdict = self.verdict(
+            now_s,
+            initialised=True,
+            nis_lost=localiser.nis_monitor.lost,
+            kidnap_suspected=localiser.kidnap.suspected,
+            bearing_silence_s=silence_s,
+            unconfirmed=localiser.unconfirmed,
+            protection=level,
+        )
+        return level, silence_s, verdict
 
     def _odometry_rate_problem(self, now_s: float) -> str:
         return self.odometry_rate.problem(now_s) if self._last_odometry_s is not None else ""

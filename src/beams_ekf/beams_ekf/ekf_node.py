@@ -14,6 +14,9 @@ learnt of the sensor and the odometry is kept, as across every re-initialisation
 (std_srvs/Trigger) writes the power bias (and the turret offset and beacon coordinates, when estimated)
 learnt while driving to `self_calibration_file`.
 All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
+A (re)start resumes from `checkpoint_file` (beams_ekf.checkpoint: the learnt states and the runtime-set
+parameters, written every `checkpoint_period_s` and at a clean stop), said in the log and as `checkpoint`
+on /diagnostics, with the reason for what it did not take back.
 
 Every pose (ToTal's accepted fix, /initialpose, `~/set_pose`) goes through the one pose intake
 (`beams_common.intake.pose_intake`, as the offline replay's): in another frame than `map_frame`, non-finite,
@@ -36,6 +39,7 @@ jump or silence, a time jump, a re-initialisation after a kidnap) is degraded, n
 """
 
 import math
+import os
 import sys
 
 import numpy as np
@@ -43,6 +47,7 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
@@ -78,6 +83,12 @@ from beams_common.ros.node_support import (
 from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
 from beams_common.ros.status_topic import StatusTopic
 from beams_common.status.health import Status
+from beams_ekf.checkpoint import (
+    RuntimeChanges,
+    checkpoint_path,
+    resume_from,
+    save_checkpoint,
+)
 from beams_ekf.ekf_health import WAITING_FOR_POSE, EkfHealth
 from beams_ekf.localiser import build_localiser
 from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
@@ -89,9 +100,43 @@ from beams_msgs.srv import SetPose
 # a calibration that disagrees with the recent bearings keeps the status degraded this long (s): the NIS
 # test then has a window of new bearings to judge it on
 CALIBRATION_FLAG_HOLD_S = 10.0
+FRAMES = ("map", "base", "odom")  # the <frame>_frame parameters
 
 
-class EkfNode(WatchedInputs, GuardedCallbacks, Node):
+class Checkpointed:
+    """ekf_node's checkpoint on the ROS side (beams_ekf.checkpoint): its runtime changes set back and its
+    learnt states resumed at start, said in the log (WARN when some was refused) and as `checkpoint` on
+    /diagnostics; saved every checkpoint_period_s and at a clean stop. Uses the node's `parameters`,
+    `localiser`, `geometry` and `diagnostics`; `runtime_changes` records the changes as they are applied."""
+
+    def _resume_checkpoint(self) -> None:
+        self.runtime_changes, name = RuntimeChanges(self.parameters), self.get_fully_qualified_name()
+        self.checkpoint_path = path = checkpoint_path(self.parameters["checkpoint_file"], name, os.environ)
+        said, complete = resume_from(
+            path, self.localiser.ekf, self.parameters, self._set_back, lambda: self.geometry
+        )
+        (self.get_logger().info if complete else self.get_logger().warning)(said)
+        self.diagnostics.set("checkpoint", bounded(said))
+        if path is not None:
+            self.create_timer(self.parameters["checkpoint_period_s"], self._save_checkpoint)
+
+    def _set_back(self, name: str, value: object) -> str:
+        """A checkpoint's runtime change set back as `ros2 param set` sets it: why it was refused, or ''."""
+        return self.set_parameters([Parameter(name, value=value)])[0].reason
+
+    def _save_checkpoint(self) -> None:
+        problem = save_checkpoint(
+            self.checkpoint_path, self.localiser.ekf, self.geometry, self.runtime_changes
+        )
+        if problem:
+            self.diagnostics.refuse("checkpoints_not_written", problem, level="error")
+
+    def destroy_node(self) -> None:
+        self._save_checkpoint()  # a clean stop keeps what was learnt since the last period
+        super().destroy_node()
+
+
+class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
     """ROS wiring of `Localiser` (see the module docstring)."""
 
     def __init__(self) -> None:
@@ -99,15 +144,11 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         self.parameters = declare_table(self, EKF_PARAMETERS)
         self.settings = filter_settings(self.parameters)
         self.geometry = geometry = startup_geometry(self.parameters)
-        beacons = geometry.beacon_map.as_dict()
-        self.localiser = build_localiser(beacons, geometry.turret_offset_m, self.settings)
-        self.map_frame = self.parameters["map_frame"]
-        self.base_frame = self.parameters["base_frame"]
-        self.odom_frame = self.parameters["odom_frame"]
-        publish_tf = self.parameters["publish_tf"]
-        rate_hz = self.parameters["publish_rate_hz"]
+        beacons, offset = geometry.beacon_map.as_dict(), geometry.turret_offset_m
+        self.localiser = build_localiser(beacons, offset, self.settings)
+        self.map_frame, self.base_frame, self.odom_frame = (self.parameters[f"{k}_frame"] for k in FRAMES)
         self.diagnostics = Diagnostics(self, "ekf")
-        self.status_topic = StatusTopic(self, topics.EKF_STATUS)
+        self.status_topic = StatusTopic(self, topics.EKF_STATUS, self.diagnostics)
         self.diagnostics.set_level("warn", WAITING_FOR_POSE)
         self._status = Status.WAITING  # the status last set on /diagnostics
         self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
@@ -121,17 +162,20 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
 
         self.odometry_publisher = self.create_publisher(Odometry, topics.EKF_ODOMETRY, 10)
         self.pose_publisher = self.create_publisher(PoseWithCovarianceStamped, topics.EKF_POSE, 10)
-        self.tf_publisher = self.create_publisher(TFMessage, topics.TF, TF_QOS) if publish_tf else None
+        self.tf_publisher = (
+            self.create_publisher(TFMessage, topics.TF, TF_QOS) if self.parameters["publish_tf"] else None
+        )
         self.create_subscription(Odometry, topics.ODOMETRY, self._on_odometry, qos_profile_sensor_data)
         self.create_subscription(BeaconBearingArray, topics.BEARINGS, self._on_bearings, BEARINGS_QOS)
         self.create_subscription(TriangulatedPose, topics.POSE, self._on_total_pose, 10)
-        self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE, self._on_initial_pose, 10)
+        self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE, self._operator_pose, 10)
         self.create_service(SetPose, topics.SET_POSE, self._on_set_pose)
         self.create_service(Trigger, topics.RESET, self._on_reset)
         self.create_service(Trigger, topics.SAVE_CALIBRATION, self._on_save_calibration)
         serve_calibration_reload(self, self._apply_calibration)
         apply_runtime_changes(self, EKF_PARAMETERS, self.parameters, self._prepare_parameters)
-        self.create_timer(1.0 / rate_hz, self._publish)
+        self._resume_checkpoint()
+        self.create_timer(1.0 / self.parameters["publish_rate_hz"], self._publish)
         self.get_logger().info(
             f"ekf_node ready: {len(self.localiser.ekf.beacons_xy)} beacons, turret offset "
             f"{self.localiser.ekf.sensor_offset_m} m, gate {self.localiser.ekf.gate:.2f}"
@@ -156,6 +200,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         tolerance = stamp_tolerance_of(values)
 
         def apply() -> None:
+            self.runtime_changes.record(values, changed)
             if geometry is not self.geometry:
                 self._flag_worse_calibration(geometry)
             self.geometry, self.settings, self.stamp_check.tolerance = geometry, settings, tolerance
@@ -233,9 +278,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         that no 1 Hz report says the old status once the new estimate exists."""
         self._changed = True
         self._publish()
-
-    def _on_initial_pose(self, msg: PoseWithCovarianceStamped) -> None:
-        self._operator_pose(msg)
 
     def _on_set_pose(self, request: SetPose.Request, response: SetPose.Response) -> SetPose.Response:
         response.success, response.message = self._operator_pose(request.pose)
@@ -357,23 +399,13 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
         stats = self.localiser.stats
         for key, value in stats.counts.items():
             self.diagnostics.set(key, value)
-        since_s = float("inf")
+        now_s = self._now_s()
+        level, since_s, verdict = self.health.judge(now_s, self.localiser, estimate)
         if estimate is not None:
             self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
             self.diagnostics.set("recent_gated_bearings", self.localiser.kidnap.recent_gated_bearings)
             self.diagnostics.set("lost_nis_window_sum", self.localiser.nis_monitor.window_sum)
-            if stats.last_bearing_stamp_s is not None:
-                since_s = estimate.stamp_s - stats.last_bearing_stamp_s
             self.diagnostics.set("time_since_last_bearing_s", since_s)
-        now_s = self._now_s()
-        verdict = self.health.verdict(
-            now_s,
-            initialised=estimate is not None,
-            nis_lost=self.localiser.nis_monitor.lost,
-            kidnap_suspected=self.localiser.kidnap.suspected,
-            bearing_silence_s=since_s,
-            unconfirmed=self.localiser.unconfirmed if estimate is not None else "",
-        )
         self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
         self.diagnostics.set("odometry_rate_hz", self.health.odometry_rate.rate_hz(now_s))
         changed = verdict.status is not self._status
@@ -389,7 +421,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Node):
             self.diagnostics.publish()
         else:  # and an ERROR condition's end (a second publisher gone, its hold over) too
             self.diagnostics.publish_if_conditions_changed()
-        self.status_topic.say(verdict)
+        self.status_topic.say(verdict, self.health.integrity, level)
 
 
 def _newest_stamp_s(intake: RevolutionIntake) -> float:

@@ -22,7 +22,7 @@ the estimate is unconfirmed until its bearings confirm it (`consistency.PoseConf
 status is degraded meanwhile); the first initialisation from ToTal is the bearings' own pose.
 """
 
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -104,6 +104,9 @@ class Localiser:
         )
         self.confirmation = PoseConfirmation(self.config.confirming_bearings)
         self._stamp_s: float | None = None
+        # the newest accepted bearings, one revolution's when every beacon is seen: (beacon, the shift
+        # gain * residual, the variance gain gain' S taken away, flat), the protection level's hypotheses
+        self._recent: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=len(ekf.beacons_xy))
 
     @property
     def initialised(self) -> bool:
@@ -131,6 +134,7 @@ class Localiser:
         self.motion_limits = settings.motion_limits
         self.default_pose_covariance = settings.default_pose_covariance
         self.ekf.configure(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability)
+        self._recent = deque(maxlen=len(self.ekf.beacons_xy))
 
     def reset(self, reason: str = "reset", forget_learnt: bool = False) -> None:
         """Forget the estimate and the odometry; the filter waits for a pose. What a BearingEkf learnt of
@@ -146,6 +150,7 @@ class Localiser:
         self._stamp_s = None
         self._time_jumps.clear()
         self.confirmation.clear()  # the next initialisation from ToTal is a first one
+        self._recent.clear()
         self.stats.counts[reason] += 1
 
     # -- odometry -------------------------------------------------------------------------------------
@@ -245,6 +250,10 @@ class Localiser:
         """Record whether a new bearing was gated (kidnap evidence) and the last accepted one."""
         if outcome.accepted:
             self.stats.last_bearing_stamp_s = bearing.stamp_s
+            gain = outcome.pose_gain
+            if gain is not None:
+                taken = outcome.innovation_variance * np.outer(gain, gain).ravel()
+                self._recent.append((bearing.beacon_id, gain * outcome.residual_rad, taken))
         if outcome.accepted or outcome.reason is BearingReason.GATED:
             self.kidnap.add(not outcome.accepted)
             if self.confirmation.add(bearing.beacon_id, not outcome.accepted):
@@ -304,6 +313,7 @@ class Localiser:
             return PoseOutcome.INVALID
         self.kidnap.clear()
         self.nis_monitor.clear()
+        self._recent.clear()
         event = _CONTINUITY_EVENTS.get(outcome)
         if operator:
             self._break_continuity("an operator's pose")
@@ -323,7 +333,25 @@ class Localiser:
         stamp_s = self._stamp_s if self._stamp_s is not None else float("nan")
         latest = self.history.latest
         odom_pose = latest[1] if latest is not None and latest[0] == stamp_s else None
-        return Estimate(stamp_s, self.ekf.pose, self.ekf.covariance, self._odometry_twist(), odom_pose)
+        covariance = self.ekf.covariance
+        estimate = Estimate(stamp_s, self.ekf.pose, covariance, self._odometry_twist(), odom_pose)
+        if self._recent:
+            estimate.fault_shifts, estimate.fault_covariances = self._fault_hypotheses(covariance)
+        return estimate
+
+    def _fault_hypotheses(self, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """One faulty bearing of the recent ones, or one faulty beacon (its recent bearings together):
+        the estimate's shift from the solution without them (gain * residual, summed) and that
+        solution's covariance (P + gain gain' S, summed: the variance they took away). First order: the
+        gain and residual of each bearing's own update (docs/protection_level.md)."""
+        ids = [beacon for beacon, _, _ in self._recent]
+        # one row per hypothesis: each bearing alone, then each beacon seen more than once
+        twice = [beacon for beacon in set(ids) if ids.count(beacon) > 1]
+        members = np.vstack([np.eye(len(ids)), np.equal.outer(twice, ids).reshape(-1, len(ids))])
+        shifts = members @ np.array([shift for _, shift, _ in self._recent])
+        taken = members @ np.array([taken for _, _, taken in self._recent])
+        separated = covariance + taken.reshape(-1, 3, 3)
+        return shifts, separated
 
     def _odometry_twist(self) -> tuple[float, float, float]:
         """Robot-frame velocity over the last odometry step (zero with fewer than two samples)."""

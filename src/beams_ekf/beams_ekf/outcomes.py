@@ -61,6 +61,11 @@ class Estimate:
     twist: tuple[float, float, float] = (0.0, 0.0, 0.0)
     # the odometry pose (odom frame) at stamp_s; None before any odometry
     odom_pose: Pose2D | None = None
+    # the fault hypotheses of the protection level (`Integrity.level`): the estimate's shift from each
+    # solution without a recent bearing or beacon (n, 3) and that solution's covariance (n, 3, 3); None:
+    # no bearing accepted since the (re-)initialisation
+    fault_shifts: np.ndarray | None = None
+    fault_covariances: np.ndarray | None = None
 
     @property
     def map_to_odom(self) -> Pose2D | None:

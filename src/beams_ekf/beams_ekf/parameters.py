@@ -11,6 +11,7 @@ from beams_common.config.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SP
 from beams_common.config.parameters import ROS_NODE_PARAMETERS, ParameterSpec, ParameterTable
 from beams_common.intake.plausibility import MOTION_SPECS, STAMP_SPECS, motion_limits_of
 from beams_common.status.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, rates_check
+from beams_common.status.protection_level import INTEGRITY_SPECS
 from beams_ekf.bearing_ekf import BEARING_EKF_SPECS, process_noise_of
 from beams_ekf.settings import SETTINGS_SPECS, FilterSettings, LocaliserConfig
 from beams_ekf.state_blocks import registered_blocks
@@ -51,6 +52,7 @@ EKF_PARAMETERS = ParameterTable(
         *STAMP_SPECS,
         *BEARING_RATE_SPECS,
         ODOMETRY_RATE_SPEC,
+        *INTEGRITY_SPECS,
         *(spec for _, specs, _ in _BLOCKS for spec in specs.specs),
         ParameterSpec("map_frame", "map", "Frame of the estimate (REP-105)."),
         ParameterSpec("base_frame", "base_link", "The robot's frame (child)."),
@@ -58,6 +60,21 @@ EKF_PARAMETERS = ParameterTable(
         ParameterSpec("publish_tf", True, "Publish the map -> odom transform on /tf."),
         ParameterSpec(
             "publish_rate_hz", 20.0, "Rate of the published estimate (Hz).", minimum=0.1, maximum=1000.0
+        ),
+        ParameterSpec(
+            "checkpoint_file",
+            "~/.ros/beams/{node}_checkpoint.yaml",
+            "Where the learnt states (pose excluded, with the geometry they were learnt against) and the "
+            "runtime-set parameters are kept for a restart (beams_ekf.checkpoint): written every "
+            "checkpoint_period_s and at a clean stop, read at start. {node}: the node's fully qualified name "
+            "(one file per node); ~/.ros: $ROS_HOME when set, where ROS keeps a robot's state; empty: off.",
+        ),
+        ParameterSpec(
+            "checkpoint_period_s",
+            20.0,
+            "Period (s) of the checkpoint's writes; a kill -9 loses what was learnt since the last one.",
+            minimum=1.0,
+            maximum=3600.0,
         ),
     ),
     (*GEOMETRY_CHECKS, _filter_settings_check, rates_check),

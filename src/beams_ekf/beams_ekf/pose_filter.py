@@ -45,6 +45,10 @@ class BearingOutcome:
     nis: float
     residual_rad: float
     reason: BearingReason = BearingReason.ACCEPTED
+    # an accepted bearing's gain on (x, y, theta) and innovation variance S: the shift gain * residual and
+    # the variance gain gain' S it brought (its fault hypothesis, docs/protection_level.md); None: unknown
+    pose_gain: np.ndarray | None = None
+    innovation_variance: float = float("nan")
 
 
 def rejected(reason: BearingReason) -> BearingOutcome:

@@ -2,9 +2,10 @@
 plausibility checks pass; a sequence of inputs drives it through every status."""
 
 from beams_common.status.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
+from beams_common.status.protection_level import INTEGRITY_SPECS
 from beams_ekf.ekf_health import EkfHealth
 
-VALUES = {spec.name: spec.default for spec in (*BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC)}
+VALUES = {spec.name: spec.default for spec in (*BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, *INTEGRITY_SPECS)}
 HEALTHY = {"initialised": True, "nis_lost": False, "kidnap_suspected": False, "bearing_silence_s": 0.05}
 
 

@@ -16,6 +16,7 @@ from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.geometry.bearing import Bearing
 from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
 from beams_common.status.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
+from beams_common.status.protection_level import INTEGRITY_SPECS
 from beams_ekf.consistency import PoseConfirmation
 from beams_ekf.ekf_health import EkfHealth
 from beams_ekf.localiser import Localiser, build_localiser, revolution_of
@@ -24,7 +25,7 @@ from beams_ekf.parameters import filter_settings
 from beams_ekf.settings import FilterSettings, LocaliserConfig
 from beams_thesis.synthetic import SyntheticMatch, synthetic_match
 
-VALUES = {spec.name: spec.default for spec in (*BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC)}
+VALUES = {spec.name: spec.default for spec in (*BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, *INTEGRITY_SPECS)}
 EVENT_S = 2.0  # the break of continuity, once the filter tracks
 CONFIRMING_BEARINGS = LocaliserConfig().confirming_bearings
 ONE_CM = np.diag([1e-4, 1e-4, 1e-4])  # 1 cm, 0.6 deg: ToTal's fixes and the operators' poses
@@ -124,6 +125,11 @@ class Drive:
             kidnap_suspected=self.localiser.kidnap.suspected,
             bearing_silence_s=float("inf") if estimate is None or last is None else estimate.stamp_s - last,
             unconfirmed=self.localiser.unconfirmed if estimate is not None else "",
+            protection=None
+            if estimate is None
+            else self.health.integrity.level(
+                estimate.covariance, estimate.fault_shifts, estimate.fault_covariances
+            ),
         )
         if estimate is None:
             return Step(now_s, verdict.status, verdict.message, float("nan"), float("nan"))

@@ -1,10 +1,5 @@
-"""What the simulated sensor follows and meets: the robot's own true pose, and the other robots' bodies.
-
-The simulated edge source follows the robot's true pose as it arrives (beams/sim/ground_truth) and needs
-it at every instant of a revolution; `OtherRobots` puts the other robots of the table in front of the
-simulated sensor: each one's body, in the beacons' plane, hides a beacon while it stands across the line
-of sight.
-"""
+"""What the simulated sensor follows and meets: the robot's own true pose (beams/sim/ground_truth), needed at
+every instant of a revolution, and the other robots' bodies (`OtherRobots`)."""
 
 import math
 from collections.abc import Callable, Mapping

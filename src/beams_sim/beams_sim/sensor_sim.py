@@ -1,25 +1,12 @@
 """Edge-level simulation of the BeAMS sensor (thesis section 2.4, with the departures of section 5.6).
 
-One call to `SensorSimulator.revolution` produces the edges the microcontroller would capture during one
-turret revolution:
-
-- the turret turns at 625000 / 62400 turn/s, driven by a 625 kHz timer (62400 virtual steps, 0.1 mrad);
-  edges are captured on that timer and their angle counts from the optical-switch zero reference,
-  which the simulator puts on the robot's x axis;
-- every beacon emits its code in a loop from a random phase (no synchronisation, section 2.4.4);
-- the received power falls as 1/d^2 (eq. 2.7) over a symmetric beam P_IR(phi) (eq. 2.2-2.3, here a
-  Gaussian); the receiver sees the beacon while P_IR exceeds a threshold (eq. 2.4), so the angular
-  window shrinks with distance;
-- the receiver output is code AND window (section 3.2), OR-ed over beacons (beacons close in angle give
-  compound windows, section 2.4.5) and over stray-IR pulses; clipped bursts shorter than about 56% of
-  T_0 are not detected, and the window's first rising edge is noisier than its last falling edge (5.6);
-- two noise models: `SensorSimConfig()` (named `ideal` in driver_node: the OOK noise, the AND hypothesis
-  and constant edge noise) and `SensorSimConfig.thesis_hardware()` (sections 5.5-5.7, see `receiver`:
-  window-dependent asymmetric edge noise, AGC effects, table 5.1's window biases, a power bias);
-- injected hardware imperfections (chapter 7): power bias f(window), rotation bias f(angle), turret
-  offset from the robot centre, beacons standing where the caller says (the true positions);
-- the robot moves during the revolution: the pose is taken from pose_at(t) at each window's edges.
-"""
+`SensorSimulator.revolution` gives the edges the microcontroller captures in one turret revolution: the turret
+driven by the 625 kHz capture timer, angles from the zero reference on the robot's x axis; each beacon's code
+looped from a random phase (section 2.4.4); the window where the received power, 1/d^2 (eq. 2.7) over a
+Gaussian beam, exceeds the threshold (eq. 2.4); code AND window OR-ed over beacons (compound windows, section
+2.4.5) and stray-IR pulses. Two noise models: `SensorSimConfig()` (driver_node's `ideal`) and
+`SensorSimConfig.thesis_hardware()` (sections 5.5-5.7). Chapter 7's imperfections (power and rotation biases,
+turret offset, true beacon positions) are injected; the pose is taken at each window's edges."""
 
 import math
 from collections.abc import Callable, Collection, Sequence
@@ -86,13 +73,9 @@ class SensorSimConfig:
 
     @classmethod
     def thesis_hardware(cls, **overrides: object) -> "SensorSimConfig":
-        """The receiver the thesis measured (sections 5.5-5.7; driver_node's default `thesis_hardware`).
-
-        The edge noise is the window-dependent jitter of `HardwareNoise.thesis_hardware()` (over the
-        windows of 1-6 m, section 5.3) instead of the constant outer-edge noise; the minimum burst is 56%
-        of T0 for the family codes and falls as sqrt(T_b / G) for longer gaps G, which with the AGC's
-        extra shortening of modulated windows reproduces table 5.1's experiment column; the power bias is a
-        cubic fluctuating over the 0.23 deg range of section 5.7 (`thesis_power_bias_coefficients`).
+        """The receiver the thesis measured (sections 5.5-5.7; driver_node's default `thesis_hardware`):
+        `HardwareNoise.thesis_hardware()`'s edge noise and power bias instead of the constant outer-edge
+        noise, and the minimum burst falling as sqrt(T_b / G), which reproduce table 5.1's experiment column.
         """
         base = cls(rising_noise_rad=0.0, falling_noise_rad=0.0, hardware=HardwareNoise.thesis_hardware())
         return replace(base, **{"min_burst_gap_exponent": THESIS_MIN_BURST_GAP_EXPONENT, **overrides})
@@ -113,10 +96,8 @@ class SensorSimConfig:
 
     @property
     def natural_variance_rad2(self) -> float:
-        """Bearing variance the edge noise adds: (sigma_r^2 + sigma_f^2) / 4 (eq. 3.13, independent edges).
-
-        With the hardware noise, which grows with the window, its mean over the 1-6 m windows (C_k).
-        """
+        """Bearing variance the edge noise adds, (sigma_r^2 + sigma_f^2) / 4 (eq. 3.13, independent edges);
+        with the hardware noise, its mean over the 1-6 m windows (C_k)."""
         if self.hardware is not None:
             windows = np.linspace(*self.hardware.window_range_rad, 101)
             return float(np.mean(self.hardware.natural_variance_rad2(windows, None)))
@@ -175,12 +156,9 @@ class SensorSimulator:
         *,
         occlusion: Occlusion | None = None,
     ) -> None:
-        """beacons: true positions (SimulatedBeacons, or a BeaconMap-like object with ids and xy).
-
-        power_bias_rad(window) and rotation_bias_rad(angle) are added to the measured bearing
-        (phi_biased = phi_real + f, eq. 7.17 and 7.24); turret_offset_m is the turret centre in base_link;
-        occlusion hides beacons: a set of ids or a callable (beacon_id, time_s) -> bool.
-        """
+        """beacons: true positions (SimulatedBeacons, or a BeaconMap-like object); power_bias_rad(window) and
+        rotation_bias_rad(angle) are added to the bearing (eq. 7.17, 7.24); turret_offset_m is the turret
+        centre in base_link; occlusion: a set of hidden ids or (beacon_id, time_s) -> hidden."""
         self.config = config
         self.beacons = tuple(beacons) if _is_beacon_sequence(beacons) else beacons_from_map(beacons)
         self._codes = [config.code(b.beacon_id) for b in self.beacons]
@@ -224,11 +202,9 @@ class SensorSimulator:
     # ---- one beacon's window ----
 
     def _beacon_bursts(self, k: int, pose_at: PoseAt, t0: float) -> tuple[np.ndarray, np.ndarray]:
-        """Bursts (s from t0, unclipped) of every pass of beacon k that can reach this revolution.
-
-        A beacon near the zero reference is seen twice: the tail of the pass around t0 and the head of
-        the pass around t0 + period, each with the robot's pose at its own instants.
-        """
+        """Bursts (s from t0, unclipped) of every pass of beacon k that can reach this revolution: near the
+        zero reference, the tail of the pass around t0 and the head of the one around t0 + period, each at its
+        own pose."""
         beacon = self.beacons[k]
         omega, period = self.config.turret_speed_rad_s, self.config.period_s
         bearing, _ = self._view(beacon, pose_at(t0 + 0.5 * period))
@@ -362,12 +338,9 @@ class SensorSimulator:
         return starts, starts + durations
 
     def _capture(self, starts_rel: np.ndarray, ends_rel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Timer captures (s from the zero reference) and polarities of the OR of all bursts.
-
-        Only the edges inside [0, period) belong to this revolution: a window over the zero reference
-        shows its tail at the start and the head of the next pass at the end (the decoder joins
-        consecutive revolutions).
-        """
+        """Timer captures (s from the zero reference) and polarities of the OR of all bursts, only those
+        inside [0, period): a window over the zero reference shows its tail at the start and the next pass's
+        head at the end."""
         period, tick = self.config.period_s, self.config.tick_s
         starts, ends = _union(starts_rel, ends_rel)
         captured_starts, captured_ends = np.round(starts / tick) * tick, np.round(ends / tick) * tick
@@ -410,12 +383,9 @@ def fixed_window_bearing_errors(
     min_burst_s: float = 0.0,
     phase_s: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The simulator of sections 4.3-4.4: one beacon, fixed windows, n_turns turret turns.
-
-    Turn k sees the code shifted by k * period (mod T_c): with a period coprime with T_c in ticks, T_c
-    turns visit every shift once (time stationarity). Edges are captured on the tick. Returns the bearing
-    errors (windows, turns) in s and a mask of detected windows; vectorised over windows and turns.
-    """
+    """The simulator of sections 4.3-4.4: one beacon, fixed windows, n_turns turns, turn k seeing the code
+    shifted by k * period (mod T_c; a coprime period visits every shift, time stationarity), edges on the
+    tick. Bearing errors (windows, turns) in s and the detected mask."""
     windows = np.asarray(window_s, dtype=float).reshape(-1, 1)
     starts = phase_s + np.arange(n_turns, dtype=float)[None, :] * period_s
     starts = np.round(np.mod(starts, code.duration_s) / tick_s) * tick_s

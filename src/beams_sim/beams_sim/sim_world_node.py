@@ -1,16 +1,10 @@
 """sim_world_node: the simulated robot on the Eurobot table, its true pose and its drifting wheel odometry.
 
-Publishes at `rate_hz` (50 Hz by default), both nav_msgs/Odometry:
-- `beams/sim/ground_truth`: the true pose (map -> base_link) and twist of an `EurobotTrajectory`;
-- `odom`: what the wheel encoders give (`OdometrySimulator`): pose in the odom frame (its origin is
-  the robot's start pose) and measured twist in base_link, with scale, wheel-base, slip and noise errors;
-  with `publish_tf`, the same pose as odom -> base_link on `/tf`, as a robot's base controller does.
-
-The match clock starts with the node's first tick on the node's clock (use_sim_time follows /clock);
-after `duration_s` the robot stands still. When the clock jumps backwards (a bag or a simulation
-restarted) the match starts over. Both topics are RELIABLE (depth 10), so every subscriber matches,
-best-effort (sensor-data) ones included.
-"""
+Publishes at `rate_hz`, both nav_msgs/Odometry, RELIABLE (depth 10, so that best-effort subscribers match
+too): `beams/sim/ground_truth` (map -> base_link, an `EurobotTrajectory`) and `odom` (an `OdometrySimulator`:
+the odom frame's origin is the start pose), with `publish_tf` also odom -> base_link on `/tf`. The match clock
+starts with the node's first tick (use_sim_time follows /clock) and starts over when the clock jumps
+backwards; after `duration_s` the robot stands still."""
 
 import math
 import sys

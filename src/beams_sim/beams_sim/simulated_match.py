@@ -1,22 +1,11 @@
 """A whole simulated Eurobot match, offline: the test bench of the triangulation, EKF and calibration.
 
-`simulate_match(duration_s, seed)` drives the robot along an `EurobotTrajectory`, runs the edge-level
-sensor simulator (`sensor_sim`) and the decoder (`decoder`) revolution by revolution (about 10 Hz,
-625000/62400 turn/s, section 2.4.2), and the wheel odometry at 50 Hz, exactly as the ROS nodes would
-but without ROS or real time. It returns:
-
-- `ground_truth`: the true map pose and twist at the odometry instants (t = 0 included);
-- `odometry`: the drifting odometry at the same instants, pose in the odom frame (its origin is the
-  robot's start pose, so map -> odom is `initial_pose`), twist in base_link;
-- `revolutions`: one `DecodedRevolution` per turret revolution, bearings in the sensor frame, each
-  stamped with the instant the turret pointed at its beacon;
-- `true_bearing(beacon_id, t)`: what a perfect sensor would have measured, to judge the others.
-
-Everything follows from `seed` (three independent streams: trajectory, sensor, odometry). The hardware
-imperfections of chapter 7 (power and rotation biases, turret offset, beacons away from their nominal
-map positions) and occlusions are passed through to the sensor simulator.
-A 90 s match takes about 2 s on one core (bench/bench_serial.py; per revolution: bench/bench_driver.py).
-"""
+`simulate_match(duration_s, seed)` runs the trajectory, the edge-level sensor simulator and the decoder
+revolution by revolution, and the wheel odometry at 50 Hz, as the ROS nodes would but without ROS or real
+time: a `SimulatedMatch` of ground truth and odometry at the odometry's instants (map -> odom is
+`initial_pose`), one `DecodedRevolution` per turret revolution and `true_bearing` to judge them. Everything
+follows from `seed` (three streams: trajectory, sensor, odometry); chapter 7's imperfections and occlusions go
+to the sensor simulator. A 90 s match takes about 2 s on one core (bench/bench_serial.py)."""
 
 import math
 from collections.abc import Sequence
@@ -27,10 +16,11 @@ import numpy as np
 from beams_common.calibration.bearing_correction import BearingCorrection
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
+from beams_common.geometry.pose2d import compose
 from beams_driver.codes import BeaconCode
 from beams_driver.decoder import BearingDecoder, DecodedRevolution, VarianceSource
 from beams_driver.edges import RevolutionEdges
-from beams_driver.variance import CorrectedVariance, EdgeVariances, VarianceModel
+from beams_driver.variance import CorrectedVariance, EdgeVariances, VarianceMode, VarianceModel
 from beams_sim.parameters import SIM_WORLD_PARAMETERS
 from beams_sim.sensor_sim import (
     BiasFunction,
@@ -74,23 +64,15 @@ class SimulatedMatch:
         """True map pose at any instant."""
         return self.trajectory.pose_at(t)
 
+    def turret_at(self, t: float) -> Pose2D:
+        """Map pose of the turret centre at instant t (the true offset applied)."""
+        return compose(self.trajectory.pose_at(t), (*self.turret_offset_m, 0.0))
+
     def true_bearing(self, beacon_id: int, t: float) -> float:
         """Bearing (rad, (-pi, pi], sensor frame) of the true beacon from the turret centre at instant t."""
         beacon = next(b for b in self.true_beacons if b.beacon_id == beacon_id)
-        x, y, theta = self.trajectory.pose_at(t)
-        c, s = math.cos(theta), math.sin(theta)
-        turret_x = x + c * self.turret_offset_m[0] - s * self.turret_offset_m[1]
-        turret_y = y + s * self.turret_offset_m[0] + c * self.turret_offset_m[1]
+        turret_x, turret_y, theta = self.turret_at(t)
         return float(wrap_to_pi(math.atan2(beacon.y_m - turret_y, beacon.x_m - turret_x) - theta))
-
-    def bearing_errors(self) -> dict[int, np.ndarray]:
-        """Decoded minus true bearing (rad, wrapped) of every bearing, per beacon id."""
-        errors: dict[int, list[float]] = {}
-        for revolution in self.revolutions:
-            for bearing in revolution.bearings:
-                error = wrap_to_pi(bearing.bearing - self.true_bearing(bearing.beacon_id, bearing.stamp_s))
-                errors.setdefault(bearing.beacon_id, []).append(float(error))
-        return {beacon_id: np.array(values) for beacon_id, values in errors.items()}
 
     def corrected(self, correction: BearingCorrection) -> "SimulatedMatch":
         """The match with every bearing corrected as driver_node publishes it (eq. 7.18 and 7.24, at the
@@ -177,13 +159,16 @@ def simulate_match(
 
 
 def default_variance_model(
-    codes: Sequence[BeaconCode], config: SensorSimConfig, natural_variance_rad2: float | None = None
+    codes: Sequence[BeaconCode],
+    config: SensorSimConfig,
+    natural_variance_rad2: float | None = None,
+    mode: VarianceMode = "exact",
 ) -> VarianceModel:
-    """The exact variance (chapter 4) plus a natural variance (section 5.6; default the simulated
+    """The variance of `mode` (chapter 4) plus a natural variance (section 5.6; default the simulated
     sensor's), for the receiver's minimum burst."""
     return VarianceModel(
         codes,
-        "exact",
+        mode,
         turret_speed_rad_s=config.turret_speed_rad_s,
         natural_variance_rad2=(
             config.natural_variance_rad2 if natural_variance_rad2 is None else natural_variance_rad2
@@ -196,14 +181,10 @@ def default_variance_model(
 def table_natural_variance_rad2(
     config: SensorSimConfig, beacon_map: BeaconMap = EUROBOT_BEACON_MAP, step_m: float = 0.05
 ) -> float:
-    """The constant natural variance (rad^2) that matches the receiver's edge noise on the table.
-
-    The driver's variance model adds one constant natural variance to the exact one (section 5.6), while
-    the thesis hardware's edge noise grows with the window (fig. 5.3, `HardwareNoise`): the constant is
-    its mean over the places the robot can be, a grid of step_m over the 3 m x 2 m table, each beacon
-    of the map at the window its distance gives (C_k's noise: the family's gaps are one bit). A model
-    figure, the same for every match; the constant noise of the ideal receiver is returned as it is.
-    """
+    """The constant natural variance (rad^2) that matches the receiver's edge noise on the table: the driver's
+    model holds one constant (section 5.6) while the thesis hardware's noise grows with the window (fig. 5.3),
+    so its mean over a grid of step_m on the table, each beacon at the window its distance gives (C_k's
+    noise). The ideal receiver's constant is returned as it is."""
     if config.hardware is None:
         return config.natural_variance_rad2
     xs = np.arange(0.5 * step_m, TABLE_LENGTH_M, step_m)

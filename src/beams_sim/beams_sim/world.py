@@ -1,24 +1,11 @@
 """The simulated robot: a differential-drive robot on the Eurobot table, and its drifting wheel odometry.
 
-Frames (REP-105): map (the table: x in [0, 3] m, y in [0, 2] m, beacons of EUROBOT_BEACON_MAP on its
-border), odom (where the odometry starts: the robot's pose at t = 0 unless told otherwise) and base_link.
-
-`EurobotTrajectory` is the ground truth. The default, `EurobotTrajectory.random(seed)`, is a 90 s match
-(the contest's length, thesis section 2.1): a smooth path through random control points (a uniform
-cubic B-spline: continuous curvature, so a continuous yaw rate), driven at up to 0.5 m/s and 2 rad/s
-with bounded tangential and lateral accelerations, starting and ending at rest, with the whole robot
-footprint on the table. Everything follows from the seed. `through_waypoints` takes the control points
-from the caller and `static` is a robot standing still.
-
-`OtherRobots` puts the other robots of the table in front of the simulated sensor: each one's body, in the
-beacons' plane, hides a beacon while it stands across the line of sight.
-
-`OdometrySimulator` turns the true motion into what wheel encoders report: each wheel's distance is
-scaled by the wheel-radius error, inflated by slip (the wheel turns more than the ground moves) and
-noisy (a random walk in the travelled distance); the heading change uses a nominal wheel base that
-differs from the true one. The integration is exact for arcs, so with no drift the odometry follows
-the truth to a fraction of a millimetre over a match.
-"""
+Frames (REP-105): map (the 3 m x 2 m table, beacons of EUROBOT_BEACON_MAP on its border), odom (the robot's
+pose at t = 0 unless told otherwise) and base_link. `EurobotTrajectory` is the ground truth: by default a 90 s
+match (thesis section 2.1) along a uniform cubic B-spline through random control points (continuous curvature,
+so a continuous yaw rate) within the speed and acceleration limits, from rest to rest, the robot's footprint
+on the table. `OdometrySimulator` turns it into what wheel encoders report, exact on arcs, so that with no
+drift the odometry follows the truth to a fraction of a millimetre."""
 
 import math
 from collections.abc import Mapping, Sequence
@@ -37,17 +24,7 @@ Pose2D = tuple[float, float, float]
 START_POSE: Pose2D = tuple(SIM_WORLD_PARAMETERS.default("start_pose"))
 
 # Uniform cubic B-spline: position on a segment is [u^3 u^2 u 1] @ _BSPLINE @ [Q0 Q1 Q2 Q3].
-_BSPLINE = (
-    np.array(
-        [
-            [-1.0, 3.0, -3.0, 1.0],
-            [3.0, -6.0, 3.0, 0.0],
-            [-3.0, 0.0, 3.0, 0.0],
-            [1.0, 4.0, 1.0, 0.0],
-        ]
-    )
-    / 6.0
-)
+_BSPLINE = np.array([[-1, 3, -3, 1], [3, -6, 3, 0], [-3, 0, 3, 0], [1, 4, 1, 0]], dtype=float) / 6.0
 _SAMPLES_PER_SEGMENT = 1024
 
 
@@ -73,11 +50,8 @@ class MotionLimits:
 
 
 class EurobotTrajectory:
-    """The robot's true motion in the map frame, sampled finely and interpolated.
-
-    pose_at(t) -> (x, y, theta) and twist_at(t) -> (v, omega) (base_link: forward speed, yaw rate);
-    before 0 and after duration_s the robot stands at its first / last pose.
-    """
+    """The robot's true motion in the map frame, sampled finely and interpolated: pose_at(t) and twist_at(t)
+    (forward speed, yaw rate); before 0 and after duration_s the robot stands at its first / last pose."""
 
     def __init__(
         self,
@@ -280,10 +254,9 @@ class _SpeedProfile:
 def _time_profile(
     arc_m: np.ndarray, curvature: np.ndarray, limits: MotionLimits, duration_s: float
 ) -> _SpeedProfile:
-    """Speed along the path within the limits, from rest, braking to rest within duration_s.
-    The forward and backward passes of the
-       classic time-optimal profile have closed forms on v^2: v^2(s) <= min_j (limit_j^2 + 2 a |s - s_j|).
-    """
+    """Speed along the path within the limits, from rest, braking to rest within duration_s: the forward and
+    backward passes of the time-optimal profile in closed form on v^2, v^2(s) <= min_j (limit_j^2 + 2 a |s -
+    s_j|)."""
     a = limits.max_acceleration_mps2
     bend = np.maximum(np.abs(curvature), 1e-9)
     limit = np.minimum.reduce(
@@ -350,13 +323,10 @@ def _random_control_points(
 
 @dataclass(frozen=True)
 class OdometryDrift:
-    """Systematic and random errors of wheel odometry (defaults: a small robot, roughly calibrated).
-
-    left/right_scale_error: reported / travelled wheel distance - 1 (wheel radius errors, a few %);
-    wheel_base_error: nominal / true wheel base - 1; slip_std: per-sample slip of each wheel, as a
-    fraction of its travel (half-normal, never negative: a slipping wheel turns more than the ground
-    moves); noise_m_per_sqrt_m: random-walk noise of each wheel's distance.
-    """
+    """Systematic and random errors of wheel odometry (defaults: a small robot, roughly calibrated): each
+    wheel's reported / travelled distance - 1, nominal / true wheel base - 1, each wheel's per-sample slip as
+    a fraction of its travel (half-normal: a slipping wheel turns more than the ground moves), and the random
+    walk of each wheel's distance."""
 
     left_scale_error: float = ODOMETRY_DRIFT["left_scale_error"][0]
     right_scale_error: float = ODOMETRY_DRIFT["right_scale_error"][0]
@@ -390,11 +360,8 @@ class PoseTwistSamples:
 
 
 class OdometrySimulator:
-    """Wheel odometry of a differential-drive robot following a trajectory, with drift (deterministic).
-
-    Use `advance(t)` to step incrementally (a node at 50 Hz) or `run(rate_hz)` for the whole match at
-    once; with the same seed and instants both give the same samples.
-    """
+    """Wheel odometry of a differential-drive robot following a trajectory, with drift (deterministic):
+    `advance(t)` step by step and `run(rate_hz)` at once give the same samples."""
 
     def __init__(
         self,

@@ -2,6 +2,7 @@
 bearings and ToTal's gated fixes as the nodes would receive them, replayed through a Localiser
 (beams_thesis.replay). System-level, so it lives above the three packages it joins."""
 
+import math
 from collections.abc import Callable, Iterable, Sequence
 
 import numpy as np
@@ -12,6 +13,9 @@ from beams_ekf.localiser import Localiser
 from beams_thesis.replay import PoseEvent, ReplayResult, replay
 from beams_thesis.synthetic import BearingEvent
 from beams_triangulation.revolution import estimate_revolution
+
+# ToTal's first fix is about this good (thesis table 6.1 scale): the replays start from it
+START_SIGMA = (0.01, 0.01, math.radians(1.0))
 
 
 def bearing_events(
@@ -91,6 +95,12 @@ def match_fixes(match) -> list[PoseEvent]:
     )
 
 
+def offset_start(match) -> tuple[Pose2D, np.ndarray]:
+    """A start pose off the truth by one START_SIGMA in each component (deterministic), its covariance."""
+    x, y, theta = match.initial_pose
+    return (x + START_SIGMA[0], y - START_SIGMA[1], theta + START_SIGMA[2]), np.diag(np.square(START_SIGMA))
+
+
 def replay_match(
     localiser: Localiser,
     match,
@@ -98,14 +108,15 @@ def replay_match(
     initial_covariance: np.ndarray,
     fixes: Iterable[PoseEvent] = (),
     calibrated: bool = True,
+    variance_rad2: Callable[[int, float], float] | None = None,
 ) -> ReplayResult:
     """`replay` of a SimulatedMatch: its odometry, its published bearings (`calibrated` False: as an
-    uncalibrated driver flags them), ToTal's `fixes`."""
+    uncalibrated driver flags them; `variance_rad2` as in `bearing_events`), ToTal's `fixes`."""
     return replay(
         localiser,
         match.odometry.stamp_s,
         match_odometry(match),
-        bearing_events(match.revolutions, calibrated=calibrated),
+        bearing_events(match.revolutions, variance_rad2, calibrated),
         match.truth_at,
         initial_pose,
         initial_covariance,

@@ -1,44 +1,18 @@
 """The band a consistent filter's mean NEES over a time window falls in, its samples being correlated.
 
-Bar-Shalom, Li and Kirubarajan ("Estimation with Applications to Tracking and Navigation", 2001, section
-5.4.2): the NEES e' P^-1 e of a consistent filter's n-dimensional error is chi-square with n degrees of
-freedom, and the mean of N independent NEES samples is chi2(n N) / N, whose two-sided 95 % quantiles are
-the band the mean must fall in. Along one run the samples are not independent: the error of a filter
-that updates ten times a second wanders slowly (odometry drift between fixes, the bias states' error), so
-the mean over a window of N samples varies as that of fewer independent ones, N_eff = N / tau, tau the
-integrated autocorrelation time of the NEES in samples (Sokal 1997, "Monte Carlo methods in statistical
-mechanics", section 3):
+The mean of N independent NEES samples of an n-dimensional error is chi2(n N) / N (Bar-Shalom, Li and
+Kirubarajan 2001, section 5.4.2); along one run the samples are correlated, so the window mean varies as
+that of N_eff = N / tau_N independent ones, tau the NEES's integrated autocorrelation time (Sokal 1997,
+section 3):
 
     tau = 1 + 2 sum_{j >= 1} rho(j),     Var(mean of N) = Var(NEES) tau_N / N,
     tau_N = 1 + 2 sum_{j=1}^{N-1} (1 - j / N) rho(j)     (the finite window's exact weights),
 
-rho the NEES's autocorrelation at lag j. Two bands of a consistent filter's window mean follow:
-
-- `NeesCorrelation.band`: chi2(n N_eff) / N_eff with N_eff = N / tau_N, the Satterthwaite (Welch)
-  approximation of a correlated sum of squared Gaussians by a chi-square of the same mean (n) and
-  variance (2 n / N_eff). Exact in its first two moments only: for an AR(1) error it puts 2.5 % of the
-  windows on each side, but for an error with a fast and a slow part (a filter's: the noise between
-  fixes, the learnt states' slow error) the true sum is more skewed (its third cumulant 8 sum lambda^3
-  exceeds the chi-square's by Cauchy-Schwarz) and the band sits low: under 1 % of the windows below it,
-  4-5 % above (test_nees_band.py).
-- `gaussian_window_band`: the quantiles of the window means of a stationary Gaussian error whose NEES
-  has this autocorrelation, by Monte-Carlo: the skewness of the correlated sum included. It assumes the
-  normalised error's components share one autocorrelation and are uncorrelated with each other (a NEES
-  series cannot tell more); it is the band the benches hold the filters to.
-
-Why the NEES's own autocorrelation rather than the normalised error components': the window mean's
-variance is the NEES's (a fourth moment of the errors); for Gaussian errors z = L^-1 e with
-E[z_k z_(k+j)'] = C(j) it is 2 |C(j)|_F^2, so the NEES's rho(j) = |C(j)|_F^2 / n, the square of the
-components' correlation: a correlation time roughly half the components'. Estimated on the NEES itself it
-needs no Gaussian assumption (a heavy-tailed or scale-wandering error shows), and a NEES series with
-stamps is what every replay gives. rho is estimated about the pooled mean of all runs (not each run's):
-a run whose errors stay large for its whole length is the long correlation the band must account for.
-Hence pool runs: the self-calibrating filter's tau is 3.2 s over 10 runs of 180 s, 1.2-5.7 s from each
-run alone, 0.4 s from one run of 60 s (whose NEES stays low throughout: its own mean hides it).
-
-The sum is cut at Sokal's automatic window, the smallest M with M >= c tau(M) (c = 5): past it the
-estimated rho is mostly noise. The stamps' mean interval turns samples into seconds (the match replays
-give one sample per revolution, 10 a second, evenly spread; the lags are counted in samples).
+rho estimated about the mean pooled over runs and cut at Sokal's window (the smallest M >= 5 tau(M)).
+`NeesCorrelation.band` is chi2(n N_eff) / N_eff (right mean and variance, too little skew for a filter's
+fast-and-slow error); `gaussian_window_band`, the Monte-Carlo quantiles of a Gaussian error of that
+autocorrelation, is the band the benches hold the filters to. Why the NEES's own autocorrelation and why
+pooled runs: docs/self_calibration.md.
 """
 
 from collections.abc import Sequence
@@ -166,14 +140,9 @@ def gaussian_window_band(
     seed: int = 0,
 ) -> tuple[float, float]:
     """The Monte-Carlo band of a consistent filter's mean NEES over window_s seconds: the quantiles of the
-    window means of a stationary Gaussian error whose NEES has `correlation`'s autocorrelation.
-
-    Its `dof` components are independent, each of autocorrelation r(j) = sqrt(rho(j)) (the NEES of such
-    an error has rho(j) = r(j)^2, |C(j)|_F^2 / dof), drawn by circulant embedding (Dietrich and Newsam
-    1997: the autocorrelation on a circle, its spectrum's negative parts from the truncation set to 0).
-    Where the chi-square band matches the mean and variance only, this one has the skewness of such a
-    sum of correlated squares (heavier on the high side). What it assumes that a NEES series cannot
-    tell: the components share one autocorrelation and are uncorrelated with each other."""
+    window means of a stationary Gaussian error whose NEES has `correlation`'s autocorrelation, skew included.
+    Its `dof` components are independent, each of autocorrelation sqrt(rho(j)), drawn by circulant embedding
+    (Dietrich and Newsam 1997, the spectrum's negative parts set to 0)."""
     rho = np.clip(correlation.autocorrelation, 0.0, None)
     r = np.sqrt(rho)
     n = max(round(window_s / correlation.sample_interval_s), 1)

@@ -17,11 +17,6 @@ which also holds for a singular Q (wheel odometry has no cross-track noise, and 
 states none at all). Bearings are taken as Gaussian with their true variance: the OOK error of
 chapter 4 is not Gaussian, and a non-Gaussian noise of the same variance carries more Fisher
 information, so the bound of the real noise may be lower still.
-
-`match_pcrb` applies it to a simulated match: odometry steps with the simulator's wheel noise
-(`WheelNoiseModel`), each bearing at the odometry sample before its stamp with the turret where the
-true motion puts it (as the EKF applies it), and optionally the odometry error states of
-`odometry_errors` as constant unknowns with their prior.
 """
 
 from collections.abc import Callable, Mapping, Sequence
@@ -129,15 +124,6 @@ class PcrbTrack:
             raise ValueError("the bound exists only at the odometry instants")
         return self.bounds[index]
 
-    def rms_position_m(self, times_s: np.ndarray) -> float:
-        """sqrt(mean(trace of the position bound)) over the instants: the RMS position error floor."""
-        bounds = self.at(times_s)
-        return float(np.sqrt(np.mean(bounds[:, 0, 0] + bounds[:, 1, 1])))
-
-    def rms_heading_rad(self, times_s: np.ndarray) -> float:
-        """sqrt(mean(heading bound)) over the instants: the RMS heading error floor."""
-        return float(np.sqrt(np.mean(self.at(times_s)[:, 2, 2])))
-
 
 def trajectory_pcrb(
     times_s: np.ndarray,
@@ -151,13 +137,10 @@ def trajectory_pcrb(
     wheel_noise: WheelNoiseModel,
     odometry_errors: OdometryErrorStates | None = None,
 ) -> PcrbTrack:
-    """The PCRB at each odometry instant of a trajectory.
-
-    times_s (k,) and true_poses (k, 3): the odometry instants and the true map poses there;
-    reported_increments (k - 1, 3): the odometry's robot-frame increments between them; bearings:
-    (stamp s, beacon id, true variance rad^2); initial_covariance: 3x3 prior of the first pose (the
-    error states, if any, get their prior).
-    """
+    """The PCRB at each odometry instant of a trajectory: times_s (k,), true_poses (k, 3), the odometry's
+    robot-frame increments (k - 1, 3), bearings (stamp s, beacon id, true variance rad^2), each applied at the
+    odometry sample before its stamp as the EKF applies it, and the first pose's 3x3 prior (error states, if
+    any, get theirs)."""
     with_errors = odometry_errors is not None
     dim = 6 if with_errors else 3
     prior = np.zeros((dim, dim))

@@ -16,15 +16,11 @@ def window_experiment(
     n_turns: int,
     rng: np.random.Generator,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The measurements of section 5.3 on the simulated receiver: one beacon, fixed true windows.
+    """The measurements of section 5.3 on the simulated receiver: one beacon, fixed true windows (rad).
 
-    For each window (rad) and turn: (Phi_r - phi_R, Phi_f - phi_F) in rad, the first rising and last
-    falling edge against the true window's boundaries, arrays (windows, turns); code None is the
-    unmodulated carrier C_k. The beacon runs free (a uniform code phase per turn); edges carry the
-    config's hardware noise (when set, else its constant outer-edge noise, here before the AND), its
-    minimum burst and outer shift, and the capture tick, as `SensorSimulator` applies them to a pass
-    (the inner edges' small jitter is left out). The windows must be long enough for every turn to be
-    detected.
+    (Phi_r - phi_R, Phi_f - phi_F) in rad per window and turn, arrays (windows, turns); code None is the
+    carrier C_k. The beacon runs free; edges carry the config's noise, minimum burst, outer shift and capture
+    tick as `SensorSimulator` applies them (not the inner edges' small jitter). Every turn must be detected.
     """
     windows = np.asarray(windows_rad, dtype=float).reshape(-1, 1)
     omega = config.turret_speed_rad_s

@@ -1,8 +1,5 @@
-"""Offline replay of odometry and bearings through a `Localiser`, in arrival order, against ground truth:
-the accuracy and consistency figures of the EKF (RMS errors, NEES against its chi-square band). Every
-input goes through the Localiser's doors as ekf_node's do: a revolution (the bearings arriving together:
-one beams/bearings message) through the bearing intake, a pose through the pose intake.
-"""
+"""Offline replay of odometry and bearings through a `Localiser`, in arrival order, against ground truth: the
+EKF's accuracy and consistency figures. Every input goes through the Localiser's intakes as ekf_node's do."""
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
@@ -15,8 +12,14 @@ from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.bearing import Bearing
 from beams_common.geometry.pose2d import Pose2D
 from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
+from beams_common.status.health import Status
+from beams_ekf.ekf_health import EkfHealth
 from beams_ekf.localiser import Localiser, revolution_of
+from beams_ekf.parameters import EKF_PARAMETERS
 from beams_thesis.synthetic import BearingEvent
+
+# the two-sided 95 % chi-square band (3 dof) of one consistent NEES sample
+NEES_BAND = (float(chi2.ppf(0.025, df=3)), float(chi2.ppf(0.975, df=3)))
 
 
 @dataclass(frozen=True)
@@ -38,12 +41,21 @@ class ReplayResult:
     covariances: np.ndarray  # (k, 3, 3)
     truths: np.ndarray  # (k, 3)
     counts: dict[str, int] = field(default_factory=dict)
+    # (k, 2) horizontal (m) and heading (rad) protection levels at the default integrity risk
+    protection_levels: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    # (k,) True where ekf_node's status (its defaults, the arrivals as its receiving clock) says tracking
+    tracking: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
 
     def errors(self) -> np.ndarray:
         """(k, 3) estimate - truth, heading wrapped."""
         errors = self.estimates - self.truths
         errors[:, 2] = [wrap_to_pi(float(a)) for a in errors[:, 2]]
         return errors
+
+    def nees(self) -> np.ndarray:
+        """(k,) normalised estimation error squared, e' P^-1 e."""
+        errors = self.errors()
+        return np.einsum("ki,kij,kj->k", errors, np.linalg.inv(self.covariances), errors)
 
 
 @dataclass(frozen=True)
@@ -71,7 +83,8 @@ def replay(
 ) -> ReplayResult:
     """Feed odometry (arriving at its stamp), bearings and ToTal's fixes (arriving at `arrival_s`; at
     one instant the bearings first, as one revolution) in arrival order, after an operator's
-    `initial_pose` at the first odometry stamp."""
+    `initial_pose` at the first odometry stamp. Each estimate gets ekf_node's protection level and status
+    (`EkfHealth.judge`, as ekf_node's, the arrival times as the receiving clock)."""
     start = planar_pose_intake(
         PoseSource.OPERATOR, float(odometry_times_s[0]), initial_pose, initial_covariance
     )
@@ -79,11 +92,13 @@ def replay(
     events = [(b.arrival_s, 0, b) for b in bearings] + [(f.arrival_s, 1, f) for f in fixes]
     events.sort(key=lambda event: event[:2])
     by_arrival = [(a, [event[2] for event in group]) for a, group in groupby(events, key=lambda e: e[0])]
-    times, estimates, covariances, truths = [], [], [], []
+    times, estimates, covariances, truths, levels, tracking = [], [], [], [], [], []
+    health = EkfHealth(EKF_PARAMETERS.defaults(), float(odometry_times_s[0]))
     k = 0
     for arrival_s, arrived in by_arrival:
         while k < len(odometry_times_s) and odometry_times_s[k] <= arrival_s:
             localiser.on_odometry(float(odometry_times_s[k]), tuple(odometry_poses[k]))
+            health.on_odometry(float(odometry_times_s[k]))
             k += 1
         revolution = [
             Bearing(
@@ -93,6 +108,7 @@ def replay(
             if isinstance(b, BearingEvent)
         ]
         if revolution:
+            health.on_bearings(arrival_s)
             localiser.on_bearings(revolution_of(localiser, revolution))
         for fix in (f for f in arrived if isinstance(f, PoseEvent)):  # as ekf_node takes beams/pose
             localiser.on_pose(planar_pose_intake(PoseSource.TOTAL, fix.stamp_s, fix.pose, fix.covariance))
@@ -102,12 +118,17 @@ def replay(
             estimates.append(estimate.pose)
             covariances.append(estimate.covariance)
             truths.append(truth_at(estimate.stamp_s))
+            level, _, verdict = health.judge(arrival_s, localiser, estimate)
+            levels.append((level.horizontal_m, level.heading_rad))
+            tracking.append(verdict.status is Status.TRACKING)
     return ReplayResult(
         np.array(times),
         np.array(estimates),
         np.array(covariances),
         np.array(truths),
         dict(localiser.stats.counts),
+        np.array(levels).reshape(-1, 2),
+        np.array(tracking, dtype=bool),
     )
 
 
@@ -115,9 +136,8 @@ def accuracy(result: ReplayResult, settle_s: float = 1.0) -> Accuracy:
     """Figures over the instants after `settle_s` (the initial transient excluded)."""
     keep = result.times_s >= result.times_s[0] + settle_s
     errors = result.errors()[keep]
-    covariances = result.covariances[keep]
-    nees = np.einsum("ki,kij,kj->k", errors, np.linalg.inv(covariances), errors)
-    low, high = chi2.ppf(0.025, df=3), chi2.ppf(0.975, df=3)
+    nees = result.nees()[keep]
+    low, high = NEES_BAND
     position = np.hypot(errors[:, 0], errors[:, 1])
     return Accuracy(
         rms_position_m=float(np.sqrt(np.mean(position**2))),

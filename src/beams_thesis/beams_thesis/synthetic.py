@@ -1,9 +1,6 @@
-"""A small synthetic match for the EKF's own tests: a smooth trajectory on the Eurobot table, drifting
-wheel odometry and Gaussian bearings at the instants a 10 Hz turret points at each beacon.
-
-It stands in for `beams_sim.simulated_match` (the full edge-level pipeline) where a test needs
-exact control of the noise: bearings are Gaussian with exactly the variance they publish.
-"""
+"""A small synthetic match for the EKF's own tests: a smooth trajectory, drifting wheel odometry and Gaussian
+bearings at the instants a 10 Hz turret points at each beacon, each of exactly the variance it publishes
+(where `beams_sim.simulated_match` runs the edge-level pipeline)."""
 
 from dataclasses import dataclass
 from math import atan2, cos, hypot, pi, sin

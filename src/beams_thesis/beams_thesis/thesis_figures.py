@@ -1,16 +1,7 @@
-"""Two figures of chapter 7 as numbers: the rotation experiment (figure 7.7) and the sensitivity of
-the position to the beacon coordinates (figure 7.10).
-
-- Figure 7.7 (section 7.3.3): the robot turns through 24 orientations at P_9 (eq. 7.23); the positions
-  ToTal computes scatter around the reference (RMS 1.8 mm), because the turret centre circles around the
-  robot's (eq. 7.26) and the rotation bias (eq. 7.25) depends on the turret angle. Fitting
-  {A, B, C, D, dx, dy} (eq. 7.27) brings the RMS to 1 mm. `rotation_experiment` measures the same, and
-  the periodic part (harmonics 1 and 2 of the robot orientation) of the errors before and after.
-- Figure 7.10 (section 7.3.4): on the layout of section 6.4.1, the position error of beacon coordinates
-  with 1 cm of Gaussian noise looks like that of bearings with 0.1 deg of noise, because moving beacon i
-  by delta turns the bearing to it by delta_perp / d_i: `beacon_noise_maps` draws it by Monte Carlo,
-  `equivalent_angle_maps` predicts it from the bearing covariance (B.3) with sigma_i = sigma_B / d_i.
-"""
+"""Two figures of chapter 7 as numbers: the rotation experiment (figure 7.7, section 7.3.3: 24 orientations at
+P_9, eq. 7.23, before and after fitting {A, B, C, D, dx, dy} of eq. 7.27) and the sensitivity of the position
+to the beacon coordinates (figure 7.10, section 7.3.4: beacon noise of 1 cm looks like bearing noise of 0.1
+deg, since moving beacon i by delta turns its bearing by delta_perp / d_i)."""
 
 from dataclasses import dataclass
 
@@ -95,10 +86,8 @@ class RotationExperiment:
 
 
 def rotation_experiment(dataset: Dataset, model: Model | None = None) -> RotationExperiment:
-    """Figure 7.7 for a dataset of one position at several orientations.
-
-    model None fits {A, B, C, D, dx, dy} on the dataset itself by minimising err_RMS (eq. 7.27, the
-    a-priori beacons and no power bias), as section 7.3.3 does; otherwise `model` is applied as given.
+    """Figure 7.7 for a dataset of one position at several orientations: model None fits {A, B, C, D, dx, dy}
+    on the dataset by minimising err_RMS (eq. 7.27, a-priori beacons, no power bias), as section 7.3.3 does.
     """
     arrays = to_arrays(dataset)
     problem = Problem.of(arrays)

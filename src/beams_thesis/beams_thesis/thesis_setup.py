@@ -1,17 +1,9 @@
-"""The thesis's calibration setup (section 7.3.1) and a dataset captured on it by a simulated sensor.
-
-Table 7.1 gives the manually measured beacons, table 7.3 the coordinates the calibration found
-(used here as the true beacons, up to 4.5 mm away), table 7.2 the twelve reference positions, and
-eq. 7.3 the four reference orientations: 48 configurations; eq. 7.23 the 24 orientations of the
-rotation experiment (figure 7.7).
-
-`thesis_sensor` is the sensor that stands in for the thesis's prototype: the thesis-hardware receiver
-(sections 5.5-5.7) with chapter 7's biases, so that `thesis_dataset` plays the part of the thesis's
-real recordings.
-"""
+"""The thesis's calibration setup (section 7.3.1) and a dataset captured on it by a simulated sensor: tables
+7.1 and 7.3 (measured and calibrated beacons, the latter used as the truth), table 7.2 and eq. 7.3 (48
+configurations), eq. 7.23 (the rotation experiment's 24 orientations). `thesis_sensor` stands in for the
+thesis's prototype, so that `thesis_dataset` plays the part of its recordings."""
 
 import argparse
-import math
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
@@ -24,6 +16,7 @@ from beams_calibration.dataset import Configuration, Dataset, average_capture, n
 from beams_calibration.reference_layout import PRIOR_BEACONS, REFERENCE_ORIENTATIONS, REFERENCE_POSITIONS
 from beams_common.calibration.bearing_correction import (
     IDENTITY_CORRECTION,
+    THESIS_CALIBRATION_WINDOW_RANGE_RAD,
     THESIS_POWER_BIAS_COEFFICIENTS,
     THESIS_ROTATION_BIAS_COEFFICIENTS,
     BearingCorrection,
@@ -106,11 +99,9 @@ class _NoVariance:
 
 
 class SimulatedSensor:
-    """The driver's edge-level simulator and decoder, measuring a static robot (a MeasureRevolutions).
-
-    `correction` holds the injected power and rotation biases (the simulator adds them, eq. 7.17
-    and 7.24); `beacons` are the true beacon positions; `turret_offset_m` the true turret centre.
-    """
+    """The driver's edge-level simulator and decoder measuring a static robot (a MeasureRevolutions):
+    `correction` the injected power and rotation biases (eq. 7.17, 7.24), `beacons` and `turret_offset_m` the
+    true ones."""
 
     def __init__(
         self,
@@ -153,11 +144,9 @@ def capture_dataset(
     placement_sigma: tuple[float, float] = (0.0, 0.0),
     rng: np.random.Generator | None = None,
 ) -> Dataset:
-    """Record every pose as the calibration node does: `revolutions` revolutions averaged per beacon.
-
-    placement_sigma (m, rad): the operator places the robot only that well (section 7.3.1 expects
-    about 2 mm); the robot is measured where it really stands and recorded at the reference pose.
-    """
+    """Record every pose as the calibration node does, `revolutions` revolutions averaged per beacon; the
+    operator places the robot within placement_sigma (m, rad; section 7.3.1: about 2 mm): measured where it
+    stands, recorded at the reference pose."""
     rng = rng or np.random.default_rng(0)
     sigmas = np.array([placement_sigma[0], placement_sigma[0], placement_sigma[1]])
     configurations = []
@@ -179,26 +168,18 @@ def capture_dataset(
     return Dataset(prior_map, tuple(configurations))
 
 
-# the angular windows of the calibration grid (0.3-1.3 m from the beacons: 7.4-10.3 deg), with a margin
-THESIS_GRID_WINDOW_RANGE_RAD = (math.radians(5.0), math.radians(13.0))
-
-
 def thesis_hardware_config() -> SensorSimConfig:
-    """The thesis-hardware receiver (`SensorSimConfig.thesis_hardware`) with chapter 7's power bias.
-
-    Edge noise, AND hypothesis and window biases are those of sections 5.5-5.6. The power bias is the
-    cubic the global calibration fitted on the real recordings (figure 7.11), not section 5.7's: that
-    one spans 0.23 deg over the windows of 1-6 m, and its cubic, extrapolated to the 0.3-1.3 m of the
-    calibration grid (windows of 7.4-10.3 deg), would reach 2 deg; footnote 7 says the sensor of
-    chapter 7 spans more windows and more bias than section 5.7's (figure 7.11's: 0.31 deg here).
-    """
+    """The thesis-hardware receiver (`SensorSimConfig.thesis_hardware`) with chapter 7's power bias: the cubic
+    the global calibration fitted on the real recordings (figure 7.11, 0.31 deg here), since section 5.7's,
+    fitted over the windows of 1-6 m, would reach 2 deg extrapolated to the calibration grid's 7.4-10.3 deg
+    (footnote 7)."""
     base = SensorSimConfig.thesis_hardware()
     assert base.hardware is not None  # thesis_hardware always has its receiver noise
     # the figure's cubic holds over the whole calibration grid (its windows), not only section 5.7's range
     hardware = replace(
         base.hardware,
         power_bias_coefficients=THESIS_POWER_BIAS_COEFFICIENTS,
-        power_bias_range_rad=THESIS_GRID_WINDOW_RANGE_RAD,
+        power_bias_range_rad=THESIS_CALIBRATION_WINDOW_RANGE_RAD,
     )
     return SensorSimConfig.thesis_hardware(hardware=hardware)
 

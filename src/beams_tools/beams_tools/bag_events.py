@@ -83,11 +83,9 @@ def in_stamp_order(
     window_ns: int = round(REORDER_WINDOW_S * NS_PER_S),
     jump_ns: int = round(TIME_JUMP_S * NS_PER_S),
 ) -> Iterator[Event | None]:
-    """Events by due instant within a reorder window; TIME_JUMP where the stamps go back by > jump_ns
-    in two consecutive messages (a bag loop; one stray message is not: `beams_common.intake.time_jumps`).
-
-    A message later than the window is passed on late (the pipelines drop or absorb it as the nodes do).
-    """
+    """Events by due instant within a reorder window (a later message is passed on late, the pipelines drop or
+    absorb it as the nodes do); TIME_JUMP where the stamps go back by > jump_ns in two consecutive messages (a
+    bag loop; one stray message is not: `beams_common.intake.time_jumps`)."""
     pending: list[Event] = []
     newest_ns: int | None = None
     time_jumps = TimeJumpDetector(jump_ns * 1e-9)

@@ -1,10 +1,6 @@
-"""Read and write rosbag2 bags (MCAP or sqlite3) of the BeAMS topics without a ROS install (`rosbags`).
-
-The demo records every topic with `BagRecorder`; the offline replay reads them back with `read_messages`.
-Messages are CDR bytes exactly as they travelled over DDS, so `ros2 bag play` replays them unchanged.
-As `ros2 bag record` does, topics are fully qualified ("/odom") and each carries the QoS profiles its
-publishers offered (offered_qos_profiles), which `ros2 bag play` publishes it with.
-"""
+"""Read and write rosbag2 bags (MCAP or sqlite3) of the BeAMS topics without a ROS install (`rosbags`): CDR
+bytes as they travelled over DDS, topics fully qualified, each with its publishers' offered QoS profiles, as
+`ros2 bag record` writes them, so that `ros2 bag play` replays them unchanged."""
 
 import pathlib
 from collections.abc import Iterable, Iterator, Sequence

@@ -13,9 +13,7 @@ import numpy as np
 from beams_common.geometry.pose2d import Pose2D
 from beams_common.interfaces import topics
 from beams_common.interfaces.bearing_messages import BearingFields, bearing_array_message
-from beams_common.ros.messages import (
-    ros_covariance,
-)
+from beams_common.ros.messages import ros_covariance
 from beams_ekf.localiser import Estimate
 from beams_tools.bag_events import (
     BEARINGS_TOPIC,

@@ -3,22 +3,12 @@
     replay_bag INPUT_BAG OUTPUT_BAG [--plot PNG] [--storage mcap|sqlite3] [--start-like-live]
                [--params-file YAML] [--namespace NS]
 
-Reads `beams/bearings`, `odom` and, when present, `beams/sim/ground_truth` (with or without the leading
-slash) from a bag (sqlite3 or MCAP, with the `rosbags` library, no ROS graph), feeds them to the same
-pure objects the nodes wrap (`pipeline.TriangulationPipeline` as triangulation_node does,
-`localiser.Localiser` as ekf_node does) as fast as the CPU allows, and writes `beams/pose`,
-`beams/pose_cov`, `beams/ekf/odometry` and `beams/ekf/pose` next to a copy of the inputs into a new
-bag (MCAP by default; topics fully qualified, each with its offered QoS profiles, as `ros2 bag record`
-writes them), plus a trajectory plot and a summary (RMS errors against the truth when the bag has it,
-agreement with the live nodes' outputs when the bag recorded them).
-
-Time is the messages' stamps, never their arrival: a revolution is due when it ends (header stamp, the
-revolution's start, plus its period: when the driver publishes it), odometry and truth at their stamp;
-messages are put back in that order within `REORDER_WINDOW_S`. Stamps going back by more than
-`TIME_JUMP_S` (a bag played in a loop, a restarted simulation) reset both pipelines. Bad input (NaN,
-unknown beacon ids, empty revolutions, undecodable messages) is counted and skipped. Revolutions older
-than the bag's first odometry are skipped (a recording starts in the middle of the streams).
-The parameters are the nodes' (beams_bringup's beams_params.yaml by default), validated by their tables.
+Feeds the bag's `beams/bearings`, `odom` and `beams/sim/ground_truth` to the pure objects the nodes wrap,
+as fast as the CPU allows, and writes their outputs next to a copy of the inputs into a new bag, with a
+plot and a summary (RMS errors against the truth, agreement with the live nodes' recorded outputs). Time
+is the messages' stamps, never their arrival (reordered within `REORDER_WINDOW_S`; a jump back by more
+than `TIME_JUMP_S` resets both pipelines); bad input is counted and skipped. The parameters are the
+nodes' (beams_bringup's beams_params.yaml by default), validated by their tables.
 """
 
 from __future__ import annotations
@@ -36,9 +26,7 @@ from rosbags.rosbag2 import Reader, ReaderError, WriterError
 
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.interfaces import topics
-from beams_common.ros.messages import (
-    pose2d_of,
-)
+from beams_common.ros.messages import pose2d_of
 from beams_ekf.outcomes import Estimate
 from beams_ekf.parameters import EKF_PARAMETERS
 from beams_tools.bag_events import (
@@ -149,15 +137,9 @@ def replay_bag(
     start_like_live: bool = False,
     namespace: str = "",
 ) -> ReplayResult:
-    """Replay a bag through both pipelines and write the outputs (with the inputs) to a new bag.
-
-    namespace: the robot whose topics are replayed (a bag of several robots: one replay each); its
-    outputs are written in the same namespace.
-
-    start_like_live: the EKF starts from the live EKF's first recorded estimate at an odometry stamp of
-    the bag (`LiveStart`) instead of ToTal's first pose, to compare the replay with a live run whose start
-    the bag did not record.
-    """
+    """Replay a bag through both pipelines and write the outputs (with the inputs) to a new bag. namespace:
+    the robot whose topics are replayed, its outputs written in the same namespace; start_like_live: the EKF
+    starts from the live EKF's first recorded estimate (`LiveStart`) instead of ToTal's first pose."""
     typestore = typestore if typestore is not None else beams_typestore()
     pipelines = ReplayPipelines(settings or settings_from_parameters({}, {}))
     use_odometry = pipelines.settings.triangulation.use_odometry

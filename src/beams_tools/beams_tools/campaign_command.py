@@ -1,15 +1,8 @@
-"""`fault_campaign`: plays a seeded schedule of faults against the whole running suite and
-prints what it measured.
-
-The robot's processes (beams_tools.robot_processes) run over DDS with fault_relay_node between the
-publishers and the filters, wrong on request (beams_tools.campaign_processes: a node that exits without
-being killed is counted dead and respawned, as the launch file's respawn would); a probe node in this
-process records and acts (campaign_probe_node), the faults are its and the processes' timed actions
-(campaign_faults); the figures and the report are campaign_metrics'.
-
-With --hosts, the driver runs on a second host (a network namespace joined to the main computer's by one
-link, which the link_down faults cut); where namespaces cannot be made (root, iproute2) the class is
-skipped and the report says so.
+"""`fault_campaign`: plays a seeded schedule of faults against the whole running suite and prints what it
+measured (docs/fault_campaign.md): the robot's processes (campaign_processes) with fault_relay_node between
+the publishers and the filters, a probe node in this process (campaign_probe_node), the faults' timed actions
+(campaign_faults), the figures and report (campaign_metrics). With --hosts the driver runs on a second host (a
+network namespace), skipped and said so where namespaces cannot be made.
 
 Usage: fault_campaign [--seed N] [--duration S] [--output DIR] [--serial] [--hosts] [-p ekf:NAME:=VALUE ...]
 """
@@ -54,11 +47,9 @@ SIM_MAX_MATCH_S = 600.0
 
 @dataclass
 class CampaignConfig:
-    """What one campaign runs: its seed and length, where its logs go, its DDS domain, parameters added
-    to the nodes' (node -> {name: value}), instead of the seeded draw a schedule of its own, and whether
-    driver_node reads a simulated sensor on a serial port (beams_tools.serial_feed: the line's faults are
-    then drawn too) instead of its built-in simulated source, and whether the robot runs on two hosts
-    (`Hosts`: the link_down faults are then drawn too)."""
+    """What one campaign runs: seed, length, logs, DDS domain, parameters added to the nodes' (node -> {name:
+    value}), a schedule of its own instead of the seeded draw, the serial sensor (`serial`, with the line's
+    faults) and two hosts (`hosts`, with the link's faults)."""
 
     seed: int = 18
     duration_s: float = 120.0
@@ -108,7 +99,6 @@ class Campaign:
             config.output_dir = pathlib.Path(tempfile.mkdtemp(prefix="fault_campaign_"))
         self.log_dir = pathlib.Path(config.output_dir)
         self.log_dir.mkdir(parents=True, exist_ok=True)
-        settings = ScheduleSettings(duration_s=config.duration_s, warmup_s=config.warmup_s)
         self.notes: list[str] = []
         problem = hosts_problem() if config.hosts else ""
         if problem:
@@ -118,7 +108,7 @@ class Campaign:
         self.schedule = (
             config.schedule
             if config.schedule is not None
-            else draw_schedule(config.seed, settings, campaign_classes(config.serial, self.hosts is not None))
+            else seeded_schedule(config, self.hosts is not None)
         )
         self.serial_link = self.log_dir / "beams_sensor"
         self.feed: SerialFeed | None = None
@@ -253,6 +243,12 @@ class Campaign:
         return result
 
 
+def seeded_schedule(config: CampaignConfig, hosts: bool) -> tuple[Fault, ...]:
+    """The schedule the campaign's seed draws, of the classes it can play (`campaign_classes`)."""
+    settings = ScheduleSettings(duration_s=config.duration_s, warmup_s=config.warmup_s)
+    return draw_schedule(config.seed, settings, campaign_classes(config.serial, hosts))
+
+
 def campaign_classes(serial: bool, hosts: bool = False) -> tuple[str, ...]:
     """The fault classes a campaign draws: the serial line's too when the driver reads a serial port, the
     hosts' link's when the robot runs on two hosts."""
@@ -323,9 +319,7 @@ def main(args: list[str] | None = None) -> int:
         hosts=options.hosts,
     )
     if options.schedule_only:
-        settings = ScheduleSettings(duration_s=config.duration_s, warmup_s=config.warmup_s)
-        hosts = config.hosts and not hosts_problem()
-        schedule = draw_schedule(config.seed, settings, campaign_classes(config.serial, hosts))
+        schedule = seeded_schedule(config, config.hosts and not hosts_problem())
         print("\n".join(fault.describe() for fault in schedule))
         return 0
     result = run_campaign(config)

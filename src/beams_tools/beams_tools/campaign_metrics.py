@@ -1,23 +1,11 @@
 """The fault campaign's figures from recorded series and its result's report: pure, so they are tested on
-synthetic data.
+synthetic data. Their definitions (hazardously misleading time, availability): docs/fault_campaign.md.
 
-Every time is a ROS stamp in seconds (the nodes' clocks: system time, one machine). The series:
-- the EKF's published estimates: rows (stamp, x, y, var_xx, cov_xy, var_yy), position and its covariance;
-- the truth: rows (stamp, x, y) from the simulator that drives the robot;
-- the EKF's status reports: rows (report stamp, tracking 1/0): tracking is /diagnostics level OK with the
-  message "tracking"; and optionally their messages (report stamp, message), which say why the time that
-  was not available was not (`unavailable_reasons`).
-
-Hazardously misleading: an estimate whose position error (against the truth interpolated at its stamp)
-exceeds max(5 cm, 5 sigma), sigma being the standard deviation of its own covariance along the error's
-direction, while the status says tracking. The status of an estimate is the EKF's first report stamped
-after it (the node's next word on that estimate: diagnostics come once a second, and a node that finds
-the fault within that second is not blamed for the report it had not yet made). Each estimate stands for
-the time to the next one, at most MAX_SAMPLE_SPAN_S (an outage is not misleading time).
-
-Availability: the fraction of a span's time in which the newest estimate is at most FRESH_S old and the
-status a user sees then (the EKF's last report at or before that time) says tracking.
-"""
+Every time is a ROS stamp in seconds. The series: the EKF's estimates, rows (stamp, x, y, var_xx, cov_xy,
+var_yy); the truth, rows (stamp, x, y); the EKF's status reports, rows (report stamp, tracking 1/0: the
+/diagnostics `status` value, as beams/ekf/status says it, whatever a refusal adds to the level), and
+optionally their messages (report stamp, message), which say why the time that was not available was not
+(`unavailable_reasons`)."""
 
 import math
 import pathlib

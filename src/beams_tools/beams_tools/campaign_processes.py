@@ -2,7 +2,8 @@
 pairs) and the relay, each with the campaign's parameters and remaps, run by the demo's supervisor
 (beams_tools.supervisor: a death respawned after RESPAWN_DELAY_S, as the launch file's respawn would);
 killed and restarted by the faults, duplicated. A process is named as its node without `_node` (`ekf`,
-the schedule's name), a hot standby's second as the description names it (`ekf_standby`)."""
+the schedule's name), a hot standby's second as the description names it (`ekf_standby`). Their ROS_HOME
+(ekf_node's checkpoint) is in the campaign's log directory, so that no run resumes from another's."""
 
 import pathlib
 from collections.abc import Callable, Mapping
@@ -54,7 +55,7 @@ class CampaignProcesses(NodeSupervisor):
                 name.removesuffix("_node"): [*host_prefix(name.removesuffix("_node")), *command]
                 for name, command in commands.items()
             },
-            env,
+            {**env, "ROS_HOME": str(log_dir / "ros_home")},
             log_dir,
             on_exit=on_exit,
         )

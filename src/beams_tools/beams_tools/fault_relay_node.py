@@ -1,14 +1,6 @@
 """fault_relay_node: sits between the robot's publishers and its filters and makes their data wrong on
-request, well-formed all the same (the fault campaign).
-
-The real publishers are remapped to raw topics (sim_world_node: `odom:=odom_raw`,
-`beams/sim/ground_truth:=beams/sim/ground_truth_raw`; driver_node: `beams/bearings:=beams/bearings_raw`)
-and this node republishes them on the names the other nodes read. Runtime parameters (0: pass through):
-- `odometry_offset_x_m`: added to every odometry pose's x (a jump when set, another when cleared);
-- `odometry_delay_s`: every odometry message held back this long (its stamp unchanged);
-- `bearing_stamp_offset_s`: added to every revolution's stamps (negative: stamped late, in the past).
-The ground truth passes unchanged (the simulated sensor reads it).
-"""
+request, well-formed all the same (the fault campaign; its remappings and parameters: docs/fault_campaign.md).
+The ground truth passes unchanged (the simulated sensor reads it)."""
 
 import collections
 import math

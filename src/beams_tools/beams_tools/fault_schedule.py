@@ -1,11 +1,6 @@
-"""The fault campaign's schedule: a seeded, reproducible list of faults, one after the other.
-
-A schedule is a pure function of its seed and settings: the same seed draws the same faults at the same
-offsets from the campaign's start. Faults never overlap, so every second of the campaign belongs to at
-most one fault's window ([start, end + the class's recovery time]) and a figure measured in it is that
-fault class's. Each pass through the classes draws them all in a shuffled order, so a campaign long enough
-for one pass has every class (`draw_schedule` refuses a shorter one).
-"""
+"""The fault campaign's schedule: a seeded, reproducible list of faults that never overlap, so that a figure
+measured in a fault's window ([start, end + the class's recovery time]) is that fault class's. Each pass
+through the classes draws them all in a shuffled order."""
 
 import itertools
 from collections.abc import Mapping, Sequence
@@ -170,10 +165,8 @@ def _draw(kind: str, rng: np.random.Generator) -> tuple[str, float, dict[str, An
 def draw_schedule(
     seed: int, settings: ScheduleSettings = ScheduleSettings(), classes: Sequence[str] = FAULT_CLASSES
 ) -> tuple[Fault, ...]:
-    """The faults of a campaign: the same seed and settings give the same schedule.
-
-    Raises ValueError when the campaign is too short for one fault of every class.
-    """
+    """The faults of a campaign, the same for the same seed and settings; ValueError when it is too short for
+    one fault of every class."""
     rng = np.random.default_rng(seed)
     last_end_s = settings.duration_s - settings.tail_s
     faults: list[Fault] = []

@@ -1,15 +1,10 @@
-"""The node reference's parameter tables (docs/nodes.md) and beams_bringup's parameter file
-(config/beams_params.yaml), written from the nodes' ParameterTables (one spec per parameter, so neither
-can drift from what the nodes declare).
+"""The node reference's parameter tables (docs/nodes.md, between `<!-- parameters: NAME -->` and `<!--
+/parameters -->`) and beams_bringup's parameter file, written from the nodes' ParameterTables so that neither
+drifts from what the nodes declare (test/static/test_docs_in_sync.py).
 
-    python -m beams_tools.parameter_docs                          # print every node's table
-    python -m beams_tools.parameter_docs --write docs/nodes.md    # replace the tables between the markers
-    python -m beams_tools.parameter_docs --write src/beams_bringup/config/beams_params.yaml
-
-Each table sits in docs/nodes.md between `<!-- parameters: NAME -->` and `<!-- /parameters -->`; the
-parameter file has one section per node, every parameter at its default under its description;
-test/static/test_docs_in_sync.py fails when either differs from what this module writes.
-"""
+python -m beams_tools.parameter_docs # print every node's table python -m beams_tools.parameter_docs --write
+docs/nodes.md # replace the tables between the markers python -m beams_tools.parameter_docs --write
+src/beams_bringup/config/beams_params.yaml"""
 
 import argparse
 import pathlib

@@ -107,12 +107,9 @@ class ReplayPipelines:
         return estimate, poses
 
     def on_bearings(self, message: Any) -> list[RevolutionPose]:
-        """One revolution to ToTal and every bearing to the EKF; the revolutions ToTal completed (this one,
-        unless it waits for odometry, and the one that waited), their accepted poses offered to the EKF.
-
-        A revolution older than the first odometry of a bag that has odometry is skipped: a bag starts in
-        the middle of the streams, a case the nodes (started together) never meet.
-        """
+        """One revolution to ToTal and every bearing to the EKF; the revolutions ToTal completed, their
+        accepted poses offered to the EKF. A revolution older than the bag's first odometry is skipped: a bag
+        starts in the middle of the streams, which the nodes, started together, never meet."""
         first_odometry = self.first_odometry_s
         if self.expect_odometry and (
             first_odometry is None or stamp_to_seconds(message.header.stamp) < first_odometry

@@ -13,14 +13,7 @@ from beams_common.ros.standby import STANDBY_FLAG
 PARAMS_FILE = "beams_params.yaml"
 DISCOVERY_PROFILE = "fastdds_fast_discovery.xml"
 # A node that dies is started again this long after (s): `ros2 launch` (respawn_delay), the demo's
-# supervisor and the fault campaign alike. The EKF is to be back within 2 s of any kill, and a
-# Python node's own start-up already takes 0.5-1.6 s of it (imports, DDS discovery; the EKF's is the
-# longest, hence its hot standby: RobotNode.hot_standby), so the delay must be short. What bounds a
-# respawn storm (a node that dies at every start) is that start-up, not the delay: a start costs at
-# least 0.5 s of CPU, so a crash loop restarts at most 1 / (0.25 + 0.5) = 1.3 times a second, and the
-# participants it leaves in the DDS graph (each until its 5-s lease ends, fastdds_fast_discovery.xml)
-# number at most 5 / 0.75, about 7. A longer delay would only move that bound a little (1 s: 0.7
-# starts/s, 3 participants) and cost a respawned node 0.75 s more.
+# supervisor and the fault campaign alike. Why so short: docs/integrity.md ("A node that dies anyway").
 RESPAWN_DELAY_S = 0.25
 
 

@@ -1,13 +1,7 @@
-"""A simulated BeAMS sensor on a pseudo-terminal, for driver_node's serial source under the fault campaign.
-
-A thread streams one simulated revolution per turret period, in real time, behind a fixed path (a
-symlink, as udev's /dev/serial/by-id/ links are): the revolution that covers [t, t + period) of host time
-is written at its end, as the firmware's frames leave while the turret turns, with the robot at the pose
-the campaign's truth gives for each instant. Faults of the line: random bytes in every
-revolution (line noise), a spurious zero reference SPURIOUS_ZERO_EARLY_S before every real one (a
-bouncing optical switch: a driver that trusts it closes each revolution 1.2 % short), silence (nothing
-sent, the port open), and unplugging (the pty closed, the path removed) until `clear`/`plug`.
-"""
+"""A simulated BeAMS sensor on a pseudo-terminal, for driver_node's serial source under the fault campaign:
+one revolution per turret period in real time, written at its end behind a fixed symlink (as udev's by-id
+links are), with the line's faults: line noise, a spurious zero reference SPURIOUS_ZERO_EARLY_S before every
+real one (a bouncing optical switch), silence, and unplugging until `clear`/`plug`."""
 
 import contextlib
 import os

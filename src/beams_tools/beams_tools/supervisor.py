@@ -1,11 +1,8 @@
 """The process runner of the demo, the fault campaign and the benches, for the environments without launch
-(the PyPI wheels): what `ros2 launch` does with `respawn=True, respawn_delay=RESPAWN_DELAY_S`. A process
-that exits while the supervisor is not stopping is started again, with the same command, RESPAWN_DELAY_S
-later; its log file gets a line saying so and the output of the new process. A node that refused its
-parameters at start-up (exit status 2, run_node's EXIT_INVALID_PARAMETERS) is not restarted: it would
-refuse them again. A node with a hot standby is two processes (robot_processes.RobotNode.processes), each
-restarted alike; `active` names the one that holds the node's role. A caller's own kill (`signal`) holds
-a process: neither a death nor restarted until `resume`.
+(the PyPI wheels): what `ros2 launch` does with `respawn=True, respawn_delay=RESPAWN_DELAY_S`, except
+for a node that refused its parameters (exit status 2: it would refuse them again). What a user sees:
+docs/integrity.md ("A node that dies anyway"). A caller's own kill (`signal`) holds a process: neither
+a death nor restarted until `resume`.
 """
 
 import signal

@@ -1,10 +1,6 @@
-"""How well a run positioned the robot: tracks, errors against the ground truth, dead reckoning placed in
-the map frame, RMS, the summary table and the trajectory plot.
-
-One module for `replay_bag` (offline) and `beams_bringup.demo` (live), so both report the same numbers the
-same way. A track is a (k, 5) array of rows (segment, stamp s, x m, y m, theta rad) in the map frame;
-`segment` counts the time jumps (a bag played in a loop), rows of different segments are never compared.
-"""
+"""How well a run positioned the robot, for `replay_bag` (offline) and `beams_bringup.demo` (live) alike. A
+track is a (k, 5) array of rows (segment, stamp s, x m, y m, theta rad) in the map frame; `segment` counts the
+time jumps (a bag played in a loop), rows of different segments are never compared."""
 
 from __future__ import annotations
 

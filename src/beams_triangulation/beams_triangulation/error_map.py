@@ -1,13 +1,8 @@
-"""Error maps of a beacon layout (thesis section 6.4.1, figure 6.5), and the `error_map` command.
+"""Error maps of a beacon layout (thesis section 6.4.1, figure 6.5), and the `error_map` command: the std of
+the position (eq. 6.25) and orientation (eq. 6.26) errors of ToTal under Gaussian bearing noise at every point
+of a grid, with the mean 1/|D|, drawn or predicted from the pose covariance.
 
-For every point of a grid, the robot's exact bearings are perturbed by Gaussian noise, ToTal computes
-the pose, and the standard deviations of the position error (eq. 6.25) and of the orientation error
-(eq. 6.26) over the draws are mapped, with the mean of ToTal's error measure 1/|D|. The same maps can
-be predicted without drawing, from the pose covariance (`pose_covariance`), which is what an integrator
-needs to see where a layout is weak.
-
-    error_map --beacons "-0.062,-0.062;-0.062,2.062;3.062,1.0" --area 0,3,0,2 --sigma-deg 0.1 -o map.png
-"""
+error_map --beacons "-0.062,-0.062;-0.062,2.062;3.062,1.0" --area 0,3,0,2 --sigma-deg 0.1 -o map.png"""
 
 from __future__ import annotations
 

@@ -1,19 +1,10 @@
 """The gates on a ToTal pose, and the choice of the triplet to trust among more than three beacons.
 
-A pose is accepted when ToTal's reliability measure 1/|D| (thesis 6.3.5, eq. 6.27) is below a threshold
-and the position standard deviation propagated from the bearing variances (`pose_covariance`) is below
-a limit. Defaults, from the error maps of the Eurobot layout (`error_map`, bearing sigma 0.1 deg as
-the driver's variance model gives): the position std stays under 5 cm on 94% of the table and grows
-without bound near the critical circumference, which crosses the table; 1/|D| < 2 m^-2 holds on 94%
-of it as well and catches the blow-up even when the published variances are wrong. Rejected poses keep
-their numbers and get the reason, so that `topic echo` shows why. With odometry in use, a revolution the
-odometry does not cover (at start-up, before the first odometry, or when odometry stops) is not
-motion-compensated: its pose is published rejected (a robot turning at 2 rad/s makes it centimetres
-off while its covariance says millimetres).
-
-One revolution's bearings to a gated pose is `revolution.estimate_revolution`; `TriangulationPipeline`
-(`pipeline`) is what the node runs on its two inputs, the offline replay too.
-"""
+A pose is accepted when ToTal's reliability measure 1/|D| (thesis 6.3.5, eq. 6.27) and the position std
+propagated from the bearing variances (`pose_covariance`) are below their limits. The defaults come from the
+Eurobot layout's error maps (`error_map`, 0.1 deg): the std stays under 5 cm, and 1/|D| under 2 m^-2, on 94%
+of the table, the latter catching the blow-up near the critical circumference even when the published
+variances are wrong. A rejected pose keeps its numbers and gets the reason, so that `topic echo` shows why."""
 
 from __future__ import annotations
 
@@ -67,11 +58,8 @@ class PoseEstimate:
 
 @dataclass(frozen=True)
 class NoPose:
-    """Why one revolution gave no pose at all (too few beacons, bad input, robot on the critical circle).
-
-    bad_input: the message itself was wrong (unknown or duplicated id, NaN, negative variance), as
-    opposed to what happens in normal operation (a beacon hidden, the critical circumference).
-    """
+    """Why one revolution gave no pose at all (too few beacons, bad input, robot on the critical circle);
+    bad_input: the message itself was wrong (unknown or duplicated id, NaN, negative variance)."""
 
     reason: str
     bad_input: bool = False
@@ -81,7 +69,8 @@ def gate(inverse_abs_d: float, covariance: np.ndarray, config: GateConfig) -> tu
     """(accepted, reason): the 1/|D| gate first (the thesis's criterion), then the propagated std."""
     if not inverse_abs_d < config.max_inverse_abs_d:
         return False, f"1/|D| = {inverse_abs_d:.3g} m^-2 above the gate {config.max_inverse_abs_d:g}"
-    std = math.sqrt(covariance[0, 0] + covariance[1, 1])
+    # Python floats: a covariance near the largest float sums to inf (refused below), not a numpy warning
+    std = math.sqrt(float(covariance[0, 0]) + float(covariance[1, 1]))
     if not std < config.max_position_std_m:
         return False, f"position std {std:.3g} m above the gate {config.max_position_std_m:g} m"
     return True, ""
@@ -90,14 +79,11 @@ def gate(inverse_abs_d: float, covariance: np.ndarray, config: GateConfig) -> tu
 def best_triplet(
     beacons_xy: np.ndarray, bearings_rad: np.ndarray, variances_rad2: np.ndarray, by: str = "covariance"
 ) -> tuple[int, int, int] | None:
-    """Indices of the triplet to trust among more than three beacons, or None when none gives a fix.
-
-    Every triplet is solved at once by the vectorised ToTal. by="covariance" (default) picks the
-    smallest propagated position std; by="inverse_abs_d" the largest |D|, the thesis's measure (eq.
-    6.27). On the Eurobot table with a fourth beacon at (3.062, -0.062) and 0.1 deg noise the first
-    measures better (RMS 8.3 mm against 10.4 mm, 95th percentile 13 mm against 20 mm): 1/|D| also
-    vanishes when the robot is on the line through two beacons, where the error does not.
-    """
+    """Indices of the triplet to trust among more than three beacons, or None when none gives a fix: every
+    triplet solved at once, by="covariance" (default) the smallest propagated position std, by="inverse_abs_d"
+    the largest |D| (eq. 6.27). On the Eurobot table with a fourth beacon at (3.062, -0.062) and 0.1 deg noise
+    the first measures better (RMS 8.3 mm against 10.4 mm): 1/|D| also vanishes on the line through two
+    beacons, where the error does not."""
     triplets = np.array(list(itertools.combinations(range(len(bearings_rad)), 3)))
     batch = triangulate_many(beacons_xy[triplets], bearings_rad[triplets])
     if not batch.ok.any():

@@ -1,22 +1,11 @@
 """Bringing the bearings of one revolution to a single instant (thesis 5.7; Loevsky and Shimshoni).
 
-The turret takes 0.1 s per revolution: a robot turning at 2 rad/s sweeps 11 deg and at 0.5 m/s moves
-5 cm between the first and the last bearing. ToTal assumes the three bearings come from one pose, so
-each bearing is moved to the target instant with the odometry increment between its own stamp and
-that instant:
-
-- rotation (exact, needs no position): the turret turned by dtheta_i = theta_target - theta_i, so the
-  beacon's bearing at the target instant is phi_i - dtheta_i, to first order in the translation;
-- translation (needs the beacon's range, hence an approximate pose): the bearing changes by the
-  difference of the predicted bearings of the beacon from the two turret positions. Its error is of
-  second order in the pose error, so one ToTal pass on the rotation-corrected bearings is enough to
-  get it (`triangulate_compensated` iterates twice).
-
-Without odometry, the bearing variances are inflated by the motion estimated between revolutions
-(`motion_variance_rad2`), so that the gate and the covariance account for the motion they cannot undo.
-`odometry_buffer` keeps the recent odometry poses by stamp for the compensation (beams_common's
-PoseBuffer; the live node and the offline replay both feed it). All of it is pure: poses are (x, y, theta)
-tuples or arrays, odometry poses are in the odom frame.
+In the 0.1 s of a revolution a robot turning at 2 rad/s sweeps 11 deg, and at 0.5 m/s moves 5 cm; ToTal
+assumes one pose, so each bearing is moved to the target instant with the odometry increment from its own
+stamp: the rotation exactly (phi_i - dtheta_i), the translation through the beacon's predicted bearings from
+the two turret positions, which needs an approximate pose but errs only to second order in it
+(`triangulate_compensated` iterates twice). Without odometry the motion seen between revolutions inflates the
+variances instead (`motion_variance_rad2`). Pure: poses are (x, y, theta), odometry poses in the odom frame.
 """
 
 from __future__ import annotations
@@ -35,11 +24,8 @@ from beams_triangulation.total import ToTalFix, triangulate
 
 
 def interpolate_pose(stamps_s: ArrayLike, poses: ArrayLike, t: float) -> tuple[float, float, float] | None:
-    """Pose at instant t, linear between the two odometry samples around it (heading on the circle).
-
-    stamps_s (n,) increasing, poses (n, 3). None when t is outside the samples (no extrapolation: a
-    bearing older or newer than the odometry cannot be compensated honestly).
-    """
+    """Pose at instant t, linear between the odometry samples around it (heading on the circle); None outside
+    them (a bearing beyond the odometry cannot be compensated honestly)."""
     stamps = np.asarray(stamps_s, dtype=float)
     samples = np.asarray(poses, dtype=float)
     if stamps.size == 0 or not stamps[0] <= t <= stamps[-1]:
@@ -70,12 +56,9 @@ def compensate_bearings(
     approx_pose_map: Sequence[float] | None = None,
     turret_offset_m: Sequence[float] = (0.0, 0.0),
 ) -> np.ndarray:
-    """Bearings (k,) measured at the odometry poses odom_at_bearings (k, 3), moved to odom_at_target.
-
-    Without approx_pose_map (the robot's map pose at the target instant, e.g. a first ToTal fix) only
-    the rotation is compensated; with it and beacons_xy (k, 2), the translation as well. Result wrapped
-    to (-pi, pi].
-    """
+    """Bearings (k,) measured at the odometry poses odom_at_bearings (k, 3), moved to odom_at_target, wrapped:
+    the rotation only, or with approx_pose_map (the robot's map pose at the target instant) and beacons_xy (k,
+    2) the translation too."""
     bearings = np.asarray(bearings_rad, dtype=float)
     odometry = np.asarray(odom_at_bearings, dtype=float).reshape(-1, 3)
     corrected = np.empty_like(bearings)
@@ -129,13 +112,9 @@ def motion_variance_rad2(
     speed_mps: float,
     yaw_rate_rad_s: float,
 ) -> np.ndarray:
-    """Variance (rad^2) to add to each bearing for the motion that could not be compensated.
-
-    A bearing taken tau seconds from the pose's instant is off by up to |omega| tau (rotation) plus
-    |v| tau / r (translation seen from range r); the square of that worst case is the variance added,
-    a conservative bound used when no odometry is available (speed and yaw rate then come from the
-    last two poses).
-    """
+    """Variance (rad^2) to add to each bearing for the motion that could not be compensated: the square of the
+    worst case |omega| tau + |v| tau / r of a bearing taken tau seconds from the pose's instant at range r
+    (speed and yaw rate from the last two poses, no odometry being available)."""
     tau = np.abs(np.asarray(time_offsets_s, dtype=float))
     ranges = np.maximum(np.asarray(ranges_m, dtype=float), 1e-3)
     return (abs(yaw_rate_rad_s) * tau + abs(speed_mps) * tau / ranges) ** 2

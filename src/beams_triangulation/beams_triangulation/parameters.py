@@ -5,6 +5,7 @@ from beams_common.config.geometry_parameters import GEOMETRY_CHECKS, GEOMETRY_SP
 from beams_common.config.parameters import ParameterSpec, ParameterTable
 from beams_common.intake.plausibility import MOTION_SPECS, STAMP_SPECS
 from beams_common.status.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, rates_check
+from beams_common.status.protection_level import INTEGRITY_SPECS
 
 TRIANGULATION_PARAMETERS = ParameterTable(
     "triangulation_node",
@@ -52,6 +53,7 @@ TRIANGULATION_PARAMETERS = ParameterTable(
         *STAMP_SPECS,
         *BEARING_RATE_SPECS,
         ODOMETRY_RATE_SPEC,
+        *INTEGRITY_SPECS,
     ),
     (*GEOMETRY_CHECKS, rates_check),
 )

@@ -52,15 +52,11 @@ Tag = Any  # what the caller attaches to a revolution (its number live, its due 
 
 
 class TriangulationPipeline:
-    """triangulation_node's logic on its two inputs, without ROS (the offline replay runs it as well):
-    odometry into an `odometry_buffer`, each revolution through a `RevolutionEstimator` with it.
-
-    With odometry in use, a revolution whose last bearing is newer than the newest odometry waits for the
-    odometry that covers it, at most until the next revolution: its bearings are then interpolated
-    between odometry samples rather than extrapolated, whatever order the two streams arrive in (over
-    DDS live, by stamp offline), so the node and the replay give the same poses. Each call returns the
-    (tag, outcome) pairs of the revolutions it completed, oldest first.
-    """
+    """triangulation_node's logic on its two inputs, without ROS (the offline replay runs it too). With
+    odometry in use, a revolution newer than the newest odometry waits for it, at most until the next
+    revolution, so that its bearings are interpolated rather than extrapolated whatever order the streams
+    arrive in: the node and the replay give the same poses. Each call returns the (tag, outcome) pairs of the
+    revolutions it completed, oldest first."""
 
     def __init__(
         self,

@@ -1,17 +1,12 @@
 """Pose covariance of a ToTal fix: first-order propagation of the three bearing variances (thesis B.3).
 
-Appendix B.3 shows that every derivative of the position with respect to the bearings carries a 1/D
-factor. Here the derivatives are computed exactly, by implicit differentiation of the three bearing
-equations the fix satisfies,
+The derivatives are exact, by implicit differentiation of the bearing equations the fix satisfies,
 
-    alpha_i(x, y) - theta - phi_i = 0,   alpha_i = atan2(y_i - y, x_i - x),   i = 1, 2, 3,
+alpha_i(x, y) - theta - phi_i = 0, alpha_i = atan2(y_i - y, x_i - x), i = 1, 2, 3,
 
-so that d(x, y, theta) = A^-1 d(phi) with rows A_i = (d alpha_i/dx, d alpha_i/dy, -1). Subtracting the
-second row from the others leaves a 2x2 system for the position whose determinant vanishes on the
-critical circumference, exactly where D does: the covariance and 1/|D| blow up together.
-
-As in `total`, the helpers only use + - * /, so the scalar and vectorised forms share them.
-"""
+so that d(x, y, theta) = A^-1 d(phi), rows A_i = (d alpha_i/dx, d alpha_i/dy, -1); the position's 2x2 system
+is singular on the critical circumference, exactly where D vanishes (every derivative carries 1/D, B.3). As in
+`total`, the helpers only use + - * /, so the scalar and vectorised forms share them."""
 
 from __future__ import annotations
 
@@ -110,10 +105,8 @@ def pose_covariance_many(
     variances_rad2: ArrayLike,
     turret_offset_m: Sequence[float] = (0.0, 0.0),
 ) -> np.ndarray:
-    """Vectorised `pose_covariance`: poses (x, y, heading) arrays of shape (N,); result (N, 3, 3).
-
-    beacons_xy (3, 2) shared or (N, 3, 2); variances_rad2 (3,) or (N, 3).
-    """
+    """Vectorised `pose_covariance`: poses (x, y, heading) of shape (N,), beacons_xy (3, 2) or (N, 3, 2),
+    variances_rad2 (3,) or (N, 3); result (N, 3, 3)."""
     beacons = np.asarray(beacons_xy, dtype=float)
     x, y, heading = (np.asarray(p, dtype=float) for p in poses)
     variances = np.broadcast_to(np.asarray(variances_rad2, dtype=float), (*x.shape, 3))

@@ -1,14 +1,9 @@
-"""One revolution's bearings to a gated pose: the bearing intake, the triplet, ToTal (motion-compensated
-with odometry, or the motion seen between revolutions in the variances), the covariance and the gates.
+"""One revolution's bearings to a gated pose: the bearing intake, the triplet, ToTal (motion-compensated with
+odometry, or the motion seen between revolutions in the variances), the covariance and the gates.
 
-`estimate_revolution` is the whole of it for one revolution; `RevolutionEstimator` runs it on a stream
-(remembering the last pose for the motion); `pipeline.TriangulationPipeline` adds the odometry and the
-wait for it. The intake (`beams_common.intake.bearing_intake`) is the EKF's too; ToTal's policy on it: a
-revolution with a beacon seen twice at one instant or an invalid measurement gives no pose (bad input);
-a repeated sighting, and a bearing of a beacon not on the map (another team's beacon in view:
-1 pose in 8 s when it made the revolution bad input), are set aside (counted by the intake) and the
-revolution's other bearings still count.
-"""
+ToTal's policy on the intake (`beams_common.intake.bearing_intake`, the EKF's too): a beacon seen twice at one
+instant or an invalid measurement gives no pose (bad input); a repeated sighting or a beacon not on the map
+(another team's beacon in view) is set aside and the revolution's other bearings still count."""
 
 from __future__ import annotations
 
@@ -82,13 +77,10 @@ def estimate_intake(
     odometry_at: OdometryAt | None = None,
     previous: PreviousPose | None = None,
 ) -> RevolutionPose:
-    """A revolution the intake sorted out to a gated pose at the mean instant of the bearings used.
-
-    odometry_at(t) gives the odometry pose (odom frame) at instant t, or None outside its samples: with
-    it the bearings are brought to that instant before ToTal (`motion_compensation`); when it does not
-    cover them, the pose is rejected (REASON_NOT_COMPENSATED). Without odometry (or when it does not
-    cover the bearings), the motion (speed, yaw rate) from the `previous` pose to this fix inflates the
-    bearing variances (`motion_variance_rad2`): the fix itself does not depend on the variances.
+    """A revolution the intake sorted out to a gated pose at the mean instant of the bearings used. With
+    odometry_at(t) (the odom pose, None outside its samples) the bearings are brought to that instant first
+    (`motion_compensation`), the pose rejected when it does not cover them (REASON_NOT_COMPENSATED); without,
+    the motion from the `previous` pose inflates the bearing variances (`motion_variance_rad2`), not the fix.
     """
     problem = bad_input(intake)
     if problem:
@@ -143,12 +135,9 @@ def estimate_pose(
     config: GateConfig = DEFAULT_GATES,
     turret_offset_m: Sequence[float] = (0.0, 0.0),
 ) -> PoseEstimate | NoPose:
-    """Bearings taken from one pose (sensor frame) to a gated robot pose in the map frame.
-
-    Three beacons: ToTal on them; more: the triplet with the smallest propagated std (`best_triplet`);
-    fewer or bad input: NoPose.
-    The covariance propagates the bearing variances through the Jacobian of the solution.
-    """
+    """Bearings taken from one pose (sensor frame) to a gated robot pose in the map frame: ToTal on three
+    beacons, on the triplet of smallest propagated std among more (`best_triplet`); NoPose for fewer or bad
+    input."""
     if not len(beacon_ids) == len(bearings_rad) == len(variances_rad2):
         counts = (len(beacon_ids), len(bearings_rad), len(variances_rad2))
         return NoPose("{} ids, {} bearings and {} variances: the lists must match".format(*counts), True)

@@ -1,13 +1,9 @@
 """ToTal: three object triangulation by the power centre of three circles (thesis ch. 6, Algorithm 6.1).
 
-The same arithmetic serves the scalar form (`triangulate`, plain Python floats, a few microseconds per
-call) and the vectorised form (`triangulate_many`, numpy arrays): the shared helpers below only use
-`+ - * /`, so they accept both, and the two forms give the same numbers.
-
-Conventions: bearings are measured counter-clockwise in the sensor (turret) frame from its zero
-reference; the fix gives the turret centre (or the robot centre, given the turret offset in base_link)
-and the heading of the sensor frame in the map frame.
-"""
+The scalar form (`triangulate`, plain floats, a few microseconds) and the vectorised one (`triangulate_many`)
+share helpers that use only `+ - * /`, so they give the same numbers. Bearings are CCW in the turret frame
+from its zero reference; the fix is the turret centre (or the robot's, given the turret offset in base_link)
+and the sensor frame's heading in the map."""
 
 from __future__ import annotations
 
@@ -248,11 +244,8 @@ def _triangulate_block(beacons: np.ndarray, bearings: np.ndarray, offset: tuple[
 def expected_bearings(
     beacons_xy: ArrayLike, pose: Sequence[float], turret_offset_m: Sequence[float] = (0.0, 0.0)
 ) -> np.ndarray:
-    """Noise-free bearings (rad, wrapped to (-pi, pi]) of the beacons seen from a robot pose (x, y, theta).
-
-    The inverse of `triangulate`, used by tests, the error maps and motion compensation. beacons_xy may
-    be (3, 2) or (k, 2); pose may be a sequence of arrays (vectorised, shape (N,) each, result (N, k)).
-    """
+    """Noise-free bearings (rad, wrapped to (-pi, pi]) of the beacons, (3, 2) or (k, 2), seen from a robot
+    pose (x, y, theta), the inverse of `triangulate`; a pose of arrays (N,) gives (N, k)."""
     beacons = np.asarray(beacons_xy, dtype=float)
     x, y, theta = (np.asarray(p, dtype=float)[..., None] for p in pose)
     offset_x, offset_y = (float(v) for v in turret_offset_m)

@@ -7,13 +7,16 @@ deviation gates); the node's status says whether ToTal is fixing the robot at al
 - lost: no pose accepted for more than MAX_SILENCE_S (receiving clock): every revolution refused,
   rejected by the gates, or none coming.
 - degraded: the bearing rate out of its range (~10 Hz), the odometry rate below its minimum (with
-  use_odometry), or inputs refused as implausible within the last FAULT_HOLD_S (stamps late or early
-  against the receiving clock, odometry jumps).
+  use_odometry), inputs refused as implausible within the last FAULT_HOLD_S (stamps late or early
+  against the receiving clock, odometry jumps), or the last accepted pose's protection level above its
+  alert limit (`protection_level`; three bearings have no redundancy: the fault-free bound).
 - tracking: none of the above.
 """
 
 from collections.abc import Mapping
 from typing import Any
+
+import numpy as np
 
 from beams_common.status.health import (
     FAULT_HOLD_S,
@@ -23,6 +26,7 @@ from beams_common.status.health import (
     judge,
     odometry_rate_monitor,
 )
+from beams_common.status.protection_level import Integrity, ProtectionLevel
 
 # Ten revolutions without an accepted pose: ToTal has not fixed the robot for a second.
 MAX_SILENCE_S = 1.0
@@ -37,10 +41,16 @@ class TriangulationHealth:
         self.use_odometry = use_odometry
         self._first_revolution_s: float | None = None
         self._last_accepted_s: float | None = None
+        self._covariance: np.ndarray | None = None  # the last accepted pose's
+        self.protection: ProtectionLevel | None = None
         self.configure(values, now_s)
 
     def configure(self, values: Mapping[str, Any], now_s: float) -> None:
-        """New rate ranges (a runtime change): the rates are measured again from now."""
+        """New rate ranges and integrity settings (a runtime change): the rates are measured again from
+        now."""
+        self.integrity = Integrity(values)
+        if self._covariance is not None:
+            self.protection = self.integrity.level(self._covariance)
         self.bearing_rate = bearing_rate_monitor(values)
         self.odometry_rate = odometry_rate_monitor(values)
         self.bearing_rate.start(now_s)
@@ -54,9 +64,12 @@ class TriangulationHealth:
     def on_odometry(self, now_s: float) -> None:
         self.odometry_rate.tick(now_s)
 
-    def on_pose(self, now_s: float, accepted: bool) -> None:
+    def on_pose(self, now_s: float, accepted: bool, covariance: np.ndarray) -> None:
+        """A pose published; an accepted one's protection level (fault-free: no redundancy) is the
+        node's."""
         if accepted:
-            self._last_accepted_s = now_s
+            self._last_accepted_s, self._covariance = now_s, covariance
+            self.protection = self.integrity.level(covariance)
 
     def fault(self, kind: str, now_s: float, reason: str) -> None:
         """An input refused as implausible: the status is degraded for FAULT_HOLD_S."""
@@ -75,5 +88,6 @@ class TriangulationHealth:
         degraded = [self.bearing_rate.problem(now_s)]
         if self.use_odometry:
             degraded.append(self.odometry_rate.problem(now_s))
+        degraded.append(self.integrity.problem(self.protection))
         degraded = [p for p in degraded if p] + self.faults.active(now_s)
         return judge("", lost, degraded)

@@ -83,7 +83,7 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         apply_runtime_changes(self, TRIANGULATION_PARAMETERS, self.parameters, self._prepare_parameters)
         serve_calibration_reload(self, self._apply_calibration)
         self.diagnostics = Diagnostics(self, "triangulation")
-        self.status_topic = StatusTopic(self, topics.TRIANGULATION_STATUS)
+        self.status_topic = StatusTopic(self, topics.TRIANGULATION_STATUS, self.diagnostics)
         self.diagnostics.set_level("warn", WAITING_FOR_BEARINGS)
         self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
         self.health = TriangulationHealth(self.parameters, self._now_s(), use_odometry=self.use_odometry)
@@ -224,7 +224,7 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         self.diagnostics.set("last_position_std_m", float(estimate.position_std_m))
         if not estimate.accepted:
             self.diagnostics.set("last_rejection", estimate.reason)
-        self.health.on_pose(self._now_s(), bool(estimate.accepted))
+        self.health.on_pose(self._now_s(), bool(estimate.accepted), estimate.covariance)
         self._update_status()
 
     def _update_status(self) -> None:
@@ -236,7 +236,7 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
         self.diagnostics.set_level(verdict.level, verdict.message)
         self.diagnostics.publish_if_conditions_changed()  # an ERROR condition's end said at once
-        self.status_topic.say(verdict)
+        self.status_topic.say(verdict, self.health.integrity, self.health.protection)
 
     def _markers(self, estimate: PoseEstimate, header) -> MarkerArray:
         """Beacons (spheres), the pose (arrow) and its 2-sigma position ellipse (flat cylinder)."""

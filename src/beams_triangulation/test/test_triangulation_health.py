@@ -1,10 +1,15 @@
 """triangulation_node's status model (issue 18): waiting, tracking while poses are accepted at the rate
 of the turret, degraded on implausible inputs or rates, lost without an accepted pose for a second."""
 
+import numpy as np
+
 from beams_common.status.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
+from beams_common.status.protection_level import INTEGRITY_SPECS
 from beams_triangulation.triangulation_health import TriangulationHealth
 
-VALUES = {spec.name: spec.default for spec in (*BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC)}
+# a ToTal pose's covariance: 1 cm, 0.2 deg (protection level 48 mm, 0.88 deg: within the default limits)
+ONE_CM = np.diag([1e-4, 1e-4, np.radians(0.2) ** 2])
+VALUES = {spec.name: spec.default for spec in (*BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, *INTEGRITY_SPECS)}
 
 
 def _run(health: TriangulationHealth, start_s: float, end_s: float, *, accepted=True, odometry=True) -> None:
@@ -14,7 +19,7 @@ def _run(health: TriangulationHealth, start_s: float, end_s: float, *, accepted=
             health.on_odometry(now)
         if k % 5 == 0:
             health.on_bearings(now)
-            health.on_pose(now, accepted)
+            health.on_pose(now, accepted, ONE_CM)
 
 
 def test_statuses_follow_the_accepted_poses_rates_and_faults():

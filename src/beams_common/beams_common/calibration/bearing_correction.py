@@ -12,10 +12,12 @@ The thesis's fitted values (figures 7.5, 7.9, 7.11, 7.12) are consistent with w 
 radians: the power bias then spans a few degrees over the working windows (about ten times the
 rotation bias, as section 7.3.5 says). The correction subtracts both (eq. 7.18 and 7.24).
 
-A cubic extrapolates wildly, so a calibrated correction carries the window range it was fitted on
-(`window_range_rad`) and evaluates the power bias at the window clamped to that range.
+A cubic extrapolates wildly (one near 0 over 5-13 deg reaches -1.2 rad at a 0.04 rad window), so a
+calibrated correction carries the window range it was fitted on (`window_range_rad`) and holds the power
+bias at its edge value outside it (`holds_power_bias` says where; the driver counts those bearings).
 """
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -29,6 +31,9 @@ _ZERO: Coefficients = (0.0, 0.0, 0.0, 0.0)
 # The thesis's global-calibration values (figures 7.11 and 7.12), used as realistic injected biases.
 THESIS_POWER_BIAS_COEFFICIENTS: Coefficients = (-90.46, 35.83, -4.59, 0.19)
 THESIS_ROTATION_BIAS_COEFFICIENTS: Coefficients = (-6.69e-4, -1.77e-3, -1.09e-3, -1.89e-3)
+# The windows where the thesis measured and fitted the power bias (its calibration grid saw 7.4 to 10.3 deg,
+# section 7.2, with a margin): the range of a calibration file that does not carry its own.
+THESIS_CALIBRATION_WINDOW_RANGE_RAD = (math.radians(5.0), math.radians(13.0))
 
 
 def _as_output(values: np.ndarray) -> np.ndarray | float:
@@ -47,8 +52,9 @@ def _coefficients(values: ArrayLike, name: str) -> Coefficients:
 class BearingCorrection:
     """Power-bias (a, b, c, d) and rotation-bias (A, B, C, D) coefficients, thesis eq. 7.19 and 7.25.
 
-    The default is the identity correction (all coefficients zero). `window_range_rad` (lo, hi), when
-    given, is the range of windows the power bias was fitted on; windows outside it are clamped.
+    The default is the identity correction (all coefficients zero). `window_range_rad` (lo, hi) is the
+    range of windows the power bias was fitted on, outside which it is held at its edge value; None (the
+    simulations' injected biases) evaluates the cubic everywhere. A calibration file always gives one.
     """
 
     power_bias_coefficients: Coefficients = _ZERO
@@ -77,22 +83,29 @@ class BearingCorrection:
         return self.power_bias_coefficients == _ZERO and self.rotation_bias_coefficients == _ZERO
 
     def power_bias(self, window_rad: ArrayLike) -> np.ndarray | float:
-        """Power bias f_corr1(w) (rad) for windows w (rad), eq. 7.19; w clamped to window_range_rad."""
+        """Power bias f_corr1(w) (rad) for windows w (rad), eq. 7.19; held at its edge value
+        outside window_range_rad."""
         a, b, c, d = self.power_bias_coefficients
         w = np.asarray(window_rad, dtype=float)
         if self.window_range_rad is not None:
             w = np.clip(w, *self.window_range_rad)
         return _as_output(((a * w + b) * w + c) * w + d)
 
+    def holds_power_bias(self, window_rad: ArrayLike) -> np.ndarray | bool:
+        """True where w is outside window_range_rad, where the power bias is held at its edge value."""
+        w = np.asarray(window_rad, dtype=float)
+        if self.window_range_rad is None or self.power_bias_coefficients == _ZERO:
+            held = np.zeros(w.shape, dtype=bool)
+        else:
+            held = (w < self.window_range_rad[0]) | (w > self.window_range_rad[1])
+        return bool(held) if held.ndim == 0 else held
+
     def power_bias_slope(self, window_rad: ArrayLike) -> np.ndarray | float:
-        """df_corr1/dw (rad/rad) at windows w, eq. 7.19 differentiated; 0 where w is clamped: how much a
-        window error moves the corrected bearing."""
+        """df_corr1/dw (rad/rad) at windows w, eq. 7.19 differentiated; 0 where the bias is held: how
+        much a window error moves the corrected bearing."""
         a, b, c, _ = self.power_bias_coefficients
         w = np.asarray(window_rad, dtype=float)
-        slope = (3.0 * a * w + 2.0 * b) * w + c
-        if self.window_range_rad is not None:
-            slope = np.where((w < self.window_range_rad[0]) | (w > self.window_range_rad[1]), 0.0, slope)
-        return _as_output(np.asarray(slope))
+        return _as_output(np.where(self.holds_power_bias(w), 0.0, (3.0 * a * w + 2.0 * b) * w + c))
 
     def rotation_bias(self, angle_rad: ArrayLike) -> np.ndarray | float:
         """Rotation bias f_corr2(phi) (rad) for turret angles phi (rad), eq. 7.25 with E = 0."""

@@ -26,13 +26,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from beams_common.calibration.bearing_correction import BearingCorrection
+from beams_common.calibration.bearing_correction import THESIS_CALIBRATION_WINDOW_RANGE_RAD, BearingCorrection
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.beacon_map import BeaconMap
 
-# The windows where the thesis measured and fitted the power bias (its calibration grid saw 5 to 13 deg,
-# section 7.2): a correction without its own window_range_rad is judged there.
-THESIS_CALIBRATION_WINDOW_RANGE_RAD = (math.radians(5.0), math.radians(13.0))
 # "power bias corrections of a few degrees maximum" (section 7.4); the thesis's global fit (fig. 7.11)
 # reaches 3.7 deg over its windows.
 MAX_POWER_BIAS_RAD = math.radians(10.0)

@@ -7,8 +7,8 @@ A YAML file, human-readable and editable:
     created_utc: '2026-11-22T03:30:00Z'
     beacons:                 # true beacon coordinates in the map frame (m), table 7.4
       - {id: 1, x_m: 1.1499, y_m: 0.0455}
-    power_bias:              # eq. 7.19, window and result in rad
-      {a: -90.46, b: 35.83, c: -4.59, d: 0.19, window_range_rad: [0.08, 0.19]}   # range optional
+    power_bias:              # eq. 7.19, window and result in rad; held at its edge value outside
+      {a: -90.46, b: 35.83, c: -4.59, d: 0.19, window_range_rad: [0.08, 0.19]}   # the fitted windows
     rotation_bias:           # eq. 7.25, turret angle and result in rad
       {A: -0.000669, B: -0.00177, C: -0.00109, D: -0.00189}
     turret_offset_m: {x: -0.00098, y: -0.00011}   # turret centre in base_link, eq. 7.26
@@ -16,6 +16,10 @@ A YAML file, human-readable and editable:
       - {stage: no calibration, position_rms_m: 0.00875, orientation_rms_rad: 0.0075}
     leave_one_out: {stage: ..., position_rms_m: ..., orientation_rms_rad: ...}   # optional
     warnings: []
+
+A file without window_range_rad (written before it existed) holds its power bias outside the thesis's
+calibration windows, 5-13 deg (`THESIS_CALIBRATION_WINDOW_RANGE_RAD`), where such a file was checked.
+`node_refusal` says why a node would refuse a calibration before it is written.
 
 Writes are atomic (temporary file, fsync, os.replace), and the previous file is kept as `<path>.bak`.
 """
@@ -33,8 +37,8 @@ from typing import Any
 import yaml
 
 from beams_common.calibration import file_schema
-from beams_common.calibration.bearing_correction import BearingCorrection
-from beams_common.calibration.calibration_checks import calibration_value_problem
+from beams_common.calibration.bearing_correction import THESIS_CALIBRATION_WINDOW_RANGE_RAD, BearingCorrection
+from beams_common.calibration.calibration_checks import calibration_nominal_problem, calibration_value_problem
 from beams_common.geometry.beacon_map import BeaconMap
 
 FILE_FORMAT = "beams-calibration"
@@ -199,7 +203,7 @@ _HEADER = """\
 # BeAMS sensor calibration (thesis chapter 7), written by beams_calibration.
 # beacons: true beacon coordinates in the map frame (m).
 # power_bias: f(w) = a w^3 + b w^2 + c w + d (eq. 7.19), window w and f in rad;
-#   w is clamped to window_range_rad (the windows the calibration saw), when given.
+#   held at its edge value outside window_range_rad (the windows the calibration saw).
 # rotation_bias: f(phi) = A cos(phi) + B sin(phi) + C cos(2 phi) + D sin(2 phi) (eq. 7.25), rad.
 # The driver publishes phi - f_power(w) - f_rotation(phi) (eq. 7.18, 7.24).
 # turret_offset_m: turret rotation centre in base_link (m), eq. 7.26.
@@ -239,6 +243,22 @@ def load_calibration(path: str | os.PathLike) -> SensorCalibration:
     return calibration
 
 
+def node_refusal(
+    calibration: SensorCalibration, nominal_map: BeaconMap, nominal_turret_offset_m: tuple[float, float]
+) -> str:
+    """Why a node would refuse this calibration at start-up, or '': its file text read back against the
+    schema and `calibration_value_problem` (`load_calibration`), then `calibration_nominal_problem`
+    against the nominal geometry (`geometry_parameters.geometry_of_calibration`)."""
+    try:
+        loaded = calibration_from_dict(yaml.safe_load(calibration_text(calibration)))
+    except ValueError as error:
+        return str(error)
+    offset = loaded.turret_offset_m
+    return calibration_value_problem(loaded.bearing_correction, offset) or calibration_nominal_problem(
+        loaded.beacon_map, offset, nominal_map, nominal_turret_offset_m
+    )
+
+
 def calibration_from_dict(document: Any) -> SensorCalibration:
     """Parse the YAML document of a calibration against its schema (see the module docstring): every
     entry is checked for type, shape and finiteness; SchemaError (a ValueError) names the faulty one."""
@@ -252,7 +272,9 @@ def calibration_from_dict(document: Any) -> SensorCalibration:
             ("turret_offset_m", ("x", "y")),
         )
     )
-    window_range = file_schema.optional(power, "window_range_rad", _window_range, "power_bias", None)
+    window_range = file_schema.optional(
+        power, "window_range_rad", _window_range, "power_bias", THESIS_CALIBRATION_WINDOW_RANGE_RAD
+    )
     correction = BearingCorrection(
         tuple(file_schema.number(power[key], f"power_bias.{key}") for key in _POWER_KEYS),
         tuple(file_schema.number(rotation[key], f"rotation_bias.{key}") for key in _ROTATION_KEYS),

@@ -8,12 +8,8 @@ position, shortest arc in heading) and, for a short while past the newest sample
 arc of the newest twist, or the newest step continued for a stream without twists (a bearing may be
 stamped a little after the last odometry message when the two streams race).
 
-Streams are fed in one of two ways:
-- `append`: strictly increasing stamps, the caller decides what a stamp in the past means (the EKF);
-- `add`: a validating feed for raw message streams: non-finite samples are refused (the odometry rule,
-  `validation.odometry_problem`), a stamp in the past is dropped or, once a `TimeJumpDetector` confirms
-  it, starts the buffer over (a bag played in a loop); `add_valid` is the same feed for a caller whose
-  intake already ran the rule (the triangulation's `take_odometry`: the rule runs once).
+A stream is fed by `append` (strictly increasing stamps: the EKF) or by `add` / `add_valid`, which
+refuse non-finite samples and handle stamps in the past (a bag played in a loop) for raw message streams.
 
 Poses are (x, y, theta) tuples: x, y in metres, theta in radians, REP-103.
 """

@@ -12,10 +12,8 @@ the reason and a count per kind, for the node's /diagnostics and the offline rep
 3. each remaining bearing by `validation.bearing_problem`: UNKNOWN_BEACON (not on the beacon map) or
    INVALID_MEASUREMENT (non-finite value or stamp, non-physical variance).
 
-What a consumer does with a refusal is its own policy: the EKF uses the bearings kept, ToTal gives the
-revolution no pose when anything but a repeated sighting or an unknown beacon was refused. Checks on top
-of these belong here, as another rule with its own BearingRefusal (the stamp plausibility against the
-receiving clock is the nodes': the offline replay has no receiving clock).
+What each consumer does with a refusal, and where a new check goes: docs/shape-core.md ("One intake per
+input"); the stamp plausibility against the receiving clock is the nodes' (the replay has no such clock).
 """
 
 from collections import Counter

@@ -1,21 +1,11 @@
 """Semantic plausibility of the inputs: well-formed values that cannot be true.
 
-`validation` checks each input's syntax (finite, shaped, bounded); this module checks what a
-well-formed input claims against what is physically possible, each check returning a reason ('' when
-plausible), in the style of `validation`:
-
-- `stamp_problem`: a message's stamp against the receiving clock. A BeAMS revolution lasts ~0.1 s and
-  its bearings are stamped at their instants within it, published when it ends and received a few
-  milliseconds later, so the newest bearing of a revolution is at most one revolution plus the transport
-  old; odometry is a few milliseconds old. Beyond `StampTolerance.max_age_s` the stamp is late (a relay
-  restamping, a host whose clock lags), beyond `max_lead_s` in the future it is early: the node refuses
-  the message with the reason (a bearing applied at the wrong instant put the EKF 0.3-0.45 m off while
-  its covariance said 2 mm).
-- `odometry_step_problem`: one odometry increment against the robot's maximum speed and yaw rate
-  (`MotionLimits`): a +100 m jump is a reset or a fault of the odometry source, not motion.
-- `MAX_POSE_SIGMA_M`, `MAX_POSE_SIGMA_RAD`: a pose covariance's bound (applied by
-  `pose_intake.pose_covariance_problem`): a standard deviation beyond it says nothing a filter can use,
-  and 1e300 made every later estimate non-symmetric in floating point.
+`validation` checks each input's syntax (finite, shaped, bounded); this module checks what a well-formed
+input claims against what is physically possible, each check returning a reason ('' when plausible):
+a stamp against the receiving clock (`stamp_problem`: a bearing applied at the wrong instant put the EKF
+0.3-0.45 m off while its covariance said 2 mm), an odometry increment against the robot's speed and yaw
+rate (`odometry_step_problem`: a +100 m jump is a reset, not motion) and a pose covariance's bound
+(`MAX_POSE_SIGMA_M`, `MAX_POSE_SIGMA_RAD`: 1e300 made every later estimate non-symmetric).
 """
 
 import math

@@ -2,15 +2,8 @@
 
 Pure functions (no rclpy), shared by the nodes and the offline tools: an empty string means "valid",
 anything else is the reason, bounded in length, that a service reply, a log line and /diagnostics give.
-
-- Messages: at most `MAX_BEARINGS_PER_REVOLUTION` bearings per revolution (bounded work per message),
-  each bearing finite with a variance of at least `MIN_BEARING_VARIANCE_RAD2` (`bearing_problem`, the
-  one rule of the triangulation and the EKF), one sighting per beacon (`one_sighting_per_beacon`).
-- Outputs: a planar pose leaves a node only finite with a symmetric positive definite covariance
-  (`planar_estimate_problem`).
-- Odometry: a sample finite in stamp, pose and twist (`odometry_problem`, the triangulation's and the
-  EKF's rule).
-- Requests: an operator's pose (`pose_intake`, with ToTal's).
+The bearing and odometry rules (`bearing_problem`, `odometry_problem`) are the triangulation's and the
+EKF's alike; `planar_estimate_problem` guards what leaves a node; a pose's intake is `pose_intake`.
 """
 
 import math

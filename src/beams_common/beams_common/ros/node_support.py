@@ -68,13 +68,9 @@ def run_node(
     callbacks passes events_executor=False: Jazzy's EventsExecutor does not run them. The environment
     variable BEAMS_EXECUTOR=single_threaded puts every node back on rclpy's SingleThreadedExecutor.
 
-    Hot standby (beams_common.ros.standby): the process first takes its node's role (ROS_DOMAIN_ID
-    and the fully qualified name its remaps give to the node's own name, which is its executable's in
-    this suite: test/static/test_node_names.py). Started with `--standby` before --ros-args, it waits,
-    its modules imported but no rclpy context or DDS participant made, until the role is free, and only
-    then starts the node; a stop signal while it waits ends it with 0. Started without, it runs whether
-    the role is free or not (a second instance: one WARN line; the graph watch of the others says the
-    duplicate, beams_common.ros.input_watch).
+    Hot standby (beams_common.ros.standby): the process first takes its node's role; started with
+    `--standby` before --ros-args, it waits for the role before it makes any rclpy context (a stop signal
+    while it waits ends it with 0); started without, it runs beside a holder with one WARN line.
 
     Every stop signal, however many and whenever they come, ends in the same quiet shutdown (see
     _catch_stop_signals): returns 0 (no traceback), and EXIT_INVALID_PARAMETERS when the node refused
@@ -251,14 +247,8 @@ def serve_calibration_reload(node: Node, apply: Callable[[SensorCalibration], st
 class Diagnostics:
     """Counters and a status published on /diagnostics once a second (diagnostic_msgs).
 
-    A refusal (`refuse`) is counted, logged (each key at most once a second) and shown: the next
-    publication is at least WARN with its reason, whatever the node's status became meanwhile. A
-    condition (`set_condition`: a second publisher on an input, say) holds the status at least at its
-    level, with its reason, until it is cleared or its hold time ends; `callback_failed` is one such
-    (ERROR for CALLBACK_FAULT_HOLD_S after the last exception a callback let out). Every text is bounded
-    in length (`validation.bounded`). Under use_sim_time, while no /clock has come, a status "waiting for
-    /clock" is published on the steady (wall) clock, with a log line every WAITING_LOG_PERIOD
-    publications.
+    The status is at least as bad as the last refusal (`refuse`) and every condition in force
+    (`set_condition`, `callback_failed`); every text is bounded in length (`validation.bounded`).
     """
 
     WAITING_FOR_CLOCK = "waiting for /clock (use_sim_time is true): no time, nothing processed"

@@ -3,13 +3,18 @@
 The estimates' messages (nav_msgs/Odometry, geometry_msgs/PoseWithCovarianceStamped) have no field for
 a status, and /diagnostics is one array for every node at 1 Hz: a consumer that must not use an
 untrusted pose (a planner, `ros2 topic echo`, a bag) reads beams_msgs/LocalisationStatus instead. It is
-latched (transient local, depth 1): a late subscriber gets the current status at once.
+latched (transient local, depth 1): a late subscriber gets the current status at once. It carries the
+protection levels of the estimate when it is said (docs/protection_level.md) and the alert limits.
 """
+
+import math
 
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
+from beams_common.ros.node_support import Diagnostics
 from beams_common.status.health import Status, Verdict
+from beams_common.status.protection_level import Integrity, ProtectionLevel
 from beams_msgs.msg import LocalisationStatus
 
 STATUS_QOS = QoSProfile(
@@ -29,20 +34,35 @@ STATUS_CODES = {
 
 class StatusTopic:
     """Publishes a node's verdict (beams_common.status.health) at once when its status or message changes,
-    and again when STATUS_HEARTBEAT_S has passed since it last said it."""
+    and again when STATUS_HEARTBEAT_S has passed since it last said it; the protection level also goes to
+    the node's `diagnostics`."""
 
-    def __init__(self, node: Node, topic: str) -> None:
-        self.node = node
+    def __init__(self, node: Node, topic: str, diagnostics: Diagnostics) -> None:
+        self.node, self.diagnostics = node, diagnostics
         self.publisher = node.create_publisher(LocalisationStatus, topic, STATUS_QOS)
         self._said: tuple[Status, str] | None = None
         self._said_ns = 0
 
-    def say(self, verdict: Verdict) -> None:
+    def say(self, verdict: Verdict, integrity: Integrity, level: ProtectionLevel | None) -> None:
+        """The verdict with the newest estimate's protection level (None: no estimate)."""
+        if level is not None:
+            self.diagnostics.set("horizontal_protection_level_m", level.horizontal_m)
+            self.diagnostics.set("heading_protection_level_rad", level.heading_rad)
         now = self.node.get_clock().now()
         said = (verdict.status, verdict.message)
         if said == self._said and now.nanoseconds - self._said_ns < STATUS_HEARTBEAT_S * 1e9:
             return
-        message = LocalisationStatus(status=STATUS_CODES[verdict.status], message=verdict.message)
+        message = LocalisationStatus(
+            status=STATUS_CODES[verdict.status],
+            message=verdict.message,
+            horizontal_protection_level_m=math.nan if level is None else level.horizontal_m,
+            heading_protection_level_rad=math.nan if level is None else level.heading_rad,
+            single_fault_covered=level is not None and level.faults_covered,
+            horizontal_alert_limit_m=integrity.horizontal_limit_m,
+            heading_alert_limit_rad=integrity.heading_limit_rad,
+            integrity_risk=integrity.risk,
+            within_alert_limits=level is not None and integrity.within(level),
+        )
         message.header.stamp = now.to_msg()
         self.publisher.publish(message)
         self._said, self._said_ns = said, now.nanoseconds
