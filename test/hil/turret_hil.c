@@ -11,11 +11,13 @@
  * Each level is raised on its pin at the first instruction boundary at or after its cycle (the AVR's
  * instructions take 1 to 4 cycles; a Timer1 tick is 8). --byte-log writes one record per UART byte:
  * uint64 cycle at which the firmware wrote it to UDR0, uint8 byte. --step-log writes the uint64 cycle of
- * every level change of the stepper's STEP pin (PB3, OC2A). --realtime holds the emulation to the
- * wall clock (a 16 MHz AVR runs faster than real time in simavr otherwise), cycle 0 at --start-at
- * (seconds of the system clock) when given. SCHEDULE "-" is read from stdin as it comes (records
- * written ahead of the emulation, in real time: the virtual turret, beams_sim.virtual_turret), and
- * END_CYCLE 0 runs until stdin's end. Without --out-fd the bytes go to stdout; simavr's own messages
+ * every level change of the stepper's STEP pin (PB3, OC2A). --realtime runs the emulation up to LEAD_S
+ * ahead of the wall clock (a 16 MHz AVR runs faster than real time in simavr otherwise), cycle 0 at
+ * --start-at (seconds of the system clock) when given, and writes each UART byte when the wall clock
+ * reaches the cycle it was sent at: the link's timing is the chip's, not the emulator's pace (an emulator
+ * starved of CPU for less than the lead catches up unseen). SCHEDULE "-" is read from stdin as it comes
+ * (records written ahead of the emulation: the virtual turret, beams_sim.virtual_turret), and END_CYCLE 0
+ * runs until stdin's end. Without --out-fd the bytes go to stdout; simavr's own messages
  * always go to stderr. A non-blocking --out-fd that is full loses the bytes, as a UART nobody listens
  * to does. The run ends at END_CYCLE; a summary line goes to stderr:
  * "turret_hil: cycles C wall_s W bytes B lost L".
@@ -37,6 +39,9 @@
 #include <sim_irq.h>
 
 #define CPU_HZ 16000000ULL
+#define LEAD_S 0.1
+#define GRAIN_S 0.0002 /* the shortest wait for a byte's time: a frame on the wire */
+#define PENDING 16384  /* UART bytes emulated and not yet written: 0.3 s of a full link; a power of two */
 
 struct level_change {
     uint64_t cycle;
@@ -54,21 +59,28 @@ static avr_irq_t *pins[2];
 static int out_fd = 1;
 static FILE *byte_log;
 static FILE *step_log;
-static uint8_t out_buffer[4096];
-static size_t out_length;
+static struct {
+    uint64_t cycle;
+    uint8_t byte;
+} pending[PENDING];
+static size_t pending_head, pending_tail; /* written up to head, sent by the UART up to tail */
 static uint64_t bytes_out, bytes_lost;
 static avr_t *avr;
 
-static void flush_out(void)
+/* Write the bytes the UART sent up to due_cycle. */
+static void flush_out(uint64_t due_cycle)
 {
-    size_t done = 0;
-    while (done < out_length) {
-        ssize_t n = write(out_fd, out_buffer + done, out_length - done);
+    uint8_t chunk[4096];
+    size_t length = 0, done = 0;
+    while (pending_head != pending_tail && length < sizeof chunk && pending[pending_head % PENDING].cycle <= due_cycle)
+        chunk[length++] = pending[pending_head++ % PENDING].byte;
+    while (done < length) {
+        ssize_t n = write(out_fd, chunk + done, length - done);
         if (n < 0) {
             if (errno == EINTR)
                 continue;
             if (errno == EAGAIN) { /* nobody reads the line: the bytes are lost */
-                bytes_lost += out_length - done;
+                bytes_lost += length - done;
                 break;
             }
             perror("turret_hil: write");
@@ -76,7 +88,8 @@ static void flush_out(void)
         }
         done += (size_t)n;
     }
-    out_length = 0;
+    if (length == sizeof chunk)
+        flush_out(due_cycle);
 }
 
 static void on_uart_byte(struct avr_irq_t *irq, uint32_t value, void *param)
@@ -84,10 +97,11 @@ static void on_uart_byte(struct avr_irq_t *irq, uint32_t value, void *param)
     (void)irq;
     (void)param;
     uint8_t byte = (uint8_t)value;
-    out_buffer[out_length++] = byte;
+    if (pending_tail - pending_head == PENDING)
+        flush_out(UINT64_MAX); /* no room: the oldest go now */
+    pending[pending_tail % PENDING].cycle = avr->cycle;
+    pending[pending_tail++ % PENDING].byte = byte;
     bytes_out++;
-    if (out_length == sizeof out_buffer)
-        flush_out();
     if (byte_log) {
         uint64_t cycle = avr->cycle;
         fwrite(&cycle, sizeof cycle, 1, byte_log);
@@ -126,7 +140,7 @@ static void arm_injection(void)
     inject_armed = 1;
 }
 
-/* Emulated sleep costs no wall time (the default sleeps in real time). */
+/* Emulated sleep costs no wall time (simavr's default sleeps to its own clock: pace() keeps time). */
 static void sleep_none(avr_t *core, avr_cycle_count_t how_long)
 {
     (void)core;
@@ -138,6 +152,24 @@ static double wall_s(void)
     struct timespec now;
     clock_gettime(CLOCK_MONOTONIC, &now);
     return (double)now.tv_sec + (double)now.tv_nsec * 1e-9;
+}
+
+/* Real time (cycle 0 at `started`, wall_s's clock): write the bytes whose time has come, and wait while
+ * the emulation is more than `lead` s ahead, waking for the next byte's time. */
+static void pace(double started, double lead)
+{
+    for (;;) {
+        double now = wall_s() - started;
+        flush_out(now > 0.0 ? (uint64_t)(now * CPU_HZ) : 0);
+        double wait = (double)avr->cycle / CPU_HZ - now - lead;
+        if (wait <= 0.0)
+            return;
+        if (pending_head != pending_tail) {
+            double due = (double)pending[pending_head % PENDING].cycle / CPU_HZ - now;
+            wait = due < wait ? (due > GRAIN_S ? due : GRAIN_S) : wait;
+        }
+        usleep((useconds_t)(wait * 1e6));
+    }
 }
 
 static void add_record(const uint8_t record[16])
@@ -255,8 +287,7 @@ int main(int argc, char *argv[])
     avr_load_firmware(avr, &firmware);
     avr->frequency = CPU_HZ;
     avr->log = LOG_ERROR;
-    if (!realtime)
-        avr->sleep = sleep_none;
+    avr->sleep = sleep_none;
 
     uint32_t flags = 0;
     avr_ioctl(avr, AVR_IOCTL_UART_GET_FLAGS('0'), &flags);
@@ -278,28 +309,28 @@ int main(int argc, char *argv[])
         clock_gettime(CLOCK_REALTIME, &now);
         started += start_at - ((double)now.tv_sec + (double)now.tv_nsec * 1e-9);
     }
-    uint64_t next_flush = 0;
+    uint64_t next_check = 0;
     while (end_cycle ? avr->cycle < end_cycle : !schedule_ended) {
         int state = avr_run(avr);
         if (state == cpu_Done || state == cpu_Crashed) {
             fprintf(stderr, "turret_hil: the firmware stopped (state %d) at cycle %llu\n", state,
                     (unsigned long long)avr->cycle);
-            flush_out();
+            flush_out(UINT64_MAX);
             return 1;
         }
-        if (avr->cycle >= next_flush) {
-            next_flush = avr->cycle + CPU_HZ / 1000; /* every emulated millisecond */
-            flush_out();
+        if (avr->cycle >= next_check) {
+            next_check = avr->cycle + CPU_HZ / 1000; /* every emulated millisecond */
             if (schedule_fd >= 0)
                 read_schedule();
-            if (realtime) {
-                double ahead = (double)avr->cycle / (double)CPU_HZ - (wall_s() - started);
-                if (ahead > 0.0)
-                    usleep((useconds_t)(ahead * 1e6));
-            }
+            if (realtime)
+                pace(started, LEAD_S);
+            else
+                flush_out(UINT64_MAX);
         }
     }
-    flush_out();
+    if (realtime)
+        pace(started, 0.0); /* the last bytes at their time */
+    flush_out(UINT64_MAX);
     if (byte_log)
         fclose(byte_log);
     if (step_log)
