@@ -21,6 +21,7 @@ import signal
 import sys
 import tempfile
 import time
+from copy import deepcopy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -172,24 +173,12 @@ def seconds(stamp) -> float:
 
 def restamped(msg, now_ns: int):
     """A copy of a revolution whose newest bearing is stamped now (the others keep their offsets)."""
-    from beams_msgs.msg import BeaconBearingArray
-
-    def stamp_ns(stamp) -> int:
-        return stamp.sec * 1_000_000_000 + stamp.nanosec
-
-    newest = max((stamp_ns(b.header.stamp) for b in msg.bearings), default=stamp_ns(msg.header.stamp))
-    shift = now_ns - newest
-    copy = BeaconBearingArray(
-        header=msg.header,
-        revolution=msg.revolution,
-        period=msg.period,
-        bearings=list(msg.bearings),
-        rejected_windows=msg.rejected_windows,
-        calibrated=msg.calibrated,
-    )
-    for stamped in [copy.header, *(b.header for b in copy.bearings)]:
-        moved = stamp_ns(stamped.stamp) + shift
-        stamped.stamp.sec, stamped.stamp.nanosec = divmod(moved, 1_000_000_000)
+    copy = deepcopy(msg)
+    headers = [copy.header, *(b.header for b in copy.bearings)]
+    shift = now_ns - max(h.stamp.sec * 1_000_000_000 + h.stamp.nanosec for h in headers[1:] or headers)
+    for header in headers:
+        moved = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec + shift
+        header.stamp.sec, header.stamp.nanosec = divmod(moved, 1_000_000_000)
     return copy
 
 
@@ -202,11 +191,12 @@ def rows(flood_s: float = FLOOD_S, source: str = "sim") -> list[Row]:
     with tempfile.TemporaryDirectory(prefix="beams_bench_system_") as log_dir:
         env = dict(os.environ, PYTHONUNBUFFERED="1", ROS_HOME=f"{log_dir}/ros_home")  # its own checkpoint
         probe = Probe()
+        commands = process_commands(INSTALL_BASE, ROS_ARGUMENTS, standby=False)
         link, turret = pathlib.Path(log_dir) / "turret", {}
-        ros_arguments = dict(ROS_ARGUMENTS)
-        if source == "virtual_turret":  # started first: driver_node opens its pty's link
-            turret = {source: [f"{INSTALL_BASE}/beams_sim/lib/beams_sim/virtual_turret", "--link", str(link)]}
-            ros_arguments["driver_node"] = ["-p", "source:=serial", "-p", f"device:={link}"]
+        if source == "virtual_turret":  # it runs the world (its arguments), first: driver_node opens its link
+            executable = INSTALL_BASE / "beams_sim/lib/beams_sim/virtual_turret"
+            turret = {source: [str(executable), "--link", str(link), *commands.pop("sim_world_node")[1:]]}
+            commands["driver_node"] += ["-p", "source:=serial", "-p", f"device:={link}"]
         elif source != "sim":
             raise ValueError(f"source: sim or virtual_turret, not {source!r}")
         # the bench restarts a node itself (restart_rows): it never polls the supervisor
@@ -215,7 +205,7 @@ def rows(flood_s: float = FLOOD_S, source: str = "sim") -> list[Row]:
         try:
             if turret and not probe.spin_until(link.exists, START_TIMEOUT_S):
                 raise RuntimeError(f"no virtual turret at {link}; logs in {log_dir}")
-            for name, command in process_commands(INSTALL_BASE, ros_arguments, standby=False).items():
+            for name, command in commands.items():
                 supervisor.add(name, command)
             if not probe.spin_until(lambda: len(probe.arrivals.ekf) > 50, START_TIMEOUT_S):
                 raise RuntimeError(f"no EKF output within {START_TIMEOUT_S} s; logs in {log_dir}")

@@ -1,9 +1,8 @@
 """The whole suite on the real turret firmware without hardware: the virtual turret, over DDS.
 
-sim_world_node runs a match; `virtual_turret` (beams_sim) runs the shipped turret image in simavr in real
-time on a pseudo-terminal, its pins driven by the edge-level simulator following sim_world_node's
-trajectory (read from its parameters); driver_node reads it (`source: serial`), triangulation_node and
-ekf_node localise. The EKF's error against beams/sim/ground_truth must stay within the simulated source's
+`virtual_turret` (beams_sim) runs sim_world_node's match and the shipped turret image in simavr in real
+time on a pseudo-terminal, its pins driven by the edge-level simulator following that match's robot;
+driver_node reads it (`source: serial`), triangulation_node and ekf_node localise. The EKF's error against beams/sim/ground_truth must stay within the simulated source's
 bounds (as test_system_faults.py and test_system_multi_robot.py judge them), at ten revolutions a second.
 Skipped, with the reason, where `make hil` could not build the firmware or the harness.
 """
@@ -46,10 +45,11 @@ def test_the_suite_localises_through_the_virtual_turret(start_node, rclpy_node, 
     probe = system.RobotProbe("")
     probe.attach(rclpy_node)
     link = tmp_path / "turret"
-    start_node("beams_sim", "sim_world_node", parameters["sim_world"])
-    # no parameters: the virtual turret reads sim_world_node's
     turret = start_node(
-        "beams_sim", "virtual_turret", arguments=["--link", str(link), "--seed", str(SEED + 2)]
+        "beams_sim",
+        "virtual_turret",
+        parameters["sim_world"],
+        arguments=["--link", str(link), "--seed", str(SEED + 2)],
     )
     assert rclpy_node.spin_until(link.exists, 20.0), f"no pty at {link}\n{turret.log()}"
     driver = start_node("beams_driver", "driver_node", {"source": "serial", "device": str(link)})

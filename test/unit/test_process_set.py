@@ -59,7 +59,6 @@ def _launch_stand_ins(monkeypatch) -> None:
             "EnvironmentVariable",
             "EqualsSubstitution",
             "LaunchConfiguration",
-            "OrSubstitution",
             "PathJoinSubstitution",
         ),
         "launch_ros.actions": ("Node",),
@@ -80,10 +79,8 @@ def _runs(node_action, standby: bool, source: str, virtual_turret: bool) -> bool
     if condition is None:
         return True
     kind, (value,) = type(condition).__name__, condition.args
-    if type(value).__name__ == "OrSubstitution":  # the simulated robot's: source sim, or a virtual turret
-        equals, turret = value.args
-        assert turret.args == ("virtual_turret",)
-        return source == equals.args[1] or virtual_turret
+    if type(value).__name__ == "EqualsSubstitution":  # the simulated robot's
+        return source == value.args[1]
     if value.args == ("virtual_turret",):
         return virtual_turret
     return standby if kind == "IfCondition" else not standby
@@ -102,6 +99,7 @@ def test_the_launch_file_starts_the_described_processes(monkeypatch, standby, so
     assert turret.kwargs["package"] == "beams_sim" and not turret.kwargs.get("respawn")
     link, device = turret.kwargs["arguments"]
     assert link == "--link" and device.args == ("device",)  # the driver's device
+    assert turret.kwargs["parameters"][0].args[0][-1] == PARAMS_FILE  # sim_world_node's section: its world
     nodes.remove(turret)
     assert {(n.kwargs["package"], n.kwargs["executable"]) for n in nodes} == {
         (node.package, node.executable) for node in ROBOT_NODES
@@ -116,9 +114,7 @@ def test_the_launch_file_starts_the_described_processes(monkeypatch, standby, so
     expected = {
         executable: arguments
         for executable, arguments in described(standby).items()
-        if source == "sim"
-        or virtual_turret
-        or not next(n for n in ROBOT_NODES if n.executable == executable).simulation_only
+        if source == "sim" or not next(n for n in ROBOT_NODES if n.executable == executable).simulation_only
     }
     assert {executable: sorted(arguments) for executable, arguments in running.items()} == expected
     standby_arguments = {a.args[0] for a in actions if type(a).__name__ == "DeclareLaunchArgument"}

@@ -31,7 +31,6 @@ from launch.substitutions import (
     EnvironmentVariable,
     EqualsSubstitution,
     LaunchConfiguration,
-    OrSubstitution,
     PathJoinSubstitution,
 )
 from launch_ros.actions import Node
@@ -51,7 +50,7 @@ ARGUMENTS = (
     ("device", "/dev/ttyUSB0", "serial device of the sensor (source:=serial)"),
     ("calibration_file", "", "calibration file written by beams_calibration"),
     ("use_sim_time", "false", "follow /clock (rosbag replay)"),
-    ("virtual_turret", "false", "true: the simulated robot, and the turret's firmware in simavr on `device`"),
+    ("virtual_turret", "false", "true: the simulated robot, the turret's firmware in simavr on `device`"),
     (
         "driver_autostart",
         "true",
@@ -75,7 +74,7 @@ def node_action(
     node: RobotNode, arguments: list[str] | None = None, condition: Condition | None = None
 ) -> Node:
     """One process of a node: `arguments` before --ros-args, `condition` when it runs (the simulated
-    robot's is that the source is sim, or the virtual turret follows it)."""
+    robot's is that the source is sim)."""
     parameters = [
         PathJoinSubstitution([FindPackageShare("beams_bringup"), "config", PARAMS_FILE]),
         {"use_sim_time": LaunchConfiguration("use_sim_time")},
@@ -92,8 +91,7 @@ def node_action(
         )
     if node.simulation_only:
         # (IfCondition(EqualsSubstitution): LaunchConfigurationEquals is deprecated since Jazzy.)
-        simulated = EqualsSubstitution(LaunchConfiguration("source"), "sim")
-        condition = IfCondition(OrSubstitution(simulated, LaunchConfiguration("virtual_turret")))
+        condition = IfCondition(EqualsSubstitution(LaunchConfiguration("source"), "sim"))
     return Node(
         package=node.package,
         executable=node.executable,
@@ -109,12 +107,14 @@ def node_action(
 
 
 def virtual_turret() -> Node:
-    """The turret firmware in simavr (docs/firmware.md), its pty linked at `device`: virtual_turret:=true."""
+    """virtual_turret:=true: sim_world_node's match and the turret firmware in simavr following it
+    (docs/firmware.md), its pty linked at `device`."""
     return Node(
         package="beams_sim",
         executable="virtual_turret",
         arguments=["--link", LaunchConfiguration("device")],
         namespace=LaunchConfiguration("namespace"),
+        parameters=[PathJoinSubstitution([FindPackageShare("beams_bringup"), "config", PARAMS_FILE])],
         output="screen",
         condition=IfCondition(LaunchConfiguration("virtual_turret")),
     )
@@ -146,11 +146,5 @@ def generate_launch_description() -> LaunchDescription:
     arguments = [
         DeclareLaunchArgument(name, default_value=value, description=text) for name, value, text in ARGUMENTS
     ]
-    return LaunchDescription(
-        [
-            *arguments,
-            discovery_profile(),
-            *(action for node in ROBOT_NODES for action in node_actions(node)),
-            virtual_turret(),
-        ]
-    )
+    nodes = [action for node in ROBOT_NODES for action in node_actions(node)]
+    return LaunchDescription([*arguments, discovery_profile(), *nodes, virtual_turret()])

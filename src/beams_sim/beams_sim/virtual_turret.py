@@ -13,14 +13,12 @@ from beams_common.geometry.pose2d import Pose2D
 from beams_driver.edges import RevolutionEdges
 from beams_driver.serial_protocol import FIRMWARE_TICKS_PER_REVOLUTION, FIRMWARE_TIMER_HZ
 from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
-from beams_sim.world import EurobotTrajectory
 
 CPU_HZ = 16_000_000
 PERIOD_S = FIRMWARE_TICKS_PER_REVOLUTION / FIRMWARE_TIMER_HZ
 START_CYCLE = CPU_HZ // 20  # turret time 0: the firmware's boot (set-up, hello) is long over
 ZERO_PULSE_S = 50e-6  # how long the optical switch stays on
 PIN_RECEIVER, PIN_ZERO_REFERENCE = 0, 1
-SYNC_SPEED_MPS = 0.05  # the match clock is taken from a pose at least this fast (a 1 um pose: 20 us)
 RECORD = np.dtype([("cycle", "<u8"), ("pin", "u1"), ("level", "u1"), ("pad", "V6")])
 # the working copy colcon installed this package into
 ROOT = next((p for p in pathlib.Path(__file__).parents if (p / "firmware/turret").is_dir()), pathlib.Path())
@@ -81,40 +79,6 @@ class TurretPins:
         first = self.revolutions == 0
         revolutions = self.simulate(turret_s)
         return schedule_of(revolutions, first, closed=False).tobytes() if revolutions else b""
-
-
-def match_time_of(trajectory: EurobotTrajectory, pose: Pose2D) -> float | None:
-    """The instant of the match at which the trajectory passes through pose (the nearest point of its
-    path sampled every ms, position and heading); None where the robot moves slower than SYNC_SPEED_MPS
-    before moving faster: a pose there places the instant poorly (a start from rest, a turn in place)."""
-    states = trajectory.states_at(np.arange(0.0, trajectory.duration_s, 1e-3))
-    start, segment = states[:-1, :2], np.diff(states[:, :2], axis=0)
-    length2 = np.sum(segment**2, axis=1)
-    along = np.sum((np.asarray(pose[:2]) - start) * segment, axis=1)
-    fraction = np.clip(along / np.maximum(length2, 1e-30), 0, 1)
-    off_m = np.hypot(*(start + fraction[:, None] * segment - pose[:2]).T)
-    heading = states[:-1, 2] + fraction * np.diff(states[:, 2])
-    best = int(np.argmin(off_m + 0.1 * np.abs(np.angle(np.exp(1j * (heading - pose[2]))))))
-    slow = length2 < (SYNC_SPEED_MPS * 1e-3) ** 2
-    if slow[best] and not slow[best:].all():
-        return None
-    return (best + float(fraction[best])) * 1e-3
-
-
-class MatchClock:
-    """sim_world_node's match on the system clock, from its ground truth: the time of the match's start
-    (from the first pose match_time_of places), then the farthest a later pose is off the trajectory at
-    its instant (another match)."""
-
-    def __init__(self, trajectory: EurobotTrajectory) -> None:
-        self.trajectory, self.origin_s, self.off_m = trajectory, None, 0.0
-
-    def on_truth(self, stamp_s: float, pose: Pose2D) -> None:
-        if self.origin_s is not None:
-            off_m = math.dist(self.trajectory.pose_at(stamp_s - self.origin_s)[:2], pose[:2])
-            self.off_m = max(self.off_m, off_m)
-        elif (match_s := match_time_of(self.trajectory, pose)) is not None:
-            self.origin_s = stamp_s - match_s
 
 
 def missing(firmware: pathlib.Path = FIRMWARE) -> str:

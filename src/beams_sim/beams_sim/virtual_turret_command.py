@@ -1,8 +1,7 @@
-"""virtual_turret: the turret firmware in simavr in real time on a pty (docs/firmware.md), for
-`driver_node source:=serial device:=<its path or --link>`. Its pins follow sim_world_node's robot: the
-trajectory from sim_world_node's parameters, the match clock from the ground truth, the simulator's
-revolutions written LEAD_S ahead. Exit 1 without `make hil`'s harness and image, 2 once the ground truth
-leaves the trajectory (the match started over), 0 on Ctrl-C or SIGTERM.
+"""virtual_turret: sim_world_node's match, and the turret firmware in simavr on a pty following its robot
+(docs/firmware.md), for `driver_node source:=serial device:=<its path or --link>`: the simulator's
+revolutions written to the harness LEAD_S ahead, on the match's own clock. Exit 1 without `make hil`'s
+harness and image, 0 on Ctrl-C or SIGTERM.
 """
 
 import argparse
@@ -16,65 +15,42 @@ import time
 import tty
 
 import rclpy
-from nav_msgs.msg import Odometry
-from rclpy.node import Node
-from rclpy.parameter import parameter_value_to_python
-from rclpy.parameter_client import AsyncParameterClient
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.interfaces import topics
-from beams_common.ros.messages import pose2d_of, stamp_to_seconds
+from beams_common.ros.node_support import EXIT_INVALID_PARAMETERS
+from beams_common.ros.parameters import ParameterValidationError
 from beams_sim import virtual_turret as turret
-from beams_sim.parameters import SIM_WORLD_PARAMETERS
-from beams_sim.world import trajectory_of
+from beams_sim.sim_world_node import SimWorldNode
 
 LEAD_S = 1.0  # the schedule is written this far ahead of the emulation
 START_DELAY_S = 0.5  # from the harness's start to its cycle 0 (the first chunk is written meanwhile)
-TRUTH_OFF_PATH_M = 0.01  # a ground-truth pose this far from the trajectory is another match's
 
 
-def run(node: Node, options: argparse.Namespace, master: int) -> int:
-    """Emulate until the harness ends (its status), an interrupt, or a ground truth off the trajectory (2)."""
-    world = AsyncParameterClient(node, "sim_world_node")  # of this namespace
-    node.get_logger().info("waiting for sim_world_node")
-    world.wait_for_services()
-    future = world.get_parameters(list(SIM_WORLD_PARAMETERS.names))
-    rclpy.spin_until_future_complete(node, future)
-    values = map(parameter_value_to_python, future.result().values)
-    trajectory = trajectory_of(dict(zip(SIM_WORLD_PARAMETERS.names, values, strict=True)))
-    clock = turret.MatchClock(trajectory)
-    node.create_subscription(
-        Odometry,
-        topics.GROUND_TRUTH,
-        lambda m: clock.on_truth(stamp_to_seconds(m.header.stamp), pose2d_of(m.pose.pose)),
-        10,
-    )
-    while clock.origin_s is None:
-        rclpy.spin_once(node, timeout_sec=0.1)
+def run(world: SimWorldNode, options: argparse.Namespace, master: int) -> int:
+    """Emulate until the harness ends (its status) or an interrupt."""
+    while world.start_s is None:  # the match starts at the node's first tick
+        rclpy.spin_once(world, timeout_sec=0.1)
     start_at_s = time.time() + START_DELAY_S
     zero_s = start_at_s + turret.START_CYCLE / turret.CPU_HZ  # the system time of turret time 0
     pins = turret.TurretPins(
-        lambda t: trajectory.pose_at(zero_s + t - clock.origin_s), EUROBOT_BEACON_MAP, options.seed
+        lambda t: world.trajectory.pose_at(zero_s + t - world.start_s), EUROBOT_BEACON_MAP, options.seed
     )
     flags = ("--out-fd", master, "--realtime", "--start-at", f"{start_at_s:.6f}")
     command = turret.harness_command("-", 0, *flags, firmware=options.firmware)
     harness = subprocess.Popen(command, stdin=subprocess.PIPE, pass_fds=(master,))
-    node.get_logger().info(f"cycle 0 at {start_at_s:.6f} s, match time {start_at_s - clock.origin_s:.6f} s")
+    world.get_logger().info(f"cycle 0 at {start_at_s:.6f} s, match time {start_at_s - world.start_s:.6f} s")
     try:
-        while harness.poll() is None and clock.off_m <= TRUTH_OFF_PATH_M:
+        while harness.poll() is None:
             with contextlib.suppress(BrokenPipeError):
                 harness.stdin.write(pins.until(time.time() - zero_s + LEAD_S))
                 harness.stdin.flush()
-            rclpy.spin_once(node, timeout_sec=turret.PERIOD_S)
+            rclpy.spin_once(world, timeout_sec=turret.PERIOD_S)
     finally:
         with contextlib.suppress(BrokenPipeError):
             harness.stdin.close()  # the schedule's end: the harness stops
         harness.wait()
-    if clock.off_m > TRUTH_OFF_PATH_M:
-        node.get_logger().error(f"the ground truth is {clock.off_m:.3f} m off the trajectory: a new match?")
-        return 2
     return 0 if harness.returncode == -signal.SIGINT else harness.returncode  # a terminal's Ctrl-C
 
 
@@ -100,14 +76,18 @@ def main(argv: list[str] | None = None) -> None:
     for stop in (signal.SIGINT, signal.SIGTERM):  # SIGINT too: a shell's background job ignores it
         signal.signal(stop, signal.default_int_handler)  # KeyboardInterrupt
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    node = Node("virtual_turret")
-    status = 0
+    world, status = None, 0
     try:
-        status = run(node, options, master)
+        world = SimWorldNode()
+        status = run(world, options, master)
+    except ParameterValidationError as error:
+        print(f"virtual_turret: invalid parameters: {error}", file=sys.stderr)
+        status = EXIT_INVALID_PARAMETERS
     except KeyboardInterrupt:
         pass
     finally:
-        node.destroy_node()
+        if world is not None:
+            world.destroy_node()
         rclpy.try_shutdown()
         os.close(master)
         os.close(slave)
