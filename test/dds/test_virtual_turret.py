@@ -2,8 +2,9 @@
 
 `virtual_turret` (beams_sim) runs sim_world_node's match and the shipped turret image in simavr in real
 time on a pseudo-terminal, its pins driven by the edge-level simulator following that match's robot;
-driver_node reads it (`source: serial`), triangulation_node and ekf_node localise. The EKF's error against beams/sim/ground_truth must stay within the simulated source's
-bounds (as test_system_faults.py and test_system_multi_robot.py judge them), at ten revolutions a second.
+driver_node reads it (`source: serial`), triangulation_node and ekf_node localise. The EKF's error against
+beams/sim/ground_truth must stay within the simulated source's bounds (as test_system_faults.py and
+test_system_multi_robot.py judge them), at ten revolutions a second.
 Skipped, with the reason, where `make hil` could not build the firmware or the harness.
 """
 
