@@ -70,12 +70,8 @@ def cpu_seconds(pid: int) -> float:
 
 def memory_kb(pid: int) -> dict[str, int]:
     """VmRSS and VmHWM (peak RSS) of a process, kB."""
-    values = {}
-    for line in pathlib.Path(f"/proc/{pid}/status").read_text().splitlines():
-        key, _, rest = line.partition(":")
-        if key in ("VmRSS", "VmHWM"):
-            values[key] = int(rest.split()[0])
-    return values
+    fields = (line.partition(":") for line in pathlib.Path(f"/proc/{pid}/status").read_text().splitlines())
+    return {key: int(rest.split()[0]) for key, _, rest in fields if key in ("VmRSS", "VmHWM")}
 
 
 def latencies_ms(causes: list[float], effects: list[float]) -> np.ndarray:

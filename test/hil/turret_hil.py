@@ -75,7 +75,10 @@ def simulate(duration_s: float, pose_at, seed: int, beacons, **overrides: object
 
 def schedule_of(revolutions: Sequence[RevolutionEdges]) -> Schedule:
     """Each revolution's zero reference and receiver edges, and the closing zero reference of the last."""
-    return Schedule.of(virtual_turret.schedule_of(revolutions))
+    end_s = revolutions[-1].start_time_s + revolutions[-1].period_s  # a revolution of no edge: its zero
+    return Schedule.of(
+        virtual_turret.schedule_of([*revolutions, RevolutionEdges(0, end_s, PERIOD_S, [], [], [])])
+    )
 
 
 def receiver_schedule(cycles: np.ndarray, rising: np.ndarray, zero_cycles: Sequence[int] = ()) -> Schedule:

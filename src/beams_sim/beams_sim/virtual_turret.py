@@ -1,6 +1,5 @@
-"""The turret firmware's pins driven by the edge-level simulator: the schedule of test/hil/turret_hil.c
-(`make hil`: turret.elf on an emulated ATmega328P, the receiver on PB0 = ICP1, the zero reference on
-PD2 = INT0), for the HIL tests, bench_firmware and the virtual turret (virtual_turret_command)."""
+"""The turret firmware's pins (receiver: PB0 = ICP1, zero reference: PD2 = INT0) driven by the edge-level
+simulator: test/hil/turret_hil.c's schedule, for the HIL tests, bench_firmware and virtual_turret_command."""
 
 import math
 import os
@@ -36,14 +35,10 @@ def cycle_of(time_s: float | Sequence[float] | np.ndarray) -> np.ndarray:
     return START_CYCLE + np.rint(np.asarray(time_s, dtype=float) * CPU_HZ).astype(np.int64)
 
 
-def schedule_of(revolutions: list[RevolutionEdges], first: bool = True, closed: bool = True) -> np.ndarray:
-    """The RECORDs of each revolution's zero reference (a pulse on INT0) and receiver edges (levels on
-    ICP1), in cycle order; `closed`: the last one's closing zero reference too; `first`: the pins' levels
-    before them, set once the firmware runs (the receiver high when its first edge falls)."""
-    zero_s = [r.start_time_s for r in revolutions]
-    if closed:
-        zero_s.append(revolutions[-1].start_time_s + revolutions[-1].period_s)
-    zero = cycle_of(zero_s)
+def schedule_of(revolutions: list[RevolutionEdges], first: bool = True) -> np.ndarray:
+    """The RECORDs of each revolution's zero reference (a pulse) and receiver edges (levels), in cycle
+    order; `first`: the pins' levels before them, once the firmware runs (high when the first edge falls)."""
+    zero = cycle_of([r.start_time_s for r in revolutions])
     edges = cycle_of(np.concatenate([r.edge_times_s for r in revolutions]))
     rising = np.concatenate([r.edge_rising for r in revolutions])
     cycles = [zero, zero + round(ZERO_PULSE_S * CPU_HZ), edges]
@@ -59,8 +54,8 @@ def schedule_of(revolutions: list[RevolutionEdges], first: bool = True, closed: 
 
 
 class TurretPins:
-    """A turret turning from turret time 0, revolution after revolution, the robot at `pose_at(turret
-    time)`: the sensor simulator's revolutions, and their schedule in chunks."""
+    """The sensor simulator's revolutions from turret time 0, the robot at `pose_at(turret time)`, and
+    their schedule in chunks."""
 
     def __init__(
         self, pose_at: Callable[[float], Pose2D], beacons: object, seed: int, **config: object
@@ -78,7 +73,7 @@ class TurretPins:
     def until(self, turret_s: float) -> bytes:
         first = self.revolutions == 0
         revolutions = self.simulate(turret_s)
-        return schedule_of(revolutions, first, closed=False).tobytes() if revolutions else b""
+        return schedule_of(revolutions, first).tobytes() if revolutions else b""
 
 
 def missing(firmware: pathlib.Path = FIRMWARE) -> str:

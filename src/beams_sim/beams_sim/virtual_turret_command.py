@@ -1,8 +1,5 @@
-"""virtual_turret: sim_world_node's match, and the turret firmware in simavr on a pty following its robot
-(docs/firmware.md), for `driver_node source:=serial device:=<its path or --link>`: the simulator's
-revolutions written to the harness LEAD_S ahead, on the match's own clock. Exit 1 without `make hil`'s
-harness and image, 0 on Ctrl-C or SIGTERM.
-"""
+"""virtual_turret: sim_world_node's match, and the turret firmware in simavr on a pty following its robot,
+for `driver_node source:=serial device:=<the pty or --link>` (docs/firmware.md)."""
 
 import argparse
 import contextlib

@@ -14,9 +14,7 @@ def test_the_chunks_are_the_whole_runs_schedule() -> None:
     chunks = [pins.until(s) for s in (0.05, 0.35, 0.35, 0.9, 1.0)]
     assert chunks[2] == b"" and pins.revolutions == 10
     simulator = SensorSimulator(turret_config(), EUROBOT_BEACON_MAP, np.random.default_rng(8))
-    whole = schedule_of(
-        [simulator.revolution(trajectory.pose_at, k * PERIOD_S) for k in range(10)], closed=False
-    )
+    whole = schedule_of([simulator.revolution(trajectory.pose_at, k * PERIOD_S) for k in range(10)])
     assert b"".join(chunks) == whole.tobytes()
     # the chunks after the first carry no initial levels: every record is at or after its revolution
     later = np.frombuffer(b"".join(chunks[1:]), whole.dtype)
