@@ -56,6 +56,7 @@ FILE_SECONDS = {
     "test_ekf_message_validation.py": 27,
     "test_common_validation.py": 25,
     "test_driver_node.py": 24,
+    "test_virtual_turret.py": 24,
     "test_firmware_hil.py": 23,
     "test_driver_noise_estimation.py": 22,
     "test_self_calibration.py": 21,

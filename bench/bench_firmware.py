@@ -33,9 +33,7 @@ BEAM_SIGMAS_DEG = np.arange(5.0, 14.01, 0.25)
 
 def _revolutions(duration_s: float, seed: int, **config: object):
     trajectory = EurobotTrajectory.random(seed=seed)
-    return turret_hil.simulate(
-        duration_s, trajectory.pose_at, seed, turret_hil.turret_config(**config), EUROBOT_BEACON_MAP
-    )
+    return turret_hil.simulate(duration_s, trajectory.pose_at, seed, EUROBOT_BEACON_MAP, **config)
 
 
 def emulation_speed(workdir: pathlib.Path) -> tuple[float, float]:
@@ -66,9 +64,8 @@ def latencies(workdir: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
     path = schedule.write(workdir / "latency.bin")
     log_path = workdir / "latency_bytes.bin"
     read_end, write_end = os.pipe()
-    command = turret_hil.harness_command(
-        path, schedule.end_cycle, out_fd=write_end, byte_log=log_path, realtime=True
-    )
+    options = ("--out-fd", write_end, "--byte-log", log_path, "--realtime")
+    command = turret_hil.harness_command(path, schedule.end_cycle, *options)
     harness = subprocess.Popen(command, pass_fds=(write_end,), stderr=subprocess.DEVNULL)
     os.close(write_end)
     arrivals: list[tuple[int, float]] = []  # (bytes received so far, wall time)

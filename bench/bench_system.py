@@ -9,8 +9,10 @@ does, in ROS_DOMAIN_ID 68 unless the environment sets one) and measures, with a 
 - a flood: the probe republishes the driver's revolutions at 10x the rate for 30 s (stamps moved to
   now) on top of the driver's own, then each node's peak RSS (VmHWM) and the RSS growth during the flood;
 - kill -9 (and SIGTERM) and restart of the triangulation and of the EKF: the delay to their first output.
+`--source virtual_turret`: driver_node reads the turret firmware in simavr on a pty (beams_sim's
+virtual_turret, `make hil`; its CPU includes simavr's), every row named so.
 
-Usage: python bench/bench_system.py [--flood-s S]   (`rows()` is what bench/run_all.py collects.)
+Usage: python bench/bench_system.py [--flood-s S] [--source virtual_turret]   (`rows()`: bench/run_all.py)
 """
 
 import os
@@ -19,6 +21,7 @@ import signal
 import sys
 import tempfile
 import time
+from copy import deepcopy
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,6 +41,7 @@ CPU_WINDOW_S = 10.0
 FLOOD_RATE_FACTOR = 10
 FLOOD_S = 30.0
 RESTARTS = 4
+RECOVERY = "recovery within 2 s"
 Row = tuple[str, float, str, str]  # figure, value, unit, compared with
 REVOLUTION_RATE_HZ = 10.0
 LATENCY_TARGET_MS = 10.0
@@ -58,19 +62,16 @@ class Arrivals:
 
 
 def cpu_seconds(pid: int) -> float:
-    """utime + stime of a process (s), fields 14 and 15 of /proc/<pid>/stat."""
+    """utime + stime of a process and its running children (s), fields 14 and 15 of /proc/<pid>/stat."""
     fields = pathlib.Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS_HZ
+    children = pathlib.Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+    return (int(fields[11]) + int(fields[12])) / CLOCK_TICKS_HZ + sum(cpu_seconds(int(c)) for c in children)
 
 
 def memory_kb(pid: int) -> dict[str, int]:
     """VmRSS and VmHWM (peak RSS) of a process, kB."""
-    values = {}
-    for line in pathlib.Path(f"/proc/{pid}/status").read_text().splitlines():
-        key, _, rest = line.partition(":")
-        if key in ("VmRSS", "VmHWM"):
-            values[key] = int(rest.split()[0])
-    return values
+    fields = (line.partition(":") for line in pathlib.Path(f"/proc/{pid}/status").read_text().splitlines())
+    return {key: int(rest.split()[0]) for key, _, rest in fields if key in ("VmRSS", "VmHWM")}
 
 
 def latencies_ms(causes: list[float], effects: list[float]) -> np.ndarray:
@@ -168,28 +169,16 @@ def seconds(stamp) -> float:
 
 def restamped(msg, now_ns: int):
     """A copy of a revolution whose newest bearing is stamped now (the others keep their offsets)."""
-    from beams_msgs.msg import BeaconBearingArray
-
-    def stamp_ns(stamp) -> int:
-        return stamp.sec * 1_000_000_000 + stamp.nanosec
-
-    newest = max((stamp_ns(b.header.stamp) for b in msg.bearings), default=stamp_ns(msg.header.stamp))
-    shift = now_ns - newest
-    copy = BeaconBearingArray(
-        header=msg.header,
-        revolution=msg.revolution,
-        period=msg.period,
-        bearings=list(msg.bearings),
-        rejected_windows=msg.rejected_windows,
-        calibrated=msg.calibrated,
-    )
-    for stamped in [copy.header, *(b.header for b in copy.bearings)]:
-        moved = stamp_ns(stamped.stamp) + shift
-        stamped.stamp.sec, stamped.stamp.nanosec = divmod(moved, 1_000_000_000)
+    copy = deepcopy(msg)
+    headers = [copy.header, *(b.header for b in copy.bearings)]
+    shift = now_ns - max(h.stamp.sec * 1_000_000_000 + h.stamp.nanosec for h in headers[1:] or headers)
+    for header in headers:
+        moved = header.stamp.sec * 1_000_000_000 + header.stamp.nanosec + shift
+        header.stamp.sec, header.stamp.nanosec = divmod(moved, 1_000_000_000)
     return copy
 
 
-def measure(flood_s: float) -> list[Row]:
+def rows(flood_s: float = FLOOD_S, source: str = "sim") -> list[Row]:
     os.environ.setdefault("ROS_DOMAIN_ID", DEFAULT_DOMAIN_ID)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     from beams_tools.robot_processes import process_commands
@@ -199,14 +188,26 @@ def measure(flood_s: float) -> list[Row]:
         env = dict(os.environ, PYTHONUNBUFFERED="1", ROS_HOME=f"{log_dir}/ros_home")  # its own checkpoint
         probe = Probe()
         commands = process_commands(INSTALL_BASE, ROS_ARGUMENTS, standby=False)
+        link, turret = pathlib.Path(log_dir) / "turret", {}
+        if source == "virtual_turret":  # it runs the world (its arguments), first: driver_node opens its link
+            executable = INSTALL_BASE / "beams_sim/lib/beams_sim/virtual_turret"
+            turret = {source: [str(executable), "--link", str(link), *commands.pop("sim_world_node")[1:]]}
+            commands["driver_node"] += ["-p", "source:=serial", "-p", f"device:={link}"]
+        elif source != "sim":
+            raise ValueError(f"source: sim or virtual_turret, not {source!r}")
         # the bench restarts a node itself (restart_rows): it never polls the supervisor
-        supervisor = NodeSupervisor(commands, env, pathlib.Path(log_dir))
+        supervisor = NodeSupervisor(turret, env, pathlib.Path(log_dir))
         supervisor.start()
         try:
+            if turret and not probe.spin_until(link.exists, START_TIMEOUT_S):
+                raise RuntimeError(f"no virtual turret at {link}; logs in {log_dir}")
+            for name, command in commands.items():
+                supervisor.add(name, command)
             if not probe.spin_until(lambda: len(probe.arrivals.ekf) > 50, START_TIMEOUT_S):
                 raise RuntimeError(f"no EKF output within {START_TIMEOUT_S} s; logs in {log_dir}")
-            rows = latency_and_cpu_rows(probe, supervisor) + flood_rows(probe, supervisor, flood_s)
-            return rows + restart_rows(probe, supervisor)
+            table = latency_and_cpu_rows(probe, supervisor) + flood_rows(probe, supervisor, flood_s)
+            table += restart_rows(probe, supervisor)
+            return table if source == "sim" else [(f"{source}: {figure}", *rest) for figure, *rest in table]
         finally:
             supervisor.stop()
             probe.close()
@@ -232,13 +233,9 @@ def latency_and_cpu_rows(probe: Probe, supervisor) -> list[Row]:
     ):
         rows.append((f"latency {what}, p50", float(np.percentile(delays, 50)), "ms", compared))
         rows.append((f"latency {what}, p99", float(np.percentile(delays, 99)), "ms", compared))
+    received = len(causes) / window_s
     rows.append(
-        (
-            "revolutions received during the latency window",
-            len(causes) / window_s,
-            "1/s",
-            f"nominal {REVOLUTION_RATE_HZ:g}",
-        )
+        ("revolutions received during the latency window", received, "1/s", f"nominal {REVOLUTION_RATE_HZ:g}")
     )
     for name in pids:
         share = 100.0 * (cpu_after[name] - cpu_before[name]) / window_s
@@ -255,25 +252,15 @@ def flood_rows(probe: Probe, supervisor, flood_s: float) -> list[Row]:
     published = probe.flood(flood_s, FLOOD_RATE_FACTOR * REVOLUTION_RATE_HZ)
     cpu_after = {name: cpu_seconds(pid) for name, pid in pids.items() if supervisor.pid(name) is not None}
     probe.spin_for(1.0)
+    compared = f"{FLOOD_RATE_FACTOR}x nominal, on top of the driver's"
     rows.append(
-        (
-            f"flood: revolutions published by the bench in {flood_s:g} s",
-            published / flood_s,
-            "1/s",
-            f"{FLOOD_RATE_FACTOR}x nominal, on top of the driver's",
-        )
+        (f"flood: revolutions published by the bench in {flood_s:g} s", published / flood_s, "1/s", compared)
     )
     for name, pid in pids.items():
         alive = supervisor.pid(name) is not None
         memory = memory_kb(pid) if alive else {"VmHWM": float("nan"), "VmRSS": float("nan")}
-        rows.append(
-            (
-                f"flood: {name} peak RSS (VmHWM)",
-                memory["VmHWM"] / 1024,
-                "MiB",
-                "bounded" if alive else "NODE DIED",
-            )
-        )
+        state = "bounded" if alive else "NODE DIED"
+        rows.append((f"flood: {name} peak RSS (VmHWM)", memory["VmHWM"] / 1024, "MiB", state))
         growth_mib = (memory["VmRSS"] - rss_before[name]) / 1024
         share = 100.0 * (cpu_after.get(name, float("nan")) - cpu_before[name]) / flood_s
         rows.append((f"flood: CPU {name}", share, "% of one core", "2-core machine"))
@@ -304,31 +291,17 @@ def restart_rows(probe: Probe, supervisor) -> list[Row]:
                 from_ready.append(first - ready)
                 from_start.append(first - started)
                 probe.spin_for(1.0)
-            rows += [
+            for what, value, compared in (
+                (f"ready -> first output, median of {RESTARTS}", float(np.median(from_ready)), RECOVERY),
+                (f"ready -> first output, max of {RESTARTS}", max(from_ready), RECOVERY),
                 (
-                    f"restart after {how}: {executable} ready -> first output, median of {RESTARTS}",
-                    float(np.median(from_ready)),
-                    "s",
-                    "recovery within 2 s",
-                ),
-                (
-                    f"restart after {how}: {executable} ready -> first output, max of {RESTARTS}",
-                    max(from_ready),
-                    "s",
-                    "recovery within 2 s",
-                ),
-                (
-                    f"restart after {how}: {executable} process start -> first output, max of {RESTARTS}",
+                    f"process start -> first output, max of {RESTARTS}",
                     max(from_start),
-                    "s",
                     "Python and rclpy start-up included",
                 ),
-            ]
+            ):
+                rows.append((f"restart after {how}: {executable} {what}", value, "s", compared))
     return rows
-
-
-def rows(flood_s: float = FLOOD_S) -> list[Row]:
-    return measure(flood_s)
 
 
 if __name__ == "__main__":

@@ -19,11 +19,14 @@ setup(
     maintainer_email="maintainers@beams-ros.org",
     description=(
         "The simulated world: a robot on the Eurobot table with drifting wheel odometry, offline "
-        "simulated matches, sim_world_node."
+        "simulated matches, sim_world_node, the virtual turret (the turret firmware in simavr)."
     ),
     license="Apache-2.0",
     entry_points={
-        "console_scripts": ["sim_world_node = beams_sim.sim_world_node:main"],
+        "console_scripts": [
+            "sim_world_node = beams_sim.sim_world_node:main",
+            "virtual_turret = beams_sim.virtual_turret_command:main",
+        ],
         "beams_driver.edge_sources": ["sim = beams_sim.sim_source:EDGE_SOURCE"],
     },
 )

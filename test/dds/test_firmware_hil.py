@@ -61,9 +61,7 @@ class Run:
 
 def emulate(tmp_path: pathlib.Path, duration_s: float, seed: int, **config: object) -> Run:
     trajectory = EurobotTrajectory.random(seed=seed)
-    revolutions = turret_hil.simulate(
-        duration_s, trajectory.pose_at, seed, turret_hil.turret_config(**config), EUROBOT_BEACON_MAP
-    )
+    revolutions = turret_hil.simulate(duration_s, trajectory.pose_at, seed, EUROBOT_BEACON_MAP, **config)
     schedule = turret_hil.schedule_of(revolutions)
     data, summary, _ = turret_hil.run_harness(schedule, tmp_path)
     parser = FrameParser()
@@ -344,11 +342,7 @@ def test_the_stepper_reaches_the_configured_speed_locked_to_the_timer(
     assert np.all(np.diff(start)[1:] <= 1.02 * np.diff(start)[:-1] + 8)
     # the hello of that image tells the host the nominal revolution
     run = turret_hil.run_harness(
-        turret_hil.schedule_of(
-            turret_hil.simulate(
-                0.3, lambda _t: (1.5, 1.0, 0.0), 1, turret_hil.turret_config(), EUROBOT_BEACON_MAP
-            )
-        ),
+        turret_hil.schedule_of(turret_hil.simulate(0.3, lambda _t: (1.5, 1.0, 0.0), 1, EUROBOT_BEACON_MAP)),
         tmp_path,
         firmware=firmware,
     )
@@ -382,9 +376,7 @@ def test_driver_node_reads_the_emulated_turret_and_the_ekf_localises(
     from beams_msgs.msg import BeaconBearingArray
 
     trajectory = EurobotTrajectory.random(seed=7)
-    revolutions = turret_hil.simulate(
-        LIVE_TURRET_TIME_S, trajectory.pose_at, 7, turret_hil.turret_config(), EUROBOT_BEACON_MAP
-    )
+    revolutions = turret_hil.simulate(LIVE_TURRET_TIME_S, trajectory.pose_at, 7, EUROBOT_BEACON_MAP)
     schedule = turret_hil.schedule_of(revolutions)
     master, slave = os.openpty()
     bearings = rclpy_node.subscribe(BeaconBearingArray, "beams/bearings", 50)
@@ -400,7 +392,7 @@ def test_driver_node_reads_the_emulated_turret_and_the_ekf_localises(
     assert active, "driver_node did not open the pty"
     rclpy_node.spin_for(1.0)  # the other nodes' discovery
     command = turret_hil.harness_command(
-        schedule.write(tmp_path / "schedule.bin"), schedule.end_cycle, out_fd=master, realtime=True
+        schedule.write(tmp_path / "schedule.bin"), schedule.end_cycle, "--out-fd", master, "--realtime"
     )
     started_s = time.time()
     harness = subprocess.Popen(command, pass_fds=(master,), stderr=subprocess.PIPE)

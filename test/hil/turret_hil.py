@@ -1,12 +1,9 @@
-"""The turret firmware in simavr, driven by the project's edge-level simulator (issue 20).
-
-`schedule_of(revolutions)` turns simulated revolutions into pin levels at exact CPU cycles (the receiver
-on PB0 = ICP1, the zero reference on PD2 = INT0); `run_harness` runs firmware/build/turret.elf under
-test/hil/turret_hil.c (built by `make hil`) with that schedule and returns what the UART sent. Used by
-test/dds/test_firmware_hil.py and bench/bench_firmware.py.
+"""The turret firmware in simavr over a schedule of pin levels (beams_sim.virtual_turret's, which the
+virtual turret runs in real time): `run_harness` runs firmware/build/turret.elf under test/hil/turret_hil.c
+(built by `make hil`) and returns what the UART sent; a `Schedule` says which captures the firmware should
+report. Used by test/dds/test_firmware_hil.py and bench/bench_firmware.py.
 """
 
-import os
 import pathlib
 import subprocess
 from collections.abc import Sequence
@@ -16,44 +13,27 @@ import numpy as np
 
 from beams_driver.edges import RevolutionEdges
 from beams_driver.serial_protocol import FIRMWARE_TICKS_PER_REVOLUTION, FIRMWARE_TIMER_HZ, EventKind
-from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
+from beams_sim import virtual_turret
+from beams_sim.virtual_turret import (  # noqa: F401 (the tests' and the bench's names)
+    CPU_HZ,
+    PERIOD_S,
+    PIN_RECEIVER,
+    PIN_ZERO_REFERENCE,
+    RECORD,
+    ROOT,
+    START_CYCLE,
+    ZERO_PULSE_S,
+    TurretPins,
+    cycle_of,
+    harness_command,
+    missing,
+    turret_config,
+)
 
-ROOT = pathlib.Path(__file__).resolve().parents[2]
-FIRMWARE_ELF = ROOT / "firmware" / "build" / "turret.elf"
-HARNESS = pathlib.Path(os.environ.get("BEAMS_HIL_HARNESS", ROOT / "build" / "hil" / "turret_hil"))
-CPU_HZ = 16_000_000
+FIRMWARE_ELF = virtual_turret.FIRMWARE
 TIMER_HZ = FIRMWARE_TIMER_HZ  # what its hello says
 CYCLES_PER_TICK = CPU_HZ // TIMER_HZ
 TICKS_PER_REVOLUTION = FIRMWARE_TICKS_PER_REVOLUTION  # 800 microsteps x 2 x 125 ticks: 10 turn/s
-PERIOD_S = TICKS_PER_REVOLUTION / TIMER_HZ
-# The firmware's boot (set-up, the boot hello) is over long before the first injected level.
-START_CYCLE = CPU_HZ // 20
-ZERO_PULSE_S = 50e-6  # how long the optical switch stays on
-PIN_RECEIVER, PIN_ZERO_REFERENCE = 0, 1
-_RECORD = np.dtype([("cycle", "<u8"), ("pin", "u1"), ("level", "u1"), ("pad", "V6")])
-
-
-def missing() -> str:
-    """Why the HIL tests cannot run here ("" when they can)."""
-    if not FIRMWARE_ELF.exists():
-        return f"{FIRMWARE_ELF} is not built (make firmware; avr-gcc from scripts/bootstrap.sh)"
-    if not HARNESS.exists():
-        return f"{HARNESS} is not built (make hil; libsimavr-dev from scripts/bootstrap.sh)"
-    return ""
-
-
-def turret_config(**overrides: object) -> SensorSimConfig:
-    """The thesis-hardware receiver on the firmware's clock: 0.1 s turns captured on 0.5 us ticks."""
-    return SensorSimConfig.thesis_hardware(period_s=PERIOD_S, tick_s=1.0 / TIMER_HZ, **overrides)
-
-
-def simulate(
-    duration_s: float, pose_at, seed: int, config: SensorSimConfig, beacons
-) -> list[RevolutionEdges]:
-    """The revolutions of duration_s of turret time, the first opened at 0 s."""
-    simulator = SensorSimulator(config, beacons, np.random.default_rng(seed))
-    count = int(duration_s / config.period_s)
-    return [simulator.revolution(pose_at, k * config.period_s) for k in range(count)]
 
 
 @dataclass
@@ -65,102 +45,60 @@ class Schedule:
     cycles: np.ndarray
     end_cycle: int
 
+    @classmethod
+    def of(cls, records: np.ndarray) -> "Schedule":
+        """The captures of the records: every zero-reference pulse, every change of the receiver's level
+        (low before the schedule: the firmware armed for a rising edge at boot)."""
+        kinds, cycles, level = [], [], 0
+        for cycle, pin, value in zip(*(records[f].tolist() for f in ("cycle", "pin", "level")), strict=True):
+            if pin == PIN_ZERO_REFERENCE and value:
+                kinds.append(EventKind.ZERO_REFERENCE)
+            elif pin == PIN_RECEIVER and value != level:
+                kinds.append(EventKind.RISING if value else EventKind.FALLING)
+                level = value
+            else:
+                continue
+            cycles.append(cycle)
+        return cls(
+            records, kinds, np.array(cycles, dtype=np.int64), int(records["cycle"].max()) + CPU_HZ // 20
+        )
+
     def write(self, path: pathlib.Path) -> pathlib.Path:
         self.records.tofile(path)
         return path
 
 
-def cycle_of(time_s: float | np.ndarray) -> np.ndarray:
-    """The CPU cycle of an instant of turret time (0 s is START_CYCLE)."""
-    return START_CYCLE + np.rint(np.asarray(time_s, dtype=float) * CPU_HZ).astype(np.int64)
+def simulate(duration_s: float, pose_at, seed: int, beacons, **overrides: object) -> list[RevolutionEdges]:
+    """The revolutions of duration_s of turret time, the first opened at 0 s (turret_config's overrides)."""
+    return TurretPins(pose_at, beacons, seed, **overrides).simulate(int(duration_s / PERIOD_S) * PERIOD_S)
 
 
 def schedule_of(revolutions: Sequence[RevolutionEdges]) -> Schedule:
-    """Each revolution's zero reference (a pulse on INT0) and its receiver edges (levels on ICP1), and the
-    closing zero reference of the last one."""
-    last = revolutions[-1]
-    zero_times = [r.start_time_s for r in revolutions] + [last.start_time_s + last.period_s]
-    edge_times = np.concatenate([r.edge_times_s for r in revolutions])
-    edge_rising = np.concatenate([r.edge_rising for r in revolutions])
-    zero_cycles = cycle_of(zero_times)
-    edge_cycles = cycle_of(edge_times)
-    pins = np.concatenate(
-        [np.full(2 * zero_cycles.size, PIN_ZERO_REFERENCE), np.full(edge_cycles.size, PIN_RECEIVER)]
-    )
-    cycles = np.concatenate([zero_cycles, zero_cycles + round(ZERO_PULSE_S * CPU_HZ), edge_cycles])
-    levels = np.concatenate([np.ones(zero_cycles.size), np.zeros(zero_cycles.size), edge_rising])
-    # the pins' levels before the first event (the receiver is high if its first edge falls), set once the
-    # firmware runs, whatever simavr made of its port set-up
-    receiver_level = int(edge_rising.size > 0 and not edge_rising[0])
-    pins = np.concatenate([[PIN_RECEIVER, PIN_ZERO_REFERENCE], pins])
-    cycles = np.concatenate([[START_CYCLE // 2] * 2, cycles])
-    levels = np.concatenate([[receiver_level, 0], levels])
-    order = np.argsort(cycles, kind="stable")
-    records = np.zeros(cycles.size, _RECORD)
-    records["cycle"], records["pin"], records["level"] = cycles[order], pins[order], levels[order]
-    capture_cycles = np.concatenate([zero_cycles, edge_cycles])
-    kinds = [EventKind.ZERO_REFERENCE] * zero_cycles.size + [
-        EventKind.RISING if rising else EventKind.FALLING for rising in edge_rising.tolist()
-    ]
-    if receiver_level:  # the firmware armed for a rising edge at boot, and sees this one
-        capture_cycles = np.concatenate([[START_CYCLE // 2], capture_cycles])
-        kinds = [EventKind.RISING, *kinds]
-    capture_order = np.argsort(capture_cycles, kind="stable")
-    return Schedule(
-        records,
-        [kinds[i] for i in capture_order],
-        capture_cycles[capture_order],
-        int(cycles.max()) + CPU_HZ // 20,
+    """Each revolution's zero reference and receiver edges, and the closing zero reference of the last."""
+    end_s = revolutions[-1].start_time_s + revolutions[-1].period_s  # a revolution of no edge: its zero
+    return Schedule.of(
+        virtual_turret.schedule_of([*revolutions, RevolutionEdges(0, end_s, PERIOD_S, [], [], [])])
     )
 
 
 def receiver_schedule(cycles: np.ndarray, rising: np.ndarray, zero_cycles: Sequence[int] = ()) -> Schedule:
     """Levels on the receiver's pin at these cycles (it starts low), and zero references (pulses on the
     switch's pin) opening at zero_cycles."""
-    order = np.argsort(cycles, kind="stable")
-    cycles, rising = np.asarray(cycles, dtype=np.int64)[order], np.asarray(rising, dtype=bool)[order]
     zero_cycles = np.asarray(zero_cycles, dtype=np.int64)
-    pins = np.concatenate([[PIN_RECEIVER, PIN_ZERO_REFERENCE], np.full(cycles.size, PIN_RECEIVER)])
-    pins = np.concatenate([pins, np.full(2 * zero_cycles.size, PIN_ZERO_REFERENCE)])
-    pulse = round(ZERO_PULSE_S * CPU_HZ)
-    at = np.concatenate([[START_CYCLE // 2] * 2, cycles, zero_cycles, zero_cycles + pulse])
-    levels = np.concatenate([[0, 0], rising, np.ones(zero_cycles.size), np.zeros(zero_cycles.size)])
-    records = np.zeros(at.size, _RECORD)
-    records_order = np.argsort(at, kind="stable")
-    records["cycle"], records["pin"], records["level"] = (
-        at[records_order],
-        pins[records_order],
-        levels[records_order],
-    )
-    captures = np.concatenate([cycles, zero_cycles])
-    kinds = [EventKind.RISING if r else EventKind.FALLING for r in rising.tolist()]
-    kinds += [EventKind.ZERO_REFERENCE] * zero_cycles.size
-    capture_order = np.argsort(captures, kind="stable")
-    return Schedule(
-        records, [kinds[i] for i in capture_order], captures[capture_order], int(at.max()) + CPU_HZ // 20
-    )
-
-
-def harness_command(
-    schedule_path: pathlib.Path,
-    end_cycle: int,
-    *,
-    out_fd: int | None = None,
-    byte_log: pathlib.Path | None = None,
-    realtime: bool = False,
-    firmware: pathlib.Path = FIRMWARE_ELF,
-    step_log: pathlib.Path | None = None,
-) -> list[str]:
-    command = [str(HARNESS), str(firmware), str(schedule_path), str(end_cycle)]
-    if step_log is not None:
-        command += ["--step-log", str(step_log)]
-    if out_fd is not None:
-        command += ["--out-fd", str(out_fd)]
-    if byte_log is not None:
-        command += ["--byte-log", str(byte_log)]
-    if realtime:
-        command.append("--realtime")
-    return command
+    parts = [
+        ([START_CYCLE // 2] * 2, [PIN_RECEIVER, PIN_ZERO_REFERENCE], [0, 0]),
+        (cycles, [PIN_RECEIVER] * len(cycles), rising),
+        (zero_cycles, [PIN_ZERO_REFERENCE] * zero_cycles.size, [1] * zero_cycles.size),
+        (
+            zero_cycles + round(ZERO_PULSE_S * CPU_HZ),
+            [PIN_ZERO_REFERENCE] * zero_cycles.size,
+            [0] * zero_cycles.size,
+        ),
+    ]
+    records = np.zeros(sum(len(p[0]) for p in parts), RECORD)
+    for i, field in enumerate(("cycle", "pin", "level")):
+        records[field] = np.concatenate([np.asarray(p[i], dtype=np.int64) for p in parts])
+    return Schedule.of(records[np.argsort(records["cycle"], kind="stable")])
 
 
 def run_harness(
@@ -170,8 +108,9 @@ def run_harness(
     records (cycle, byte) or an empty array)."""
     path = schedule.write(workdir / "schedule.bin")
     log_path = workdir / "bytes.bin" if byte_log else None
+    options = ("--byte-log", log_path) if log_path else ()
     result = subprocess.run(
-        harness_command(path, schedule.end_cycle, byte_log=log_path, firmware=firmware),
+        harness_command(path, schedule.end_cycle, *options, firmware=firmware),
         capture_output=True,
         timeout=600,
         check=False,
@@ -194,7 +133,7 @@ def step_toggles(
     schedule = workdir / "no_edges.bin"
     schedule.write_bytes(b"")
     log = workdir / "steps.bin"
-    command = harness_command(schedule, round(duration_s * CPU_HZ), firmware=firmware, step_log=log)
+    command = harness_command(schedule, round(duration_s * CPU_HZ), "--step-log", log, firmware=firmware)
     result = subprocess.run(command, capture_output=True, timeout=600, check=False)
     if result.returncode != 0:
         raise RuntimeError(f"turret_hil exited {result.returncode}: {result.stderr.decode(errors='replace')}")

@@ -72,34 +72,44 @@ def _launch_stand_ins(monkeypatch) -> None:
     monkeypatch.setitem(sys.modules, "launch_ros", types.ModuleType("launch_ros"))
 
 
-def _runs(node_action, standby: bool, source: str) -> bool:
-    """Whether a Node action runs with its standby argument `standby` and the source `source`."""
+def _runs(node_action, standby: bool, source: str, virtual_turret: bool) -> bool:
+    """Whether a Node action runs with its standby argument `standby`, the source `source` and the
+    argument `virtual_turret`."""
     condition = node_action.kwargs["condition"]
     if condition is None:
         return True
     kind, (value,) = type(condition).__name__, condition.args
     if type(value).__name__ == "EqualsSubstitution":  # the simulated robot's
         return source == value.args[1]
+    if value.args == ("virtual_turret",):
+        return virtual_turret
     return standby if kind == "IfCondition" else not standby
 
 
 @pytest.mark.parametrize("standby", [True, False])
-@pytest.mark.parametrize("source", ["sim", "serial"])
-def test_the_launch_file_starts_the_described_processes(monkeypatch, standby, source):
+@pytest.mark.parametrize(("source", "virtual_turret"), [("sim", False), ("serial", False), ("serial", True)])
+def test_the_launch_file_starts_the_described_processes(monkeypatch, standby, source, virtual_turret):
     _launch_stand_ins(monkeypatch)
     spec = importlib.util.spec_from_file_location("beams_launch", LAUNCH_FILE)
     launch = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(launch)
     actions = launch.generate_launch_description().args[0]
     nodes = [action for action in actions if type(action).__name__ == "Node"]
+    (turret,) = [n for n in nodes if n.kwargs["executable"] == "virtual_turret"]  # beside the robot's nodes
+    assert turret.kwargs["package"] == "beams_sim" and not turret.kwargs.get("respawn")
+    link, device = turret.kwargs["arguments"]
+    assert link == "--link" and device.args == ("device",)  # the driver's device
+    assert turret.kwargs["parameters"][0].args[0][-1] == PARAMS_FILE  # sim_world_node's section: its world
+    nodes.remove(turret)
     assert {(n.kwargs["package"], n.kwargs["executable"]) for n in nodes} == {
         (node.package, node.executable) for node in ROBOT_NODES
     }
     assert all(n.kwargs["respawn"] and n.kwargs["respawn_delay"] == RESPAWN_DELAY_S for n in nodes)
     assert all(n.kwargs["parameters"][0].args[0][-1] == PARAMS_FILE for n in nodes)
     running: dict[str, list[list[str]]] = {}
+    assert _runs(turret, standby, source, virtual_turret) == virtual_turret
     for n in nodes:
-        if _runs(n, standby, source):
+        if _runs(n, standby, source, virtual_turret):
             running.setdefault(n.kwargs["executable"], []).append(n.kwargs["arguments"])
     expected = {
         executable: arguments

@@ -5,6 +5,8 @@ Simulated robot and sensor (the embedded default):
 A real robot (the serial sensor; the robot publishes its wheel odometry on `odom`):
     ros2 launch beams_bringup beams.launch.py source:=serial device:=/dev/ttyUSB0 \
         calibration_file:=/home/robot/beams_calibration.yaml
+The turret's firmware in simavr (`make hil`) on a pty linked at `device`, following the simulated robot:
+    ros2 launch beams_bringup beams.launch.py source:=serial device:=/tmp/beams_turret virtual_turret:=true
 Leave the driver (a lifecycle node) to a lifecycle manager: it then waits unconfigured for
 `ros2 lifecycle set /<namespace>/driver_node configure` (then `activate`) or a manager's calls:
     ros2 launch beams_bringup beams.launch.py driver_autostart:=false
@@ -48,6 +50,7 @@ ARGUMENTS = (
     ("device", "/dev/ttyUSB0", "serial device of the sensor (source:=serial)"),
     ("calibration_file", "", "calibration file written by beams_calibration"),
     ("use_sim_time", "false", "follow /clock (rosbag replay)"),
+    ("virtual_turret", "false", "true: the simulated robot, the turret's firmware in simavr on `device`"),
     (
         "driver_autostart",
         "true",
@@ -103,6 +106,20 @@ def node_action(
     )
 
 
+def virtual_turret() -> Node:
+    """virtual_turret:=true: sim_world_node's match and the turret firmware in simavr following it
+    (docs/firmware.md), its pty linked at `device`."""
+    return Node(
+        package="beams_sim",
+        executable="virtual_turret",
+        arguments=["--link", LaunchConfiguration("device")],
+        namespace=LaunchConfiguration("namespace"),
+        parameters=[PathJoinSubstitution([FindPackageShare("beams_bringup"), "config", PARAMS_FILE])],
+        output="screen",
+        condition=IfCondition(LaunchConfiguration("virtual_turret")),
+    )
+
+
 def node_actions(node: RobotNode) -> list[Node]:
     """A node's processes: with a hot standby, the pair when its launch argument is true, else one."""
     if not node.hot_standby:
@@ -129,6 +146,5 @@ def generate_launch_description() -> LaunchDescription:
     arguments = [
         DeclareLaunchArgument(name, default_value=value, description=text) for name, value, text in ARGUMENTS
     ]
-    return LaunchDescription(
-        [*arguments, discovery_profile(), *(action for node in ROBOT_NODES for action in node_actions(node))]
-    )
+    nodes = [action for node in ROBOT_NODES for action in node_actions(node)]
+    return LaunchDescription([*arguments, discovery_profile(), *nodes, virtual_turret()])
