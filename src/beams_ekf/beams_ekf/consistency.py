@@ -132,9 +132,10 @@ class BeaconExclusion:
     """Fault detection and exclusion of one beacon, as RAIM excludes one satellite.
 
     `add` records each new bearing the filter judged. `gated_bearings` gated bearings of one beacon in a
-    row, with another beacon's bearing accepted since the first of them, exclude that beacon while the
+    row, with another beacon's bearing accepted since the first of them, make it the suspect while the
     estimate is trusted (confirmed, not kidnapped): the estimate agrees with the other beacons and not
-    with it (when every beacon's bearings are gated the robot moved: `KidnapEvidence`'s case). An excluded
+    with it (when every beacon's bearings are gated the robot moved: `KidnapEvidence`'s case);
+    `LateBearings` then excludes the beacon the history blames (`exclude`). An excluded
     beacon's bearings are judged without being applied (`PoseFilter.excluded_beacons`) and readmit it when
     `readmission_bearings` of them in a row pass the gate with normalised residuals r / sqrt(S) whose
     mean is zero within 3 sigma (|sum| <= 3 sqrt(n)): a bias that lets single bearings through (a moved
@@ -156,8 +157,8 @@ class BeaconExclusion:
 
     def add(self, beacon_id: int, outcome: BearingOutcome, trusted: bool = True) -> str:
         """One new bearing the filter judged (accepted, gated or excluded); `trusted`: the estimate may be
-        held against a beacon. Returns 'excluded' or 'readmitted' when that changes the excluded beacon
-        (the filter's `excluded_beacons` follow), '' otherwise."""
+        held against a beacon (its gated bearings then make it the `suspect`). Returns 'readmitted' when
+        that readmits the excluded beacon, '' otherwise."""
         if outcome.reason is BearingReason.EXCLUDED:
             normalised_residual = copysign(sqrt(outcome.nis), outcome.residual_rad)
             within = outcome.nis <= self._filter.gate
