@@ -1,15 +1,9 @@
 """Fast DDS after a kill -9 (restart recovery): why the discovery profile puts user data on UDP.
 
-A plain rclpy publisher (nav_msgs/Odometry at 50 Hz, sensor-data QoS) runs; a plain subscriber process is
-started, killed with SIGKILL once its first message arrived, and started again, RESTARTS times. Each
-subscriber reports the delay from its node's creation to its first message. Two Fast DDS profiles, with
-LOCALHOST discovery as the tests use it:
-- the project's profile (src/beams_bringup/config/fastdds_fast_discovery.xml): user data on UDP;
-- the same profile without its default unicast locator: user data in Fast DDS's shared memory (Fast DDS's
-  default between processes of one computer), as the nodes ran before.
-No BeAMS node takes part: the delay is the middleware's (bench/bench_system.py times the nodes' restarts).
-
-Runs in ROS_DOMAIN_ID 67 unless the environment sets one.
+A plain subscriber of a 50 Hz nav_msgs/Odometry publisher is killed with SIGKILL after its first message
+and started again, RESTARTS times, timing creation to first message, with the project's profile
+(src/beams_bringup/config/fastdds_fast_discovery.xml: UDP) and without its unicast locator (shared memory).
+No BeAMS node takes part. In ROS_DOMAIN_ID 67 unless the environment sets one.
 """
 
 import os

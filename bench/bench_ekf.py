@@ -1,10 +1,6 @@
 """EKF benchmark (thesis fig. 8.1): accuracy and consistency on the simulated Eurobot match in the three
-bearing-variance modes, odometry alone and ToTal alone, and the cost of a prediction and of a bearing update.
-
-Both sensor models, thesis_hardware first, on the match a calibrated robot's driver publishes
-(simulated_match.calibrated_match). "published R" is that driver's variance (with the power-bias correction's
-part for thesis_hardware); the other modes replace it by the driver's model in that mode, with the same
-natural variance."""
+bearing-variance modes, odometry alone and ToTal alone, and the cost of a prediction and of a bearing update,
+on both sensor models' calibrated matches ("published R": the driver's variance, correction included)."""
 
 import math
 import sys

@@ -1,17 +1,8 @@
 """EKF consistency and optimality over seeds of the simulated match: NEES, the posterior Cramer-Rao bound
-(PCRB) from the simulator's true noise models, the odometry error states (with two beacons hidden for 10 s)
-and the lost detection, for the filters of `FILTERS`, every replay with ToTal's motion-compensated fixes as
-ekf_node has them.
-
-The PCRB ("bound") uses the wheels' true random noise (WheelNoiseModel), each decoded bearing's true variance
-at the true window, and the odometry's systematic errors as unknowns with the filter's prior ("errors
-unknown") or as known ("errors known").
-
-Both sensor models, thesis_hardware first, give the bearings of a calibrated robot
-(beams_sim.simulated_match.calibrated_match): thesis_hardware's power bias removed by a perfect chapter-7
-calibration, the driver's exact variance with the constant natural variance of table_natural_variance_rad2
-plus what the correction adds (CorrectedVariance; left out of the bound); ideal, the OOK noise and the
-constant edge noise, no bias."""
+(PCRB: the wheels' true noise, each bearing's true variance, the odometry's systematic errors "unknown" with
+the filter's prior or "known"), the odometry error states (two beacons hidden for 10 s) and the lost
+detection, for the filters of `FILTERS` with ToTal's fixes, on both sensor models' calibrated matches
+(beams_sim.simulated_match.calibrated_match)."""
 
 import itertools
 import math
@@ -70,11 +61,6 @@ FILTERS = (
         ),
     ),
 )
-
-
-def sensor_match(duration_s: float, seed: int, sensor_model: str, **options) -> SimulatedMatch:
-    """The simulated match of one sensor model, as a calibrated robot's driver publishes it."""
-    return calibrated_match(sensor_model, duration_s, seed, **options)
 
 
 def true_bearing_variances(match: SimulatedMatch, config: SensorSimConfig) -> list[tuple[float, int, float]]:
@@ -171,13 +157,11 @@ def occlusion_growth(result: ReplayResult) -> tuple[float, float]:
 
 
 def lost_recovery_s(seeds: range, sensor_model: str) -> tuple[float, int]:
-    """Worst time (s) from the start until the position error stays under 1 cm (the first estimate comes
-    with the first revolution's bearings, 0.1 s in), from starts LOST_OFFSET_M off the truth
-    in LOST_DIRECTIONS directions with a 1 mm covariance (confidently wrong), ekf_node's filter; and how
-    many of those starts never recovered."""
+    """Worst time (s) until the position error stays under 1 cm from starts LOST_OFFSET_M off in
+    LOST_DIRECTIONS directions with a 1 mm covariance (confidently wrong), and how many never recovered."""
     worst, failed = 0.0, 0
     for seed in seeds:
-        match = sensor_match(LOST_MATCH_S, seed, sensor_model)
+        match = calibrated_match(sensor_model, LOST_MATCH_S, seed)
         fixes = match_fixes(match)
         x, y, theta = match.initial_pose
         for angle in np.linspace(0.0, 2.0 * math.pi, LOST_DIRECTIONS, endpoint=False):
@@ -215,13 +199,13 @@ def model_rows(seeds: int, duration_s: float, sensor_model: str) -> list[tuple[s
     pooled = {f.name: Pooled([], [], [], []) for f in FILTERS}
     occluded: dict[str, list[tuple[float, float]]] = {f.name: [] for f in FILTERS}
     for seed in range(seeds):
-        match = sensor_match(duration_s, seed, sensor_model)
+        match = calibrated_match(sensor_model, duration_s, seed)
         fixes = match_fixes(match)
         unknown, known = match_bound(match, config, True), match_bound(match, config, False)
         for filter_ in FILTERS:
             pooled[filter_.name].add(run(filter_, match, fixes), unknown, known)
         if duration_s > OCCLUSION_START_S + OCCLUSION_S:
-            hidden_match = sensor_match(duration_s, seed, sensor_model, occlusion=hidden)
+            hidden_match = calibrated_match(sensor_model, duration_s, seed, occlusion=hidden)
             for filter_ in FILTERS:
                 occluded[filter_.name].append(occlusion_growth(run(filter_, hidden_match, [])))
     label = f"{seeds} seeds x {duration_s:.0f} s"

@@ -1,9 +1,5 @@
-"""The fault campaign over its full length: a seeded schedule of faults from every class
-against the whole running suite, the driver on a simulated serial sensor and on a host of its own (a
-network namespace whose link to the rest the link_down faults cut; skipped, and said in the report,
-where namespaces cannot be made: root and iproute2) (beams_tools.campaign_command;
-docs/fault_campaign.md), 20 minutes by default (`make bench`), in ROS_DOMAIN_ID 66 unless the environment
-sets one.
+"""The fault campaign over its full length (beams_tools.campaign_command, docs/fault_campaign.md): 20 minutes
+by default, in ROS_DOMAIN_ID 66 unless the environment sets one.
 """
 
 import os

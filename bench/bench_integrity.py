@@ -1,20 +1,10 @@
-"""Node-level integrity: how fast the EKF is back after a node dies, and how fast a second
-publisher is said.
+"""Node-level integrity: how fast the EKF is back after a node dies, and how fast a second publisher is said.
 
-The robot's four nodes run under the demo's supervisor (beams_tools.supervisor, respawn after
-RESPAWN_DELAY_S, as beams.launch.py does; their ROS_HOME, ekf_node's checkpoint, in a temporary directory),
-ekf_node as its hot standby pair (beams_common.ros.standby); each
-node in turn is killed with SIGKILL, KILL_ROUNDS times (of the EKF's pair, the active process), and the
-delay from the kill to the EKF's next beams/ekf/odometry message is timed (the EKF goes on predicting on
-odometry while another node is down; killed itself, its standby takes over: rclpy's start, the node's
-construction, discovery and its first fix), and the longest EKF silence in the SILENCE_WINDOW_S
-after it. The waiting standby's memory (RSS) and CPU are read from /proc over STANDBY_WATCH_S.
-Then a second driver_node is started in the namespace, ROUNDS times: the
-delay from the second publisher showing in this probe's graph to ERROR on ekf_node's and
-triangulation_node's /diagnostics naming both.
-
-Usage: python bench/bench_integrity.py   (in ROS_DOMAIN_ID 69 unless the environment sets one; needs
-`make build`; `rows()` is what bench/run_all.py collects.)
+The robot's nodes run under the demo's supervisor (respawn after RESPAWN_DELAY_S), ekf_node as its hot
+standby pair; each node (of the pair, the active one) is killed with SIGKILL KILL_ROUNDS times, timing the
+EKF's next beams/ekf/odometry message and its longest silence within SILENCE_WINDOW_S; the standby's RSS and
+CPU over STANDBY_WATCH_S; then a second driver_node, ROUNDS times: the delay to ERROR on ekf_node's and
+triangulation_node's /diagnostics. In ROS_DOMAIN_ID 69 unless the environment sets one; needs `make build`.
 """
 
 import itertools

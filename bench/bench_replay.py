@@ -1,9 +1,5 @@
-"""Bag replay benchmark ("Rosbag replay"): how fast `replay_bag` runs the triangulation and the
-EKF over a recorded match, as input messages per second and as a multiple of real time.
-
-The bag is a simulated 90 s Eurobot match (beams_sim.simulated_match: truth and odometry at 50 Hz,
-one revolution of bearings at 10 Hz, so 110 input messages per second of match), written as MCAP and
-as sqlite3; the replay reads it, runs both pipelines and writes the outputs with the inputs.
+"""Bag replay benchmark: how fast `replay_bag` runs the triangulation and the EKF over a simulated 90 s match
+(110 input messages per second: truth and odometry at 50 Hz, bearings at 10 Hz) in MCAP and sqlite3.
 """
 
 import pathlib

@@ -1,14 +1,8 @@
-"""Self-calibration of the power bias while driving: the EKF on simulated matches of the thesis hardware as
-the nodes run with their own defaults, uncalibrated (power_bias_states off, consider, estimate: `RUNS`) or
-perfectly calibrated (the bearings corrected by the simulated bias inverted, beams_sim's calibration_of), each
-over the same seeds; the self-calibrating run's figures over the periods of `PERIODS_S`.
-
-The driver's variances are its defaults'. The PCRB ("bound") is bench_ekf_consistency's, with the odometry's
-systematic errors unknown and the bias known: RMS / bound says what is left to gain. The self-calibrated
-curve's error is the RMS over the table's windows of (estimated - true bias). Each run's 30 s windows are held
-to the band a consistent filter's window mean falls in with 95 % probability (beams_thesis.nees_band, the
-NEES's autocorrelation pooled over the seeds) and to the 2.0-4.5 target: how many of the seeds x windows fall
-outside each."""
+"""Self-calibration of the power bias while driving: the EKF with the nodes' defaults on simulated matches of
+the thesis hardware, uncalibrated (`RUNS`: power_bias_states off, consider, estimate) or perfectly calibrated,
+over the same seeds (the self-calibrating run also over `PERIODS_S`); RMS against bench_ekf_consistency's
+PCRB (bias known), the fitted curve's RMS error over the windows, and the seeds x 30 s windows outside the
+95 % band of a consistent filter (beams_thesis.nees_band) and outside the 2.0-4.5 target."""
 
 import math
 import sys
@@ -76,10 +70,8 @@ def nees_series(result: ReplayResult) -> tuple[np.ndarray, np.ndarray]:
 def windows_against_band(
     series: list[tuple[np.ndarray, np.ndarray]], duration_s: float, probability: float = 0.95
 ) -> tuple[NeesCorrelation, np.ndarray, np.ndarray]:
-    """The NEES's correlation pooled over the seeds' series, each seed's mean over each 30 s window
-    (seeds x windows) and the band a consistent filter's mean falls in with `probability` for each
-    window (windows x 2, from the pooled correlation, not the window's own): the Gaussian Monte-Carlo
-    band (`gaussian_window_band`; the chi-square one is skewed low for this two-timescale correlation)."""
+    """The pooled NEES correlation, each seed's 30 s window means (seeds x windows) and each window's band
+    (windows x 2: `gaussian_window_band`, as the chi-square one is skewed low for this correlation)."""
     correlation = nees_correlation(series)
     windows = windows_of(duration_s)
     means = np.array([window_means(t, values, windows, 0.0) for t, values in series], dtype=float)

@@ -1,17 +1,9 @@
 """Algorithm 7.1 of the thesis: the global calibration of BeAMS from reference configurations.
 
-The model (section 7.3): a measured bearing phi with window w is corrected by the power bias
-(eq. 7.18, 7.19) and the rotation bias (eq. 7.24, 7.25); ToTal (eq. 7.8) gives the turret position
-from three corrected bearings and the beacon coordinates B; the orientation follows from beacon 1
-(eq. 7.9); the robot centre is the turret position minus the turret offset turned by the orientation
-(eq. 7.26). The configuration RMS error err_RMS (eq. 7.12) against the true poses is minimised by
-Nelder-Mead, group by group (beacons, power bias, rotation bias + turret offset) until
-(e_b - e_r) / e_b < t, then on all parameters together (eq. 7.29).
-
-Parameters are optimised in scaled units so that one unit moves the bearings or positions by about
-a milliradian or a millimetre: beacon and turret offsets in mm, rotation-bias coefficients in mrad,
-and the power-bias cubic in mrad on the window normalised to [-1, 1] over the dataset's windows
-(the monomials of raw windows of about 0.1 rad differ by orders of magnitude, which stalls the simplex).
+Bearings corrected by the power (eq. 7.18, 7.19) and rotation (eq. 7.24, 7.25) biases give ToTal's poses
+(eq. 7.8, 7.9, 7.26); err_RMS (eq. 7.12) is minimised by Nelder-Mead group by group until
+(e_b - e_r) / e_b < t, then on all parameters (eq. 7.29). Parameters are scaled to mm and mrad, the power
+bias on windows normalised to [-1, 1]: raw windows' monomials differ by orders and stall the simplex.
 """
 
 import math
@@ -110,9 +102,8 @@ class Model:
 class Problem:
     """The dataset arrays, the a-priori beacons and the scalings: maps scaled vectors to models.
 
-    Both biases are linear in their coefficients, so their values at the dataset's (fixed) windows
-    and bearings are precomputed once per basis coefficient, through BearingCorrection itself: the
-    objective then costs one matrix product and one ToTal call.
+    Both biases are linear in their coefficients: their bases at the dataset's windows and bearings are
+    precomputed, so the objective costs one matrix product and one ToTal call.
     """
 
     arrays: CalibrationArrays
@@ -181,12 +172,8 @@ class Problem:
 def pose_errors(
     arrays: CalibrationArrays, model: Model, rows: np.ndarray | slice = slice(None)
 ) -> np.ndarray:
-    """Errors (n, 3) of the poses computed with a model against the true poses (eq. 7.8-7.11).
-
-    ToTal gives the robot centre from the corrected bearings (eq. 7.18, 7.24), the beacons and the
-    turret offset (eq. 7.26), and the heading from the three beacons (eq. 7.9 uses beacon 1 only;
-    section 7.3.6 found that the choice makes no difference).
-    """
+    """Errors (n, 3) of a model's poses against the true poses (eq. 7.8-7.11; the heading from the three
+    beacons where eq. 7.9 uses beacon 1: section 7.3.6 found no difference)."""
     corrected = model.correction.correct(arrays.bearings_rad[rows], arrays.windows_rad[rows])
     return _errors(arrays.poses[rows], model.beacons_xy, corrected, model.turret_offset_m)
 
@@ -238,11 +225,8 @@ def optimise_groups(
     options: SolverOptions = SolverOptions(),
     rows: np.ndarray | slice = slice(None),
 ) -> tuple[np.ndarray, float]:
-    """Minimise err_RMS over the parameters of `groups`, the others fixed (eq. 7.20, 7.27, 7.28, 7.29).
-
-    Restarts the simplex from the best point while it still improves (a collapsed simplex in
-    many dimensions often stops short of the minimum).
-    """
+    """Minimise err_RMS over the parameters of `groups`, the others fixed (eq. 7.20, 7.27, 7.28, 7.29),
+    restarting while it improves: a collapsed simplex in many dimensions stops short of the minimum."""
     indices = np.concatenate([np.arange(PARAMETER_COUNT)[GROUPS[g]] for g in groups])
     current = vector.copy()
 
@@ -378,11 +362,8 @@ def run_algorithm_7_1(
     progress: Progress | None = None,
     with_turret: bool = True,
 ) -> tuple[np.ndarray, list[RmsFigures], int]:
-    """Algorithm 7.1: the iterative loop (steps 2-6) then the global optimisation (step 7).
-
-    Returns the scaled parameter vector, the RMS figures after each stage and the loop count.
-    with_turret False keeps the turret offset at zero (table 7.5, line 9).
-    """
+    """Algorithm 7.1, steps 2-6 then 7: the scaled vector, each stage's RMS and the loop count.
+    with_turret False keeps the turret offset at zero (table 7.5, line 9)."""
     rotation_groups = ["rotation", "turret"] if with_turret else ["rotation"]
     all_groups = [g for g in GROUPS if with_turret or g != "turret"]
     vector = np.zeros(PARAMETER_COUNT) if initial is None else initial.copy()
@@ -418,18 +399,12 @@ TABLE_7_5_SUBSETS: tuple[tuple[str, tuple[str, ...]], ...] = (
 
 
 # Table 7.5: position RMS (mm) and orientation RMS (deg) of lines 1-11 in the thesis's experiment.
-THESIS_TABLE_7_5 = (
-    (8.75, 0.4297),
-    (6.67, 0.3316),
-    (6.21, 0.3157),
-    (6.27, 0.3175),
-    (6.78, 0.3984),
-    (6.40, 0.3345),
-    (2.95, 0.1741),
-    (2.79, 0.2715),
-    (2.49, 0.1788),
-    (2.34, 0.1756),
-    (2.16, 0.1806),
+THESIS_TABLE_7_5 = tuple(
+    zip(
+        (8.75, 6.67, 6.21, 6.27, 6.78, 6.40, 2.95, 2.79, 2.49, 2.34, 2.16),
+        (0.4297, 0.3316, 0.3157, 0.3175, 0.3984, 0.3345, 0.1741, 0.2715, 0.1788, 0.1756, 0.1806),
+        strict=True,
+    )
 )
 
 
@@ -471,11 +446,7 @@ def leave_one_position_out(
     options: SolverOptions = SolverOptions(),
     progress: Progress | None = None,
 ) -> RmsFigures:
-    """RMS error on configurations not used for fitting, one reference position left out at a time.
-
-    Each fold refits all parameters (step 7 of Algorithm 7.1) on the other positions, starting from
-    the full fit, and measures the poses of the left-out position.
-    """
+    """RMS error of each reference position left out of a refit (step 7, from the full fit)."""
     groups = position_groups(problem.arrays.poses)
     held_out = np.zeros((problem.arrays.count, 3))
     # Each fold starts next to its optimum: one simplex run is enough.
@@ -489,14 +460,9 @@ def leave_one_position_out(
     return rms_figures("leave one position out", held_out)
 
 
-# A configuration is a blunder (a mistyped pose, a robot moved, a bearing of another beacon) when its
-# residual (eq. 7.12's term) against the fit of the other configurations exceeds BLUNDER_RATIO times their
-# median residual; one above CANDIDATE_RATIO medians after the fit of all is tested. For Gaussian errors
-# the residual is chi-distributed with 3 degrees of freedom, median 1.54 sigma: 3.5 medians are 5.4 sigma,
-# reached by chance once in 5000 datasets of 48 configurations; the thesis's grid (the simulated
-# thesis-hardware sensor) reaches 2.8 medians. More than MAX_BLUNDER_FRACTION of them disagreeing says
-# the a-priori map or the grid is wrong, not a few poses: the calibration is refused. A residual within
-# BLUNDER_FLOOR_M, section 7.3.1's "about 2 mm" of grid and placement, is no blunder whatever the median.
+# A blunder's residual (eq. 7.12's term) against the others' fit exceeds BLUNDER_RATIO medians: 5.4 sigma of
+# a chi(3) residual, by chance once in 5000 datasets of 48 (the thesis's grid reaches 2.8). More than
+# MAX_BLUNDER_FRACTION say the map or the grid is wrong; BLUNDER_FLOOR_M is section 7.3.1's "about 2 mm".
 CANDIDATE_RATIO = 3.0
 BLUNDER_RATIO = 3.5
 BLUNDER_FLOOR_M = 2e-3
@@ -506,13 +472,8 @@ MAX_BLUNDER_FRACTION = 0.1
 def exclude_blunders(
     problem: Problem, fitted: np.ndarray, options: SolverOptions = SolverOptions()
 ) -> tuple[np.ndarray, list[str]]:
-    """The rows of the configurations to keep, and a warning naming each blunder excluded.
-
-    The worst configuration after the fit is a candidate when it exceeds CANDIDATE_RATIO medians; the fit
-    is redone without it (step 7 of Algorithm 7.1) and it is excluded when its residual
-    against that leave-one-out prediction still does. CalibrationRefusedError when more than
-    MAX_BLUNDER_FRACTION of the configurations are excluded.
-    """
+    """The rows to keep and a warning per blunder excluded: the worst beyond CANDIDATE_RATIO medians is
+    refitted without (step 7) and excluded when it still is (CalibrationRefusedError past the fraction)."""
     keep = np.arange(problem.arrays.count)
     warnings: list[str] = []
     fold_options = replace(options, restarts=0)

@@ -1,21 +1,6 @@
-"""calibration_node: the chapter-7 calibration of BeAMS as ROS services, from capture to calibration file.
-
-Subscribes `beams/bearings` (beams_msgs/BeaconBearingArray, reliable). Services (private, under the
-node's name: `/calibration_node/calibrate`):
-
-- `capture_reference` (beams_msgs/CaptureReference): the operator has placed the robot at a known pose;
-  average that many revolutions per beacon and append the configuration to the dataset file
-  (atomically); refused, with the reason, when a beacon is missing, the bearings spread (robot moved) or
-  the pose is not the one the bearings give (`dataset.capture_bearing_problem`: both poses said);
-- `calibrate` (beams_msgs/Calibrate): Algorithm 7.1 on the dataset, then the calibration file (and the
-  PNG figures when `plots_directory` is set); refused when the dataset cannot support it;
-- `list_configurations` (beams_msgs/ListConfigurations) and `clear_dataset` (std_srvs/Trigger; the
-  previous file stays as `<dataset_file>.bak`).
-
-Capture from a driver running WITHOUT a calibration file: the dataset must hold the raw bearings.
-The services are coroutines: while a capture waits for revolutions, or a calibration runs in its worker
-thread, the node keeps receiving bearings and publishing diagnostics. One capture, calibration or clear
-runs at a time; a second request meanwhile is refused as busy.
+"""calibration_node: chapter 7's calibration of BeAMS as ROS services, from capture (raw bearings: a driver
+without a calibration file) to calibration file; its services are in docs/nodes.md. They are coroutines, so
+the node keeps receiving bearings while one waits or calibrates; a second one meanwhile is refused as busy.
 """
 
 import math

@@ -1,27 +1,5 @@
-"""The calibration dataset of thesis section 7.3.1: reference configurations and their mean bearings.
-
-One configuration (eq. 7.5) is a true robot pose in the map frame, placed by the operator, with the
-bearing of every beacon averaged over many revolutions (the thesis used 100, footnote 5) and its
-angular window (eq. 7.16), from which Algorithm 7.1 fits the calibration.
-
-The file is YAML, meant to be read, edited and re-used offline:
-
-    format: beams-calibration-dataset
-    version: 1
-    beacons:                     # the a-priori (manually measured) beacon coordinates, map frame, m
-      - {id: 1, x_m: 1.151, y_m: 0.049}
-    configurations:
-      - pose: {x_m: 0.12, y_m: 0.84, theta_rad: 0.0}     # true robot pose (base_link in map)
-        revolutions: 100                                   # revolutions averaged
-        recorded_utc: '2026-11-22T03:30:00Z'
-        label: P1 O1                                       # free text
-        beacons:                                           # per beacon, sensor frame, rad
-          - {id: 1, bearing_rad: -0.7, window_rad: 0.11, spread_rad: 0.0009, revolutions: 100}
-
-bearing_rad is the circular mean of the bearings, window_rad the mean angular window, spread_rad
-the standard deviation of the single-revolution bearings about their mean, revolutions the number
-of revolutions in which that beacon was decoded. Every change rewrites the file atomically.
-"""
+"""The calibration dataset of thesis section 7.3.1: reference configurations (eq. 7.5), each a true pose
+with every beacon's mean bearing and window (eq. 7.16). The YAML format: docs/calibration.md."""
 
 import math
 import os
@@ -199,12 +177,8 @@ def capture_pose_problem(
     return ""
 
 
-# A reference pose is compared with the pose its mean bearings give (ToTal, uncalibrated, on the a-priori
-# map): farther than an uncalibrated sensor explains, it is a mistyped pose. The thesis's sensor is 8.75 mm
-# and 0.43 deg RMS off uncalibrated (table 7.5, line 1); the simulated thesis-hardware sensor's worst of the
-# 48 configurations of section 7.3.1 is 34 mm and 1.9 deg off, and the a-priori map adds a few mm. The
-# power bias, common to the three bearings, turns the heading without moving the position: up to 3.7 deg
-# at 13 deg windows (fig. 7.11). A heading off by pi, a mirrored pose or one half a metre off is far beyond.
+# A reference pose farther than this from its uncalibrated ToTal pose is mistyped: the simulated thesis
+# hardware's worst of section 7.3.1's 48 is 34 mm and 1.9 deg (the power bias turns it, fig. 7.11).
 CAPTURE_POSITION_TOLERANCE_M = 0.1
 CAPTURE_HEADING_TOLERANCE_RAD = math.radians(5.0)
 

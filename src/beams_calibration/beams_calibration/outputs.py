@@ -1,10 +1,6 @@
-"""The outputs of a calibration written all or nothing, and the checks that decide whether to write them.
-
-A calibration writes up to three files (the calibration file and the two PNG figures). Each is written
-in full beside its target first (`calibration_file.StagedFile`); only when every one is written are
-they swapped in, the previous calibration file kept as `.bak`. A failure before that (an unwritable
-plots directory, a full disk) leaves every file, and the `.bak`, as it was. The calibration node and
-the offline `calibrate` command both write through `write_outputs` and refuse through `rms_regression`.
+"""The outputs of a calibration (the file and two PNG figures) written all or nothing, each staged beside its
+target (`calibration_file.StagedFile`) and swapped in only when all are written, and the check that decides
+whether to write them; the node and the `calibrate` command both go through here.
 """
 
 import contextlib
@@ -21,13 +17,8 @@ RMS_TOLERANCE_RAD = 1e-5
 
 
 def rms_regression(result: CalibrationResult, eta_m_per_rad: float) -> str:
-    """Why a calibration must not be applied: it makes the position RMS (eq. 7.10), the orientation RMS
-    (eq. 7.11) or the err_RMS that Algorithm 7.1 minimises (eq. 7.12) worse than no calibration; ''
-    when none is worse.
-
-    On a sound dataset every figure drops (table 7.5); a rise means a wrong configuration in the dataset
-    (a pose typed wrong, a robot moved), which the fit has bent the parameters to absorb.
-    """
+    """Why a calibration must not be applied ('' when it may): it makes the position (eq. 7.10), orientation
+    (eq. 7.11) or err_RMS (eq. 7.12) worse than none, which on a sound dataset all drop (table 7.5)."""
     before, after = result.before, result.after
     criterion = (
         configuration_rms(result.errors_before, eta_m_per_rad),
@@ -54,11 +45,8 @@ def rms_regression(result: CalibrationResult, eta_m_per_rad: float) -> str:
 def write_outputs(
     result: CalibrationResult, calibration_file: Path | None, plots_directory: Path | None
 ) -> list[Path]:
-    """Write the calibration file and the figures (either may be None: not written), all or nothing.
-
-    Returns the paths written. Raises OSError (every target, directory and `.bak` left as it was, and
-    the directories this call created removed) when one of them cannot be written.
-    """
+    """Write the calibration file and the figures (None: not written), all or nothing: the paths written,
+    or OSError with every target, `.bak` and directory as it was."""
     from beams_calibration.plots import stage_plots  # matplotlib only when figures are asked for
 
     created: list[Path] = []

@@ -1,8 +1,5 @@
 """PNG figures of a calibration: figure 7.13 (positions around each reference) and the two correction
-functions (figures 7.11 and 7.12).
-
-matplotlib is imported when a figure is drawn (Figure + Agg canvas, no pyplot state), so the node and the
-algorithm run where matplotlib is absent.
+functions (figures 7.11, 7.12); matplotlib imported only to draw, so the node runs without it.
 """
 
 import math
@@ -16,7 +13,6 @@ from beams_common.calibration.calibration_file import StagedFile
 
 # Figure 7.13: each panel is 15 mm wide with a graduation every 2 mm.
 PANEL_HALF_SIDE_M = 0.0075
-GRADUATION_M = 0.002
 
 
 def _new_figure(width_in: float, height_in: float):

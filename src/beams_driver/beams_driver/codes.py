@@ -102,11 +102,8 @@ class BeaconCode:
 
     @property
     def variance_bound_s2(self) -> float:
-        """Upper bound of the bearing error variance (s^2): sum of cubed gaps / (6 T_c).
-
-        Theorem 3.1 (eq. 3.41) for equal gaps T_0 reads p0 T0^2 / 6; this is the same bound, E{E_r^2}/2,
-        for gaps of any lengths.
-        """
+        """Upper bound of the bearing error variance (s^2): sum of cubed gaps / (6 T_c), theorem 3.1's
+        (eq. 3.41) E{E_r^2}/2 for gaps of any lengths."""
         gaps_s = np.array(self.gap_bits, dtype=float) * self.bit_time_s
         return float(np.sum(gaps_s**3) / (6.0 * self.duration_s))
 
@@ -136,11 +133,8 @@ def family_code(index: int, n_codes: int = DEFAULT_CODE_COUNT, bit_time_s: float
 def code_family(
     n_codes: int = DEFAULT_CODE_COUNT, bit_time_s: float = BIT_TIME_S, max_burst_s: float = MAX_BURST_S
 ) -> tuple[BeaconCode, ...]:
-    """The family C_1..C_Nc of eq. 2.6, validated against the receiver's limits.
-
-    Section 2.5.2 allows up to 9 codes, but C_1 of Nc = 9 holds 17 ones in a row (523.6 us at 30.8 us)
-    while the TSOP7000 takes bursts up to 500 us: Nc = 9 needs max_burst_s raised knowingly.
-    """
+    """The family C_1..C_Nc of eq. 2.6, validated against the receiver's limits (Nc = 9, allowed by section
+    2.5.2, holds a 523.6 us burst: it needs max_burst_s raised knowingly)."""
     if not 1 <= n_codes <= MAX_FAMILY_CODE_COUNT:
         raise ValueError(f"code family: Nc = {n_codes} outside 1..{MAX_FAMILY_CODE_COUNT} (section 2.5.2)")
     codes = tuple(family_code(i, n_codes, bit_time_s) for i in range(1, n_codes + 1))
@@ -173,11 +167,8 @@ def validate_codes(
     max_burst_s: float = MAX_BURST_S,
     min_gap_s: float = MIN_GAP_S,
 ) -> None:
-    """Raise ValueError unless the list meets section 2.4.4's constraints.
-
-    Receiver: every burst in [22, 500] us and every gap >= 26 us (sent in a loop, so runs wrap around).
-    Loop emission: no rotation of one code equals another code (they would be indistinguishable).
-    """
+    """Raise ValueError unless the list meets section 2.4.4's constraints: bursts in [22, 500] us and gaps
+    >= 26 us, runs wrapping around (sent in a loop), and no rotation of one code equal to another."""
     if not codes:
         raise ValueError("code list is empty")
     ids = [c.code_id for c in codes]

@@ -1,12 +1,8 @@
-"""From one revolution's edges to identified bearings (thesis sections 2.4.3-2.4.5 and eq. 5.2).
-
-Windows are separated by the 4-bit timeout (0.44 deg); inside a window every complete burst and gap is
-classified in bit counts and matched against the codes' cyclic run patterns, and the code is identified by
-counting complete codes (section 2.5.2 asks for two: `min_codes_seen`). Compound windows (section 2.4.5),
-durations that fit no code and too few complete codes are rejected with a reason. An accepted window gives the
-bearing (phi_r + phi_f) / 2 (eq. 2.5), the window plus its mean shortening (eq. 5.2,
-`receiver.ReceiverModel`), its variance at that window and its own instant. A window belongs to the revolution
-in which it closes; a revolution reports each beacon at most once."""
+"""From one revolution's edges to identified bearings (thesis sections 2.4.3-2.4.5 and eq. 5.2): windows split
+by the 4-bit timeout, their runs matched against the codes' cyclic patterns, `min_codes_seen` complete codes
+(section 2.5.2); compound windows (section 2.4.5) and misfits rejected with a reason. A bearing is (phi_r +
+phi_f) / 2 (eq. 2.5) with its window plus the mean shortening (eq. 5.2), variance and instant; a window
+belongs to the revolution it closes in, which reports each beacon at most once."""
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -143,10 +139,8 @@ class BearingDecoder:
         self._last_revolution: int | None = None
 
     def decode(self, edges: RevolutionEdges) -> DecodedRevolution:
-        """Bearings and rejections of the windows that closed during this revolution. Revolutions come in
-        order: a window still open at the end of one is carried into the next; one opening within the timeout
-        of the zero reference of a revolution that does not follow the last one decoded is rejected as
-        truncated (its head was not seen)."""
+        """Bearings and rejections of the windows that closed during this revolution; an open window is
+        carried into the next, one opening on the zero reference after a skipped revolution is truncated."""
         result = DecodedRevolution(edges.revolution, edges.start_time_s, edges.period_s)
         omega = edges.turret_speed_rad_s
         timeout_rad = self.timeout_bits * self.bit_time_s * omega
@@ -163,9 +157,7 @@ class BearingDecoder:
             result.rejections.append(Rejection("truncated: the next revolution is missing", where))
         windows = _split(angles, rising, timeout_rad)
         if windows and not follows_previous and (windows[0][0][0] <= timeout_rad or not windows[0][1][0]):
-            # Its head may lie in the revolution before, never decoded (a burst in progress at the zero
-            # reference, or one within the timeout before it): decoded, the bearing would be biased by
-            # half the missing part (1.4 deg on a driver's first revolution).
+            # its head may lie in the undecoded revolution before: the bearing would be off by half of it
             where = float(wrap_to_pi(0.5 * (windows[0][0][0] + windows[0][0][-1])))
             result.rejections.append(
                 Rejection("truncated: the window began before the first decoded revolution", where)
@@ -289,11 +281,9 @@ class BearingDecoder:
 
 
 def _one_pass_per_beacon(result: DecodedRevolution) -> None:
-    """At most one bearing per beacon in a revolution (in place): the pass whose instant is nearest the
-    revolution's middle is kept, any other is rejected as `repeated`. While the robot turns against the
-    turret, one turn of the turret may close two passes of a beacon (one carried over the zero reference); the
-    middle rule keeps the revolution's own pass, where the median instant of
-    `validation.one_sighting_per_beacon` could keep the older one."""
+    """At most one bearing per beacon (in place): the pass nearest the revolution's middle is kept (the
+    revolution's own, where `validation.one_sighting_per_beacon`'s median could keep a carried-over one), any
+    other rejected as `repeated`."""
     middle_s = result.start_time_s + 0.5 * result.period_s
     kept: dict[int, DecodedBearing] = {}
     for bearing in result.bearings:

@@ -1,11 +1,6 @@
-"""driver_node: BeAMS bearings, once per turret revolution, from an edge source (simulated, serial, ...).
-
-Publishes `beams/bearings` and `/diagnostics`. Every source (`source` parameter, edge_source.py) goes through
-the same decoder and variance model; the calibration file's corrections (thesis ch. 7) are applied to the
-published bearings.
-
-A lifecycle node (its transitions and `autostart`: docs/nodes.md); a failed transition leaves it in its
-previous state with the reason logged."""
+"""driver_node: BeAMS bearings once per turret revolution from an edge source (`source`, edge_source.py),
+through the decoder, the variance model and the calibration's corrections (thesis ch. 7). A lifecycle node
+(docs/nodes.md); a failed transition leaves it in its previous state with the reason logged."""
 
 import sys
 import traceback
@@ -108,11 +103,8 @@ class TransitionRefusedError(Exception):
 def _transition(
     step: Callable[["DriverNode"], None], base: Callable[[LifecycleNode, LifecycleState], object]
 ) -> Callable[["DriverNode", LifecycleState], object]:
-    """A lifecycle callback from a step, then `base` (rclpy's: it switches the lifecycle publisher).
-
-    The step's TransitionRefusedError is a FAILURE with its reason logged (and kept: autostart exits with
-    it); any other exception an ERROR with its traceback logged (rclpy turns it into ERROR silently).
-    """
+    """A lifecycle callback from a step, then rclpy's `base`: TransitionRefusedError is a FAILURE with its
+    reason logged and kept (autostart exits with it), any other exception an ERROR with its traceback."""
     name = step.__name__.strip("_")
 
     def callback(self: "DriverNode", state: LifecycleState) -> object:

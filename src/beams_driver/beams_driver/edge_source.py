@@ -1,9 +1,6 @@
-"""Where the driver's edges come from: the EdgeSource protocol, and how driver_node finds a source.
-
-A source is a kind (`EdgeSourceKind`): its parameters, declared only when it is chosen, and a factory building
-it from their values, the codes and a `SourceHost` (what it may ask of the node). This package's own kind is
-`serial`; installed packages name theirs in ENTRY_POINT_GROUP of their setup.py (`sim` is beams_sim's: the
-driver names nothing of the world), and `source:=package.module:EDGE_SOURCE` chooses any other."""
+"""Where the driver's edges come from: the EdgeSource protocol and its kinds (`EdgeSourceKind`: parameters
+declared when chosen, a factory), this package's `serial`, other packages' from ENTRY_POINT_GROUP (beams_sim's
+`sim`), any other as `source:=package.module:EDGE_SOURCE`."""
 
 import importlib
 from collections.abc import Callable, Mapping, Sequence
@@ -104,10 +101,7 @@ def named_sources() -> dict[str, str]:
 
 
 def source_kind(name: str) -> EdgeSourceKind:
-    """The kind named by the driver's `source` parameter: a named source or `package.module:ATTRIBUTE`.
-
-    Raises ValueError with the reason when it cannot be found.
-    """
+    """The kind named by `source` (a named source or `package.module:ATTRIBUTE`); ValueError if none."""
     sources = named_sources()
     target = sources.get(name, name)
     module_name, _, attribute = target.partition(":")

@@ -15,14 +15,9 @@ TURRET_SPEED_RAD_S = 2.0 * np.pi / TURRET_PERIOD_S
 
 @dataclass(frozen=True)
 class RevolutionEdges:
-    """Edges captured during one revolution.
-
-    revolution: revolution counter; start_time_s: instant of the zero-reference pulse opening it;
-    period_s: turret period; edge_times_s (n,): increasing instants; edge_angles_rad (n,): turret angles
-    in [0, 2 pi) from the zero reference (CCW, robot frame); edge_rising (n,): True for 0 -> 1 edges;
-    lost_angles_rad (m, 2): turret angle intervals (same origin, may reach outside [0, 2 pi)) in which
-    edges may have been lost (frames lost on a serial link): the decoder rejects the windows they touch.
-    """
+    """Edges captured during one revolution: instants (increasing), turret angles in [0, 2 pi) from the zero
+    reference (CCW), rising or not; lost_angles_rad (m, 2): intervals where frames were lost (the decoder
+    rejects the windows they touch)."""
 
     revolution: int
     start_time_s: float

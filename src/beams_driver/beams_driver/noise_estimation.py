@@ -117,11 +117,8 @@ class NaturalVarianceFit:
 def recordings_from_bearings(
     label: str, bearings: Sequence[tuple[int, float, float, float]], min_samples: int = MIN_SAMPLES
 ) -> list[StaticRecording]:
-    """Per beacon, from (beacon id, bearing rad, published variance rad^2, window rad) in time order.
-
-    Beacons with fewer than min_samples bearings are left out; none left, or windows all 0 (a driver
-    that does not publish them), raises NoiseEstimationError.
-    """
+    """Per beacon of min_samples bearings or more, from (beacon id, bearing, published variance, window) in
+    time order; NoiseEstimationError when none is left or the windows are all 0 (not published)."""
     if not bearings:
         raise NoiseEstimationError(f"{label}: no bearings")
     rows = np.asarray(bearings, dtype=float)
@@ -195,14 +192,10 @@ def fit_natural_variance(
     model: VarianceModel,
     slope_z_threshold: float = SLOPE_Z_THRESHOLD,
 ) -> NaturalVarianceFit:
-    """Natural variance, constant or linear in the window (thesis sections 5.5-5.8), from still spreads.
-
-    Each (pose, beacon) gives natural_g = s_g^2 - sigma_exact^2(code, mean window_g) (model's "exact"
-    artificial variance) with standard error sqrt(2 / (n_g - 1)) s_g^2; weighted least squares, errors
-    scaled up by sqrt(chi2 / dof) when the estimates scatter more than that. The slope is kept when
-    |slope| / its error >= slope_z_threshold and at least three windows span more than a bit; else the
-    weighted mean. A negative natural variance (an overstated code variance) is reported as 0.
-    """
+    """Natural variance, constant or linear in the window (thesis sections 5.5-5.8), from still spreads:
+    natural_g = s_g^2 - sigma_exact^2(code, window_g), standard error sqrt(2 / (n_g - 1)) s_g^2, by weighted
+    least squares (errors scaled by sqrt(chi2 / dof) when they scatter more); the slope kept when its z
+    reaches slope_z_threshold over three windows or more, else the mean; a negative one reported as 0."""
     if not spreads:
         raise NoiseEstimationError("no beacon to estimate the noise from")
     windows = np.array([s.mean_window_rad for s in spreads])

@@ -70,10 +70,8 @@ def variance_model_of(
 
 
 def corrected_variance_of(model: VarianceModel, correction: BearingCorrection) -> CorrectedVariance:
-    """The variance the driver publishes for a bearing the calibration corrects: the model's, plus what the
-    power-bias correction at the noisy decoded window adds (eq. 7.18-7.19 to first order,
-    `CorrectedVariance`), the model's natural variance split between the two edges as the thesis
-    hardware's receiver splits it (fig. 5.3: its AGC makes the rising edge the noisier)."""
+    """The variance the driver publishes for a corrected bearing: `CorrectedVariance` (eq. 7.18-7.19), the
+    natural variance split between the edges as the thesis hardware's (fig. 5.3)."""
     return CorrectedVariance(model, correction, split_natural_variance(model, _THESIS_NOISE.rising_share))
 
 

@@ -1,7 +1,5 @@
-"""What the infrared receiver does to code AND window (thesis sections 5.5-5.7), for simulator and decoder:
-`ReceiverModel`, the systematic part (minimum burst, mean window shortening) the decoder and the variance
-model must know; `HardwareNoise`, the thesis hardware's noise as chapter 5 measured it, which the simulator
-applies and the driver's default variances take."""
+"""What the infrared receiver does to code AND window (thesis sections 5.5-5.7): `ReceiverModel`, the
+systematic part the decoder must know; `HardwareNoise`, the thesis hardware's noise (chapter 5)."""
 
 import math
 from dataclasses import dataclass
@@ -32,12 +30,9 @@ THESIS_WINDOW_RANGE_RAD = (0.03804832377144775, 0.13957318546672076)
 
 @dataclass(frozen=True)
 class ReceiverModel:
-    """Minimum detectable burst and mean window shortening of a receiver (sections 5.3 and 5.6).
-
-    The minimum burst of a code of shortest gap G and bit time T_b is min_burst_fraction * T_b * (G /
-    T_b)^min_burst_gap_exponent: exponent 1 scales it with the gap, -0.5 lets a longer OFF period (the AGC's
-    gain recovering) lower it; both give the thesis's 56% of T0 for the one-bit gaps of the family.
-    outer_shortening_s moves the window's outer edges inwards by half of it each."""
+    """Minimum detectable burst and mean window shortening of a receiver (sections 5.3 and 5.6): the minimum
+    burst is min_burst_fraction * T_b * (G / T_b)^min_burst_gap_exponent for a shortest gap G (56% of T0 for
+    the one-bit gaps; -0.5: a longer OFF lets the AGC recover); outer_shortening_s halved per edge."""
 
     min_burst_fraction: float = 0.0
     min_burst_gap_exponent: float = 1.0
@@ -70,12 +65,8 @@ class ReceiverModel:
         )
 
     def window_shortening_s(self, code: BeaconCode) -> float:
-        """Mean of phi_W - Phi_w (s of turret time): sum over gaps of (G_j + m)^2 / T_c, plus the outer shift.
-
-        Eq. 5.2 generalised: the first rising edge comes late by the rest of the gap the window opens in
-        (G^2 / 2 per gap), or, when it opens in the last m of a burst (too short to trigger), by that rest
-        plus the next gap (m^2 / 2 + m G); the same for the last falling edge. With m = 0 it is p0 T0.
-        """
+        """Mean of phi_W - Phi_w (s of turret time): sum over gaps of (G_j + m)^2 / T_c, plus the outer shift
+        (eq. 5.2 with a minimum burst m: the edge also waits out a burst too short to trigger)."""
         gaps_s = np.array(code.gap_bits, dtype=float) * code.bit_time_s
         m = self.min_burst_s(code)
         return float(np.sum((gaps_s + m) ** 2) / code.duration_s) + self.outer_shortening_s
@@ -88,13 +79,10 @@ IDEAL_RECEIVER = ReceiverModel()
 class HardwareNoise:
     """The thesis hardware's receiver noise (sections 5.5-5.7), applied by the simulator to each window.
 
-    Edge noise: the AGC makes the threshold crossing jitter, much more at the window's start (the gain is high
-    after a silence) than at its end (fig. 5.3): zero-mean Gaussian jitter of the two boundaries (then code
-    AND window), variances linear in the true window between the experiment's extremes, constant outside.
-    off_noise_gain: a modulated code's natural variance is multiplied by 1 + gain (G / T_b - 1), G its longest
-    gap (the AGC recovers during OFF periods, section 5.6). power_bias_coefficients: the cubic bias f(w) (rad,
-    eq. 7.19; phi_biased = phi_real + f(w), eq. 7.17), constant outside power_bias_range_rad (default
-    window_range_rad, where section 5.7 measured it)."""
+    Gaussian jitter of the window's two edges, larger at its start (the AGC's gain after a silence, fig. 5.3),
+    linear in the window between the experiment's extremes; off_noise_gain: the natural variance times 1 +
+    gain (G / T_b - 1), G the longest gap (section 5.6); power_bias_coefficients: f(w) of eq. 7.19 (eq. 7.17),
+    constant outside power_bias_range_rad (default window_range_rad, section 5.7)."""
 
     window_range_rad: tuple[float, float]
     power_bias_coefficients: tuple[float, float, float, float]
@@ -172,13 +160,8 @@ class HardwareNoise:
 def thesis_power_bias_coefficients(
     window_range_rad: tuple[float, float], range_rad: float
 ) -> tuple[float, float, float, float]:
-    """Eq. 7.19 coefficients (a, b, c, d) of a bias fluctuating within range_rad over the window range.
-
-    Fig. 5.6 shows the mean bearing fluctuating with the window within 0.23 deg (section 5.7); the cubic
-    with the most fluctuation in a range is the Chebyshev T3(x) = 4x^3 - 3x, x the window mapped onto
-    [-1, 1]: it sweeps the whole range twice, and any part of the working windows sees most of it.
-    Zero mean over the range (a constant bias only turns the heading, section 5.7).
-    """
+    """Eq. 7.19 coefficients (a, b, c, d) of a zero-mean bias fluctuating within range_rad over the windows
+    (fig. 5.6: 0.23 deg): Chebyshev's T3(x) = 4x^3 - 3x on the windows mapped onto [-1, 1] sweeps it twice."""
     low, high = window_range_rad
     windows = np.linspace(low, high, 16)
     x = (2.0 * windows - low - high) / (high - low)

@@ -1,17 +1,7 @@
-"""The serial wire format of the BeAMS turret's microcontroller, protocol version 2.
-
-The sensor's microcontroller drives the stepper motor and captures the receiver's edges with one common
-timer (thesis section 2.4.1-2.4.2); instead of decoding on the microcontroller, the firmware streams every
-capture to the host, which runs the decoder (`beams_driver.decoder`). This module is both ends of that
-link: `FrameEncoder` (what the firmware, or the simulator standing in for it, sends), `FrameParser`
-(bytes in, events out) and `RevolutionAssembler` (events in, `RevolutionEdges` out). The firmware is
-firmware/turret/ (docs/firmware.md).
-
-The frame layout, the kinds, examples and the host's handling of bad and lost frames are in
-docs/firmware.md ("Frames"). The angle of an edge is 2*pi * (ticks since the revolution's
-zero reference) / (ticks between the two zero references that bound the revolution) (eq. 2.1 with the
-measured turret speed).
-"""
+"""The serial wire format of the BeAMS turret's microcontroller, protocol version 2 (thesis section
+2.4.1-2.4.2: the firmware streams every capture of its one timer; the host decodes). Both ends of the link:
+`FrameEncoder` (the firmware's side, or the simulator's), `FrameParser` (bytes in, events out) and
+`RevolutionAssembler` (events in, `RevolutionEdges` out). Frames and their faults: docs/firmware.md."""
 
 import binascii
 import itertools
@@ -33,9 +23,7 @@ FRAME_SIZE = 10  # an event frame; a hello is HELLO_SIZE
 HELLO_SIZE = 24
 TIMER_MODULUS = 1 << 32
 _HALF_MODULUS = TIMER_MODULUS // 2
-# The firmware's link, clock and periodic frames (firmware/turret/config.h; test/static/
-# test_firmware_constants.py keeps them equal): a heartbeat once per wrap of its 16-bit timer, every 8th
-# of them a hello. The host learns the clock from the hello; the simulated device keeps these periods.
+# firmware/turret/config.h's link, clock and periodic frames (test_firmware_constants keeps them equal)
 DEFAULT_BAUDRATE = 500_000
 FIRMWARE_TIMER_HZ = 2_000_000
 FIRMWARE_TICKS_PER_REVOLUTION = 200_000
@@ -57,9 +45,8 @@ _HELLO_FIELDS = struct.Struct("<BBIII")  # version, flags, timer Hz, ticks per r
 _CRC = struct.Struct("<H")
 _HELLO_BOOT_FLAG = 0x01
 _TWO_PI = 2.0 * math.pi
-# The measured turret speed (RevolutionAssembler): revolution lengths kept, lengths needed before they are
-# used instead of the nominal, spread multiple of the tolerance, and its floor (s): the firmware's zero
-# reference is up to 10 us late (docs/firmware.md), so two of them bound a length within +-10 us.
+# The measured turret speed: lengths kept, needed, tolerance in spreads and its floor (s; a zero reference
+# is up to 10 us late, docs/firmware.md).
 MEASURED_SPANS = 9
 MIN_MEASURED_SPANS = 3
 SPAN_SIGMAS = 5.0
@@ -98,6 +85,10 @@ class DeviceHello:
     dropped_events: int = 0
     boot: bool = False
 
+    @property
+    def clock(self) -> tuple[int, int]:
+        return self.timer_hz, self.ticks_per_revolution
+
     def problem(self) -> str:
         """Why this host cannot use the device ("" when it can)."""
         if self.version != PROTOCOL_VERSION:
@@ -122,10 +113,7 @@ V1_STREAM_PROBLEM = (
 
 
 class FrameEvent(NamedTuple):
-    """One correctly framed event, with the timer unwrapped to a monotonic tick count.
-
-    hello: the device's hello for kind HELLO (the assembler takes the device's clock from it).
-    """
+    """One correctly framed event, its timer unwrapped to monotonic ticks; `hello` for kind HELLO."""
 
     kind: EventKind
     ticks: int
@@ -149,8 +137,7 @@ def encode_frame(kind: EventKind | int, sequence: int, timer: int) -> bytes:
 
 
 def encode_v1_frame(kind: int, sequence: int, timer: int) -> bytes:
-    """A protocol v1 frame, what the old firmware sends (sync A5 5A, kind, sequence, 16-bit timer, CRC):
-    the parser recognises them to name the old firmware."""
+    """A protocol v1 frame (the old firmware's), which the parser recognises to name the old firmware."""
     return _framed(_V1_BODY.pack(kind, sequence & 0xFF, timer % (1 << 16)), V1_SYNC)
 
 
@@ -165,12 +152,9 @@ def encode_hello(sequence: int, timer: int, hello: DeviceHello) -> bytes:
 
 
 class FrameEncoder:
-    """The firmware's side of the link (a simulated device): numbers the events at capture, sends a hello
-    first and every `HELLO_PERIOD_S`, and a heartbeat every `HEARTBEAT_PERIOD_S` (device time), as
-    firmware/turret does.
+    """The firmware's side of the link (a simulated device), hellos and heartbeats as firmware/turret.
 
-    Ticks are given unwrapped (monotonic); the frames carry them modulo 2^32. `event(..., lost=True)`
-    models an event the firmware captured but had no room for: numbered, counted, not sent.
+    `event(..., lost=True)`: an event captured with no room to send it: numbered, counted, not sent.
     """
 
     def __init__(
@@ -283,13 +267,8 @@ class Drops(Counter[str]):
 class FrameParser:
     """Incremental stream parser: `feed(bytes)` returns the events of every complete, valid frame.
 
-    Drops are counted by reason in `drops` (docs/serial_integrity.md lists the reasons); `missed_edges`
-    counts the device's missed-edge frames (not a drop: the frame says an edge is missing).
-    Byte accounting: bytes fed = FRAME_SIZE * event_frames + HELLO_SIZE * hellos + V1_FRAME_SIZE *
-    protocol_v1_frames + 2 * (bad_crc + truncated) + garbage_bytes + pending bytes, where `event_frames`
-    counts the well-formed event frames (used, dropped or of an unknown kind) and `hellos` the hello
-    frames (accepted or refused). `device` is the last accepted hello, `problem` why the stream cannot
-    be used ("" while it can).
+    `drops` by reason (docs/serial_integrity.md, with the byte accounting); `device` is the last accepted
+    hello, `problem` why the stream cannot be used ("" while it can).
     """
 
     def __init__(self) -> None:
@@ -314,8 +293,7 @@ class FrameParser:
         return len(self._buffer)
 
     def new_stream(self) -> None:
-        """Forget the partial frame, the sequence and the device (it was reconnected, and may have been
-        reflashed: the next hello says); ticks stay monotonic."""
+        """Forget the partial frame, the sequence and the device (reconnected); ticks stay monotonic."""
         self._buffer.clear()
         self._last_sequence = None
         self._last_timer = None
@@ -425,7 +403,7 @@ class FrameParser:
             self.device = None
             self._gap = True
             return None
-        if hello.boot or (self.device is not None and _clock_of(hello) != _clock_of(self.device)):
+        if hello.boot or (self.device is not None and hello.clock != self.device.clock):
             # a reset (or reflashed) device: its numbering and its timer start again
             self._last_sequence = None
             self._last_timer = None
@@ -460,19 +438,12 @@ class FrameParser:
         return event
 
 
-def _clock_of(hello: DeviceHello) -> tuple[int, int]:
-    return hello.timer_hz, hello.ticks_per_revolution
-
-
 class RevolutionAssembler:
     """Events in, `RevolutionEdges` out: one revolution between two consecutive zero references.
 
-    The angle of an edge is 2*pi times its ticks since the opening zero reference over the ticks of the
-    whole revolution (eq. 2.1, the turret speed measured over that revolution). Times are the device's
-    ticks divided by its timer frequency plus `time_offset_s` (which the owner may update to map the device
-    clock onto its own). The clock comes from the device's hello (a HELLO event); given here, it holds
-    until a hello says otherwise. docs/serial_integrity.md says how a revolution's length is judged
-    against the measured turret speed (section 2.4.2) and what each drop reason in `drops` means.
+    An edge's angle is 2*pi times its ticks since the opening zero reference over the revolution's ticks
+    (eq. 2.1 with the measured turret speed); times are ticks / timer Hz + `time_offset_s`. The clock is
+    the hello's. Length judgement and drop reasons: docs/serial_integrity.md.
     """
 
     def __init__(
@@ -527,9 +498,7 @@ class RevolutionAssembler:
         self._spans.clear()  # lengths measured with another clock mean nothing now
 
     def expected_span(self) -> tuple[float, float]:
-        """(ticks, tolerance in ticks) of the next revolution: the measured turret speed when
-        MIN_MEASURED_SPANS lengths are known, else the nominal; the tolerance is SPAN_SIGMAS robust
-        standard deviations of the measured lengths, at least min_tolerance_s."""
+        """(ticks, tolerance in ticks) of the next revolution: measured (robust spread) once known."""
         assert self.ticks_per_revolution is not None
         if len(self._spans) < MIN_MEASURED_SPANS:
             return float(self.ticks_per_revolution), self._min_tolerance_ticks
@@ -539,8 +508,7 @@ class RevolutionAssembler:
         return median, max(self._min_tolerance_ticks, SPAN_SIGMAS * sigma)
 
     def reset(self) -> None:
-        """Forget the open revolution (e.g. after a reconnection); the next zero reference opens one.
-        The measured turret speed is kept (the same device turns at the same speed)."""
+        """Forget the open revolution (a reconnection); the measured turret speed is kept."""
         if self._zero_ticks is not None:
             self._open_revolution += 1
         self._zero_ticks = None
@@ -580,11 +548,10 @@ class RevolutionAssembler:
         return completed
 
     def _hello(self, hello: DeviceHello | None) -> None:
-        """A device's hello: a new clock, or a reset device (its boot hello), starts the revolutions
-        afresh; the revolution the reset cut is counted as one with a gap."""
+        """A new clock or a boot hello starts the revolutions afresh (the cut one counts as with a gap)."""
         if hello is None:
             return
-        if (hello.timer_hz, hello.ticks_per_revolution) != (self.tick_rate_hz, self.ticks_per_revolution):
+        if hello.clock != (self.tick_rate_hz, self.ticks_per_revolution):
             self.set_clock(hello.timer_hz, hello.ticks_per_revolution)
         elif not hello.boot:
             return
@@ -593,8 +560,7 @@ class RevolutionAssembler:
         self.reset()
 
     def _zero_reference(self, zero_ticks: int) -> list[RevolutionEdges]:
-        """A zero reference: ignored when far too early, held when a little early, else it closes the
-        open revolution (published when its length is plausible) and opens the next one."""
+        """Ignored when far too early, held when a little early, else closes the open revolution."""
         if self._zero_ticks is None:
             self._zero_ticks = zero_ticks
             self._gap = self._unplaced_gap = False  # losses before the first revolution cost it nothing

@@ -1,10 +1,6 @@
-"""The real-hardware edge source: the BeAMS sensor's serial stream (see `serial_protocol`) read with pyserial.
-
-`SerialEdgeSource.read()` returns the revolutions completed by the bytes that arrived, as
-`RevolutionEdges` stamped on the host's clock, and never raises once the source is open: a lost device
-is reopened with an exponential back-off, bad bytes are counted drops. Only `open()` raises, with a
-one-line message that says what to fix. What a user sees of each fault is in docs/serial_integrity.md.
-"""
+"""The real-hardware edge source: the BeAMS sensor's serial stream (`serial_protocol`) read with pyserial.
+Only `open()` raises (one line saying what to fix); `read()` reopens a lost device with a back-off and
+counts bad bytes as drops (docs/serial_integrity.md)."""
 
 import contextlib
 import errno
@@ -32,15 +28,13 @@ from beams_driver.serial_protocol import (
     RevolutionAssembler,
 )
 
-# Bytes without one valid frame among them, and seconds, after which the stream is called unreadable: a
-# wrong baud rate turns every frame into garbage, while a sound stream has a frame every FRAME_SIZE bytes;
-# line noise (even 1 % of the bytes) or a burst of it on plugging in leaves frames whole within both.
+# Bytes and seconds without a valid frame that call a stream unreadable (a wrong baud rate), beyond what
+# line noise or a burst of it on plugging in leaves.
 UNREADABLE_STREAM_BYTES = 64 * FRAME_SIZE
 UNREADABLE_STREAM_S = 0.5
 # Frames without a hello for this long (the firmware sends one every 262 ms): the device hides its clock.
 HELLO_WAIT_S = 3.0 * HELLO_PERIOD_S
-# /diagnostics warns this long after the turret last lost frames, or after a refused zero reference or
-# revolution length.
+# /diagnostics warns this long after lost frames, a refused zero reference or revolution length.
 RECENT_DROPS_WARN_S = 5.0
 
 

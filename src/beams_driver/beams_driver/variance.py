@@ -82,12 +82,8 @@ def _family_segments(index: int, n_codes: int) -> tuple[int, tuple[float, ...], 
 
 
 def family_normalized_variance(index: int, n_codes: int, window_over_phi0: ArrayLike) -> np.ndarray | float:
-    """sigma^2 / (p0 phi0^2 / 6) for code C_index of the family with Nc codes (eq. 4.75, 4.76).
-
-    For i < Nc, with m = phi_W mod (2Nc + 2) phi0 (units of phi0, N1 = 2Nc; eq. 4.75 as corrected in
-    NOTES.md): [i, i+1) and [N1-i, N1+1-i) case B, the next unit case C, [N1+1, N1+2) case D, [0, 1)
-    with phi_W >= one period case E, the rest case A (the bound). Code Nc repeats with period (Nc + 1):
-    [Nc, Nc+1) case D, [0, 1) case E (eq. 4.76). Below phi0, case 0 for every code. Scalars in, float out.
+    """sigma^2 / (p0 phi0^2 / 6) for code C_index of the family with Nc codes (eq. 4.75 as corrected in
+    NOTES.md, 4.76): the cases of m = phi_W mod (2Nc + 2) phi0 (code Nc: period Nc + 1), case 0 below phi0.
     """
     if not 1 <= index <= n_codes:
         raise ValueError(f"family code index {index} outside 1..{n_codes}")
@@ -120,13 +116,9 @@ def family_normalized_variance(index: int, n_codes: int, window_over_phi0: Array
 def enumerated_variance_s2(
     code: BeaconCode, window_s: ArrayLike, min_burst_s: float = 0.0
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(variance s^2, mean bearing error s, detection probability) of Phi_b for windows (s).
-
-    The window start u is uniform over one code period (time stationarity, section 4.4). The first rising
-    and last falling edges of code AND window are piecewise linear in u, with breaks where u or u + W
-    crosses a run boundary (shifted by the minimum detectable burst); two Gauss-Legendre nodes per piece
-    integrate their squares exactly. Shifts with no detection are left out (as in case 0).
-    """
+    """(variance s^2, mean bearing error s, detection probability) of Phi_b for windows (s), the start u
+    uniform over a code period (section 4.4): the edges are piecewise linear in u, so two Gauss-Legendre
+    nodes per piece integrate exactly; shifts with no detection are left out (as in case 0)."""
     windows = np.atleast_1d(np.asarray(window_s, dtype=float))
     period = code.duration_s
     on_start, on_end = code.on_intervals_s
@@ -176,13 +168,9 @@ class _EnumeratedLookup:
 class VarianceModel:
     """Bearing variance (rad^2) per code and angular window, as fed to the filters.
 
-    mode "exact": the artificial variance of chapter 4 (closed form for the family, enumeration lookup
-    precomputed at construction for other codes or when the minimum detectable burst of section 5.6 is
-    modelled) plus natural_variance_rad2; "bound": p0 phi0^2 / 6 (theorem 3.1, phi0 and p0 stretched by
-    the minimum burst) plus natural_variance_rad2; "constant": constant_variance_rad2 for every bearing.
-    The natural variance may grow with the window (section 5.5, fig. 5.3): natural_variance_rad2 +
-    natural_variance_slope_rad2_per_rad (w - natural_variance_reference_window_rad), never below 0; a
-    slope of 0 (the default) keeps it constant.
+    mode "exact": chapter 4's artificial variance (closed form for the family, else an enumeration lookup);
+    "bound": p0 phi0^2 / 6 (theorem 3.1, stretched by the minimum burst); both plus the natural variance,
+    linear in the window from natural_variance_reference_window_rad (fig. 5.3), never below 0; "constant".
     """
 
     def __init__(
@@ -283,10 +271,9 @@ class VarianceModel:
     def window_variance_rad2(
         self, code: int | BeaconCode, angular_window_rad: ArrayLike
     ) -> np.ndarray | float:
-        """OOK variance (rad^2) of the decoded window, chapter 3's edges: the window opens uniformly over
-        the code, so each outer edge is late by e, uniform over a gap G stretched by the minimum burst m:
-        E[e^2] = sum (G + m)^3 / (3 T_c) = 2 bound, E[e] = sum (G + m)^2 / (2 T_c); the bearing error is
-        (e_r - e_f) / 2 and the window error -(e_r + e_f), so Var(window) = 4 Var(e) - 4 Var(bearing)."""
+        """OOK variance (rad^2) of the decoded window (chapter 3): each outer edge late by e over a gap
+        stretched by the minimum burst, bearing error (e_r - e_f) / 2 and window error -(e_r + e_f), so
+        Var(window) = 4 Var(e) - 4 Var(bearing)."""
         code = self.code(code)
         mean_delay_rad = 0.5 * self._receiver.window_shortening_s(code) * self.turret_speed_rad_s
         edge_variance = 2.0 * self.bound_rad2(code) - mean_delay_rad**2
@@ -317,19 +304,13 @@ EdgeVariances = Callable[[BeaconCode, float], tuple[float, float]]
 
 @dataclass(frozen=True)
 class CorrectedVariance:
-    """The variance (rad^2) of a bearing the power-bias correction moved: a VarianceSource.
+    """The variance (rad^2) of a bearing the power-bias correction f(w^) moved (eq. 7.18, 7.19), to first
+    order with f' = `BearingCorrection.power_bias_slope`:
 
-    The correction subtracts f(w^) at the decoded window w^ (eq. 7.18, f of eq. 7.19), which is noisy: to
-    first order in the window error dw, with f' = df/dw (`BearingCorrection.power_bias_slope`, 0 where
-    the window is clamped),
+        Var(phi^ - f(w^)) = Var(phi^) + f'^2 Var(w^) - 2 f' Cov(phi^, w^),
 
-        Var(phi^ - f(w^)) = Var(phi^) + f'^2 Var(w^) - 2 f' Cov(phi^, w^).
-
-    phi^ = (r + f) / 2 and w^ = f - r come from the first rising and last falling edges (eq. 2.5): their
-    edge noise, of variances sigma_r^2 and sigma_f^2 (independent), gives Var(w^) = sigma_r^2 +
-    sigma_f^2 and Cov = (sigma_f^2 - sigma_r^2) / 2; the code's own window variance
-    (`VarianceModel.window_variance_rad2`) adds to Var(w^), uncorrelated with the bearing's error (the
-    rising and falling delays of a code are alike). Var(phi^) is the model's.
+    phi^ = (r + f) / 2 and w^ = f - r (eq. 2.5) with independent edge noises: Var(w^) = sigma_r^2 +
+    sigma_f^2 (plus the code's `window_variance_rad2`), Cov = (sigma_f^2 - sigma_r^2) / 2.
     """
 
     model: VarianceModel

@@ -1,18 +1,9 @@
 """The band a consistent filter's mean NEES over a time window falls in, its samples being correlated.
 
-The mean of N independent NEES samples of an n-dimensional error is chi2(n N) / N (Bar-Shalom, Li and
-Kirubarajan 2001, section 5.4.2); along one run the samples are correlated, so the window mean varies as
-that of N_eff = N / tau_N independent ones, tau the NEES's integrated autocorrelation time (Sokal 1997,
-section 3):
-
-    tau = 1 + 2 sum_{j >= 1} rho(j),     Var(mean of N) = Var(NEES) tau_N / N,
-    tau_N = 1 + 2 sum_{j=1}^{N-1} (1 - j / N) rho(j)     (the finite window's exact weights),
-
-rho estimated about the mean pooled over runs and cut at Sokal's window (the smallest M >= 5 tau(M)).
-`NeesCorrelation.band` is chi2(n N_eff) / N_eff (right mean and variance, too little skew for a filter's
-fast-and-slow error); `gaussian_window_band`, the Monte-Carlo quantiles of a Gaussian error of that
-autocorrelation, is the band the benches hold the filters to. Why the NEES's own autocorrelation and why
-pooled runs: docs/self_calibration.md.
+N independent samples give chi2(n N) / N (Bar-Shalom, Li and Kirubarajan 2001, 5.4.2); correlated ones vary
+as N_eff = N / tau_N, tau_N = 1 + 2 sum_{j=1}^{N-1} (1 - j / N) rho(j) (Sokal 1997, section 3; rho pooled
+over runs, cut at Sokal's window). `gaussian_window_band`, the Monte-Carlo band of a Gaussian error of that
+autocorrelation, is the one the benches use (docs/self_calibration.md says why).
 """
 
 from collections.abc import Sequence

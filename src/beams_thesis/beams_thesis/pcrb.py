@@ -1,22 +1,10 @@
-"""Posterior Cramer-Rao bound (PCRB) of the pose along a known true trajectory.
-
-Tichavsky, Muravchik and Nehorai (1998) give the Fisher information J_k of the state x_k (the inverse
-of a lower bound on the mean-square error of any estimator of x_k from the data up to k) recursively:
-
-    J_{k+1} = D22 - D21 (J_k + D11)^-1 D12,
-    D11 = E[-d2 log p(x_{k+1}|x_k) / dx_k dx_k],  D12 = E[-d2 log p(x_{k+1}|x_k) / dx_k dx_{k+1}] = D21',
-    D22 = E[-d2 log p(x_{k+1}|x_k) / dx_{k+1} dx_{k+1}] + E[-d2 log p(z_{k+1}|x_{k+1}) / dx_{k+1}^2].
-
-With additive Gaussian process noise x_{k+1} = f(x_k) + w, w ~ N(0, Q), and the expectations taken on
-the true trajectory (F the Jacobian of f there): D11 = F' Q^-1 F, D12 = -F' Q^-1, D22 = Q^-1 + I_z,
-and the matrix inversion lemma turns the recursion into
+"""Posterior Cramer-Rao bound (PCRB) of the pose along a known true trajectory: Tichavsky, Muravchik and
+Nehorai's (1998) Fisher information recursion with additive Gaussian process noise on the true trajectory,
 
     J_{k+1} = (Q + F J_k^-1 F')^-1 + I_z,   I_z = sum over the bearings of H' H / R,
 
-which also holds for a singular Q (wheel odometry has no cross-track noise, and the odometry error
-states none at all). Bearings are taken as Gaussian with their true variance: the OOK error of
-chapter 4 is not Gaussian, and a non-Gaussian noise of the same variance carries more Fisher
-information, so the bound of the real noise may be lower still.
+which holds for a singular Q too (no cross-track wheel noise). Bearings are taken as Gaussian of their true
+variance: the OOK error (chapter 4) is not, and carries more information, so its bound may be lower still.
 """
 
 from collections.abc import Callable, Mapping, Sequence

@@ -16,12 +16,9 @@ def window_experiment(
     n_turns: int,
     rng: np.random.Generator,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """The measurements of section 5.3 on the simulated receiver: one beacon, fixed true windows (rad).
-
-    (Phi_r - phi_R, Phi_f - phi_F) in rad per window and turn, arrays (windows, turns); code None is the
-    carrier C_k. The beacon runs free; edges carry the config's noise, minimum burst, outer shift and capture
-    tick as `SensorSimulator` applies them (not the inner edges' small jitter). Every turn must be detected.
-    """
+    """Section 5.3's measurements on the simulated receiver (one free-running beacon, fixed true windows):
+    (Phi_r - phi_R, Phi_f - phi_F) (rad, windows x turns) with `SensorSimulator`'s edge effects; code None
+    is the carrier C_k; every turn must be detected."""
     windows = np.asarray(windows_rad, dtype=float).reshape(-1, 1)
     omega = config.turret_speed_rad_s
     shape = (windows.size, n_turns)

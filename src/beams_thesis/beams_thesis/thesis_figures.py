@@ -39,11 +39,8 @@ def periodic_amplitudes(angles_rad: np.ndarray, values: np.ndarray, harmonics: i
 
 
 def turret_circle_radius_m(orientations_rad: np.ndarray, errors: np.ndarray) -> float:
-    """Radius of the circle the computed positions describe as the robot turns (figure 7.8).
-
-    The fix is the turret centre p + R(theta) (dx, dy) (eq. 7.26) when ToTal ignores the offset: the
-    first harmonic of the computed position, as a complex number, is (dx + i dy) e^{i theta}.
-    """
+    """Radius of the circle the computed positions describe as the robot turns (figure 7.8): the first
+    harmonic (dx + i dy) e^{i theta} of the turret centre p + R(theta) (dx, dy) (eq. 7.26)."""
     offsets = -(errors[:, 0] + 1j * errors[:, 1])  # error = truth - estimate
     basis = np.column_stack([np.ones_like(orientations_rad), np.exp(1j * orientations_rad)])
     coefficients, *_ = np.linalg.lstsq(basis.astype(complex), offsets, rcond=None)

@@ -1,11 +1,7 @@
-"""Bringing the bearings of one revolution to a single instant (thesis 5.7; Loevsky and Shimshoni).
-
-In the 0.1 s of a revolution a robot turning at 2 rad/s sweeps 11 deg, and at 0.5 m/s moves 5 cm; ToTal
-assumes one pose, so each bearing is moved to the target instant with the odometry increment from its own
-stamp: the rotation exactly (phi_i - dtheta_i), the translation through the beacon's predicted bearings from
-the two turret positions, which needs an approximate pose but errs only to second order in it
-(`triangulate_compensated` iterates twice). Without odometry the motion seen between revolutions inflates the
-variances instead (`motion_variance_rad2`). Pure: poses are (x, y, theta), odometry poses in the odom frame.
+"""Bringing the bearings of one revolution to a single instant (thesis 5.7; Loevsky and Shimshoni): a robot
+at 2 rad/s sweeps 11 deg in a revolution. Each bearing moves by the odometry increment since its stamp,
+the rotation exactly, the translation through the predicted bearings from an approximate pose (second-order
+error; `triangulate_compensated` iterates twice). Without odometry: `motion_variance_rad2`.
 """
 
 from __future__ import annotations

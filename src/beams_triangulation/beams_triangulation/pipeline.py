@@ -1,7 +1,5 @@
-"""The per-revolution pipeline triangulation_node runs (and the offline replay): each revolution, sorted out
-by the bearing intake, through a `revolution.RevolutionEstimator` (with the motion seen between
-revolutions), odometry into an odometry buffer, a revolution the odometry does not cover yet waiting for
-it (`TriangulationPipeline`). `triangulation_settings` maps the node's parameters to its settings."""
+"""The per-revolution pipeline triangulation_node (and the offline replay) runs: `TriangulationPipeline`;
+`triangulation_settings` maps the node's parameters to its settings."""
 
 from __future__ import annotations
 
@@ -95,12 +93,9 @@ class TriangulationPipeline:
     def take_odometry(
         self, stamp_s: float, pose: Sequence[float], twist: tuple[float, float]
     ) -> tuple[str, list[tuple[Tag, RevolutionPose]]]:
-        """An odometry sample (odom frame; speed m/s, yaw rate rad/s): (why it was refused, '' when taken
-        (`validation.odometry_problem`, counted in rejected_odometry); the revolutions it completed).
-        Ignored without use_odometry. A sample that jumped (`plausibility.odometry_step_problem`: beyond
-        the robot's speed or yaw rate from the previous one) starts the odometry over, so that no
-        revolution is compensated across the jump; `last_odometry_jump` says why (counted in
-        odometry_jumps)."""
+        """An odometry sample (odom frame): (why it was refused, '' when taken; the revolutions it
+        completed). A jump (`plausibility.odometry_step_problem`) starts the odometry over, so that no
+        revolution is compensated across it (`last_odometry_jump`, odometry_jumps)."""
         self.last_odometry_jump = ""
         if not self.settings.use_odometry:
             return "", []

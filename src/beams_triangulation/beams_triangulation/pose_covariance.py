@@ -1,12 +1,6 @@
-"""Pose covariance of a ToTal fix: first-order propagation of the three bearing variances (thesis B.3).
-
-The derivatives are exact, by implicit differentiation of the bearing equations the fix satisfies,
-
-alpha_i(x, y) - theta - phi_i = 0, alpha_i = atan2(y_i - y, x_i - x), i = 1, 2, 3,
-
-so that d(x, y, theta) = A^-1 d(phi), rows A_i = (d alpha_i/dx, d alpha_i/dy, -1); the position's 2x2 system
-is singular on the critical circumference, exactly where D vanishes (every derivative carries 1/D, B.3). As in
-`total`, the helpers only use + - * /, so the scalar and vectorised forms share them."""
+"""Pose covariance of a ToTal fix: first-order propagation of the three bearing variances (thesis B.3), the
+derivatives exact by implicit differentiation of alpha_i(x, y) - theta - phi_i = 0: d(x, y, theta) =
+A^-1 d(phi), rows A_i = (d alpha_i/dx, d alpha_i/dy, -1), singular where D vanishes; + - * / only."""
 
 from __future__ import annotations
 
@@ -26,11 +20,8 @@ def _bearing_gradient(beacon_x, beacon_y, x, y):
 
 
 def _jacobian_rows(beacons, x, y, offset_map):
-    """Rows (J_x, J_y, J_theta), each a 3-tuple over the bearings, of the pose w.r.t. (phi1, phi2, phi3).
-
-    (x, y) is the turret centre, where the bearings are measured; offset_map is the turret offset
-    rotated into the map frame, moving the rows to the robot centre p_R = p_T - R(theta) o.
-    """
+    """Rows (J_x, J_y, J_theta) of the pose w.r.t. (phi1, phi2, phi3) at the turret centre (x, y), moved to
+    the robot centre p_R = p_T - R(theta) o by offset_map (the turret offset in the map frame)."""
     (b1x, b1y), (b2x, b2y), (b3x, b3y) = beacons
     a1x, a1y = _bearing_gradient(b1x, b1y, x, y)
     a2x, a2y = _bearing_gradient(b2x, b2y, x, y)
@@ -78,11 +69,8 @@ def pose_covariance(
     variances_rad2: Sequence[float],
     turret_offset_m: Sequence[float] = (0.0, 0.0),
 ) -> np.ndarray:
-    """3x3 covariance of (x, y, theta) of a fix, from the bearings' variances (rad^2).
-
-    pose is the fix (x, y, heading) as given by `total.triangulate` with the same turret offset.
-    Entries are Inf-free only off the critical circle; callers gate on them (see `gating`).
-    """
+    """3x3 covariance of a fix (`total.triangulate`'s, same turret offset) from the bearings' variances
+    (rad^2); Inf-free only off the critical circle (`gating`)."""
     # Plain Python floats: arithmetic on numpy scalars would double the cost of this hot path.
     rows = beacons_xy.tolist() if isinstance(beacons_xy, np.ndarray) else beacons_xy
     variances = [float(v) for v in variances_rad2]

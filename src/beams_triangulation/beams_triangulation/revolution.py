@@ -1,9 +1,6 @@
-"""One revolution's bearings to a gated pose: the bearing intake, the triplet, ToTal (motion-compensated with
-odometry, or the motion seen between revolutions in the variances), the covariance and the gates.
-
-ToTal's policy on the intake (`beams_common.intake.bearing_intake`, the EKF's too): a beacon seen twice at one
-instant or an invalid measurement gives no pose (bad input); a repeated sighting or a beacon not on the map
-(another team's beacon in view) is set aside and the revolution's other bearings still count."""
+"""One revolution's bearings to a gated pose: the intake, the triplet, ToTal (motion-compensated), the
+covariance and the gates. A conflicting or invalid bearing gives no pose; a repeated sighting or a beacon
+off the map (another team's) is set aside and the others still count."""
 
 from __future__ import annotations
 

@@ -1,9 +1,6 @@
-"""ToTal: three object triangulation by the power centre of three circles (thesis ch. 6, Algorithm 6.1).
-
-The scalar form (`triangulate`, plain floats, a few microseconds) and the vectorised one (`triangulate_many`)
-share helpers that use only `+ - * /`, so they give the same numbers. Bearings are CCW in the turret frame
-from its zero reference; the fix is the turret centre (or the robot's, given the turret offset in base_link)
-and the sensor frame's heading in the map."""
+"""ToTal: three object triangulation by the power centre of three circles (thesis ch. 6, Algorithm 6.1). The
+scalar (`triangulate`) and vectorised (`triangulate_many`) forms share helpers of `+ - * /` only, so they
+give the same numbers."""
 
 from __future__ import annotations
 
@@ -100,12 +97,8 @@ def _cotangents(tan12, tan23, bounded_ratio):
 
 
 def _power_centre(x1p, y1p, x3p, y3p, t12, t23, t31):
-    """Steps 3-6 of Algorithm 6.1 relative to B2: (numerator of x_R - x2, numerator of y_R - y2, D).
-
-    The modified centres (eq. 6.20-6.21 with B2 at the origin) only enter D and the position through
-    their differences, so these are formed directly: each costs two products, and 1/|D| and the
-    position are those of eq. 6.16-6.18 (up to the factor 2 of the thesis's footnote 4).
-    """
+    """Steps 3-6 of Algorithm 6.1 relative to B2: (numerator of x_R - x2, numerator of y_R - y2, D), from
+    the differences of the modified centres (eq. 6.20-6.21), eq. 6.16-6.18 up to footnote 4's factor 2."""
     dx_12_23 = (x1p - x3p) + t12 * y1p + t23 * y3p  # x'_12 - x'_23
     dy_12_23 = (y1p - y3p) - t12 * x1p - t23 * x3p  # y'_12 - y'_23
     dx_23_31 = -x1p - t23 * y3p - t31 * (y3p - y1p)  # x'_23 - x'_31
@@ -116,11 +109,8 @@ def _power_centre(x1p, y1p, x3p, y3p, t12, t23, t31):
 
 
 def _combined_heading(beacon_headings, rint):
-    """Circular mean of the three headings of eq. 6.24 (one per beacon), wrapped to [-pi, pi].
-
-    ToTal's position satisfies the bearing differences exactly, so the three agree up to rounding,
-    except near the critical circle where averaging them on the circle halves the rounding noise.
-    """
+    """Circular mean of the three headings of eq. 6.24, wrapped to [-pi, pi]: they agree but for rounding,
+    which the mean halves near the critical circle."""
     h1, h2, h3 = beacon_headings
     return _wrap(h1 + (_wrap(h2 - h1, rint) + _wrap(h3 - h1, rint)) / 3.0, rint)
 
@@ -135,13 +125,9 @@ def triangulate(
     bearings_rad: ArrayLike,
     turret_offset_m: Sequence[float] = (0.0, 0.0),
 ) -> ToTalFix:
-    """ToTal (Algorithm 6.1) for one triplet, heading from all three beacons (eq. 6.24 combined).
-
-    beacons_xy: (3, 2) beacon positions in the map frame (m), any order; bearings_rad: the three
-    bearings of those beacons in the sensor frame (rad, CCW). With `turret_offset_m` (the turret centre
-    in base_link), x and y are the robot centre; otherwise the turret centre. inverse_abs_d is 1/|D|
-    (m^-2), ToTal's reliability measure (thesis 6.3.5).
-    """
+    """ToTal (Algorithm 6.1) for one triplet (any order; bearings CCW in the sensor frame), heading from all
+    three beacons (eq. 6.24); x, y the robot centre given `turret_offset_m`, else the turret centre;
+    inverse_abs_d is 1/|D| (m^-2), the reliability measure (thesis 6.3.5)."""
     rows = beacons_xy.tolist() if isinstance(beacons_xy, np.ndarray) else beacons_xy
     angles = bearings_rad.tolist() if isinstance(bearings_rad, np.ndarray) else bearings_rad
     # Plain unpacking, no float() calls: ints and floats both work and this path must stay fast.
@@ -183,11 +169,8 @@ def triangulate_many(
     bearings_rad: ArrayLike,
     turret_offset_m: Sequence[float] = (0.0, 0.0),
 ) -> ToTalBatch:
-    """Vectorised `triangulate`: bearings_rad (N, 3); beacons_xy (3, 2) shared or (N, 3, 2) per row.
-
-    Same equations and the same numbers as the scalar form (Algorithm 6.1, eq. 6.23-6.24). Non-finite
-    inputs give ok False like D = 0 (`ToTalBatch.fix` reports the critical-circle reason for both).
-    """
+    """Vectorised `triangulate`: bearings_rad (N, 3); beacons_xy (3, 2) shared or (N, 3, 2) per row; a
+    non-finite input gives ok False like D = 0."""
     bearings = np.asarray(bearings_rad, dtype=float)
     beacons = np.asarray(beacons_xy, dtype=float)
     if bearings.ndim != 2 or bearings.shape[1] != 3 or beacons.shape not in ((3, 2), (len(bearings), 3, 2)):

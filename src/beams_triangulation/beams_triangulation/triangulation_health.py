@@ -1,17 +1,5 @@
-"""triangulation_node's status (`beams_common.status.health`): tracking only while its checks pass.
-
-Each pose already carries its own verdict (beams/pose: `accepted` and `reason`, the 1/|D| and standard
-deviation gates); the node's status says whether ToTal is fixing the robot at all:
-
-- waiting: no revolution received yet.
-- lost: no pose accepted for more than MAX_SILENCE_S (receiving clock): every revolution refused,
-  rejected by the gates, or none coming.
-- degraded: the bearing rate out of its range (~10 Hz), the odometry rate below its minimum (with
-  use_odometry), inputs refused as implausible within the last FAULT_HOLD_S (stamps late or early
-  against the receiving clock, odometry jumps), or the last accepted pose's protection level above its
-  alert limit (`protection_level`; three bearings have no redundancy: the fault-free bound).
-- tracking: none of the above.
-"""
+"""triangulation_node's status (`beams_common.status.health`): whether ToTal is fixing the robot at all
+(waiting, lost past MAX_SILENCE_S, degraded, tracking: docs/status.md)."""
 
 from collections.abc import Mapping
 from typing import Any

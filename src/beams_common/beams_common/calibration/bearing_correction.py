@@ -1,20 +1,8 @@
-"""The chapter-7 bias models of BeAMS bearings and their correction (thesis section 7.3).
-
-Two angle biases are modelled, both in radians:
-
-- the power bias (section 7.3.2), a cubic in the angular window w (rad), eq. 7.19:
-  f_corr1(w) = a w^3 + b w^2 + c w + d, with phi_biased = phi_real + f_corr1(w) (eq. 7.17);
-- the rotation bias (section 7.3.3), the Fourier series of the turret angle phi (rad) up to the
-  second order without its constant term (E = 0, absorbed by d), eq. 7.25:
-  f_corr2(phi) = A cos(phi) + B sin(phi) + C cos(2 phi) + D sin(2 phi).
-
-The thesis's fitted values (figures 7.5, 7.9, 7.11, 7.12) are consistent with w and the result in
-radians: the power bias then spans a few degrees over the working windows (about ten times the
-rotation bias, as section 7.3.5 says). The correction subtracts both (eq. 7.18 and 7.24).
-
-A cubic extrapolates wildly (one near 0 over 5-13 deg reaches -1.2 rad at a 0.04 rad window), so a
-calibrated correction carries the window range it was fitted on (`window_range_rad`) and holds the power
-bias at its edge value outside it (`holds_power_bias` says where; the driver counts those bearings).
+"""The chapter-7 bias models of BeAMS bearings and their correction (eq. 7.18, 7.24), all in radians: the
+power bias f_corr1(w) = a w^3 + b w^2 + c w + d of the window (eq. 7.19, phi_biased = phi_real + f_corr1,
+eq. 7.17) and the rotation bias f_corr2(phi) = A cos(phi) + B sin(phi) + C cos(2 phi) + D sin(2 phi) (eq.
+7.25; E absorbed by d). A cubic extrapolates wildly (-1.2 rad at a 0.04 rad window for one fitted over 5-13
+deg), so the power bias is held at its edge value outside the windows it was fitted on (`holds_power_bias`).
 """
 
 import math
@@ -50,11 +38,8 @@ def _coefficients(values: ArrayLike, name: str) -> Coefficients:
 
 @dataclass(frozen=True)
 class BearingCorrection:
-    """Power-bias (a, b, c, d) and rotation-bias (A, B, C, D) coefficients, thesis eq. 7.19 and 7.25.
-
-    The default is the identity correction (all coefficients zero). `window_range_rad` (lo, hi) is the
-    range of windows the power bias was fitted on, outside which it is held at its edge value; None (the
-    simulations' injected biases) evaluates the cubic everywhere. A calibration file always gives one.
+    """Power-bias (a, b, c, d) and rotation-bias (A, B, C, D) coefficients, thesis eq. 7.19 and 7.25 (zero:
+    the identity); `window_range_rad` None (the simulations' injected biases) evaluates the cubic everywhere.
     """
 
     power_bias_coefficients: Coefficients = _ZERO
@@ -114,19 +99,14 @@ class BearingCorrection:
         return _as_output(a * np.cos(phi) + b * np.sin(phi) + c * np.cos(2.0 * phi) + d * np.sin(2.0 * phi))
 
     def correct(self, bearing_rad: ArrayLike, window_rad: ArrayLike) -> np.ndarray | float:
-        """Corrected bearing phi - f_corr1(w) - f_corr2(phi), wrapped to (-pi, pi] (eq. 7.18, 7.24).
-
-        Both biases are evaluated at the measured values, as the thesis does (f_corr2 takes phi_biased).
-        """
+        """Corrected bearing phi - f_corr1(w) - f_corr2(phi) at the measured values (eq. 7.18, 7.24)."""
         phi = np.asarray(bearing_rad, dtype=float)
         corrected = phi - np.asarray(self.power_bias(window_rad)) - np.asarray(self.rotation_bias(phi))
         return wrap_to_pi(corrected)
 
     def apply_bias(self, true_bearing_rad: ArrayLike, window_rad: ArrayLike) -> np.ndarray | float:
-        """The biased bearing a sensor with these imperfections measures (eq. 7.17 and 7.24 forward).
-
-        For simulations and tests; correct() inverts it to first order in the (small) biases.
-        """
+        """The biased bearing a sensor with these imperfections measures (eq. 7.17, 7.24; correct() inverts it
+        to first order)."""
         phi = np.asarray(true_bearing_rad, dtype=float)
         biased = phi + np.asarray(self.power_bias(window_rad)) + np.asarray(self.rotation_bias(phi))
         return wrap_to_pi(biased)

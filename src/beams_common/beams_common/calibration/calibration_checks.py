@@ -1,22 +1,9 @@
-"""Plausibility of a calibration (thesis ch. 7) before any node applies it, and its effect on recent fixes.
-
-The schema (`file_schema`) makes sure a calibration file is well-formed; these checks make sure its
-values are ones a BeAMS calibration can find. Section 7.4 says what to expect after a calibration: "new
-beacon coordinates close to the manual measurements (a few millimeters in our setup). For the angles,
-power bias corrections of a few degrees maximum, and the rotation bias a few tenths of degree maximum";
-the turret offset found was (-0.98, -0.11) mm (section 7.3.5). The limits below leave a margin of about
-three over those (a rotation bias of 3 rad or a power bias of 1e300 put the EKF 1.6-2.5 m off while it
-reported a 2 mm standard deviation):
-
-- `calibration_value_problem`: the power bias (eq. 7.19) over the windows it applies to, the rotation
-  bias (eq. 7.25) over a turn, the turret offset on the robot; checked wherever a file is loaded
-  (`calibration_file.load_calibration`: start-up, `~/reload_calibration`, `ros2 param set
-  calibration_file`, in every node).
-- `calibration_nominal_problem`: the calibrated beacons and turret offset against the nominal ones (the
-  node's beacon_ids/x/y and turret_offset_m parameters): a calibration corrects them by millimetres, it
-  does not move a beacon across the table.
-- `bearing_residual_rms`: the RMS of recent bearings' residuals against a geometry, to compare a new
-  calibration's with the one in use (a calibration that makes the current fixes worse is flagged).
+"""Plausibility of a calibration's values (thesis ch. 7) before any node applies it, and its effect on recent
+fixes. Section 7.4 expects beacons a few millimetres from the manual measurements, a power bias of a few
+degrees and a rotation bias of a few tenths at most (the turret offset found: (-0.98, -0.11) mm, section
+7.3.5); the limits leave a margin of about three (a rotation bias of 3 rad put the EKF 1.6-2.5 m off while
+it reported 2 mm). `calibration_value_problem` runs on every load; `calibration_nominal_problem`
+holds it to the nominal geometry; `bearing_residual_rms` compares a new calibration with the one in use.
 """
 
 import math

@@ -1,28 +1,6 @@
-"""The calibration file: what the chapter-7 calibration found, read by the driver, ToTal and the EKF.
-
-A YAML file, human-readable and editable:
-
-    format: beams-calibration
-    version: 1
-    created_utc: '2026-11-22T03:30:00Z'
-    beacons:                 # true beacon coordinates in the map frame (m), table 7.4
-      - {id: 1, x_m: 1.1499, y_m: 0.0455}
-    power_bias:              # eq. 7.19, window and result in rad; held at its edge value outside
-      {a: -90.46, b: 35.83, c: -4.59, d: 0.19, window_range_rad: [0.08, 0.19]}   # the fitted windows
-    rotation_bias:           # eq. 7.25, turret angle and result in rad
-      {A: -0.000669, B: -0.00177, C: -0.00109, D: -0.00189}
-    turret_offset_m: {x: -0.00098, y: -0.00011}   # turret centre in base_link, eq. 7.26
-    rms:                     # table 7.5: error before and after each stage
-      - {stage: no calibration, position_rms_m: 0.00875, orientation_rms_rad: 0.0075}
-    leave_one_out: {stage: ..., position_rms_m: ..., orientation_rms_rad: ...}   # optional
-    warnings: []
-
-A file without window_range_rad (written before it existed) holds its power bias outside the thesis's
-calibration windows, 5-13 deg (`THESIS_CALIBRATION_WINDOW_RANGE_RAD`), where such a file was checked.
-`node_refusal` says why a node would refuse a calibration before it is written.
-
-Writes are atomic (temporary file, fsync, os.replace), and the previous file is kept as `<path>.bak`.
-"""
+"""The calibration file: what the chapter-7 calibration found, read by the driver, ToTal and the EKF (YAML,
+written atomically; its format: docs/calibration.md). A file without window_range_rad holds its power bias
+outside the thesis's 5-13 deg windows (`THESIS_CALIBRATION_WINDOW_RANGE_RAD`)."""
 
 import contextlib
 import datetime
@@ -129,12 +107,8 @@ def stage_text(path: str | os.PathLike, text: str) -> StagedFile:
 
 
 def atomic_write_text(path: str | os.PathLike, text: str, *, keep_backup: bool = True) -> None:
-    """Replace `path` by `text` so that a crash at any instant leaves either the old or the new file.
-
-    The text goes to a temporary file in the same directory, is fsynced, then renamed over `path`
-    (os.replace is atomic on POSIX). With keep_backup, the previous file is first copied to
-    `<path>.bak`, itself atomically.
-    """
+    """Replace `path` by `text` (a fsynced temporary file renamed over it; with keep_backup the previous file
+    first copied to `<path>.bak` likewise), so that a crash leaves either the old or the new file."""
     stage_text(path, text).commit(keep_backup=keep_backup)
 
 
@@ -223,13 +197,8 @@ def save_calibration(calibration: SensorCalibration, path: str | os.PathLike) ->
 
 
 def load_calibration(path: str | os.PathLike) -> SensorCalibration:
-    """Read a calibration file.
-
-    Raises FileNotFoundError (an OSError) for a missing file and CalibrationFileError (a ValueError)
-    naming the file and the faulty entry for a malformed one, or the implausible value for one whose
-    values no calibration finds (`calibration_checks.calibration_value_problem`: a rotation bias of 3 rad,
-    a power bias of 1e300).
-    """
+    """Read a calibration file: FileNotFoundError, or CalibrationFileError naming the file and the faulty
+    entry or implausible value (`calibration_checks.calibration_value_problem`)."""
     source = Path(path)
     if not source.is_file():
         raise FileNotFoundError(f"calibration file {source} does not exist")

@@ -1,9 +1,4 @@
-"""One BeAMS bearing, as the triangulation and the EKF take it from beams/bearings.
-
-The driver publishes each revolution's bearings (beams_msgs/BeaconBearingArray): per beacon the bearing
-in the sensor frame (eq. 2.5, the mean of the first rising and last falling edge), its variance (ch. 4),
-and the instant the turret pointed at the beacon. Both consumers read the same fields the same way.
-"""
+"""One BeAMS bearing (eq. 2.5, its variance ch. 4), as ToTal and the EKF take it from beams/bearings."""
 
 from collections.abc import Callable
 from dataclasses import dataclass

@@ -1,17 +1,8 @@
-"""One stamped planar pose buffer for every consumer of a pose stream.
-
-The triangulation brings each bearing of a revolution to one instant with the wheel odometry (motion
-compensation), the EKF brings each bearing's stamp to the filter's instant (thesis fig. 8.1, the odometry
-branch), and the simulated sensor follows the robot's true pose during a revolution. All three need the
-pose of a stream at any recent instant: interpolated between the two samples around it (linear in
-position, shortest arc in heading) and, for a short while past the newest sample, extrapolated along the
-arc of the newest twist, or the newest step continued for a stream without twists (a bearing may be
-stamped a little after the last odometry message when the two streams race).
-
-A stream is fed by `append` (strictly increasing stamps: the EKF) or by `add` / `add_valid`, which
-refuse non-finite samples and handle stamps in the past (a bag played in a loop) for raw message streams.
-
-Poses are (x, y, theta) tuples: x, y in metres, theta in radians, REP-103.
+"""One stamped planar pose buffer for every consumer of a pose stream: ToTal's motion compensation, the EKF's
+odometry branch (thesis fig. 8.1) and the simulated sensor. A pose at any recent instant is interpolated
+(linear in position, shortest arc in heading) or, shortly past the newest sample (a bearing racing the
+odometry), extrapolated along the newest twist's arc or step. `append` takes strictly increasing stamps;
+`add` / `add_valid` refuse non-finite samples and handle stamps in the past. Poses are (x, y, theta), REP-103.
 """
 
 import math
@@ -50,12 +41,8 @@ def twist_between(
 
 
 class PoseBuffer:
-    """The poses of one stream over the last `span_s` seconds, strictly increasing in time.
-
-    One sample older than the span is kept, so the span's first instant can still be interpolated.
-    Each sample may carry a twist (speed, yaw rate) for the extrapolation past it (without one, the newest
-    step is continued) and a payload the owner attaches (the EKF's state after it).
-    """
+    """The poses of one stream over the last `span_s` seconds (and one older, to interpolate the first
+    instant), strictly increasing; each with an optional twist and an owner's payload (the EKF's state)."""
 
     def __init__(
         self, span_s: float, max_extrapolation_s: float, time_jumps: TimeJumpDetector | None = None

@@ -1,19 +1,7 @@
-"""The one intake of a revolution's bearings (a beams/bearings message), shared by ToTal and the EKF.
-
-Each rule runs once, here, in this order, and the result says what was kept and what was refused, with
-the reason and a count per kind, for the node's /diagnostics and the offline replay alike:
-
-1. a revolution of more than `validation.MAX_BEARINGS_PER_REVOLUTION` bearings is refused whole, before
-   any per-bearing work (`too_many`);
-2. one sighting per beacon (`validation.one_sighting_per_beacon`): a beacon seen again at another instant
-   keeps the sighting nearest the revolution's middle (the others: REPEATED_BEACON, set aside, not an
-   error: a robot turning against the turret); a beacon seen twice at one instant is not physical: all
-   its bearings are refused (CONFLICTING_BEACON);
-3. each remaining bearing by `validation.bearing_problem`: UNKNOWN_BEACON (not on the beacon map) or
-   INVALID_MEASUREMENT (non-finite value or stamp, non-physical variance).
-
-What each consumer does with a refusal, and where a new check goes: docs/shape-core.md ("One intake per
-input"); the stamp plausibility against the receiving clock is the nodes' (the replay has no such clock).
+"""The one intake of a revolution's bearings (a beams/bearings message), shared by ToTal and the EKF: the
+revolution refused whole past `validation.MAX_BEARINGS_PER_REVOLUTION` (`too_many`), then one sighting per
+beacon (`validation.one_sighting_per_beacon`: REPEATED_BEACON set aside, CONFLICTING_BEACON refused), then
+each bearing by `validation.bearing_problem`; kept and refused with reason and counts (docs/shape-core.md).
 """
 
 from collections import Counter

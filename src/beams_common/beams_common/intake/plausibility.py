@@ -1,11 +1,7 @@
-"""Semantic plausibility of the inputs: well-formed values that cannot be true.
-
-`validation` checks each input's syntax (finite, shaped, bounded); this module checks what a well-formed
-input claims against what is physically possible, each check returning a reason ('' when plausible):
-a stamp against the receiving clock (`stamp_problem`: a bearing applied at the wrong instant put the EKF
-0.3-0.45 m off while its covariance said 2 mm), an odometry increment against the robot's speed and yaw
-rate (`odometry_step_problem`: a +100 m jump is a reset, not motion) and a pose covariance's bound
-(`MAX_POSE_SIGMA_M`, `MAX_POSE_SIGMA_RAD`: 1e300 made every later estimate non-symmetric).
+"""Semantic plausibility of the inputs: well-formed values that cannot be true, each check returning a reason:
+a stamp against the receiving clock (`stamp_problem`: a bearing at the wrong instant put the EKF 0.3 m off
+while it said 2 mm), an odometry increment against the robot's limits (`odometry_step_problem`), a pose
+covariance's bound (`MAX_POSE_SIGMA_M`, `MAX_POSE_SIGMA_RAD`).
 """
 
 import math
@@ -25,13 +21,8 @@ MAX_POSE_SIGMA_M = 4.0
 MAX_POSE_SIGMA_RAD = 2.0 * math.pi
 
 
-# The parameters of the checks, shared by triangulation_node and ekf_node (changeable at runtime: each
-# message is judged with the values in force).
-# The age: one revolution (0.1 s, thesis ch. 2: the turret turns at ~10 Hz; the newest bearing of a
-# revolution is at most that old when it is published), plus 0.15 s of transport and scheduling on a
-# loaded computer; a revolution restamped 0.3 s late is beyond it. The lead: hosts synchronised by
-# NTP/PTP agree within milliseconds; 0.1 s leaves room for a coarse synchronisation, a stamp 0.5 s early
-# is beyond it.
+# triangulation_node's and ekf_node's (runtime) checks. The age: one revolution (0.1 s, thesis ch. 2) plus
+# 0.15 s of transport on a loaded computer; the lead: room for a coarse NTP synchronisation.
 STAMP_SPECS = (
     ParameterSpec(
         "max_stamp_age_s",

@@ -1,24 +1,8 @@
-"""The one intake of a pose offered to the EKF: ToTal's accepted fix (beams/pose), an operator's
-(/initialpose, the `~/set_pose` service), shared by ekf_node and the offline replay.
-
-Each rule runs once, here, in this order; the answer is the pose kept (planar, with the covariance the
-filter may use) or the refusal with its kind, its reason and its counter key (`<source>_poses_<kind>`),
-for the node's /diagnostics and the replay's counts alike:
-
-1. the frame: a pose in another frame than the map's is refused (`wrong_frame`); an empty frame id is
-   taken as the map's (RViz and hand-written requests often leave it empty);
-2. finiteness: a non-finite stamp, position, orientation or covariance entry, or an orientation
-   quaternion of zero norm, is refused (`invalid`);
-3. the covariance (its x, y, yaw block, thesis eq. 6.30 for ToTal's): symmetric (to
-   `validation.SYMMETRY_TOLERANCE`, relative), positive semi-definite (a negative variance is refused)
-   and bounded (a standard deviation beyond `plausibility.MAX_POSE_SIGMA_M` = 4 m or
-   `MAX_POSE_SIGMA_RAD` = 2 pi rad carries no information, and 1e12 next to the bearings' 1e-6 rad^2
-   wedged the filter) (`covariance`). A covariance that is semi-definite but not definite (RViz's zeros)
-   is kept without it: `KeptPose.covariance` is None and the filter uses its default.
-
-The stamp against the receiving clock (`plausibility.stamp_problem`) is the node's, as for the
-bearings and the odometry: the offline replay has no receiving clock. An operator's stamp is no rule
-here either: it is taken as "now" by the Localiser when zero or ahead of the odometry.
+"""The one intake of a pose offered to the EKF (ToTal's fix, /initialpose, `~/set_pose`), shared by ekf_node
+and the offline replay; refused with kind, reason and counter key `<source>_poses_<kind>`: `wrong_frame` (an
+empty frame id is the map's: RViz leaves it empty), `invalid` (non-finite, a zero quaternion), `covariance`
+(the x, y, yaw block, eq. 6.30: asymmetric, negative, or beyond `plausibility.MAX_POSE_SIGMA_M` /
+`MAX_POSE_SIGMA_RAD`). A semi-definite one (RViz's zeros) is kept as None: the filter's default.
 """
 
 import math
@@ -35,9 +19,7 @@ from beams_common.intake.validation import SYMMETRY_TOLERANCE, bounded
 
 # The (x, y, yaw) rows and columns of a row-major 6x6 ROS covariance.
 PLANAR_INDICES = (0, 1, 5)
-# A normalised covariance (largest entry 1) whose smallest eigenvalue is below minus this is not
-# positive semi-definite: a negative variance, or a correlation beyond one (floating point leaves
-# ~1e-16 on a semi-definite one).
+# Below minus this, a normalised covariance's smallest eigenvalue is negative, not rounding (~1e-16).
 PSD_TOLERANCE = 1e-9
 # An orientation quaternion shorter than this has no direction.
 MIN_QUATERNION_NORM = 1e-6

@@ -1,14 +1,9 @@
 """Two sources in one stream, told from the values: counters or stamps that interleave.
 
-One source gives increasing values (beams/bearings revolution counters, odometry stamps): each continues
-the previous by a small positive step, and a restart or a long gap starts a new run that the old one
-never rejoins. Two sources in one stream (two driver_nodes in a namespace, a bag played over a live
-robot) give two runs that alternate. `InterleaveDetector` keeps the recent runs ("tracks") and counts
-the switches back to an older track; SWITCHES_FOR_INTERLEAVE of them within the window say two sources.
-
-Two sources whose merged values still increase (two simulators on one clock, publishing the same
-instants) cannot be told from the values: the ROS graph tells them (beams_common.ros.input_watch).
-Pure (no ROS).
+One source's values increase by small steps (a restart starts a run the old one never rejoins); two
+sources (two drivers in a namespace, a bag over a live robot) give alternating runs: SWITCHES_FOR_INTERLEAVE
+switches back to an older run within the window. Merged values that still increase cannot be told from the
+values: the ROS graph tells them (beams_common.ros.input_watch).
 """
 
 from collections import deque

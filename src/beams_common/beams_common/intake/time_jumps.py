@@ -1,11 +1,6 @@
-"""Telling a stream's time going back for good (a rosbag played in a loop, a restarted simulation) from
-one stray message stamped in the past (a late retransmission, a second publisher, a clock glitch).
-
-Each consumer of a stamped stream (ekf_node's odometry, triangulation_node's odometry buffer) resets its
-state when time goes back; resetting on a single stray message would throw a good estimate away, so a
-jump is taken only when `confirmations` consecutive messages all lie before the newest stamp by more
-than the tolerance, in increasing order among themselves (a loop plays forward again). The messages
-before the confirming one are dropped: the reset starts from the confirming message.
+"""Telling a stream's time going back for good (a bag in a loop, a restarted simulation) from one stray
+message stamped in the past: a jump is taken when `confirmations` consecutive messages, increasing among
+themselves, all lie before the newest stamp by more than the tolerance; the reset starts from the last one.
 """
 
 from enum import Enum

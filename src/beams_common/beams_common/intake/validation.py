@@ -1,9 +1,5 @@
-"""The checks every input and output of the BeAMS nodes goes through, each returning a reason.
-
-Pure functions (no rclpy), shared by the nodes and the offline tools: an empty string means "valid",
-anything else is the reason, bounded in length, that a service reply, a log line and /diagnostics give.
-The bearing and odometry rules (`bearing_problem`, `odometry_problem`) are the triangulation's and the
-EKF's alike; `planar_estimate_problem` guards what leaves a node; a pose's intake is `pose_intake`.
+"""The checks every input and output of the BeAMS nodes goes through, returning a reason ('' when valid):
+the bearing and odometry rules of ToTal and the EKF alike, `planar_estimate_problem` on what leaves a node.
 """
 
 import math
@@ -16,10 +12,8 @@ import numpy as np
 # A real turret sees 3 beacons (the thesis's setup), a few more on a crowded table; 64 leaves room for
 # 21 robots' worth of beacons yet bounds a revolution's cost (10,000 bearings froze the EKF for 0.5 s).
 MAX_BEARINGS_PER_REVOLUTION = 64
-# The encoder resolves 2 pi / 62,400 rad (serial_protocol.TICKS_PER_REVOLUTION): a bearing, the mean of
-# two edge angles, cannot be known better than that tick's quantisation variance tick^2 / 12 = 8.4e-10
-# rad^2 (the driver's own floor, the natural variance, is 3.0e-7 rad^2). Below it a variance is not
-# physical, and 0 would give ToTal an all-zero, singular pose covariance (eq. 6.30).
+# The quantisation variance of a 2 pi / 62,400 rad tick, tick^2 / 12: a bearing is known no better, and 0
+# would give ToTal a singular pose covariance (eq. 6.30).
 ENCODER_TICK_RAD = 2.0 * math.pi / 62_400
 MIN_BEARING_VARIANCE_RAD2 = ENCODER_TICK_RAD**2 / 12.0
 # Reasons travel in service replies, log lines and /diagnostics: long enough for a path and a value.
@@ -27,9 +21,8 @@ MAX_REASON_CHARS = 240
 # Relative asymmetry tolerated in a covariance computed in floating point (J S J' is symmetric to
 # rounding only).
 SYMMETRY_TOLERANCE = 1e-9
-# Smallest eigenvalue over the largest below which a covariance is singular in floating point (a
-# Cholesky factorisation still succeeds on some singular matrices by rounding): 1e-12 leaves six orders
-# of magnitude beyond any pose covariance the nodes compute (1e-8 m^2 next to 1e-2 rad^2).
+# Eigenvalue ratio below which a covariance is singular in floating point (Cholesky may still succeed):
+# six orders beyond any the nodes compute (1e-8 m^2 next to 1e-2 rad^2).
 MAX_CONDITION_RECIPROCAL = 1e-12
 
 
@@ -48,10 +41,8 @@ def revolution_size_problem(count: int) -> str:
 def bearing_problem(
     beacon_id: int, bearing_rad: float, variance_rad2: float, stamp_s: float, known_ids: Iterable[int]
 ) -> str:
-    """Why one bearing can never be used (unknown beacon, non-finite value, non-physical variance), or ''.
-
-    The variance must be finite and at least MIN_BEARING_VARIANCE_RAD2 (the encoder's quantisation).
-    """
+    """Why one bearing can never be used (unknown beacon, non-finite value, variance below
+    MIN_BEARING_VARIANCE_RAD2), or ''."""
     if beacon_id not in known_ids:
         return f"unknown beacon id {beacon_id}: not on the beacon map"
     if not (math.isfinite(bearing_rad) and math.isfinite(stamp_s)):
@@ -82,13 +73,9 @@ class Sightings:
 
 
 def one_sighting_per_beacon(bearings: Sequence[Sighting]) -> Sightings:
-    """One bearing per beacon: a beacon seen again at another instant keeps the sighting closest in time
-    to the revolution's median instant; a beacon seen twice at one instant is conflicting.
-
-    A robot turning against the turret sees the beacon near the zero reference at the start and again
-    at the end of the same revolution: both sightings are real, the closer one in time needs the least
-    motion compensation. The triangulation and the EKF apply the same rule.
-    """
+    """One bearing per beacon: of a beacon seen at two instants (a robot turning against the turret), the
+    sighting nearest the revolution's median instant (the least motion compensation); at one instant,
+    conflicting."""
     finite = [b.stamp_s for b in bearings if math.isfinite(b.stamp_s)]
     median_s = float(np.median(finite)) if finite else 0.0
     kept: dict[int, Any] = {}
