@@ -288,7 +288,7 @@ def _plan(args: argparse.Namespace, values: dict[str, Any]) -> tuple[PlannedPose
 @command("calibration_session")
 def main(argv: Sequence[str] | None = None) -> int:
     """The `calibration_session` console script; returns the exit status."""
-    argv = list(sys.argv if argv is None else argv)
+    argv = ["calibration_session", *(sys.argv[1:] if argv is None else argv)]
     args = _parser().parse_args(remove_ros_args(argv)[1:])
     console = Console(
         sys.stdin, sys.stdout, assume_yes=args.yes, tty=sys.stdin.isatty() and sys.stdout.isatty()

@@ -4,6 +4,7 @@ configurations), eq. 7.23 (the rotation experiment's 24 orientations). `thesis_s
 thesis's prototype, so that `thesis_dataset` plays the part of its recordings."""
 
 import argparse
+import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -228,6 +229,7 @@ def entry_point(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("dataset", type=Path, help="dataset file to write (YAML, as calibration_node writes)")
     parser.add_argument("--seed", type=int, default=1, help="random seed of the simulated sensor")
     args = parser.parse_args(argv)
+    tempfile.TemporaryFile(dir=args.dataset.parent).close()  # a place it cannot write: said before the minute
     simulate_thesis_dataset(args.dataset, args.seed)
     print(f"simulate_thesis_dataset: the thesis's 48 configurations written to {args.dataset}")
     return 0
