@@ -53,7 +53,7 @@ def bad_value(spec: ParameterSpec) -> Any:
         if spec.lengths:
             item = spec.default[0] if spec.default else (spec.minimum or 0.0)
             return [item] * (spec.lengths[1] + 1)
-        return [{"x": 1}] if spec.item_type is str else ["x"]
+        return [1] if spec.item_type is str else ["x"]
     if spec.item_type in (int, float) and spec.maximum is not None and math.isfinite(spec.maximum):
         return spec.item_type(spec.maximum) + spec.item_type(max(1, abs(spec.maximum)))
     if spec.item_type in (int, float) and spec.minimum is not None:
