@@ -5,16 +5,16 @@ answered within a bounded wait, a refusal with its reason, and the node still pu
 after."""
 
 import ast
+import importlib
 import pathlib
 import time
 
-from rosidl_runtime_py.utilities import get_service
 
 SRC = pathlib.Path(__file__).resolve().parents[2] / "src"
 CALLS = 20
 CLIENTS = 4
 UP_TIMEOUT_S = 30.0
-ANSWER_TIMEOUT_S = 30.0
+ANSWER_TIMEOUT_S = 15.0
 # what a node needs to start on its own (the rest are its defaults)
 PARAMS = {"driver_node": {"sim_static_pose": [1.5, 1.0, 0.0]}}
 
@@ -29,6 +29,12 @@ def _nodes() -> list[tuple[str, str]]:
                     name = entry.split("=")[0].strip()
                     nodes += [(setup.parent.name, name)] if name.endswith("_node") else []
     return nodes
+
+
+def _service_type(name: str):
+    """The class of a service type named as the graph names it ("std_srvs/srv/Trigger")."""
+    package, kind, type_name = name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), type_name)
 
 
 def _meaningless(reply) -> str:
@@ -68,7 +74,7 @@ def test_every_service_answers_20_concurrent_calls(rclpy_node, start_node, tmp_p
     failures = []
     for namespace, (executable, node) in started.items():
         for service, type_name in sorted(services_of(namespace, executable)):
-            srv_type = get_service(type_name)
+            srv_type = _service_type(type_name)
             clients = [graph.create_client(srv_type, service) for _ in range(CLIENTS)]
             if not all(c.wait_for_service(timeout_sec=UP_TIMEOUT_S) for c in clients):
                 failures.append(f"{service}: not available")
@@ -80,8 +86,7 @@ def test_every_service_answers_20_concurrent_calls(rclpy_node, start_node, tmp_p
             problems = {_meaningless(r) for r in answered} - {""}
             if len(answered) < CALLS or problems:
                 failures.append(f"{service}: {len(answered)}/{CALLS} answered {sorted(problems)}")
-            else:
-                print(f"{service}: {CALLS} answered in {time.monotonic() - start:.2f} s")
+            print(f"{service}: {len(answered)}/{CALLS} answered in {time.monotonic() - start:.2f} s", flush=True)
             for client in clients:
                 graph.destroy_client(client)
         count = len(diagnostics)
