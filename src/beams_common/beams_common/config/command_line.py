@@ -39,9 +39,6 @@ def command(name: str, *, clean: bool = True) -> Callable[[Main], Main]:
 def reason(error: BaseException) -> str:
     """An exception as one line: an OS error's file and cause, a refusal's text, anything else's type too."""
     if isinstance(error, OSError) and error.strerror:
-        text = f"{error.filename}: {error.strerror}" if error.filename else error.strerror
-    else:
-        lines = str(error).strip().splitlines()
-        text = lines[0] if lines else type(error).__name__
-        text = text if isinstance(error, ValueError | OSError) else f"{type(error).__name__}: {text}"
-    return text
+        return f"{error.filename}: {error.strerror}" if error.filename else error.strerror
+    text = (str(error).strip().splitlines() or [type(error).__name__])[0]
+    return text if isinstance(error, ValueError | OSError) else f"{type(error).__name__}: {text}"
