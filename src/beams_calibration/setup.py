@@ -24,8 +24,8 @@ setup(
     entry_points={
         "console_scripts": [
             "calibration_node = beams_calibration.calibration_node:main",
-            "calibrate = beams_calibration.calibrate_command:entry_point",
-            "calibration_session = beams_calibration.session_command:entry_point",
+            "calibrate = beams_calibration.calibrate_command:main",
+            "calibration_session = beams_calibration.session_command:main",
         ],
     },
 )

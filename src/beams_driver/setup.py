@@ -24,7 +24,7 @@ setup(
     entry_points={
         "console_scripts": [
             "driver_node = beams_driver.driver_node:main",
-            "estimate_noise = beams_driver.estimate_noise:entry_point",
+            "estimate_noise = beams_driver.estimate_noise:main",
         ]
     },
 )

@@ -79,7 +79,7 @@ def test_estimate_noise_refuses_a_moving_robot_and_a_bag_without_bearings(tmp_pa
     assert result.returncode == 2
     assert result.stderr.count("\n") == 1 and "the robot moved" in result.stderr
     empty = write_bag(tmp_path / "empty", [], beams_typestore())
-    for bag, reason in ((empty, "no /beams/bearings"), (tmp_path / "nothing", "cannot read the bag")):
+    for bag, reason in ((empty, "no /beams/bearings"), (tmp_path / "nothing", "not a readable rosbag2 bag")):
         result = _run(str(bag))
         assert result.returncode == 2 and reason in result.stderr, result.stderr
         assert result.stderr.count("\n") == 1

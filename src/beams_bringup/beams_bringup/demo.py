@@ -23,6 +23,7 @@ import os
 import pathlib
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,6 +40,7 @@ from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
 
 from beams_common.calibration.calibration_file import SensorCalibration, save_calibration
+from beams_common.config.command_line import command
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.interfaces import topics
@@ -263,7 +265,8 @@ def summary_table(record: MatchRecord, sensor: SensorSetup) -> str:
     return "\n".join(lines)
 
 
-def main() -> int:
+@command("demo", clean=False)
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -282,7 +285,7 @@ def main() -> int:
         action="store_true",
         help="give the driver a perfect chapter-7 calibration (default: uncalibrated, self-calibrating)",
     )
-    options = parser.parse_args()
+    options = parser.parse_args(argv)
     output = options.output or ROOT / "out" / f"demo-{datetime.datetime.now():%Y%m%d-%H%M%S}"
     output.mkdir(parents=True, exist_ok=True)
     sensor = sensor_setup(options.sensor_model, output, options.calibrated)

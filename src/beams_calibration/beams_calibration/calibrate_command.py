@@ -23,10 +23,9 @@ from beams_calibration.calibrate import (
     CalibrationResult,
     calibrate,
 )
-from beams_calibration.dataset import DatasetError, load_dataset
+from beams_calibration.dataset import load_dataset
 from beams_calibration.outputs import rms_regression, write_outputs
-
-EXIT_REFUSED = 2
+from beams_common.config.command_line import command
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -87,6 +86,7 @@ def format_report(result: CalibrationResult) -> str:
     return "\n".join(lines)
 
 
+@command("calibrate")
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `calibrate` console script; returns the exit status."""
     args = _parser().parse_args(argv)
@@ -95,40 +95,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     def progress(line: str) -> None:
         print(f"[{time.monotonic() - start:6.1f} s] {line}", flush=True)
 
-    try:
-        dataset = load_dataset(args.dataset)
-        progress(f"{len(dataset.configurations)} configurations read from {args.dataset}")
-        result = calibrate(
-            dataset,
-            eta_m_per_rad=args.eta,
-            threshold=args.threshold,
-            max_iterations=args.max_iterations,
-            leave_one_out=not args.no_leave_one_out,
-            with_table_7_5=args.table_7_5,
-            beacon_ids=args.beacons,
-            progress=progress,
-        )
-    except (OSError, DatasetError, CalibrationRefusedError) as error:
-        print(f"calibrate: {error}", file=sys.stderr)
-        return EXIT_REFUSED
+    dataset = load_dataset(args.dataset)
+    progress(f"{len(dataset.configurations)} configurations read from {args.dataset}")
+    result = calibrate(
+        dataset,
+        eta_m_per_rad=args.eta,
+        threshold=args.threshold,
+        max_iterations=args.max_iterations,
+        leave_one_out=not args.no_leave_one_out,
+        with_table_7_5=args.table_7_5,
+        beacon_ids=args.beacons,
+        progress=progress,
+    )
     print(format_report(result))
     worse = rms_regression(result, args.eta)
     if worse and not args.force:
-        print(f"calibrate: {worse} (--force writes it); nothing written", file=sys.stderr)
-        return EXIT_REFUSED
-    try:  # all or nothing: a failure leaves every file as it was
-        written = write_outputs(result, None if args.dry_run else args.output, args.plots)
-    except OSError as error:
-        print(f"calibrate: nothing written: {error}", file=sys.stderr)
-        return EXIT_REFUSED
-    for path in written:
+        raise CalibrationRefusedError(f"{worse} (--force writes it); nothing written")
+    # all or nothing: a failure leaves every file as it was
+    for path in write_outputs(result, None if args.dry_run else args.output, args.plots):
         progress(f"written: {path}")
     return 0
 
 
-def entry_point() -> None:
-    sys.exit(main())
-
-
 if __name__ == "__main__":
-    entry_point()
+    sys.exit(main())

@@ -22,6 +22,7 @@ import numpy as np
 from beams_calibration.calibrate import CoverageRequirements
 from beams_calibration.dataset import capture_pose_problem, pose_of_summary
 from beams_calibration.reference_layout import PRIOR_BEACONS, REFERENCE_POSITIONS
+from beams_common.config.command_line import EXIT_REFUSED
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.beacon_map import BeaconMap
 
@@ -483,7 +484,6 @@ class SessionOutcome:
 
 EXIT_CALIBRATED = 0
 EXIT_STOPPED = 1
-EXIT_REFUSED = 2
 
 
 def exit_status(outcome: SessionOutcome) -> int:

@@ -33,7 +33,6 @@ from rclpy.utilities import remove_ros_args
 
 from beams_calibration.session import (
     DEFAULT_MAX_ATTEMPTS,
-    EXIT_REFUSED,
     EXIT_STOPPED,
     NOMINAL_TURRET_RATE_HZ,
     CalibrationReport,
@@ -48,6 +47,7 @@ from beams_calibration.session import (
     reference_plan,
     run_session,
 )
+from beams_common.config.command_line import command
 from beams_common.geometry.beacon_map import BeaconMap
 from beams_common.interfaces import topics
 from beams_common.ros.messages import seconds_to_stamp, set_pose2d
@@ -64,7 +64,7 @@ SIMULATED_SETTLE_S = 0.5
 NODE_PARAMETERS = ("beacon_ids", "beacon_x", "beacon_y", "min_configurations", "default_revolutions")
 
 
-class SetupError(RuntimeError):
+class SetupError(ValueError):
     """The session cannot start (no node, a bad plan); says why."""
 
 
@@ -285,9 +285,10 @@ def _plan(args: argparse.Namespace, values: dict[str, Any]) -> tuple[PlannedPose
     return plan
 
 
+@command("calibration_session")
 def main(argv: Sequence[str] | None = None) -> int:
     """The `calibration_session` console script; returns the exit status."""
-    argv = list(sys.argv if argv is None else argv)
+    argv = ["calibration_session", *(sys.argv[1:] if argv is None else argv)]
     args = _parser().parse_args(remove_ros_args(argv)[1:])
     console = Console(
         sys.stdin, sys.stdout, assume_yes=args.yes, tty=sys.stdin.isatty() and sys.stdout.isatty()
@@ -307,9 +308,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             plan, services, console, max_attempts=args.max_attempts, calibrate=not args.no_calibrate
         )
         return exit_status(outcome)
-    except SetupError as error:
-        print(f"calibration_session: {error}", file=sys.stderr)
-        return EXIT_REFUSED
     except (KeyboardInterrupt, ExternalShutdownException):
         console.say("\nstopped; run the same command again to resume (the captured poses are skipped)")
         return EXIT_STOPPED
@@ -318,9 +316,5 @@ def main(argv: Sequence[str] | None = None) -> int:
         rclpy.try_shutdown()
 
 
-def entry_point() -> None:
-    sys.exit(main())
-
-
 if __name__ == "__main__":
-    entry_point()
+    sys.exit(main())

@@ -9,6 +9,7 @@ import pytest
 from beams_calibration import calibrate_command
 from beams_calibration.dataset import save_dataset
 from beams_common.calibration.calibration_file import load_calibration
+from beams_common.config.command_line import EXIT_REFUSED
 from beams_common.geometry.beacon_map import BeaconMap
 from beams_thesis import thesis_setup
 
@@ -69,12 +70,10 @@ def test_dry_run_with_table_7_5_writes_nothing(dataset_path: Path, tmp_path: Pat
 
 
 def test_refusals_exit_with_status_2(tmp_path: Path, capsys):
-    assert calibrate_command.main([str(tmp_path / "missing.yaml")]) == calibrate_command.EXIT_REFUSED
+    assert calibrate_command.main([str(tmp_path / "missing.yaml")]) == EXIT_REFUSED
     assert "does not exist" in capsys.readouterr().err
     small = tmp_path / "small.yaml"
     save_dataset(thesis_setup.geometric_dataset(thesis_setup.reference_poses()[:5]), small)
-    assert (
-        calibrate_command.main([str(small), "-o", str(tmp_path / "c.yaml")]) == calibrate_command.EXIT_REFUSED
-    )
+    assert calibrate_command.main([str(small), "-o", str(tmp_path / "c.yaml")]) == EXIT_REFUSED
     assert "calibration refused: 5 usable configurations" in capsys.readouterr().err
     assert not (tmp_path / "c.yaml").exists()

@@ -109,7 +109,7 @@ def test_parameter_file_sections_merge_as_rcl_applies_them(tmp_path):
     path.write_text(yaml.safe_dump(document))
     assert load_parameter_file(path, TABLE)["gain"] == 3.0
     path.write_text("/**: [unclosed")
-    with pytest.raises(ParameterError, match="not YAML"):
+    with pytest.raises(ParameterError, match="not valid YAML"):
         load_parameter_file(path, TABLE)
 
 

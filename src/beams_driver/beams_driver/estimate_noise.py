@@ -20,7 +20,8 @@ from dataclasses import dataclass
 from typing import Any
 
 from beams_common.calibration.calibration_file import atomic_write_text
-from beams_common.config.parameters import ParameterError, ParameterTable, load_parameter_file
+from beams_common.config.command_line import command, reason
+from beams_common.config.parameters import ParameterTable, load_parameter_file
 from beams_driver.edge_source import named_sources, source_kind
 from beams_driver.noise_estimation import (
     MAX_DRIFT_RAD,
@@ -42,8 +43,8 @@ from beams_driver.noise_estimation import (
 from beams_driver.parameters import DRIVER_PARAMETERS, codes_of, variance_model_of
 from beams_driver.variance import VarianceModel
 
-EXIT_BAD_INPUT = 2
 BEARINGS_TOPIC = "/beams/bearings"
+BEARINGS_TYPE = "beams_msgs/msg/BeaconBearingArray"
 DEG = math.radians(1.0)
 
 
@@ -94,25 +95,24 @@ def _all_source_parameters() -> ParameterTable:
 def read_bearings(path: pathlib.Path, topic: str = BEARINGS_TOPIC) -> list[tuple[int, float, float, float]]:
     """(beacon id, bearing, variance, window) of every bearing on the topic, in stamp order, from a
     rosbag2 bag (MCAP or sqlite3; the message definitions recorded in the bag)."""
-    from rosbags.highlevel import AnyReader, AnyReaderError
+    from rosbags.highlevel import AnyReader
 
     wanted = "/" + topic.lstrip("/")
     rows: list[tuple[float, int, float, float, float]] = []
     try:
         with AnyReader([path]) as reader:
             connections = [c for c in reader.connections if c.topic == wanted]
-            if not connections:
-                topics = sorted({c.topic for c in reader.connections})
-                raise NoiseEstimationError(f"{path}: no {wanted} in the bag (topics: {topics})")
+            if not connections or any(c.msgtype != BEARINGS_TYPE for c in connections):
+                found = sorted(f"{c.topic} ({c.msgtype})" for c in reader.connections)
+                raise NoiseEstimationError(f"{path}: no {wanted} of type {BEARINGS_TYPE} (found: {found})")
             for connection, _, raw in reader.messages(connections=connections):
-                message = reader.deserialize(raw, connection.msgtype)
-                for b in message.bearings:
+                for b in reader.deserialize(raw, connection.msgtype).bearings:
                     stamp = b.header.stamp.sec + 1e-9 * b.header.stamp.nanosec
                     rows.append((stamp, b.beacon_id, b.bearing, b.variance, b.angular_window))
-    except (AnyReaderError, OSError, ValueError, KeyError) as error:
-        if isinstance(error, NoiseEstimationError):
-            raise
-        raise NoiseEstimationError(f"{path}: cannot read the bag: {error}") from None
+    except NoiseEstimationError:
+        raise
+    except Exception as error:  # rosbags and its storages raise many types
+        raise NoiseEstimationError(f"{path}: not a readable rosbag2 bag ({reason(error)})") from None
     rows.sort(key=lambda row: row[0])
     return [row[1:] for row in rows]
 
@@ -241,46 +241,35 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+@command("estimate_noise")
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the `estimate_noise` console script; returns the exit status."""
     options = _parser().parse_args(argv)
-    try:
-        values = driver_values(options.driver_params)
-        recordings = [
-            recording
-            for bag in options.bags
-            for recording in recordings_from_bearings(
-                str(bag), read_bearings(bag, options.topic), options.min_samples
-            )
-        ]
-        report = estimate(
-            recordings,
-            values,
-            max_std_rad=options.max_std_deg * DEG,
-            max_drift_rad=options.max_drift_deg * DEG,
-            slope_z_threshold=options.slope_z,
+    values = driver_values(options.driver_params)
+    recordings = [
+        recording
+        for bag in options.bags
+        for recording in recordings_from_bearings(
+            str(bag), read_bearings(bag, options.topic), options.min_samples
         )
-    except (NoiseEstimationError, ParameterError, ValueError) as error:
-        print(f"estimate_noise: {error}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    ]
+    report = estimate(
+        recordings,
+        values,
+        max_std_rad=options.max_std_deg * DEG,
+        max_drift_rad=options.max_drift_deg * DEG,
+        slope_z_threshold=options.slope_z,
+    )
     print(report_table(report))
-    try:
-        if options.output is not None:
-            comment = [f"estimate_noise {' '.join(str(b) for b in options.bags)}", fit_summary(report.fit)]
-            atomic_write_text(options.output, parameter_file_text(report.fit, comment), keep_backup=False)
-            print(f"wrote {options.output} (driver_node --ros-args --params-file {options.output})")
-        if options.plot is not None:
-            plot_report(report, options.plot)
-            print(f"wrote {options.plot}")
-    except OSError as error:
-        print(f"estimate_noise: {error}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    if options.output is not None:
+        comment = [f"estimate_noise {' '.join(str(b) for b in options.bags)}", fit_summary(report.fit)]
+        atomic_write_text(options.output, parameter_file_text(report.fit, comment), keep_backup=False)
+        print(f"wrote {options.output} (driver_node --ros-args --params-file {options.output})")
+    if options.plot is not None:
+        plot_report(report, options.plot)
+        print(f"wrote {options.plot}")
     return 0
 
 
-def entry_point() -> None:
-    sys.exit(main())
-
-
 if __name__ == "__main__":
-    entry_point()
+    sys.exit(main())

@@ -178,16 +178,17 @@ class SimulatedSource:
             values["sim_other_robot_radius_m"],
             lambda t: self.simulator.turret_position(self._pose_at(t)),
         )
-        injected = (
-            load_calibration(values["sim_bias_file"]).bearing_correction if values["sim_bias_file"] else None
-        )
+        try:
+            injected = load_calibration(values["sim_bias_file"]) if values["sim_bias_file"] else None
+        except (OSError, ValueError) as error:  # named as the parameter, as calibration_file is
+            raise ValueError(f"sim_bias_file: {error}") from None
         offset = values["sim_turret_offset_m"]
         self.simulator = SensorSimulator(
             replace(simulated_sensor(values, codes), spurious_rate_hz=values["sim_stray_ir_rate_hz"]),
             beacons_from_map(simulated_map),
             np.random.default_rng(values["sim_sensor_seed"]),
-            power_bias_rad=injected.power_bias if injected else None,
-            rotation_bias_rad=injected.rotation_bias if injected else None,
+            power_bias_rad=injected.bearing_correction.power_bias if injected else None,
+            rotation_bias_rad=injected.bearing_correction.rotation_bias if injected else None,
             turret_offset_m=(float(offset[0]), float(offset[1])),
             occlusion=self._hidden,
         )

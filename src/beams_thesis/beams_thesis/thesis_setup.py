@@ -4,7 +4,7 @@ configurations), eq. 7.23 (the rotation experiment's 24 orientations). `thesis_s
 thesis's prototype, so that `thesis_dataset` plays the part of its recordings."""
 
 import argparse
-import sys
+import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -21,6 +21,7 @@ from beams_common.calibration.bearing_correction import (
     THESIS_ROTATION_BIAS_COEFFICIENTS,
     BearingCorrection,
 )
+from beams_common.config.command_line import command
 from beams_common.geometry.beacon_map import BeaconMap
 from beams_driver.codes import BeaconCode
 from beams_driver.decoder import BearingDecoder
@@ -220,6 +221,7 @@ def simulate_thesis_dataset(path: Path, seed: int) -> None:
     save_dataset(thesis_dataset(seed), path)
 
 
+@command("simulate_thesis_dataset")
 def entry_point(argv: Sequence[str] | None = None) -> int:
     """`simulate_thesis_dataset DATASET.yaml [--seed 1]`: the thesis's recordings for `calibrate`
     (what `calibrate --simulate-thesis` did before the thesis's code had a package of its own)."""
@@ -227,10 +229,7 @@ def entry_point(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("dataset", type=Path, help="dataset file to write (YAML, as calibration_node writes)")
     parser.add_argument("--seed", type=int, default=1, help="random seed of the simulated sensor")
     args = parser.parse_args(argv)
-    try:
-        simulate_thesis_dataset(args.dataset, args.seed)
-    except OSError as error:
-        print(f"simulate_thesis_dataset: {error}", file=sys.stderr)
-        return 2
+    tempfile.TemporaryFile(dir=args.dataset.parent).close()  # a place it cannot write: said before the minute
+    simulate_thesis_dataset(args.dataset, args.seed)
     print(f"simulate_thesis_dataset: the thesis's 48 configurations written to {args.dataset}")
     return 0

@@ -16,6 +16,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from beams_common.config.command_line import command
 from beams_driver.codes import BIT_TIME_S, BeaconCode, code_family, codes_from_strings
 from beams_driver.variance import VarianceModel
 from beams_sim.sensor_sim import fixed_window_bearing_errors
@@ -83,6 +84,7 @@ def plot_variance(
     return output
 
 
+@command("variance_plot")
 def main(argv: Sequence[str] | None = None) -> int:
     """Command-line entry point (console script `variance_plot`)."""
     parser = argparse.ArgumentParser(
@@ -103,23 +105,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     )
     parser.add_argument("--output", type=pathlib.Path, default=pathlib.Path("variance.png"), help="PNG file")
     options = parser.parse_args(argv)
-    try:
-        bit_time_s = options.bit_time_us * 1e-6
-        codes = (
-            codes_from_strings(options.codes, bit_time_s)
-            if options.codes
-            else code_family(options.family, bit_time_s)
-        )
-        path = plot_variance(
-            codes,
-            options.output,
-            max_window_over_phi0=options.max_window,
-            period_ticks=options.period_ticks,
-            min_burst_fraction=options.min_burst_fraction,
-        )
-    except ValueError as error:
-        print(f"variance_plot: {error}", file=sys.stderr)
-        return 2
+    bit_time_s = options.bit_time_us * 1e-6
+    codes = (
+        codes_from_strings(options.codes, bit_time_s)
+        if options.codes
+        else code_family(options.family, bit_time_s)
+    )
+    path = plot_variance(
+        codes,
+        options.output,
+        max_window_over_phi0=options.max_window,
+        period_ticks=options.period_ticks,
+        min_burst_fraction=options.min_burst_fraction,
+    )
     print(f"wrote {path}")
     return 0
 

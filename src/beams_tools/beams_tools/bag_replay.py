@@ -18,18 +18,22 @@ import math
 import pathlib
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from rosbags.rosbag2 import Reader, ReaderError, WriterError
+from rosbags.rosbag2 import Reader
 
+from beams_common.config.command_line import command
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.interfaces import topics
 from beams_common.ros.messages import pose2d_of
 from beams_ekf.outcomes import Estimate
 from beams_ekf.parameters import EKF_PARAMETERS
 from beams_tools.bag_events import (
+    BEARINGS_TOPIC,
+    BEARINGS_TYPE,
     LIVE_EKF_TOPIC,
     LIVE_POSE_TOPIC,
     NODES_QOS,
@@ -259,7 +263,8 @@ def plot(result: ReplayResult, path: pathlib.Path) -> None:
     plot_run(result, "ekf", path, "BeAMS bag replay")
 
 
-def main(argv: list[str] | None = None) -> int:
+@command("replay_bag")
+def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="replay_bag", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -291,25 +296,26 @@ def main(argv: list[str] | None = None) -> int:
         "the nodes validate it (default: beams_bringup's beams_params.yaml)",
     )
     options = parser.parse_args(argv)
-    try:
-        settings = settings_from_parameters(
-            load_node_parameters(options.params_file, TRIANGULATION_PARAMETERS),
-            load_node_parameters(options.params_file, EKF_PARAMETERS),
+    settings = settings_from_parameters(
+        load_node_parameters(options.params_file, TRIANGULATION_PARAMETERS),
+        load_node_parameters(options.params_file, EKF_PARAMETERS),
+    )
+    typestore = beams_typestore()
+    result = replay_bag(
+        options.input_bag,
+        options.output_bag,
+        settings,
+        typestore=typestore,
+        storage=options.storage,
+        start_like_live=options.start_like_live,
+        namespace=options.namespace,
+    )
+    if not result.counts[f"messages_{BEARINGS_TOPIC}"]:
+        topic = namespaced_topic(BEARINGS_TOPIC, options.namespace)
+        raise ValueError(
+            f"{options.input_bag}: no {BEARINGS_TYPE} on {topic}, nothing replayed ({result.counts})"
         )
-        typestore = beams_typestore()
-        result = replay_bag(
-            options.input_bag,
-            options.output_bag,
-            settings,
-            typestore=typestore,
-            storage=options.storage,
-            start_like_live=options.start_like_live,
-            namespace=options.namespace,
-        )
-        live = live_tracks(options.input_bag, typestore, options.namespace)
-    except (OSError, ValueError, ReaderError, WriterError) as error:
-        print(f"replay_bag: {error}", file=sys.stderr)
-        return 2
+    live = live_tracks(options.input_bag, typestore, options.namespace)
     if options.plot:
         plot(result, options.plot)
     print(summary(result, live))

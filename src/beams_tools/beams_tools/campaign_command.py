@@ -16,12 +16,14 @@ import pathlib
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import yaml
 
+from beams_common.config.command_line import command
 from beams_tools.campaign_faults import FaultPlan
 from beams_tools.campaign_hosts import Hosts, hosts_problem
 from beams_tools.campaign_metrics import CampaignResult, campaign_figures
@@ -278,7 +280,8 @@ def _override(text: str) -> tuple[str, str, Any]:
     return node, name, yaml.safe_load(value)
 
 
-def main(args: list[str] | None = None) -> int:
+@command("fault_campaign", clean=False)
+def main(args: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )

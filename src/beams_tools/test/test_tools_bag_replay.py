@@ -218,7 +218,8 @@ def test_bad_input_is_counted_and_skipped(tmp_path, messages, typestore, replaye
 def test_command_line(tmp_path, messages, typestore, capsys, monkeypatch):
     """replay_bag INPUT OUTPUT --plot PNG: exit 0, a plot, a summary with the RMS table; a second run into
     the same output is refused with exit status 2, not a traceback."""
-    bag = write_bag(tmp_path / "input", messages[: len(messages) // 3], typestore)
+    # the match's first third (the list's first third has no bearings: refused, nothing replayed)
+    bag = write_bag(tmp_path / "input", sorted(messages, key=lambda m: m[0])[: len(messages) // 3], typestore)
     monkeypatch.setattr("beams_tools.bag_replay.beams_typestore", lambda: typestore)
     assert main([str(bag), str(tmp_path / "output"), "--plot", str(tmp_path / "plot.png")]) == 0
     out = capsys.readouterr().out

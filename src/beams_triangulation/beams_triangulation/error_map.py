@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from beams_common.config.command_line import command
 from beams_common.geometry.angles import wrap_to_pi
 from beams_triangulation.pose_covariance import distance_error_std_m, pose_covariance_many
 from beams_triangulation.total import MIN_ABS_D_M2, expected_bearings, triangulate_many
@@ -156,6 +157,7 @@ def _parse_floats(count: int):
     return parse
 
 
+@command("error_map")
 def main(argv: Sequence[str] | None = None) -> int:
     """Command line: draw figure 6.5 for a beacon layout to a PNG."""
     parser = argparse.ArgumentParser(prog="error_map", description=__doc__.split("\n\n")[0])

@@ -38,18 +38,25 @@ def read_yaml(path: Path) -> Any:
     try:
         return yaml.safe_load(path.read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError, RecursionError) as error:
-        raise SchemaError(f"not valid YAML: {bounded(str(error))}") from None
+        mark = getattr(error, "problem_mark", None)  # where, never what: the file's text is not echoed
+        where = f" (line {mark.line + 1}, column {mark.column + 1})" if mark else ""
+        raise SchemaError(f"not valid YAML{where}: a UTF-8 YAML document expected") from None
 
 
 def _shown(value: Any) -> str:
-    return bounded(repr(value), 60)
+    """A value read from a file as a reason shows it: a number itself, anything else only by its type."""
+    return (
+        repr(value)
+        if isinstance(value, int | float) and not isinstance(value, bool)
+        else type(value).__name__
+    )
 
 
 def mapping(value: Any, path: str, keys: tuple[str, ...] = ()) -> Mapping[str, Any]:
     """A YAML mapping holding at least `keys`."""
     if not isinstance(value, Mapping):
         expected = f"a mapping with {', '.join(keys)}" if keys else "a mapping"
-        raise SchemaError(f"{path}: expected {expected}, got {type(value).__name__} {_shown(value)}")
+        raise SchemaError(f"{path}: expected {expected}, got {_shown(value)}")
     missing = [key for key in keys if key not in value]
     if missing:
         raise SchemaError(f"{path}: missing entry {', '.join(map(repr, missing))}")
@@ -59,7 +66,7 @@ def mapping(value: Any, path: str, keys: tuple[str, ...] = ()) -> Mapping[str, A
 def items(value: Any, path: str, length: int | None = None, *, minimum: int = 0) -> list[Any]:
     """A YAML list (of exactly `length` items when given, at least `minimum`, at most MAX_ITEMS)."""
     if not isinstance(value, list):
-        raise SchemaError(f"{path}: expected a list, got {type(value).__name__} {_shown(value)}")
+        raise SchemaError(f"{path}: expected a list, got {_shown(value)}")
     if length is not None and len(value) != length:
         raise SchemaError(f"{path}: expected {length} items, got {len(value)}")
     if not minimum <= len(value) <= MAX_ITEMS:
@@ -70,7 +77,7 @@ def items(value: Any, path: str, length: int | None = None, *, minimum: int = 0)
 def number(value: Any, path: str, *, minimum: float | None = None, maximum: float | None = None) -> float:
     """A finite real number (an int or a float, not a bool or a string) within [minimum, maximum]."""
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise SchemaError(f"{path}: expected a number, got {type(value).__name__} {_shown(value)}")
+        raise SchemaError(f"{path}: expected a number, got {_shown(value)}")
     try:
         result = float(value)
     except OverflowError:  # an integer beyond a float's range
@@ -83,22 +90,22 @@ def number(value: Any, path: str, *, minimum: float | None = None, maximum: floa
 def integer(value: Any, path: str, *, minimum: int | None = None, maximum: int | None = None) -> int:
     """An integer (not a bool, not a float) within [minimum, maximum]."""
     if isinstance(value, bool) or not isinstance(value, int):
-        raise SchemaError(f"{path}: expected an integer, got {type(value).__name__} {_shown(value)}")
+        raise SchemaError(f"{path}: expected an integer, got {_shown(value)}")
     return _within(value, path, minimum, maximum)
 
 
 def _within(value: T, path: str, minimum: float | None, maximum: float | None) -> T:
     if minimum is not None and value < minimum:
-        raise SchemaError(f"{path}: {_shown(value)} is below its minimum {minimum}")
+        raise SchemaError(f"{path}: {value!r} is below its minimum {minimum}")
     if maximum is not None and value > maximum:
-        raise SchemaError(f"{path}: {_shown(value)} is above its maximum {maximum}")
+        raise SchemaError(f"{path}: {value!r} is above its maximum {maximum}")
     return value
 
 
 def text(value: Any, path: str) -> str:
     """Free text: a string, or a scalar YAML read as something else (a date, a number), as text."""
     if isinstance(value, list | dict) or value is None:
-        raise SchemaError(f"{path}: expected text, got {type(value).__name__} {_shown(value)}")
+        raise SchemaError(f"{path}: expected text, got {_shown(value)}")
     result = str(value)
     if len(result) > MAX_TEXT_CHARS:
         raise SchemaError(f"{path}: text of {len(result)} characters, at most {MAX_TEXT_CHARS}")
@@ -117,7 +124,7 @@ def header(document: Any, file_format: str, version: int) -> Mapping[str, Any]:
     """The top-level mapping of a document whose `format` and `version` must be these."""
     top = mapping(document, "top level")
     if top.get("format") != file_format:
-        raise SchemaError(f"format is {_shown(top.get('format'))}, expected {file_format!r}")
+        raise SchemaError(f"format is not {file_format!r}")
     if top.get("version") != version:
         raise SchemaError(f"version {_shown(top.get('version'))} is not supported (expected {version})")
     return top

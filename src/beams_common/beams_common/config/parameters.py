@@ -12,7 +12,7 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-import yaml
+from beams_common.calibration.file_schema import SchemaError, read_yaml
 
 Value = bool | int | float | str | list
 
@@ -194,9 +194,9 @@ def node_section(document: Mapping[str, Any], node_name: str) -> dict[str, Any]:
 def load_parameter_file(path: str | pathlib.Path, table: ParameterTable) -> dict[str, Any]:
     """The values a ROS parameter file gives the table's node, validated as the node validates them."""
     try:
-        document = yaml.safe_load(pathlib.Path(path).read_text()) or {}
-    except yaml.YAMLError as error:
-        raise ParameterError(f"{path}: not YAML: {error}") from None
+        document = read_yaml(pathlib.Path(path)) or {}
+    except SchemaError as error:
+        raise ParameterError(f"{path}: {error}") from None
     if not isinstance(document, Mapping):
         raise ParameterError(f"{path}: not a ROS parameter file (a mapping of node names)")
     section = node_section(document, table.node_name)

@@ -28,12 +28,17 @@ from typing import Any
 import rclpy
 from rcl_interfaces.msg import SetParametersResult
 from rclpy.executors import ExternalShutdownException
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 
 from beams_common.intake.validation import bounded
 from beams_common.ros.node_logging import log_at
 from beams_common.status.log_throttle import KeyThrottle
 
 REPEAT_LOG_PERIOD_S = 10.0
+# rclpy's default keeps 10 requests: the 11th of a burst (20 operators' calls at once) was lost unanswered
+SERVICES_QOS = QoSProfile(
+    depth=100, reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE
+)
 
 
 class GuardedCallbacks:
@@ -59,6 +64,7 @@ class GuardedCallbacks:
         guarded = self.guard_callback(
             site, callback, on_failure=lambda reason, *_: failed_response(srv_type, reason)
         )
+        kwargs.setdefault("qos_profile", SERVICES_QOS)
         return super().create_service(srv_type, srv_name, guarded, *args, **kwargs)
 
     def create_timer(self, timer_period_sec, callback, *args, **kwargs):

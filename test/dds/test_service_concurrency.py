@@ -1,0 +1,112 @@
+"""Every service of every node answers 20 concurrent calls: each node's console script started (each in a
+namespace of its own), its services read from the graph (its own, the parameter services, the lifecycle
+ones), 20 calls fired at once at each from several clients with the default request; every call is
+answered within a bounded wait, a refusal with its reason, and the node still publishes /diagnostics
+after."""
+
+import ast
+import importlib
+import pathlib
+import time
+
+import pytest
+
+SRC = pathlib.Path(__file__).resolve().parents[2] / "src"
+CALLS = 20
+CLIENTS = 4
+UP_TIMEOUT_S = 30.0
+ANSWER_TIMEOUT_S = 10.0
+# what a node needs to start on its own (the rest are its defaults)
+PARAMS = {"driver_node": {"sim_static_pose": [1.5, 1.0, 0.0]}}
+
+
+def _nodes() -> list[tuple[str, str]]:
+    """(package, executable) of every node's console script."""
+    nodes = []
+    for setup in sorted(SRC.glob("*/setup.py")):
+        for node in ast.walk(ast.parse(setup.read_text())):
+            if isinstance(node, ast.keyword) and node.arg == "entry_points":
+                for entry in ast.literal_eval(node.value).get("console_scripts", []):
+                    name = entry.split("=")[0].strip()
+                    nodes += [(setup.parent.name, name)] if name.endswith("_node") else []
+    return nodes
+
+
+def _service_type(name: str):
+    """The class of a service type named as the graph names it ("std_srvs/srv/Trigger")."""
+    package, kind, type_name = name.split("/")
+    return getattr(importlib.import_module(f"{package}.{kind}"), type_name)
+
+
+def _meaningless(reply) -> str:
+    """Why a reply says nothing, or '': a refusal (success false) must say why when it has a message."""
+    if reply is None:
+        return "no reply"
+    if getattr(reply, "success", True) is False and hasattr(reply, "message") and not reply.message:
+        return "refused without a reason"
+    return ""
+
+
+@pytest.mark.xfail(
+    strict=False,
+    reason="measured 2026-11-27 (this test, -s prints each service's count): rclpy's own services keep 10 "
+    "requests (type description, lifecycle: 10-12 of 20 answered), and rclpy Jazzy's EventsExecutor leaves "
+    "requests of a burst unanswered (11 to 15 of 20, parameter services included); the nodes' own services "
+    "keep 100 (GuardedCallbacks.create_service) and answer all 20 on rclpy's SingleThreadedExecutor",
+)
+def test_every_service_answers_20_concurrent_calls(rclpy_node, start_node, tmp_path):
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    diagnostics = rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
+    started = {}
+    for k, (package, executable) in enumerate(_nodes()):
+        params = dict(PARAMS.get(executable, {}))
+        if executable == "calibration_node":
+            params["dataset_file"] = str(tmp_path / "dataset.yaml")
+        started[f"/n{k}"] = (executable, start_node(package, executable, params or None, namespace=f"n{k}"))
+    graph = rclpy_node.node
+
+    def services_of(namespace: str, executable: str) -> list[tuple[str, str]]:
+        try:
+            found = graph.get_service_names_and_types_by_node(executable, namespace)
+        except Exception:  # not discovered yet
+            return []
+        return [(name, types[0]) for name, types in found]
+
+    def all_up() -> bool:
+        return all(services_of(ns, exe) for ns, (exe, _) in started.items())
+
+    logs = "\n".join(node.log() for _, node in started.values())
+    assert rclpy_node.spin_until(all_up, UP_TIMEOUT_S), logs
+    rclpy_node.spin_for(1.0)  # the rest of each node's services
+    failures = []
+    for namespace, (executable, node) in started.items():
+        for service, type_name in sorted(services_of(namespace, executable)):
+            srv_type = _service_type(type_name)
+            clients = [graph.create_client(srv_type, service) for _ in range(CLIENTS)]
+            if not all(c.wait_for_service(timeout_sec=UP_TIMEOUT_S) for c in clients):
+                failures.append(f"{service}: not available")
+                continue
+            futures = [clients[k % CLIENTS].call_async(srv_type.Request()) for k in range(CALLS)]
+            start = time.monotonic()
+            rclpy_node.spin_until(lambda fs=futures: all(f.done() for f in fs), ANSWER_TIMEOUT_S)
+            answered = [f.result() for f in futures if f.done()]
+            problems = {_meaningless(r) for r in answered} - {""}
+            if len(answered) < CALLS or problems:
+                failures.append(f"{service}: {len(answered)}/{CALLS} answered {sorted(problems)}")
+                assert not failures, failures  # the first failing service: no need to wait for the others
+            print(
+                f"{service}: {len(answered)}/{CALLS} answered in {time.monotonic() - start:.2f} s", flush=True
+            )
+            for client in clients:
+                graph.destroy_client(client)
+        count = len(diagnostics)
+
+        def published_again(ns=namespace, count=count) -> bool:
+            return any(f"{ns}/" in s.name for m in diagnostics[count:] for s in m.status)
+
+        if not rclpy_node.spin_until(published_again, 10.0):
+            failures.append(
+                f"{namespace} ({executable}): no /diagnostics after the calls\n{node.log()[-2000:]}"
+            )
+    assert not failures, "\n".join(failures)
