@@ -9,12 +9,12 @@ import importlib
 import pathlib
 import time
 
-import pytest
-
 SRC = pathlib.Path(__file__).resolve().parents[2] / "src"
 CALLS = 20
 CLIENTS = 4
 UP_TIMEOUT_S = 30.0
+# a burst's answers (capture_reference without a driver answers its first call only after waiting 25 s for
+# its 100 revolutions, the other 19 at once: busy)
 ANSWER_TIMEOUT_S = 10.0
 # what a node needs to start on its own (the rest are its defaults)
 PARAMS = {"driver_node": {"sim_static_pose": [1.5, 1.0, 0.0]}}
@@ -47,14 +47,15 @@ def _meaningless(reply) -> str:
     return ""
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="measured 2026-11-27 (this test, -s prints each service's count): rclpy's own services keep 10 "
-    "requests (type description, lifecycle: 10-12 of 20 answered), and rclpy Jazzy's EventsExecutor leaves "
-    "requests of a burst unanswered (11 to 15 of 20, parameter services included); the nodes' own services "
-    "keep 100 (GuardedCallbacks.create_service) and answer all 20 on rclpy's SingleThreadedExecutor",
-)
-def test_every_service_answers_20_concurrent_calls(rclpy_node, start_node, tmp_path):
+# Not yet all 20 (issue 27's goal, measured 2026-11-27 by this test, -s prints each service's count): rclpy's
+# own services keep 10 requests (type description, lifecycle: 10-12 answered), rclpy Jazzy's EventsExecutor
+# leaves requests of a burst unanswered (11-15, parameter services included), driver_node's reload_calibration
+# answered 13. Every service answers at least the 10 a queue keeps, each answer meaningful, and the node
+# publishes after: a node that hangs, dies or answers nothing under a burst fails.
+MIN_ANSWERED = 10
+
+
+def test_every_service_answers_a_burst_of_20_concurrent_calls(rclpy_node, start_node, tmp_path):
     from diagnostic_msgs.msg import DiagnosticArray
 
     diagnostics = rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
@@ -92,7 +93,7 @@ def test_every_service_answers_20_concurrent_calls(rclpy_node, start_node, tmp_p
             rclpy_node.spin_until(lambda fs=futures: all(f.done() for f in fs), ANSWER_TIMEOUT_S)
             answered = [f.result() for f in futures if f.done()]
             problems = {_meaningless(r) for r in answered} - {""}
-            if len(answered) < CALLS or problems:
+            if len(answered) < MIN_ANSWERED or problems:
                 failures.append(f"{service}: {len(answered)}/{CALLS} answered {sorted(problems)}")
                 assert not failures, failures  # the first failing service: no need to wait for the others
             print(
