@@ -13,9 +13,9 @@ SRC = pathlib.Path(__file__).resolve().parents[2] / "src"
 CALLS = 20
 CLIENTS = 4
 UP_TIMEOUT_S = 30.0
-# a burst's answers (capture_reference without a driver answers its first call only after waiting 25 s for
-# its 100 revolutions, the other 19 at once: busy)
-ANSWER_TIMEOUT_S = 10.0
+# a burst's answers come within 0.1 s (capture_reference without a driver answers its first call after 25 s
+# of waiting for its 100 revolutions, the other 19 at once: busy)
+ANSWER_TIMEOUT_S = 3.0
 # what a node needs to start on its own (the rest are its defaults)
 PARAMS = {"driver_node": {"sim_static_pose": [1.5, 1.0, 0.0]}}
 
@@ -106,7 +106,8 @@ def test_every_service_answers_a_burst_of_20_concurrent_calls(rclpy_node, start_
         def published_again(ns=namespace, count=count) -> bool:
             return any(f"{ns}/" in s.name for m in diagnostics[count:] for s in m.status)
 
-        if not rclpy_node.spin_until(published_again, 10.0):
+        publishes = any(f"{namespace}/" in s.name for m in diagnostics[:count] for s in m.status)
+        if publishes and not rclpy_node.spin_until(published_again, 10.0):  # fault_relay_node has none
             failures.append(
                 f"{namespace} ({executable}): no /diagnostics after the calls\n{node.log()[-2000:]}"
             )
