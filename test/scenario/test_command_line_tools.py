@@ -57,6 +57,7 @@ USAGE = {
     "error_map": ["--step", "0.25", "-o", "{out_file}.png"],
     "demo": ["--duration", "1", "--output", "{out_dir}"],
     "fault_campaign": ["--duration", "1", "--output", "{out_dir}"],
+    "virtual_turret": ["--link", "{out_file}.pty", "--firmware", "/nonexistent/turret.elf"],
 }
 # A tool's cheap nominal run and what makes its output usable (None: no cheap run).
 NOMINAL: dict[str, Callable[[pathlib.Path], bool] | None] = {
@@ -71,6 +72,7 @@ NOMINAL: dict[str, Callable[[pathlib.Path], bool] | None] = {
     "simulate_thesis_dataset": None,  # a minute of simulation; calibrate's nominal run reads such a dataset
     "demo": None,  # a simulated match over DDS
     "fault_campaign": None,  # test/dds/test_fault_campaign.py
+    "virtual_turret": None,  # runs until interrupted: test/dds/test_virtual_turret.py
 }
 
 

@@ -10,11 +10,13 @@ import subprocess
 import sys
 import time
 import tty
+from collections.abc import Sequence
 
 import rclpy
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 
+from beams_common.config.command_line import command
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.ros.node_support import EXIT_INVALID_PARAMETERS
 from beams_common.ros.parameters import ParameterValidationError
@@ -51,8 +53,9 @@ def run(world: SimWorldNode, options: argparse.Namespace, master: int) -> int:
     return 0 if harness.returncode == -signal.SIGINT else harness.returncode  # a terminal's Ctrl-C
 
 
-def main(argv: list[str] | None = None) -> None:
-    argv = sys.argv if argv is None else argv
+@command("virtual_turret")
+def main(argv: Sequence[str] | None = None) -> int:
+    argv = ["virtual_turret", *(sys.argv[1:] if argv is None else argv)]
     parser = argparse.ArgumentParser(prog="virtual_turret", description=__doc__.split("\n")[0])
     parser.add_argument("--link", type=pathlib.Path, help="a symbolic link to the pty, made and removed")
     parser.add_argument("--seed", type=int, default=1, help="seed of the simulated sensor's noise")
@@ -62,13 +65,24 @@ def main(argv: list[str] | None = None) -> None:
     if options.link and options.link.exists() and not options.link.is_symlink():
         why = f"{options.link} exists and is not a link"  # a real device's path, say
     if why:
-        sys.exit(f"virtual_turret: {why}")  # exit status 1
+        raise ValueError(why)
     master, slave = os.openpty()
-    tty.setraw(slave)  # binary frames; the slave stays open so that the line never hangs up
-    os.set_blocking(master, False)  # a line nobody reads loses the bytes, as a UART's does
-    if options.link:
-        options.link.unlink(missing_ok=True)
-        options.link.symlink_to(os.ttyname(slave))
+    try:
+        tty.setraw(slave)  # binary frames; the slave stays open so that the line never hangs up
+        os.set_blocking(master, False)  # a line nobody reads loses the bytes, as a UART's does
+        if options.link:
+            options.link.unlink(missing_ok=True)
+            options.link.symlink_to(os.ttyname(slave))
+        return _serve(argv, options, master, slave)
+    finally:
+        os.close(master)
+        os.close(slave)
+        if options.link and options.link.is_symlink():
+            options.link.unlink(missing_ok=True)
+
+
+def _serve(argv: list[str], options: argparse.Namespace, master: int, slave: int) -> int:
+    """The world node and the emulated turret on the pty, until the harness ends or an interrupt."""
     print(f"virtual_turret: the turret's serial line is {os.ttyname(slave)} {options.link or ''}", flush=True)
     for stop in (signal.SIGINT, signal.SIGTERM):  # SIGINT too: a shell's background job ignores it
         signal.signal(stop, signal.default_int_handler)  # KeyboardInterrupt
@@ -86,8 +100,4 @@ def main(argv: list[str] | None = None) -> None:
         if world is not None:
             world.destroy_node()
         rclpy.try_shutdown()
-        os.close(master)
-        os.close(slave)
-        if options.link:
-            options.link.unlink(missing_ok=True)
-    sys.exit(status)
+    return status
