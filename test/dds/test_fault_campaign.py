@@ -39,6 +39,7 @@ MIN_AVAILABILITY_OUTSIDE = 0.80
 # protection level's alert limits at their widest
 CHECKS_OFF = {
     "confirming_bearings": 0,
+    "exclusion_gated_bearings": 0,
     "horizontal_alert_limit_m": 100.0,
     "heading_alert_limit_rad": math.pi,
     "lost_nis_window_bearings": 0,
