@@ -36,7 +36,7 @@ CAMPAIGN_S = 120.0
 MIN_AVAILABILITY_OUTSIDE = 0.80
 # lost detection off (its NIS window 0), the kidnap test never reached, the per-bearing gate at its widest,
 # an operator's pose taken as confirmed at once (issue 18's confirmation by the bearings off), the
-# protection level's alert limits at their widest
+# protection level's alert limits at their widest, no beacon excluded
 CHECKS_OFF = {
     "confirming_bearings": 0,
     "exclusion_gated_bearings": 0,
