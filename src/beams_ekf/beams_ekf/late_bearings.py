@@ -59,8 +59,9 @@ class LateBearings:
         self._pending: list[Bearing] = []
         # the Localiser's BeaconExclusion: a beacon it suspects is chosen and excluded once a replay is done
         self.exclusion: Any = None
-        # capped NIS of the bearings filtered again by the current replay (`refilter`'s score)
-        self._replayed_nis: list[float] = []
+        # capped NIS of the bearings `refilter` filters again (its score); None outside it, so that the
+        # replays of late bearings keep nothing
+        self._replayed_nis: list[float] | None = None
 
     def clear(self) -> None:
         """Forget the odometry and the waiting bearings."""
@@ -146,11 +147,11 @@ class LateBearings:
         (`PoseFilter.excluded_beacons`) are then judged without being applied, their pull on the estimate
         over the history undone (the solution without that beacon, as far back as the history goes).
         Returns the mean NIS, capped at the gate, of the other bearings filtered again (inf: none)."""
-        self._replayed_nis = []
+        self._replayed_nis = nis = []
         first = self._first_state_index() - len(self.history)
         if self.ekf.initialised and first < 0:
             self._replay({first: []}, {})
-        nis = self._replayed_nis
+        self._replayed_nis = None
         return sum(nis) / len(nis) if nis else float("inf")
 
     def _ahead_of_odometry(self, stamp_s: float) -> bool:
@@ -211,7 +212,8 @@ class LateBearings:
                         outcomes[n] = self._count(rejected(BearingReason.OUTSIDE_HISTORY))
                     continue
                 outcome = self._apply(bearing, between(pose0, then))
-                if n is None and outcome.reason in (BearingReason.ACCEPTED, BearingReason.GATED):
+                scoring = self._replayed_nis is not None and n is None
+                if scoring and outcome.reason in (BearingReason.ACCEPTED, BearingReason.GATED):
                     self._replayed_nis.append(min(outcome.nis, self.ekf.gate))
                 kept.append(bearing)
                 if n is not None:
