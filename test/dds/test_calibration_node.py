@@ -1,7 +1,8 @@
 """calibration_node over DDS: captures reference configurations from the driver's simulated sensor,
 refuses a capture with a hidden beacon, lists and clears the dataset, and calibrates a dataset into a
-calibration file (refusing one too small)."""
+calibration file (refusing one too small, naming and excluding a blunder)."""
 
+import dataclasses
 import math
 import re
 
@@ -123,7 +124,7 @@ def test_capture_refuses_a_hidden_beacon(start_node, rclpy_node, tmp_path):
 def test_calibrate_service_writes_the_calibration_file(start_node, rclpy_node, tmp_path):
     from beams_calibration.dataset import Dataset, save_dataset
     from beams_common.calibration.bearing_correction import THESIS_CORRECTION
-    from beams_common.calibration.calibration_file import load_calibration
+    from beams_common.calibration.calibration_file import load_calibration, node_refusal
     from beams_msgs.srv import Calibrate
 
     setup = _setup()
@@ -139,7 +140,14 @@ def test_calibrate_service_writes_the_calibration_file(start_node, rclpy_node, t
     refused = rclpy_node.call(Calibrate, "/calibration_node/calibrate", Calibrate.Request(), TIMEOUT_S)
     assert not refused.success and "calibration refused: 6 usable configurations" in refused.message
 
-    save_dataset(dataset, dataset_file)
+    # one bearing of configuration 18 off by 1 rad (issue 27: written as a file every node refused)
+    blundered = dataset.configurations[17]
+    wrong = blundered.observations[1]
+    observations = list(blundered.observations)
+    observations[1] = dataclasses.replace(wrong, bearing_rad=wrong.bearing_rad + 1.0)
+    configurations = list(dataset.configurations)
+    configurations[17] = dataclasses.replace(blundered, observations=tuple(observations))
+    save_dataset(dataclasses.replace(dataset, configurations=tuple(configurations)), dataset_file)
     response = rclpy_node.call(
         Calibrate, "/calibration_node/calibrate", Calibrate.Request(dry_run=False), 120.0
     )
@@ -147,7 +155,10 @@ def test_calibrate_service_writes_the_calibration_file(start_node, rclpy_node, t
     assert response.position_rms_before > 3e-3 and response.position_rms_after < 0.1e-3
     assert response.orientation_rms_after < math.radians(0.01) < response.orientation_rms_before
     assert response.calibration_file == str(tmp_path / "calibration.yaml")
+    assert len(response.warnings) == 1 and response.warnings[0].startswith("configuration 18 ")
+    assert "excluded as a blunder" in response.warnings[0]
     calibration = load_calibration(response.calibration_file)
+    assert node_refusal(calibration, setup.PRIOR_BEACONS, (0.0, 0.0)) == ""
     np.testing.assert_allclose(calibration.beacon_map.xy, setup.TRUE_BEACONS.xy, atol=2e-4)
     assert (tmp_path / "plots" / "calibration_positions.png").stat().st_size > 20_000
 

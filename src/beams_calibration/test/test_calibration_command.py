@@ -1,14 +1,15 @@
 """The offline `calibrate` command and its PNG figures, on a noise-free dataset of the thesis's setup."""
 
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from beams_calibration import calibrate_command
-from beams_calibration.dataset import save_dataset
-from beams_common.calibration.calibration_file import load_calibration
+from beams_calibration.dataset import load_dataset, save_dataset
+from beams_common.calibration.calibration_file import load_calibration, node_refusal
 from beams_common.config.command_line import EXIT_REFUSED
 from beams_common.geometry.beacon_map import BeaconMap
 from beams_thesis import thesis_setup
@@ -67,6 +68,32 @@ def test_dry_run_with_table_7_5_writes_nothing(dataset_path: Path, tmp_path: Pat
     assert min(positions_mm[k] for k in (1, 2, 3, 6)) > 1.0
     # Beacons only: every pose is off by exactly the unmodelled turret offset, |(1, -1)| mm.
     assert positions_mm[4] == pytest.approx(math.sqrt(2.0), abs=0.02)
+
+
+def test_a_blunder_is_named_excluded_and_the_file_is_one_a_node_takes(
+    dataset_path: Path, tmp_path: Path, capsys
+):
+    """One bearing of configuration 5 off by 1 rad (issue 27: the command wrote a file every node refused): a
+    WARNING names it, the fit is the clean one's (a 0.02 rad one: test_calibration_algorithm)."""
+    dataset = load_dataset(dataset_path)
+    blundered = dataset.configurations[4]
+    wrong = blundered.observations[1]
+    observations = (blundered.observations[0], replace(wrong, bearing_rad=wrong.bearing_rad + 1.0))
+    configurations = list(dataset.configurations)
+    configurations[4] = replace(blundered, observations=(*observations, *blundered.observations[2:]))
+    save_dataset(replace(dataset, configurations=tuple(configurations)), dataset_path)
+    output = tmp_path / "calibration.yaml"
+    assert calibrate_command.main([str(dataset_path), "-o", str(output), "--no-leave-one-out"]) == 0
+    warnings = [line for line in capsys.readouterr().out.splitlines() if line.startswith("WARNING:")]
+    assert (
+        len(warnings) == 1
+        and warnings[0].startswith("WARNING: configuration 5 ")
+        and "blunder" in warnings[0]
+    )
+    calibration = load_calibration(output)
+    assert node_refusal(calibration, thesis_setup.PRIOR_BEACONS, (0.0, 0.0)) == ""
+    np.testing.assert_allclose(calibration.beacon_map.xy, MOVED, atol=2e-4)
+    assert calibration.rms[-1].position_rms_m < 0.1e-3
 
 
 def test_refusals_exit_with_status_2(tmp_path: Path, capsys):
