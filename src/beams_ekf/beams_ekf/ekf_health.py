@@ -37,6 +37,9 @@ from beams_ekf.outcomes import Estimate
 
 # No bearing accepted for this long (s, data time): odometry alone carries the estimate.
 MAX_BEARING_SILENCE_S = 1.0
+# Innovations inconsistent (the NIS test) this long (s) after a calibration was applied suspect it: the status
+# is degraded naming it for as long again, past the re-initialisation the lost status asks for.
+CALIBRATION_WATCH_S = 10.0
 WAITING_FOR_POSE = "waiting for an initial pose (beams/pose, /initialpose or the set_pose service)"
 WAITING_FOR_ODOMETRY = (
     "waiting for odometry (odom): ToTal's poses (beams/pose) are taken once odometry covers their stamps; "
@@ -50,6 +53,7 @@ class EkfHealth:
     def __init__(self, values: Mapping[str, Any], now_s: float) -> None:
         self.faults = RecentFaults(FAULT_HOLD_S)
         self._last_odometry_s: float | None = None
+        self._calibration: tuple[float, str] | None = None  # (applied at, what)
         self.configure(values, now_s)
 
     def configure(self, values: Mapping[str, Any], now_s: float) -> None:
@@ -79,6 +83,10 @@ class EkfHealth:
         hold_s."""
         self.faults.note(kind, now_s, reason, hold_s)
 
+    def calibration_applied(self, now_s: float, what: str) -> None:
+        """A calibration applied at now_s: the innovations that follow judge it (CALIBRATION_WATCH_S)."""
+        self._calibration = (now_s, what)
+
     def reset(self) -> None:
         """The filter was reset: the odometry checks wait for odometry again."""
         self._last_odometry_s = None
@@ -102,6 +110,12 @@ class EkfHealth:
         lost = []
         if nis_lost:
             lost.append("innovations too large for the covariance (NIS test): waiting for a ToTal pose")
+            applied_s, what = self._calibration or (-float("inf"), "")
+            if now_s - applied_s <= CALIBRATION_WATCH_S:
+                reason = (
+                    f"innovations inconsistent {now_s - applied_s:.1f} s after {what} was applied: check it"
+                )
+                self.fault("calibration_inconsistent", now_s, reason, CALIBRATION_WATCH_S)
         if kidnap_suspected:
             lost.append("most recent bearings gated out (robot moved?): waiting for a ToTal pose")
         if self._last_odometry_s is not None and now_s - self._last_odometry_s > ODOMETRY_SILENCE_S:

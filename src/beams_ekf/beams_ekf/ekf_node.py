@@ -201,7 +201,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         def apply() -> None:
             self.runtime_changes.record(values, changed)
             if geometry is not self.geometry:
-                self._flag_worse_calibration(geometry)
+                self._flag_worse_calibration(geometry, values["calibration_file"])
             self.geometry, self.settings, self.stamp_check.tolerance = geometry, settings, tolerance
             self.localiser.configure(geometry.beacon_map.as_dict(), geometry.turret_offset_m, settings)
             self.health.configure(values, self._now_s())
@@ -318,7 +318,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
 
     def _apply_calibration(self, calibration: SensorCalibration) -> str:
         geometry = geometry_of_calibration(calibration, self.parameters)  # ValueError: refused
-        worse = self._flag_worse_calibration(geometry)
+        worse = self._flag_worse_calibration(geometry, self.parameters["calibration_file"])
         self.geometry = geometry
         beacon_map, offset = geometry.beacon_map, geometry.turret_offset_m
         self.localiser.configure(beacon_map.as_dict(), offset, self.settings)
@@ -333,15 +333,16 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
             if pose is not None:
                 self.recent_bearings.add(BearingSample(pose, bearing.beacon_id, bearing.bearing_rad))
 
-    def _flag_worse_calibration(self, geometry: BeaconGeometry) -> str:
+    def _flag_worse_calibration(self, geometry: BeaconGeometry, path: str) -> str:
         """Why a new geometry makes the recent bearings worse (flagged: WARN on /diagnostics, the status
         degraded for CALIBRATION_FLAG_HOLD_S), or ''. Applied all the same: the estimate the bearings
-        are compared with was made under the old geometry, and the NIS test judges the new one."""
+        are compared with was made under the old geometry, and the NIS test judges the new one (named)."""
         old, new = self.geometry, geometry
         worse = self.recent_bearings.worse_problem(
             (old.beacon_map.as_dict(), old.turret_offset_m), (new.beacon_map.as_dict(), new.turret_offset_m)
         )
         self.recent_bearings.clear()  # the poses kept were estimated under the old geometry
+        self.health.calibration_applied(self._now_s(), f"the new beacon geometry (calibration_file {path!r})")
         if worse:
             self.diagnostics.refuse("calibrations_flagged_worse", worse)
             self.health.fault("calibration_worse", self._now_s(), worse, CALIBRATION_FLAG_HOLD_S)

@@ -82,6 +82,28 @@ def test_a_flagged_calibration_degrades_for_its_own_hold():
     assert health.verdict(14.0, **HEALTHY).status is Status.TRACKING
 
 
+def test_innovations_inconsistent_after_a_calibration_name_it_past_the_re_initialisation():
+    """A calibration applied at runtime is judged by the innovations that follow: the NIS test failing
+    within CALIBRATION_WATCH_S names it, and the status stays degraded naming it as long after."""
+    health = EkfHealth(VALUES, 0.0)
+    _run(health, 0.0, 3.0)
+    health.calibration_applied(3.0, "the new beacon geometry (calibration_file 'wild.yaml')")
+    _run(health, 3.0, 5.0)
+    lost = health.verdict(5.0, **{**HEALTHY, "nis_lost": True})
+    assert lost.status is Status.LOST
+    assert "innovations inconsistent 2.0 s after the new beacon geometry (calibration_file 'wild.yaml')" in (
+        lost.message
+    )
+    _run(health, 5.0, 8.0)  # re-initialised from ToTal, its innovations consistent again
+    degraded = health.verdict(8.0, **HEALTHY)
+    assert degraded.status is Status.DEGRADED and "'wild.yaml') was applied: check it" in degraded.message
+    _run(health, 8.0, 16.0)
+    assert health.verdict(16.0, **HEALTHY).status is Status.TRACKING
+    # lost long after the calibration: the NIS test alone, no calibration named
+    late = health.verdict(16.0, **{**HEALTHY, "nis_lost": True})
+    assert late.status is Status.LOST and "calibration" not in late.message
+
+
 def test_without_odometry_the_ekf_says_it_waits_for_odometry_which_every_total_fix_needs():
     """ToTal's fix is brought to the filter's instant by the odometry since its stamp: without odometry
     every one is refused, so the status names odometry, not a pose, until odometry comes."""
