@@ -61,6 +61,7 @@ FILE_SECONDS = {
     "test_parameter_refusals.py": 24,
     "test_firmware_hil.py": 23,
     "test_service_concurrency.py": 50,
+    "test_ekf_calibration_reload.py": 20,
     "test_driver_noise_estimation.py": 22,
     "test_self_calibration.py": 21,
     "test_bag_replay.py": 19,
