@@ -204,13 +204,14 @@ class FaultPlan:
         self.at(fault.end_s + 0.5, label, lambda: self._reload(label, node, True))
 
     def _capture_blunder(self, label: str, variant: str) -> None:
-        """A reference pose off by an operator's blunder, captured over 3 revolutions: refused, unless
-        the robot stands where the blunder puts it (no blunder then: not judged)."""
+        """A reference pose off by an operator's blunder, captured over one revolution (a moving robot's
+        bearings spread over more, refused for that first): refused, unless the robot stands where the
+        blunder puts it (no blunder then: not judged)."""
         truth = self.probe.pose_at(self.probe.now_s()) or (1.0, 1.0, 0.0)
         x, y, theta = blunder_pose(variant, *truth)
         # twice the check's 0.1 m and 5 deg (beams_calibration.dataset.capture_bearing_problem)
         blunder = math.dist((x, y), truth[:2]) > 0.2 or abs(math.remainder(theta - truth[2], math.tau)) > 0.17
-        request = CaptureReference.Request(x=x, y=y, theta=theta, revolutions=3)
+        request = CaptureReference.Request(x=x, y=y, theta=theta, revolutions=1)
         service = f"/{NODES['calibration'].executable}/capture_reference"
         self.probe.call(label, CaptureReference, service, request, False if blunder else None)
 
