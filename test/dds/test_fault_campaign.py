@@ -1,4 +1,4 @@
-"""The fault campaign over DDS: a seeded 2-minute schedule of faults from every class played
+"""The fault campaign over DDS: a seeded 150-s schedule of faults from every class played
 against the whole running suite (sim_world, driver, triangulation, EKF, each its own process; the driver
 reads a simulated sensor on a pseudo-terminal, so the serial line's faults are drawn too, and runs on a
 host of its own, a network namespace, so the link_down faults cut its link: where namespaces cannot be
@@ -6,11 +6,12 @@ made, root and iproute2, that class is skipped and the report says so), measured
 simulator's truth (beams_tools.campaign_command; docs/fault_campaign.md).
 
 The campaign must hold: no hazardously misleading time (an EKF error beyond max(5 cm, 5 sigma) while its
-status says tracking), no node dead, every service call answered, and the EKF tracking most of the time
-outside the faults' own windows (MIN_AVAILABILITY_OUTSIDE). And it must be able to fail: with the EKF's lost
-detection switched off, its kidnap gating loosened and its confirmation of a pose by the bearings off, an
-operator's wrong pose (well-formed, 0.5 m off, claiming 1 cm) is never found out, and the campaign measures
-seconds of misleading time, each second of it an error of about those 0.5 m inside those faults' windows.
+status says tracking), no node dead, every service call answered as expected, and the EKF tracking most
+of the time outside the faults' own windows (MIN_AVAILABILITY_OUTSIDE). And it must be able to fail: with
+the EKF's lost detection switched off, its kidnap gating loosened and its confirmation of a pose by the
+bearings off, an operator's wrong pose (well-formed, 0.5 m off, claiming 1 cm) is never found out, and the
+campaign measures seconds of misleading time, each second of it an error of about those 0.5 m inside those
+faults' windows.
 """
 
 import math
@@ -25,8 +26,8 @@ import pytest
 pytestmark = pytest.mark.alone
 
 CAMPAIGN_SEED = 18
-CAMPAIGN_S = 120.0
-# The goals of this 2-minute campaign are zero misleading time, no node dead, every call answered; the
+CAMPAIGN_S = 150.0
+# The goals of this 150-s campaign are zero misleading time, no node dead, every call answered; the
 # 95 % availability outside the fault windows is the 20-minute bench's goal. Here only about 18 s lie
 # outside the windows (one second is 5.5 %): the bound guards against a status that stays off after its
 # fault. What it measures is mostly the EKF's lost -> re-initialised from ToTal -> lost again loops just
@@ -73,6 +74,8 @@ def test_two_minute_campaign_holds(ros_env, ros_domain_id, tmp_path):
     assert figures.misleading_s == 0.0, report
     assert not result.deaths, report + "\n" + "\n".join(d.log_tail for d in result.deaths)
     assert not result.unanswered, report
+    # a refusal answered success (a capture blunder recorded, a NaN set_pose taken) is a failure too
+    assert not result.unexpected_answers, report
     assert figures.availability_outside >= MIN_AVAILABILITY_OUTSIDE, report
 
 

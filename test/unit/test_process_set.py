@@ -143,12 +143,12 @@ def test_the_demo_supervises_the_described_processes(monkeypatch, tmp_path, fake
     assert NodeSupervisor(commands, {}, tmp_path).respawn_delay_s == RESPAWN_DELAY_S
 
 
-def test_the_campaign_runs_the_described_processes_and_its_relay(tmp_path, fake_install):
+def test_the_campaign_runs_the_described_processes_its_relay_and_the_calibration_node(tmp_path, fake_install):
     from beams_tools.campaign_command import Campaign, CampaignConfig
 
     campaign = Campaign(CampaignConfig(install_base=fake_install, output_dir=tmp_path))
     commands = {name: node.command for name, node in campaign.processes.nodes.items()}
-    assert started(commands) == {**described(True), "fault_relay_node": [[]]}
+    assert started(commands) == {**described(True), "fault_relay_node": [[]], "calibration_node": [[]]}
     assert campaign.processes.respawn_delay_s == RESPAWN_DELAY_S
     # ekf_node's checkpoint in the campaign's own directory: no run resumes from another's
     assert campaign.processes.env["ROS_HOME"].startswith(str(tmp_path))

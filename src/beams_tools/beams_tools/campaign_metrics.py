@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from beams_common.status.health import STATUS_VALIDITY_S
 from beams_tools.fault_schedule import Fault
 
 MISLEADING_FLOOR_M = 0.05
@@ -29,7 +30,7 @@ FRESH_S = 0.25
 GRID_STEP_S = 0.02
 # the reason given for unavailable time while the EKF published nothing fresh
 SILENT_REASON = "no fresh estimate (the EKF silent)"
-NO_REPORT_REASON = "no status message at or before it"
+NO_REPORT_REASON = "no status report in force (none yet, or past its validity: the EKF hung)"
 
 
 def truth_at(stamps: np.ndarray, truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -66,17 +67,21 @@ def sigma_along(error_xy: np.ndarray, covariance_rows: np.ndarray) -> np.ndarray
 def status_of(stamps: np.ndarray, status: np.ndarray, report: str = "next") -> np.ndarray:
     """Tracking (bool) at each stamp: by the first report stamped at or after it (report="next"; False
     after the last report), or by the last report stamped at or before it (report="last"; False before
-    the first)."""
+    the first). A report holds STATUS_VALIDITY_S (its valid_until on the status topic): past it the node
+    stopped saying it (hung, dead) and a consumer takes it as lost, so a stamp the last report no longer
+    covers is not tracking either way."""
     status = np.asarray(status, dtype=float).reshape(-1, 2)
     stamps = np.asarray(stamps, dtype=float)
     if len(status) == 0:
         return np.zeros(len(stamps), dtype=bool)
     status = status[np.argsort(status[:, 0], kind="stable")]
     tracking = status[:, 1] > 0.5
+    last = np.searchsorted(status[:, 0], stamps, side="right") - 1
+    expired = (last >= 0) & (stamps > status[np.maximum(last, 0), 0] + STATUS_VALIDITY_S)
     if report == "next":
-        return np.append(tracking, False)[np.searchsorted(status[:, 0], stamps, side="left")]
+        return np.append(tracking, False)[np.searchsorted(status[:, 0], stamps, side="left")] & ~expired
     if report == "last":
-        return np.insert(tracking, 0, False)[np.searchsorted(status[:, 0], stamps, side="right")]
+        return np.insert(tracking, 0, False)[last + 1] & ~expired
     raise ValueError(f"report must be 'next' or 'last', got {report!r}")
 
 
@@ -143,15 +148,6 @@ def fresh_at(judged: Judged, times: np.ndarray) -> np.ndarray:
     return (newest >= 0) & (times - judged.stamps[np.maximum(newest, 0)] <= FRESH_S)
 
 
-def availability_grid(
-    judged: Judged, status: np.ndarray, start_s: float, end_s: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """(grid times, available mask) over [start, end): a fresh estimate and a tracking status (the last
-    report)."""
-    grid = np.arange(start_s, end_s, GRID_STEP_S)
-    return grid, fresh_at(judged, grid) & status_of(grid, status, report="last")
-
-
 def reason_of(message: str) -> str:
     """A status message as a reason to sum time under: its counts and figures replaced by '#' (so that
     "3 of 9 agreeing bearings" and "5 of 9 ..." are one reason)."""
@@ -174,7 +170,7 @@ def unavailable_reasons(
     for k in np.flatnonzero(mask & ~available):
         if not fresh[k]:
             reason = SILENT_REASON
-        elif report[k] < 0:
+        elif report[k] < 0 or grid[k] > ordered[report[k]][0] + STATUS_VALIDITY_S:
             reason = NO_REPORT_REASON
         else:
             reason = reason_of(ordered[report[k]][1])
@@ -230,7 +226,9 @@ def campaign_figures(
     measured = (judged.stamps >= start_s) & (judged.stamps < end_s)
     spans = [(start, end) for _, start, end in windows]
     inside = in_windows(judged.stamps, spans)
-    grid, available = availability_grid(judged, status, start_s, end_s)
+    # available: a fresh estimate and a tracking status in force (the last report)
+    grid = np.arange(start_s, end_s, GRID_STEP_S)
+    available = fresh_at(judged, grid) & status_of(grid, status, report="last")
     grid_outside = ~in_windows(grid, spans)
 
     def max_error(mask: np.ndarray) -> float:
@@ -313,6 +311,8 @@ class CampaignResult:
     def report(self) -> str:
         f = self.figures
         lines = [
+            "schedule:",
+            *("  " + fault.describe() for fault in self.schedule),
             f"fault campaign: {len(self.schedule)} faults over {f.span_s:.0f} s measured "
             f"(logs in {self.output_dir})",
             f"misleading time {f.misleading_s:.2f} s (outside fault windows {f.misleading_outside_s:.2f} s, "

@@ -15,7 +15,7 @@ from geometry_msgs.msg import PoseWithCovarianceStamped
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
 from nav_msgs.msg import Odometry
-from rcl_interfaces.srv import SetParameters
+from rcl_interfaces.srv import GetParameters, SetParameters
 
 from beams_common.interfaces import topics
 from beams_common.interfaces.bearing_messages import BearingFields, nanoseconds
@@ -151,12 +151,9 @@ class Probe:
             x, y, theta = (float(np.interp(host_s, recent[:, 0], recent[:, k])) for k in (1, 2, 3))
         return float(x), float(y), float(theta)
 
-    def latest_truth(self) -> tuple[float, float]:
-        return self.truth[-1][1:3] if self.truth else (1.5, 1.0)
-
     def truth_pose(self, stamp_s: float, variance: float, offset_x_m: float = 0.0, frame: str = "map"):
         """An operator's pose at the newest truth, moved offset_x_m along x, with the true heading."""
-        x, y = self.latest_truth()
+        x, y = self.truth[-1][1:3] if self.truth else (1.5, 1.0)
         msg = operator_pose(stamp_s, (x + offset_x_m, y), variance, frame)
         if self.truth_orientation is not None:
             msg.pose.pose.orientation = self.truth_orientation
@@ -214,6 +211,13 @@ class Probe:
 
         self.call(fault, SetParameters, f"/{NODES[node].executable}/set_parameters", request, expected, judge)
 
+    def get_parameter(self, fault: str, node: str, name: str) -> None:
+        def judge(response) -> tuple[bool, str]:
+            return len(response.values) == 1 and response.values[0].type != 0, f"get {name}"
+
+        request = GetParameters.Request(names=[name])
+        self.call(fault, GetParameters, f"/{NODES[node].executable}/get_parameters", request, True, judge)
+
     def change_state(self, fault: str, transition_id: int, expected: bool) -> None:
         request = ChangeState.Request(transition=Transition(id=transition_id))
         self.call(
@@ -244,6 +248,10 @@ def operator_pose(stamp_s: float, xy: tuple[float, float], variance: float, fram
     return msg
 
 
+def nan_pose(probe: Probe):
+    return operator_pose(probe.now_s(), (math.nan, 1.0), 0.01)
+
+
 def bad_message_topic(variant: str) -> str:
     """The probe's publisher a bad message goes through (bad_message's first element)."""
     if variant.startswith("initialpose"):
@@ -270,5 +278,5 @@ def bad_message(variant: str, probe: Probe) -> tuple[str, Any]:
     if variant == "initialpose_huge_covariance":
         return "initialpose", probe.truth_pose(now_s, OPERATOR_COVARIANCE[variant])
     if variant == "initialpose_nan":
-        return "initialpose", operator_pose(now_s, (math.nan, 1.0), 0.01)
+        return "initialpose", nan_pose(probe)
     raise ValueError(f"unknown bad message {variant!r}")

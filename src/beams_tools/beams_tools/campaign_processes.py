@@ -17,8 +17,13 @@ from beams_tools.supervisor import NodeSupervisor, SupervisedNode
 
 # a process's RSS counts from this long (s) after its start: its imports and first allocations are not growth
 RSS_SETTLE_S = 10.0
-# the robot's nodes and the relay between the publishers and the filters, by the campaign's name
-NODES = {node.name: node for node in (*ROBOT_NODES, RobotNode("beams_tools", "fault_relay_node"))}
+# the robot's nodes, the relay between the publishers and the filters, and the calibration node (an
+# operator's captures), by the campaign's name
+CAMPAIGN_NODES = (
+    RobotNode("beams_tools", "fault_relay_node"),
+    RobotNode("beams_calibration", "calibration_node"),
+)
+NODES = {node.name: node for node in (*ROBOT_NODES, *CAMPAIGN_NODES)}
 # sim_world's odometry and truth and the driver's bearings go to raw topics; the relay republishes them
 REMAPS = {
     "sim_world": ("odom:=odom_raw", "beams/sim/ground_truth:=beams/sim/ground_truth_raw"),

@@ -11,61 +11,77 @@ import numpy as np
 
 from beams_tools.robot_processes import ROBOT_NODES
 
-# The fault classes the campaign plays everywhere (the serial line's and the hosts' link below need
-# a serial sensor and network namespaces).
-FAULT_CLASSES = (
-    "bad_message",
-    "bad_service_call",
-    "parameter_change",
-    "calibration_reload",
-    "lifecycle",
-    "odometry_jump",
-    "odometry_delay",
-    "bearing_stamp_offset",
-    "duplicate_publisher",
-    "node_kill",
-)
 # the serial line's faults, drawn when driver_node reads a (simulated) sensor on a serial port
 SERIAL_CLASS = "serial_line"
-SERIAL_LINE_FAULTS = ("noise", "spurious_zero", "silence", "unplug")
 # a link down between two network namespaces (hosts): driver_node on the sensor's host, the rest of the
 # robot on the main computer's, joined by one veth link (campaign_hosts.Hosts; root and iproute2)
 LINK_CLASS = "link_down"
-LINKS = ("sensor_link",)
-# After a fault ends, its effects still count as its own for this long (s): a killed node's restart and
-# the EKF's re-initialisation take a few seconds on a loaded 2-core machine; a second sim_world's
-# odometry leaves the filter off until a ToTal pose brings it back.
-DEFAULT_RECOVERY_S = 3.0
-RECOVERY_S = {
-    "node_kill": 8.0,
-    "duplicate_publisher": 6.0,
-    "calibration_reload": 4.0,
-    "lifecycle": 4.0,
-    SERIAL_CLASS: 4.0,
-    LINK_CLASS: 4.0,
+# the nodes whose services and parameters the faults use, a SIGSTOP hangs (of the EKF's pair, the one
+# holding the role) and a burst of calls hits
+SERVICE_NODES = ("driver", "triangulation", "ekf")
+# Each class's variants (one drawn at random), duration range (s, drawn uniformly) and recovery time (s):
+# after a fault ends its effects still count as its own for this long (a killed node's restart and the
+# EKF's re-initialisation take a few seconds on a loaded 2-core machine; a second sim_world's odometry
+# leaves the filter off until a ToTal pose brings it back). `_draw` adds the values some classes take.
+DRAWS: dict[str, tuple[tuple[str, ...], tuple[float, float], float]] = {
+    "bad_message": (
+        (
+            "nan_bearings",
+            "unknown_beacon",
+            "empty_revolution",
+            "oversized_revolution",
+            "nan_odometry",
+            "initialpose_huge_covariance",
+            "initialpose_nan",
+        ),
+        (1.0, 3.0),
+        3.0,
+    ),
+    "bad_service_call": (
+        (
+            "set_pose_nan",
+            "set_pose_huge_covariance",
+            "set_pose_wrong_frame",
+            "set_pose_wrong_place",
+            "reload_empty_then_set_pose_nan",
+            "reload_missing_file",
+        ),
+        (2.0, 2.0),
+        3.0,
+    ),
+    "parameter_change": (("good", "out_of_range", "wrong_type", "read_only"), (3.0, 3.0), 3.0),
+    "calibration_reload": (("good", "rotation_bias_3rad", "power_bias_1e300", "malformed"), (3.0, 6.0), 4.0),
+    # files every start-up and reload check accepts, wrong for this sensor (campaign_faults.CORRECTIONS)
+    "wrong_calibration": (
+        ("power_bias_outside_windows", "rotation_bias_under_limit", "power_bias_plausible"),
+        (3.0, 6.0),
+        4.0,
+    ),
+    "lifecycle": (
+        ("deactivate_activate", "cleanup_configure_activate", "invalid_transition"),
+        (1.0, 3.0),
+        4.0,
+    ),
+    "odometry_jump": (("offset_x",), (1.5, 3.5), 3.0),
+    "odometry_delay": (("held_back",), (2.0, 4.0), 3.0),
+    # stamped 0.3-3 s late (in the past) or 0.5 s early (in the future)
+    "bearing_stamp_offset": (("late", "early"), (2.0, 4.0), 3.0),
+    "duplicate_publisher": (("driver", "sim_world", "ekf"), (2.0, 4.0), 6.0),
+    # kill -9, restarted after the fault's duration as a launch respawn would
+    "node_kill": (tuple(node.name for node in ROBOT_NODES), (0.5, 2.0), 8.0),
+    # an operator's reference pose off (calibration_node's capture): it touches nothing else
+    "capture_blunder": (("theta_off_by_pi", "half_metre_off", "mirrored"), (1.0, 1.0), 1.0),
+    # longer than a status's validity (2 s, docs/status.md), so that the latched status expires; a node
+    # back from SIGSTOP works through what queued meanwhile
+    "hung_node": (SERVICE_NODES, (2.5, 4.0), 4.0),
+    "service_burst": (SERVICE_NODES, (1.5, 1.5), 3.0),
+    SERIAL_CLASS: (("noise", "spurious_zero", "silence", "unplug"), (2.0, 5.0), 4.0),
+    # a Wi-Fi or cable drop shorter than the DDS lease (5 s): the participants stay matched
+    LINK_CLASS: (("sensor_link",), (1.5, 4.0), 4.0),
 }
-
-BAD_MESSAGES = (
-    "nan_bearings",
-    "unknown_beacon",
-    "empty_revolution",
-    "oversized_revolution",
-    "nan_odometry",
-    "initialpose_huge_covariance",
-    "initialpose_nan",
-)
-BAD_SERVICE_CALLS = (
-    "set_pose_nan",
-    "set_pose_huge_covariance",
-    "set_pose_wrong_frame",
-    "set_pose_wrong_place",
-    "reload_empty_then_set_pose_nan",
-    "reload_missing_file",
-)
-PARAMETER_CHANGES = ("good", "out_of_range", "wrong_type", "read_only")
-CALIBRATION_FILES = ("good", "rotation_bias_3rad", "power_bias_1e300", "malformed")
-LIFECYCLE_SEQUENCES = ("deactivate_activate", "cleanup_configure_activate", "invalid_transition")
-DUPLICATED_NODES = ("driver", "sim_world", "ekf")
+# The fault classes the campaign plays everywhere (the serial line's and the hosts' link need a serial
+# sensor and network namespaces).
+FAULT_CLASSES = tuple(kind for kind in DRAWS if kind not in (SERIAL_CLASS, LINK_CLASS))
 # a second ekf_node runs this much longer (s): its start-up (imports, its first fix) takes 1.5-3 s
 DUPLICATE_EKF_EXTRA_S = 3.0
 
@@ -86,7 +102,7 @@ class Fault:
 
     @property
     def recovery_s(self) -> float:
-        return RECOVERY_S.get(self.kind, DEFAULT_RECOVERY_S)
+        return DRAWS[self.kind][2]
 
     @property
     def window(self) -> tuple[float, float]:
@@ -107,7 +123,7 @@ class Fault:
 class ScheduleSettings:
     """The campaign's length (s), the start-up left alone (s), the quiet end (s) and the gaps (s)."""
 
-    duration_s: float = 120.0
+    duration_s: float = 150.0
     warmup_s: float = 10.0
     tail_s: float = 3.0
     gap_s: tuple[float, float] = (0.5, 1.5)
@@ -119,47 +135,25 @@ def _pick(rng: np.random.Generator, choices: Sequence[Any]) -> Any:
 
 def _draw(kind: str, rng: np.random.Generator) -> tuple[str, float, dict[str, Any]]:
     """(variant, duration s, values) of one fault of a class."""
-    if kind == "bad_message":
-        return _pick(rng, BAD_MESSAGES), float(rng.uniform(1.0, 3.0)), {}
-    if kind == "bad_service_call":
-        variant = _pick(rng, BAD_SERVICE_CALLS)
-        # set_pose is the EKF's; a reload goes to either filter
-        node = _pick(rng, ("ekf", "triangulation")) if variant.startswith("reload") else "ekf"
-        return variant, 2.0, {"node": node}
-    if kind == "parameter_change":
-        return _pick(rng, PARAMETER_CHANGES), 3.0, {"node": _pick(rng, ("driver", "triangulation", "ekf"))}
-    if kind == "calibration_reload":
-        variant = _pick(rng, CALIBRATION_FILES)
+    if kind not in DRAWS:
+        raise ValueError(f"unknown fault class {kind!r}; expected one of {tuple(DRAWS)}")
+    variants, (low_s, high_s), _ = DRAWS[kind]
+    variant, duration_s, values = _pick(rng, variants), float(rng.uniform(low_s, high_s)), {}
+    if kind == "bad_service_call":  # set_pose is the EKF's; a reload goes to either filter
+        values["node"] = _pick(rng, ("ekf", "triangulation")) if variant.startswith("reload") else "ekf"
+    elif kind in ("parameter_change", "calibration_reload", "wrong_calibration"):
         # a bias correction is the driver's alone (the filters take the file's geometry)
-        biased = variant in ("rotation_bias_3rad", "power_bias_1e300")
-        node = "driver" if biased else _pick(rng, ("driver", "triangulation", "ekf"))
-        return variant, float(rng.uniform(3.0, 6.0)), {"node": node}
-    if kind == "lifecycle":
-        return _pick(rng, LIFECYCLE_SEQUENCES), float(rng.uniform(1.0, 3.0)), {}
-    if kind == "odometry_jump":
-        offset_m = 100.0 if rng.random() < 0.5 else float(rng.uniform(0.3, 5.0))
-        return "offset_x", float(rng.uniform(1.5, 3.5)), {"offset_x_m": offset_m}
-    if kind == "odometry_delay":
-        return "held_back", float(rng.uniform(2.0, 4.0)), {"delay_s": float(rng.uniform(0.2, 1.0))}
-    if kind == "bearing_stamp_offset":
-        # the cases: stamped 0.3-3 s late (in the past) or 0.5 s early (in the future)
-        late = rng.random() < 0.7
-        offset_s = -float(rng.uniform(0.3, 3.0)) if late else 0.5
-        return ("late" if late else "early"), float(rng.uniform(2.0, 4.0)), {"offset_s": offset_s}
-    if kind == "duplicate_publisher":
-        node, duration_s = _pick(rng, DUPLICATED_NODES), float(rng.uniform(2.0, 4.0))
-        extra_s = DUPLICATE_EKF_EXTRA_S if node == "ekf" else 0.0
-        return node, duration_s + extra_s, {"seed": int(rng.integers(1000))}
-    if kind == SERIAL_CLASS:
-        return _pick(rng, SERIAL_LINE_FAULTS), float(rng.uniform(2.0, 5.0)), {}
-    if kind == LINK_CLASS:
-        # a Wi-Fi or cable drop shorter than the DDS lease (5 s): the participants stay matched
-        return _pick(rng, LINKS), float(rng.uniform(1.5, 4.0)), {}
-    if kind == "node_kill":
-        # one of the robot's nodes: kill -9, restarted after this delay as a launch respawn would
-        return _pick(rng, tuple(node.name for node in ROBOT_NODES)), float(rng.uniform(0.5, 2.0)), {}
-    known = (*FAULT_CLASSES, SERIAL_CLASS, LINK_CLASS)
-    raise ValueError(f"unknown fault class {kind!r}; expected one of {known}")
+        values["node"] = "driver" if "bias" in variant else _pick(rng, SERVICE_NODES)
+    elif kind == "odometry_jump":
+        values["offset_x_m"] = 100.0 if rng.random() < 0.5 else float(rng.uniform(0.3, 5.0))
+    elif kind == "odometry_delay":
+        values["delay_s"] = float(rng.uniform(0.2, 1.0))
+    elif kind == "bearing_stamp_offset":
+        values["offset_s"] = -float(rng.uniform(0.3, 3.0)) if variant == "late" else 0.5
+    elif kind == "duplicate_publisher":
+        duration_s += DUPLICATE_EKF_EXTRA_S if variant == "ekf" else 0.0
+        values["seed"] = int(rng.integers(1000))
+    return variant, duration_s, values
 
 
 def draw_schedule(

@@ -16,7 +16,7 @@ import numpy as np
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.serial_protocol import EventKind, FrameEncoder, seconds_to_ticks
 from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
-from beams_tools.fault_schedule import SERIAL_LINE_FAULTS
+from beams_tools.fault_schedule import DRAWS, SERIAL_CLASS
 
 # the case seen: a spurious zero reference this long (s) before each real one, 1.2 % of a 0.1 s turn
 SPURIOUS_ZERO_EARLY_S = 1.2e-3
@@ -66,8 +66,8 @@ class SerialFeed:
 
     def set_fault(self, fault: str | None) -> None:
         """Start a line fault ("noise", "spurious_zero", "silence", "unplug") or end it (None)."""
-        if fault is not None and fault not in SERIAL_LINE_FAULTS:
-            raise ValueError(f"line fault must be one of {SERIAL_LINE_FAULTS}, got {fault!r}")
+        if fault is not None and fault not in DRAWS[SERIAL_CLASS][0]:
+            raise ValueError(f"line fault must be one of {DRAWS[SERIAL_CLASS][0]}, got {fault!r}")
         if fault == "unplug":
             self.unplug()
         elif self.fault == "unplug":

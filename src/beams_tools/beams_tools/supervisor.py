@@ -84,9 +84,11 @@ class NodeSupervisor:
         self._removed.append((self.nodes.pop(name), self.clock() + STOP_TIMEOUT_S))
 
     def signal(self, name: str, sig: int) -> None:
-        """Send `sig` to a process and hold it: its exit is not a death, no restart until `resume`."""
+        """Send `sig` to a process and, unless it only pauses or continues it (SIGSTOP, SIGCONT), hold it: its
+        exit is not a death, no restart until `resume`."""
         node = self.nodes[name]
-        node.held, node.restart_due_s = True, None
+        if sig not in (signal.SIGSTOP, signal.SIGCONT):
+            node.held, node.restart_due_s = True, None
         if self.pid(name) is not None:
             node.process.send_signal(sig)
 

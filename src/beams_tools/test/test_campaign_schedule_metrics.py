@@ -6,6 +6,7 @@ import math
 import numpy as np
 import pytest
 
+from beams_common.status.health import STATUS_VALIDITY_S
 from beams_tools.campaign_metrics import (
     FRESH_S,
     MAX_SAMPLE_SPAN_S,
@@ -18,10 +19,12 @@ from beams_tools.campaign_metrics import (
     truth_at,
 )
 from beams_tools.fault_schedule import (
+    DRAWS,
     DUPLICATE_EKF_EXTRA_S,
     FAULT_CLASSES,
     LINK_CLASS,
     SERIAL_CLASS,
+    SERVICE_NODES,
     ScheduleSettings,
     draw_schedule,
     fixed_schedule,
@@ -36,7 +39,7 @@ def test_the_same_seed_draws_the_same_schedule_and_another_seed_another():
 
 
 @pytest.mark.parametrize("seed", range(20))
-def test_a_two_minute_campaign_draws_every_class_without_overlap(seed):
+def test_a_150_s_campaign_draws_every_class_without_overlap(seed):
     settings = ScheduleSettings()
     faults = draw_schedule(seed, settings)
     assert {fault.kind for fault in faults} == set(FAULT_CLASSES)
@@ -47,13 +50,13 @@ def test_a_two_minute_campaign_draws_every_class_without_overlap(seed):
 
 
 @pytest.mark.parametrize("seed", range(20))
-def test_with_the_serial_line_every_class_still_fits_two_minutes(seed):
+def test_with_the_serial_line_every_class_still_fits_150_s(seed):
     classes = (*FAULT_CLASSES, SERIAL_CLASS)
     assert {fault.kind for fault in draw_schedule(seed, ScheduleSettings(), classes)} == set(classes)
 
 
 @pytest.mark.parametrize("seed", range(20))
-def test_with_the_serial_line_and_the_hosts_link_every_class_still_fits_two_minutes(seed):
+def test_with_the_serial_line_and_the_hosts_link_every_class_still_fits_150_s(seed):
     classes = (*FAULT_CLASSES, SERIAL_CLASS, LINK_CLASS)
     faults = draw_schedule(seed, ScheduleSettings(), classes)
     assert {fault.kind for fault in faults} == set(classes)
@@ -79,6 +82,57 @@ def test_twenty_minutes_draw_every_variant_of_issue_18s_last_classes():
     assert max(duplicates["driver"] + duplicates["sim_world"]) <= 4.0
     serial = {f.variant for f in faults if f.kind == SERIAL_CLASS}
     assert serial == {"noise", "spurious_zero", "silence", "unplug"}
+
+
+def test_twenty_minutes_draw_every_variant_of_the_wrong_calibration_capture_hung_node_and_burst_classes():
+    """Issue 27's classes: each variant drawn; a wrong calibration goes to the driver (the node that applies
+    a bias); a node hangs longer than its status's validity, so that the latched status expires."""
+    faults = draw_schedule(18, ScheduleSettings(duration_s=1200.0))
+    for kind in ("wrong_calibration", "capture_blunder", "hung_node", "service_burst"):
+        assert {f.variant for f in faults if f.kind == kind} == set(DRAWS[kind][0]), kind
+    assert {f.value("node") for f in faults if f.kind == "wrong_calibration"} == {"driver"}
+    hung = [f for f in faults if f.kind == "hung_node"]
+    assert {f.variant for f in hung} == set(SERVICE_NODES)
+    assert min(f.duration_s for f in hung) > STATUS_VALIDITY_S
+
+
+def test_the_wrong_calibrations_pass_every_check_and_the_absurd_ones_do_not(tmp_path):
+    """A plausible-but-wrong calibration is one the start-up and reload checks accept (load_calibration);
+    the cubic's extrapolation is the issue's: about 0 at 5 and 13 deg, -1.2 rad at a 0.04 rad window and
+    +2.6 rad at 0.3 rad, held at its edges by the file's window range."""
+    from beams_common.calibration.calibration_file import CalibrationFileError, load_calibration
+    from beams_tools.campaign_faults import CORRECTIONS, write_calibration_files
+
+    files = write_calibration_files(tmp_path)
+    for variant in DRAWS["wrong_calibration"][0]:
+        correction = load_calibration(files[variant]).bearing_correction
+        assert not correction.is_identity, variant
+    for variant in ("rotation_bias_3rad", "power_bias_1e300", "malformed"):
+        with pytest.raises(CalibrationFileError):
+            load_calibration(files[variant])
+    cubic = CORRECTIONS["power_bias_outside_windows"]
+    assert cubic.power_bias([math.radians(5.0), math.radians(13.0)]) == pytest.approx([0.0, 0.0], abs=1e-9)
+    assert cubic.power_bias([0.04, 0.3]) == pytest.approx([-1.2, 2.6], abs=0.05)
+    held = load_calibration(files["power_bias_outside_windows"]).bearing_correction
+    assert held.power_bias([0.04, 0.3]) == pytest.approx([0.0, 0.0], abs=1e-9)
+
+
+@pytest.mark.parametrize("variant", DRAWS["capture_blunder"][0])
+def test_a_capture_blunder_is_refused_by_calibration_nodes_check(variant):
+    """The pose the campaign gives calibration_node's ~/capture_reference, against bearings of the true
+    pose: beams_calibration.dataset.capture_bearing_problem refuses it, naming both poses."""
+    from beams_calibration.dataset import BeaconObservation, capture_bearing_problem
+    from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+    from beams_tools.campaign_faults import blunder_pose
+
+    x, y, theta = 0.8, 1.3, 0.4
+    observations = [
+        BeaconObservation(i, math.atan2(by - y, bx - x) - theta, 0.15, 0.0, 3)
+        for i, (bx, by) in EUROBOT_BEACON_MAP.as_dict().items()
+    ]
+    assert capture_bearing_problem((x, y, theta), observations, EUROBOT_BEACON_MAP) == ""
+    problem = capture_bearing_problem(blunder_pose(variant, x, y, theta), observations, EUROBOT_BEACON_MAP)
+    assert "the pose its bearings give (0.800 m, 1.300 m, 22.9 deg)" in problem
 
 
 def test_the_classes_a_campaign_draws_and_why_the_hosts_link_is_skipped(monkeypatch, tmp_path):
@@ -266,6 +320,25 @@ def test_unavailable_time_outside_the_windows_is_attributed_to_the_status_the_us
     # every unavailable second outside the windows has its reason
     unavailable_s = (1.0 - figures.availability_outside) * figures.outside_s
     assert sum(reasons.values()) == pytest.approx(unavailable_s, abs=0.05)
+
+
+def test_a_status_past_its_validity_is_neither_available_nor_misleading():
+    """A hung EKF (SIGSTOP 5-9 s): its last report, tracking at 5 s, holds until 7 s (STATUS_VALIDITY_S,
+    the status topic's valid_until); estimates stamped after that (published once it continues) are not
+    trusted, however wrong, and the time is not available, however fresh; before 7 s they are judged."""
+    truth = _straight_truth(0.0, 20.0)
+    ekf = _estimates(truth, 0.0, 0.01, 0.0, 20.0)
+    ekf[(ekf[:, 0] >= 6.0) & (ekf[:, 0] < 9.0), 1] += 0.5
+    status = _status([(t, True) for t in (1.0, 2.0, 3.0, 4.0, 5.0, 9.0, 10.0, 11.0)])
+    judged = judge(ekf, truth, status)
+    wrong = (judged.stamps >= 6.0) & (judged.stamps < 9.0)
+    in_force = judged.stamps <= 5.0 + STATUS_VALIDITY_S
+    assert np.all(judged.misleading[wrong & in_force])
+    assert not np.any(judged.misleading[wrong & ~in_force])
+    figures = campaign_figures(ekf, truth, status, [("hung_node", 5.0, 9.0)], 2.0, 11.0)
+    assert figures.per_class["hung_node"].misleading_s == pytest.approx(1.0, abs=0.05)
+    assert figures.per_class["hung_node"].availability == pytest.approx(0.5, abs=0.02)
+    assert list(status_of(np.array([6.9, 7.1, 9.0]), status, report="last")) == [True, False, True]
 
 
 def test_without_messages_unavailable_time_has_no_report_reason_unless_the_ekf_was_silent():
