@@ -24,6 +24,9 @@ $(INSTALL_BASE)/.built: $(VENV)/.installed $(PACKAGE_SOURCES) colcon.meta script
 	$(ROS_ENV) colcon --log-base $(BUILD_BASE)/log build --build-base $(BUILD_BASE) --install-base $(INSTALL_BASE) \
 	    --base-paths src $$(scripts/compat_packages.sh) \
 	    --metas colcon.meta --event-handlers console_direct- console_cohesion- summary+ status-
+	@# byte-compiled once here: a node's (re)start then reads its modules instead of compiling them (0.3 s
+	@# of CPU for ekf_node), also where PYTHONDONTWRITEBYTECODE keeps Python from caching them
+	$(ROS_ENV) python -m compileall -q $(INSTALL_BASE) > /dev/null
 	touch $@
 
 build: $(INSTALL_BASE)/.built

@@ -12,7 +12,11 @@ does, in ROS_DOMAIN_ID 68 unless the environment sets one) and measures, with a 
 `--source virtual_turret`: driver_node reads the turret firmware in simavr on a pty (beams_sim's
 virtual_turret, `make hil`; its CPU includes simavr's), every row named so.
 
-Usage: python bench/bench_system.py [--flood-s S] [--source virtual_turret]   (`rows()`: bench/run_all.py)
+`--one-process`: driver_node, triangulation_node and ekf_node as nodes of one process (beams_bringup's
+robot), its rows named `robot`.
+
+Usage: python bench/bench_system.py [--flood-s S] [--source virtual_turret] [--one-process]
+(`rows()`: bench/run_all.py)
 """
 
 import os
@@ -178,21 +182,23 @@ def restamped(msg, now_ns: int):
     return copy
 
 
-def rows(flood_s: float = FLOOD_S, source: str = "sim") -> list[Row]:
+def rows(flood_s: float = FLOOD_S, source: str = "sim", one_process: bool = False) -> list[Row]:
     os.environ.setdefault("ROS_DOMAIN_ID", DEFAULT_DOMAIN_ID)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    from beams_tools.robot_processes import process_commands
+    from beams_tools.robot_processes import ONE_PROCESS, process_commands, robot_processes
     from beams_tools.supervisor import NodeSupervisor
 
     with tempfile.TemporaryDirectory(prefix="beams_bench_system_") as log_dir:
         env = dict(os.environ, PYTHONUNBUFFERED="1", ROS_HOME=f"{log_dir}/ros_home")  # its own checkpoint
         probe = Probe()
-        commands = process_commands(INSTALL_BASE, ROS_ARGUMENTS, standby=False)
+        arguments = {**ROS_ARGUMENTS, ONE_PROCESS.executable: ROS_ARGUMENTS["triangulation_node"]}
+        commands = process_commands(INSTALL_BASE, arguments, robot_processes(one_process), standby=False)
         link, turret = pathlib.Path(log_dir) / "turret", {}
         if source == "virtual_turret":  # it runs the world (its arguments), first: driver_node opens its link
             executable = INSTALL_BASE / "beams_sim/lib/beams_sim/virtual_turret"
             turret = {source: [str(executable), "--link", str(link), *commands.pop("sim_world_node")[1:]]}
-            commands["driver_node"] += ["-p", "source:=serial", "-p", f"device:={link}"]
+            driver = ONE_PROCESS.executable if one_process else "driver_node"
+            commands[driver] += ["-p", "source:=serial", "-p", f"device:={link}"]
         elif source != "sim":
             raise ValueError(f"source: sim or virtual_turret, not {source!r}")
         # the bench restarts a node itself (restart_rows): it never polls the supervisor
@@ -205,7 +211,8 @@ def rows(flood_s: float = FLOOD_S, source: str = "sim") -> list[Row]:
                 supervisor.add(name, command)
             if not probe.spin_until(lambda: len(probe.arrivals.ekf) > 50, START_TIMEOUT_S):
                 raise RuntimeError(f"no EKF output within {START_TIMEOUT_S} s; logs in {log_dir}")
-            table = latency_and_cpu_rows(probe, supervisor) + flood_rows(probe, supervisor, flood_s)
+            table = [*latency_and_cpu_rows(probe, supervisor), memory_row(supervisor)]
+            table += flood_rows(probe, supervisor, flood_s)
             table += restart_rows(probe, supervisor)
             return table if source == "sim" else [(f"{source}: {figure}", *rest) for figure, *rest in table]
         finally:
@@ -268,12 +275,20 @@ def flood_rows(probe: Probe, supervisor, flood_s: float) -> list[Row]:
     return rows
 
 
+def memory_row(supervisor) -> Row:
+    """The resident memory of the robot's processes together (VmRSS, the simulated robot's included)."""
+    pids = [supervisor.pid(name) for name in supervisor.nodes]
+    rss_mib = sum(memory_kb(pid)["VmRSS"] for pid in pids) / 1024
+    return ("RSS of the robot's processes, sum", rss_mib, "MiB", f"{len(pids)} processes")
+
+
 def restart_rows(probe: Probe, supervisor) -> list[Row]:
     """Stop and restart the triangulation and the EKF RESTARTS times each, by kill -9 and by SIGTERM: the
     delay from the new process's "ready" log line to its first output at the probe (DDS discovery
     included), and from its start (Python and rclpy start-up included)."""
     rows = []
     outputs = {"triangulation_node": probe.arrivals.total, "ekf_node": probe.arrivals.ekf}
+    outputs = outputs if "ekf_node" in supervisor.nodes else {"robot": probe.arrivals.ekf}
     for stop_signal, how in ((signal.SIGKILL, "kill -9"), (signal.SIGTERM, "SIGTERM")):
         for executable, arrivals in outputs.items():
             from_ready, from_start = [], []

@@ -33,6 +33,9 @@ def bench_main(doc: str, rows: Callable[..., Sequence[tuple]], argv: Sequence[st
     parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     for name, parameter in inspect.signature(rows).parameters.items():
         default = parameter.default
+        if isinstance(default, bool):  # a flag: `--one-process`
+            parser.add_argument(f"--{name.replace('_', '-')}", action="store_true", dest=name)
+            continue
         many = isinstance(default, list | tuple)
         kind = pathlib.Path if default is None else type(default[0] if many else default)
         nargs = "+" if many else None

@@ -20,5 +20,5 @@ setup(
     maintainer_email="maintainers@beams-ros.org",
     description="Launch file, Fast DDS profile, parameter files and the demo of the BeAMS suite.",
     license="Apache-2.0",
-    entry_points={"console_scripts": ["demo = beams_bringup.demo:main"]},
+    entry_points={"console_scripts": ["demo = beams_bringup.demo:main", "robot = beams_bringup.robot:main"]},
 )

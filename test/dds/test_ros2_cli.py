@@ -116,14 +116,25 @@ def ros2(env: dict[str, str], *arguments: str) -> subprocess.CompletedProcess:
     )
 
 
-def test_ros2_launch_in_a_namespace_starts_every_node_and_ctrl_c_stops_them_cleanly(rclpy_node, group):
+# one_process:=true: sim_world_node's process and beams_bringup's robot (the three other nodes)
+@pytest.mark.parametrize(("one_process", "processes"), [("false", LAUNCHED_PROCESSES), ("true", 2)])
+def test_ros2_launch_in_a_namespace_starts_every_node_and_ctrl_c_stops_them_cleanly(
+    rclpy_node, group, one_process, processes
+):
     from diagnostic_msgs.msg import DiagnosticArray
 
     from beams_msgs.msg import BeaconBearingArray
 
     diagnostics = rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
     bearings = rclpy_node.subscribe(BeaconBearingArray, "/robot1/beams/bearings")
-    launch = group("ros2", "launch", "beams_bringup", "beams.launch.py", "namespace:=robot1")
+    launch = group(
+        "ros2",
+        "launch",
+        "beams_bringup",
+        "beams.launch.py",
+        "namespace:=robot1",
+        f"one_process:={one_process}",
+    )
 
     def all_up() -> bool:
         names = {status.name for msg in diagnostics for status in msg.status}
@@ -137,7 +148,7 @@ def test_ros2_launch_in_a_namespace_starts_every_node_and_ctrl_c_stops_them_clea
     assert status == 0, output
     for bad in ("Traceback", "process has died", "deprecated", "UserWarning"):
         assert bad not in output, f"{bad!r} in the launch output:\n{output}"
-    assert output.count("process has finished cleanly") == LAUNCHED_PROCESSES, output
+    assert output.count("process has finished cleanly") == processes, output
 
 
 def test_ros2_run_topic_echo_param_and_service(ros_env, group):

@@ -44,8 +44,9 @@ def _console_scripts() -> dict[str, tuple[str, str]]:
     return scripts
 
 
-# The tools: every console script but the nodes (test/dds/test_parameter_refusals.py starts those).
-TOOLS = {name: entry for name, entry in _console_scripts().items() if not name.endswith("_node")}
+# The tools: every console script but the nodes (test/dds/test_parameter_refusals.py starts those) and
+# the robot's nodes in one process (test/dds/test_one_process.py).
+TOOLS = {n: entry for n, entry in _console_scripts().items() if not n.endswith("_node") and n != "robot"}
 # How each tool is given its paths: {input kind} and {output kind}.ext placeholders, cheap settings.
 USAGE = {
     "replay_bag": ["{bag}", "{out_dir}", "--plot", "{out_file}.png"],

@@ -2,10 +2,11 @@
 
 Starts sim_world_node, driver_node (simulated sensor), triangulation_node and ekf_node with its hot
 standby (two processes, beams_common.ros.standby) from the install tree (the executables `ros2 run`
-starts), records every topic to an MCAP bag as `ros2 bag record` does (fully qualified names, the
-publishers' offered QoS profiles in the metadata), prints live progress (pose errors against the truth,
-bearings per second, rejected windows), stops the nodes with SIGINT and leaves a trajectory plot and a
-summary table in the output directory.
+starts; `--one-process`: the last three as nodes of one process, beams_bringup's `robot`), records every
+topic to an MCAP bag as `ros2 bag record` does (fully qualified names, the publishers' offered QoS
+profiles in the metadata), prints live progress (pose errors against the truth, bearings per second,
+rejected windows), stops the nodes with SIGINT and leaves a trajectory plot and a summary table in the
+output directory.
 
 By default every node runs with its own defaults, as a new user's robot would: the driver uncalibrated
 (WARN "uncalibrated" on /diagnostics, `calibrated: false` on beams/bearings) and the EKF estimating the
@@ -52,7 +53,7 @@ from beams_sim.simulated_match import SENSOR_MODELS, calibration_of, sensor_conf
 from beams_tools.bag_events import stamp_ns
 from beams_tools.bag_io import BagRecorder, beams_typestore, fully_qualified
 from beams_tools.replay_settings import installed_params_file
-from beams_tools.robot_processes import PARAMS_FILE, ROBOT_NODES, process_commands
+from beams_tools.robot_processes import ONE_PROCESS, PARAMS_FILE, process_commands, robot_processes
 from beams_tools.supervisor import NodeSupervisor
 from beams_tools.trajectory_metrics import (
     RunTracks,
@@ -186,21 +187,26 @@ def sensor_setup(sensor_model: str, output: pathlib.Path, calibrated: bool) -> S
     return SensorSetup(sensor_model, tuple(arguments), description)
 
 
-def node_commands(duration_s: float, sensor: SensorSetup, standby: bool = True) -> dict[str, list[str]]:
+def node_commands(
+    duration_s: float, sensor: SensorSetup, standby: bool = True, one_process: bool = False
+) -> dict[str, list[str]]:
     """The command of each robot process (installed executable, beams_params.yaml, the demo's overrides),
-    by process name: a node with a hot standby has two (`RobotNode.processes`) unless `standby` is off."""
+    by process name: a node with a hot standby has two (`RobotNode.processes`) unless `standby` is off;
+    with `one_process`, `robot_processes`' one process (the driver's overrides then reach its every node)."""
     params_file = installed_params_file()
     if params_file is None:
         raise FileNotFoundError(f"{PARAMS_FILE} of beams_bringup is not installed: run `make build`")
     overrides = {
         "sim_world_node": ["-p", f"duration_s:={duration_s}"],
         "driver_node": sensor.driver_arguments,
+        ONE_PROCESS.executable: sensor.driver_arguments,
     }
+    processes = robot_processes(one_process)
     ros_arguments = {
         node.executable: ["--params-file", str(params_file), *overrides.get(node.executable, ())]
-        for node in ROBOT_NODES
+        for node in processes
     }
-    return process_commands(INSTALL_BASE, ros_arguments, standby=standby)
+    return process_commands(INSTALL_BASE, ros_arguments, processes, standby)
 
 
 def progress_line(record: MatchRecord, elapsed_s: float, bearings_per_s: float) -> str:
@@ -285,6 +291,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         action="store_true",
         help="give the driver a perfect chapter-7 calibration (default: uncalibrated, self-calibrating)",
     )
+    parser.add_argument(
+        "--one-process",
+        action="store_true",
+        help="driver_node, triangulation_node and ekf_node as nodes of one process (beams_bringup's robot)",
+    )
     options = parser.parse_args(argv)
     output = options.output or ROOT / "out" / f"demo-{datetime.datetime.now():%Y%m%d-%H%M%S}"
     output.mkdir(parents=True, exist_ok=True)
@@ -305,7 +316,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     record = MatchRecord()
     typestore = beams_typestore()
     # every node restarted when it dies, as `ros2 launch` does with respawn (beams.launch.py)
-    supervisor = NodeSupervisor(node_commands(options.duration, sensor), env, output)
+    supervisor = NodeSupervisor(
+        node_commands(options.duration, sensor, one_process=options.one_process), env, output
+    )
     supervisor.start()
     statuses: dict[str, int] = {}
     interrupted = False

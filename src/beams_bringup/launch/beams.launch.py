@@ -22,15 +22,21 @@ takes the node's role and runs, the other waits outside the ROS graph and become
 the first dies, which is respawned into the waiting place; the process that becomes the EKF resumes what
 the last one learnt from its checkpoint (beams_ekf.checkpoint, ~/.ros/beams/). One ekf_node only:
     ros2 launch beams_bringup beams.launch.py ekf_standby:=false
+driver_node, triangulation_node and ekf_node as nodes of one process (beams_bringup's `robot`, one
+executor, as a C++ component container; respawned as a whole, without a standby; sim_world_node stays a
+process of its own):
+    ros2 launch beams_bringup beams.launch.py one_process:=true
 """
 
 from launch import Condition, LaunchDescription
 from launch.actions import DeclareLaunchArgument, SetEnvironmentVariable
-from launch.conditions import IfCondition, UnlessCondition
+from launch.conditions import IfCondition
 from launch.substitutions import (
+    AndSubstitution,
     EnvironmentVariable,
     EqualsSubstitution,
     LaunchConfiguration,
+    NotSubstitution,
     PathJoinSubstitution,
 )
 from launch_ros.actions import Node
@@ -38,6 +44,8 @@ from launch_ros.substitutions import FindPackageShare
 
 from beams_tools.robot_processes import (
     DISCOVERY_PROFILE,
+    ONE_PROCESS,
+    ONE_PROCESS_NODES,
     PARAMS_FILE,
     RESPAWN_DELAY_S,
     ROBOT_NODES,
@@ -67,21 +75,22 @@ ARGUMENTS = (
         for node in ROBOT_NODES
         if node.hot_standby
     ),
+    ("one_process", "false", "true: driver_node, triangulation_node and ekf_node as nodes of one process"),
 )
 
 
 def node_action(
     node: RobotNode, arguments: list[str] | None = None, condition: Condition | None = None
 ) -> Node:
-    """One process of a node: `arguments` before --ros-args, `condition` when it runs (the simulated
-    robot's is that the source is sim)."""
+    """One process of a node (or ONE_PROCESS): `arguments` before --ros-args, `condition` when it runs
+    (the simulated robot's is that the source is sim)."""
     parameters = [
         PathJoinSubstitution([FindPackageShare("beams_bringup"), "config", PARAMS_FILE]),
         {"use_sim_time": LaunchConfiguration("use_sim_time")},
     ]
     if node.takes_calibration:
         parameters.append({"calibration_file": LaunchConfiguration("calibration_file")})
-    if node.executable == "driver_node":
+    if node.executable in ("driver_node", ONE_PROCESS.executable):
         parameters.append(
             {
                 "source": LaunchConfiguration("source"),
@@ -121,16 +130,25 @@ def virtual_turret() -> Node:
 
 
 def node_actions(node: RobotNode) -> list[Node]:
-    """A node's processes: with a hot standby, the pair when its launch argument is true, else one."""
+    """A node's processes: with a hot standby, the pair when its launch argument is true, else one; the
+    nodes of ONE_PROCESS only without one_process, ONE_PROCESS only with it."""
+    one_process = LaunchConfiguration("one_process")
+    separate = NotSubstitution(one_process)
+    if node == ONE_PROCESS:
+        return [node_action(node, condition=IfCondition(one_process))]
     if not node.hot_standby:
-        return [node_action(node)]
+        return [node_action(node, condition=IfCondition(separate) if node in ONE_PROCESS_NODES else None)]
     if node.simulation_only:
         raise ValueError(
             f"{node.executable}: a simulation-only node with a hot standby needs both conditions"
         )
     standby = LaunchConfiguration(node.standby_argument)
-    pair = [node_action(node, arguments, IfCondition(standby)) for arguments in node.processes().values()]
-    return [*pair, node_action(node, condition=UnlessCondition(standby))]
+    pair = IfCondition(AndSubstitution(standby, separate))
+    alone = IfCondition(AndSubstitution(NotSubstitution(standby), separate))
+    return [
+        *(node_action(node, arguments, pair) for arguments in node.processes().values()),
+        node_action(node, condition=alone),
+    ]
 
 
 def discovery_profile() -> SetEnvironmentVariable:
@@ -146,5 +164,5 @@ def generate_launch_description() -> LaunchDescription:
     arguments = [
         DeclareLaunchArgument(name, default_value=value, description=text) for name, value, text in ARGUMENTS
     ]
-    nodes = [action for node in ROBOT_NODES for action in node_actions(node)]
+    nodes = [action for node in (*ROBOT_NODES, ONE_PROCESS) for action in node_actions(node)]
     return LaunchDescription([*arguments, discovery_profile(), *nodes, virtual_turret()])

@@ -1,7 +1,8 @@
 """The robot's process set, described once: which nodes (package, executable), which run only with the
-simulated sensor, which read the calibration file, which run as a hot standby pair, the respawn delay,
-the parameter file and the Fast DDS profile. beams_bringup's launch file and the demo's supervisor, and
-the fault campaign, build their processes from it (test/unit/test_process_set.py)."""
+simulated sensor, which read the calibration file, which run as a hot standby pair, which run in one process
+with `one_process`, the respawn delay, the parameter file and the Fast DDS profile. beams_bringup's launch
+file and the demo's supervisor, and the fault campaign, build their processes from it
+(test/unit/test_process_set.py)."""
 
 import pathlib
 from collections.abc import Mapping, Sequence
@@ -66,6 +67,19 @@ ROBOT_NODES = (
     # 2.2-2.7 s after a kill under a load of 4-6; its standby takes over in 0.41-0.50 s (BENCHMARKS.md)
     RobotNode("beams_ekf", "ekf_node", hot_standby=True),
 )
+
+
+# `one_process`: the robot's nodes but the simulated robot as nodes of one process on one executor
+# (beams_bringup.robot), as a C++ component container runs components; respawned as a whole, no standby
+ONE_PROCESS = RobotNode("beams_bringup", "robot")
+ONE_PROCESS_NODES = tuple(node for node in ROBOT_NODES if not node.simulation_only)
+
+
+def robot_processes(one_process: bool = False) -> tuple[RobotNode, ...]:
+    """The robot's processes: a node each, or with `one_process` the simulated robot and ONE_PROCESS."""
+    if not one_process:
+        return ROBOT_NODES
+    return (*(node for node in ROBOT_NODES if node.simulation_only), ONE_PROCESS)
 
 
 def process_commands(
