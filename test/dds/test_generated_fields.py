@@ -99,7 +99,7 @@ class Harness:
         next(s for s in self.node.subscriptions if s.topic_name.endswith(topic)).callback(message)
 
     def call(self, name: str, request: Any) -> Any:
-        service = next(s for s in self.node.services if s.srv_name.endswith(name))
+        service = next(s for s in self.node.services if s.srv_name.split("/")[-1] == name)
         return service.callback(request, service.srv_type.Response())
 
     def tick(self) -> None:
@@ -113,7 +113,7 @@ class Harness:
         from rclpy.parameter import Parameter
 
         request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
-        (result,) = self.call("/set_parameters", request).results
+        (result,) = self.call("set_parameters", request).results
         return result
 
     def take(self) -> list[tuple[str, Any]]:
@@ -302,7 +302,7 @@ def test_ekf_node_every_input_field_parameter_and_service(sim_time):
 
     def check(case) -> None:
         target, what, value, element = case
-        reset = harness.call("ekf_node/reset", Trigger.Request())
+        reset = harness.call("reset", Trigger.Request())
         assert reset.success
         # initialised from ToTal, not yet confirmed by the bearings
         robot.revolutions(2, topics=("odom", "beams/pose"))
