@@ -638,6 +638,19 @@ def test_driver_node_every_input_field_service_field_and_parameter(sim_time):
     def state() -> int:
         return node._state_machine.current_state[0]
 
+    def activate() -> None:
+        """Back to active, from wherever a case left it (finalized: a new node; the fixture destroys both)."""
+        nonlocal node
+        if state() == State.PRIMARY_STATE_FINALIZED:
+            node = harness.node = DriverNode()
+            sim_time(node)
+        if state() == State.PRIMARY_STATE_UNCONFIGURED:
+            node.trigger_configure()
+        if state() == State.PRIMARY_STATE_INACTIVE:
+            node.trigger_activate()
+        harness.capture()
+        harness.set_time(harness.now_s)
+
     def run(revolutions: int, make=ground_truth) -> None:
         for _ in range(revolutions):
             for _ in range(ODOMETRY_PER_REVOLUTION):
@@ -669,10 +682,7 @@ def test_driver_node_every_input_field_service_field_and_parameter(sim_time):
 
     def check(case) -> None:
         target, what, value, element = case
-        for transition in (node.trigger_configure, node.trigger_activate):
-            if state() != State.PRIMARY_STATE_ACTIVE:
-                transition()
-        harness.capture()
+        activate()
         run(2)
         harness.take()
         problems, original = [], None
@@ -692,10 +702,7 @@ def test_driver_node_every_input_field_service_field_and_parameter(sim_time):
         problems += output_problems(harness, outputs) + bearing_problems(outputs)
         if original is not None:
             assert harness.set_parameter(what, original).successful
-        for transition in (node.trigger_configure, node.trigger_activate):
-            if state() != State.PRIMARY_STATE_ACTIVE:
-                transition()
-        harness.capture()
+        activate()
         run(AFTER)
         outputs = harness.take()
         problems += output_problems(harness, outputs) + bearing_problems(outputs)
