@@ -251,8 +251,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         now_s = self._now_s()
         self.health.on_bearings(now_s)
         intake = bearings_message_intake(msg, stamp_to_seconds, self.localiser.ekf.beacons_xy)
-        newest_s = _newest_stamp_s(intake)
-        if self._implausible_stamp("bearings", f"revolution {msg.revolution}", newest_s, now_s):
+        if self._implausible_stamp("bearings", f"revolution {msg.revolution}", intake.newest_stamp_s, now_s):
             return  # a bearing applied at the wrong instant is confidently wrong
         self.localiser.on_bearings(intake)  # counts the bearings and revolutions refused, applies those kept
         for key, reason in intake.revolution_refusals():  # the localiser's count, with the reason
@@ -411,14 +410,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         if exact is not None and exact[0] == estimate.stamp_s:
             return exact[1]
         return seconds_to_stamp(estimate.stamp_s)
-
-
-def _newest_stamp_s(intake: RevolutionIntake) -> float:
-    """The newest finite stamp of a revolution's bearings (kept or refused), nan without one."""
-    stamps = [
-        b.stamp_s for b in (*intake.kept, *(r.bearing for r in intake.refused)) if math.isfinite(b.stamp_s)
-    ]
-    return max(stamps) if stamps else math.nan
 
 
 def _fill_pose(pose_with_covariance, estimate: Estimate) -> None:
