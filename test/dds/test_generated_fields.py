@@ -34,9 +34,9 @@ REVOLUTION_S = 0.1
 ODOMETRY_PER_REVOLUTION = 2
 POSE_BOUND_M = 0.005
 # revolutions of a case, and of good input afterwards
-CASE, AFTER = 3, 4
+CASE, AFTER = 2, 3
 # hypothesis's own draws per node, after the explicit walk of every field
-GENERATED = 25
+GENERATED = 15
 # NaN here says "no protection level" (docs/protection_level.md), "not computed" (leave-one-out)
 ALLOWED_NAN = ("protection_level_m", "protection_level_rad", "leave_one_out_position_rms")
 

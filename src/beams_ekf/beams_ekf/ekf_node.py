@@ -5,7 +5,7 @@ Subscribes (relative names): `odom` (nav_msgs/Odometry, odom frame), `beams/bear
 the filter or re-initialise it after a kidnapping), `/initialpose`
 (geometry_msgs/PoseWithCovarianceStamped, an operator's pose: always re-initialises; the service
 `~/set_pose` (beams_msgs/SetPose) does the same).
-Publishes `beams/ekf/odometry` (nav_msgs/Odometry, map -> base_link, pose and twist with covariance)
+Publishes `beams/ekf/odometry` (nav_msgs/Odometry, map -> base_link, pose with covariance, the filter's twist)
 and `beams/ekf/pose` (PoseWithCovarianceStamped) after each revolution's bearings and at
 `publish_rate_hz` as odometry moves it, the map -> odom transform on `/tf` (REP-105: the odometry's
 source publishes odom -> base_link), plus `/diagnostics`.
