@@ -72,6 +72,7 @@ FILE_SECONDS = {
     "test_ekf_lost_detection.py": 15,
     "test_driver_decoder.py": 13,
     "test_triangulation_node.py": 12,
+    "test_generated_fields.py": 14,
     "test_driver_serial_replug.py": 11,
     "test_rate_status.py": 11,
     "test_status_topic.py": 9,

@@ -8,9 +8,9 @@ is refused describing what was expected, never echoing the file's text."""
 import ast
 import contextlib
 import importlib
-import math
 import pathlib
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from typing import Any
@@ -18,8 +18,10 @@ from typing import Any
 import pytest
 import yaml
 
-from beams_common.config.parameters import ParameterSpec
 from beams_tools.parameter_docs import TABLES
+
+sys.path.insert(0, str(pathlib.Path(__file__).parent))
+from field_walk import bad_value
 
 SRC = pathlib.Path(__file__).resolve().parents[2] / "src"
 # a node a bad value did not stop is stopped (SIGTERM: run_node's quiet shutdown, status 0) after this
@@ -42,23 +44,6 @@ def _mains() -> dict[str, str]:
                     name, target = (part.strip() for part in entry.split("="))
                     mains[name] = target
     return {name: target for name, target in mains.items() if name.endswith("_node")}
-
-
-def bad_value(spec: ParameterSpec) -> Any:
-    """A value the spec refuses: not a choice, a list one too long, above the maximum or below the
-    minimum, else the wrong type."""
-    if spec.choices:
-        return "not_a_choice"
-    if isinstance(spec.default, list):
-        if spec.lengths:
-            item = spec.default[0] if spec.default else (spec.minimum or 0.0)
-            return [item] * (spec.lengths[1] + 1)
-        return [1] if spec.item_type is str else ["x"]
-    if spec.item_type in (int, float) and spec.maximum is not None and math.isfinite(spec.maximum):
-        return spec.item_type(spec.maximum) + spec.item_type(max(1, abs(spec.maximum)))
-    if spec.item_type in (int, float) and spec.minimum is not None:
-        return spec.item_type(spec.minimum) - 1
-    return 12345 if spec.item_type is str else "x"
 
 
 def _cases() -> Iterator[tuple[str, str, dict[str, Any]]]:

@@ -17,6 +17,7 @@ from beams_common.calibration import file_schema
 from beams_common.calibration.calibration_file import SensorCalibration, atomic_write_text
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.beacon_map import BeaconMap
+from beams_common.intake.plausibility import TABLE_MARGIN_M, off_table_problem
 from beams_triangulation.total import triangulate
 
 DATASET_FORMAT = "beams-calibration-dataset"
@@ -150,28 +151,20 @@ def to_arrays(dataset: Dataset, beacon_ids: Sequence[int] | None = None) -> Cali
 
 # --- capture: plausibility of the operator's pose ----------------------------------------------
 
-# The beacons stand on the table's border (section 7.3.1, table 7.2), so a robot placed on the table has
-# its centre inside their bounding box; the margin (m) admits beacons set a little inside the border.
-CAPTURE_POSE_MARGIN_M = 0.2
 # Headings are given in (-pi, pi] or [0, 2 pi); beyond one turn either way the operator mistyped.
 MAX_CAPTURE_HEADING_RAD = 2.0 * math.pi
 
 
 def capture_pose_problem(
-    x_m: float, y_m: float, theta_rad: float, beacon_map: BeaconMap, margin_m: float = CAPTURE_POSE_MARGIN_M
+    x_m: float, y_m: float, theta_rad: float, beacon_map: BeaconMap, margin_m: float = TABLE_MARGIN_M
 ) -> str:
-    """Why a reference pose is implausible (not finite, outside the beacons' bounding box grown by
-    margin_m, heading beyond one turn), or ''."""
+    """Why a reference pose is implausible (not finite, off the beacons' table, heading beyond one turn),
+    or ''."""
     if not all(math.isfinite(v) for v in (x_m, y_m, theta_rad)):
         return f"the pose ({x_m}, {y_m}, {theta_rad}) is not finite"
-    low = beacon_map.xy.min(axis=0) - margin_m
-    high = beacon_map.xy.max(axis=0) + margin_m
-    if not (low[0] <= x_m <= high[0] and low[1] <= y_m <= high[1]):
-        return (
-            f"the position ({x_m:.4g}, {y_m:.4g}) m is outside the beacons' table: x in "
-            f"[{low[0]:.3f}, {high[0]:.3f}] m, y in [{low[1]:.3f}, {high[1]:.3f}] m (beacons' bounding "
-            f"box with a {margin_m} m margin)"
-        )
+    off_table = off_table_problem(x_m, y_m, beacon_map.xy, margin_m)
+    if off_table:
+        return off_table
     if abs(theta_rad) > MAX_CAPTURE_HEADING_RAD:
         return f"the heading {theta_rad:.4g} rad is beyond one turn: give it in (-pi, pi] or [0, 2 pi)"
     return ""

@@ -12,7 +12,6 @@ from hypothesis import strategies as st
 from beams_calibration import calibrate_command
 from beams_calibration.calibrate import CalibrationResult, calibrate
 from beams_calibration.dataset import (
-    CAPTURE_POSE_MARGIN_M,
     Dataset,
     capture_pose_problem,
     save_dataset,
@@ -22,6 +21,7 @@ from beams_common.calibration.bearing_correction import THESIS_CORRECTION
 from beams_common.calibration.calibration_file import load_calibration
 from beams_common.config.command_line import EXIT_REFUSED
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
+from beams_common.intake.plausibility import TABLE_MARGIN_M
 from beams_thesis import thesis_setup
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -123,8 +123,8 @@ def test_the_command_with_unwritable_plots_changes_no_file(tmp_path: Path, capsy
 
 # --- capture plausibility ----------------------------------------------------------------------------
 
-LOW = EUROBOT_BEACON_MAP.xy.min(axis=0) - CAPTURE_POSE_MARGIN_M
-HIGH = EUROBOT_BEACON_MAP.xy.max(axis=0) + CAPTURE_POSE_MARGIN_M
+LOW = EUROBOT_BEACON_MAP.xy.min(axis=0) - TABLE_MARGIN_M
+HIGH = EUROBOT_BEACON_MAP.xy.max(axis=0) + TABLE_MARGIN_M
 
 
 def test_the_issue_capture_pose_is_refused():

@@ -5,7 +5,7 @@ Subscribes (relative names): `odom` (nav_msgs/Odometry, odom frame), `beams/bear
 the filter or re-initialise it after a kidnapping), `/initialpose`
 (geometry_msgs/PoseWithCovarianceStamped, an operator's pose: always re-initialises; the service
 `~/set_pose` (beams_msgs/SetPose) does the same).
-Publishes `beams/ekf/odometry` (nav_msgs/Odometry, map -> base_link, pose and twist with covariance)
+Publishes `beams/ekf/odometry` (nav_msgs/Odometry, map -> base_link, pose with covariance, the filter's twist)
 and `beams/ekf/pose` (PoseWithCovarianceStamped) after each revolution's bearings and at
 `publish_rate_hz` as odometry moves it, the map -> odom transform on `/tf` (REP-105: the odometry's
 source publishes odom -> base_link), plus `/diagnostics`.
@@ -20,8 +20,8 @@ on /diagnostics, with the reason for what it did not take back.
 
 Every pose (ToTal's accepted fix, /initialpose, `~/set_pose`) goes through the one pose intake
 (`beams_common.intake.pose_intake`, as the offline replay's): in another frame than `map_frame`, non-finite,
-or with a covariance asymmetric, not positive semi-definite or beyond 4 m / 2 pi rad, it is refused with the
-reason, counted `<total|operator>_poses_<kind>` on /diagnostics (`~/set_pose` answers it).
+off the beacons' table, or with a covariance asymmetric, not positive semi-definite or beyond 4 m / 2 pi rad,
+it is refused with the reason, counted `<total|operator>_poses_<kind>` on /diagnostics (`~/set_pose` answers).
 
 Plausibility (`beams_common.intake.plausibility`): a revolution whose newest bearing, an odometry
 message, or an accepted ToTal pose, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s`
@@ -153,7 +153,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         self.health = EkfHealth(self.parameters, self._now_s())
         self._update_diagnostics(None)  # waiting, said at once
         self.recent_bearings = RecentBearings()
-        self._last_twist = None
         # the newest odometry header stamp, republished exactly (a float loses nanoseconds at epoch scale)
         self._last_odometry_stamp: tuple[float, Time] | None = None
         self._published_stamp_s: float | None = None
@@ -242,7 +241,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
             self.diagnostics.refuse("odometry_jumps_refused", reason)
             self.health.fault("odometry_jump", now_s, reason)
         if outcome.used:
-            self._last_twist = msg.twist
             self._last_odometry_stamp = (stamp_s, msg.header.stamp)
         if outcome is OdometryOutcome.REFERENCE:  # a time jump resets what was published too
             self._published_stamp_s = None
@@ -253,8 +251,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         now_s = self._now_s()
         self.health.on_bearings(now_s)
         intake = bearings_message_intake(msg, stamp_to_seconds, self.localiser.ekf.beacons_xy)
-        newest_s = _newest_stamp_s(intake)
-        if self._implausible_stamp("bearings", f"revolution {msg.revolution}", newest_s, now_s):
+        if self._implausible_stamp("bearings", f"revolution {msg.revolution}", intake.newest_stamp_s, now_s):
             return  # a bearing applied at the wrong instant is confidently wrong
         self.localiser.on_bearings(intake)  # counts the bearings and revolutions refused, applies those kept
         for key, reason in intake.revolution_refusals():  # the localiser's count, with the reason
@@ -290,7 +287,8 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         stamped beyond the tolerance against the node's clock (it would be brought to the filter's instant
         wrongly), refused before the door."""
         stamp_s = stamp_to_seconds(header.stamp)
-        intake = pose_message_intake(source, header.frame_id, self.map_frame, stamp_s, pose_with_covariance)
+        frame, beacons = header.frame_id, self.geometry.beacon_map.xy
+        intake = pose_message_intake(source, frame, self.map_frame, stamp_s, pose_with_covariance, beacons)
         kept_total = source is PoseSource.TOTAL and isinstance(intake, KeptPose)
         if kept_total and self._implausible_stamp(
             "total_pose", f"ToTal pose at {stamp_s:.3f} s", stamp_s, self._now_s()
@@ -377,11 +375,9 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         odometry.header.frame_id = self.map_frame
         odometry.child_frame_id = self.base_frame
         _fill_pose(odometry.pose, estimate)
-        if self._last_twist is not None:
-            odometry.twist = self._last_twist
-        else:
-            odometry.twist.twist.linear.x, odometry.twist.twist.linear.y = estimate.twist[:2]
-            odometry.twist.twist.angular.z = estimate.twist[2]
+        # the velocity over the last odometry step the filter took: no input's twist passes through
+        odometry.twist.twist.linear.x, odometry.twist.twist.linear.y = estimate.twist[:2]
+        odometry.twist.twist.angular.z = estimate.twist[2]
         self.odometry_publisher.publish(odometry)
         pose = PoseWithCovarianceStamped()
         pose.header = odometry.header
@@ -415,14 +411,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         if exact is not None and exact[0] == estimate.stamp_s:
             return exact[1]
         return seconds_to_stamp(estimate.stamp_s)
-
-
-def _newest_stamp_s(intake: RevolutionIntake) -> float:
-    """The newest finite stamp of a revolution's bearings (kept or refused), nan without one."""
-    stamps = [
-        b.stamp_s for b in (*intake.kept, *(r.bearing for r in intake.refused)) if math.isfinite(b.stamp_s)
-    ]
-    return max(stamps) if stamps else math.nan
 
 
 def _fill_pose(pose_with_covariance, estimate: Estimate) -> None:

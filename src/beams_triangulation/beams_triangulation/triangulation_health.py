@@ -19,6 +19,7 @@ from beams_common.status.protection_level import Integrity, ProtectionLevel
 # Ten revolutions without an accepted pose: ToTal has not fixed the robot for a second.
 MAX_SILENCE_S = 1.0
 WAITING_FOR_BEARINGS = "waiting for bearings (beams/bearings)"
+WAITING_FOR_POSE = "waiting for a pose the gates accept from beams/bearings"
 
 
 class TriangulationHealth:
@@ -67,12 +68,10 @@ class TriangulationHealth:
         """The status now."""
         if self._first_revolution_s is None:
             return judge(WAITING_FOR_BEARINGS)
-        since_s = now_s - (
-            self._last_accepted_s if self._last_accepted_s is not None else self._first_revolution_s
-        )
-        lost = []
-        if since_s > MAX_SILENCE_S:
-            lost.append(f"no accepted pose for {since_s:.1f} s")
+        since_s = now_s - (self._last_accepted_s or self._first_revolution_s)
+        lost = [f"no accepted pose for {since_s:.1f} s"] if since_s > MAX_SILENCE_S else []
+        if self._last_accepted_s is None and not lost:  # no pose yet: nothing to track
+            return judge(WAITING_FOR_POSE)
         degraded = [self.bearing_rate.problem(now_s)]
         if self.use_odometry:
             degraded.append(self.odometry_rate.problem(now_s))

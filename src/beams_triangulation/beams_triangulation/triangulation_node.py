@@ -164,9 +164,7 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         self.health.on_bearings(now_s)
         self.diagnostics.increment("revolutions")
         intake = bearings_message_intake(msg, stamp_to_seconds, self.pipeline.estimator.known_ids)
-        stamps = [b.stamp_s for b in (*intake.kept, *(r.bearing for r in intake.refused))]
-        newest_s = max((t for t in stamps if math.isfinite(t)), default=math.nan)
-        if self._implausible_stamp("bearings", f"revolution {msg.revolution}", newest_s, now_s):
+        if self._implausible_stamp("bearings", f"revolution {msg.revolution}", intake.newest_stamp_s, now_s):
             return
         if intake.too_many:  # refused before any per-bearing work
             self.diagnostics.refuse(

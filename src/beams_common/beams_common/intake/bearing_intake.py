@@ -4,6 +4,7 @@ beacon (`validation.one_sighting_per_beacon`: REPEATED_BEACON set aside, CONFLIC
 each bearing by `validation.bearing_problem`; kept and refused with reason and counts (docs/shape-core.md).
 """
 
+import math
 from collections import Counter
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
@@ -70,6 +71,12 @@ class RevolutionIntake:
             reason = f"{len(invalid)} bearing(s) refused, the first: {invalid[0].reason}"
             refusals.append(("revolutions_with_invalid_bearings", reason))
         return refusals
+
+    @property
+    def newest_stamp_s(self) -> float:
+        """The newest finite stamp of the bearings, kept or refused (nan without one): the revolution's."""
+        stamps = (b.stamp_s for b in (*self.kept, *(r.bearing for r in self.refused)))
+        return max((t for t in stamps if math.isfinite(t)), default=math.nan)
 
     def counts(self) -> Counter:
         """Refused bearings per kind, keyed `bearings_<kind>` (the diagnostic keys)."""

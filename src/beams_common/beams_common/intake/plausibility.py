@@ -1,7 +1,7 @@
 """Semantic plausibility of the inputs: well-formed values that cannot be true, each check returning a reason:
 a stamp against the receiving clock (`stamp_problem`: a bearing at the wrong instant put the EKF 0.3 m off
 while it said 2 mm), an odometry increment against the robot's limits (`odometry_step_problem`), a pose
-covariance's bound (`MAX_POSE_SIGMA_M`, `MAX_POSE_SIGMA_RAD`).
+covariance's bound (`MAX_POSE_SIGMA_M`, `MAX_POSE_SIGMA_RAD`), a position on the table (`off_table_problem`).
 """
 
 import math
@@ -19,6 +19,21 @@ ODOMETRY_STEP_SLACK_RAD = 0.05
 # full turn of heading still means "roughly here"; beyond it the pose is no information at all.
 MAX_POSE_SIGMA_M = 4.0
 MAX_POSE_SIGMA_RAD = 2.0 * math.pi
+# The beacons stand on the table's border (section 7.3.1, table 7.2), so a robot on the table has its
+# centre inside their bounding box; the margin (m) admits beacons set a little inside the border.
+TABLE_MARGIN_M = 0.2
+
+
+def off_table_problem(x_m: float, y_m: float, beacons_xy: Any, margin_m: float = TABLE_MARGIN_M) -> str:
+    """Why a position (map frame) is off the beacons' table (their bounding box, n x 2 m, grown by
+    margin_m), or ''."""
+    low, high = beacons_xy.min(axis=0) - margin_m, beacons_xy.max(axis=0) + margin_m
+    if low[0] <= x_m <= high[0] and low[1] <= y_m <= high[1]:
+        return ""
+    return (
+        f"the position ({x_m:.4g}, {y_m:.4g}) m is outside the beacons' table: x in [{low[0]:.3f}, "
+        f"{high[0]:.3f}] m, y in [{low[1]:.3f}, {high[1]:.3f}] m (their bounding box, {margin_m} m margin)"
+    )
 
 
 # triangulation_node's and ekf_node's (runtime) checks. The age: one revolution (0.1 s, thesis ch. 2) plus

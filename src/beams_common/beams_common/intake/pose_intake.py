@@ -2,7 +2,8 @@
 and the offline replay; refused with kind, reason and counter key `<source>_poses_<kind>`: `wrong_frame` (an
 empty frame id is the map's: RViz leaves it empty), `invalid` (non-finite, a zero quaternion), `covariance`
 (the x, y, yaw block, eq. 6.30: asymmetric, negative, or beyond `plausibility.MAX_POSE_SIGMA_M` /
-`MAX_POSE_SIGMA_RAD`). A semi-definite one (RViz's zeros) is kept as None: the filter's default.
+`MAX_POSE_SIGMA_RAD`), `off_table` (given the beacons: `plausibility.off_table_problem`). A semi-definite
+covariance (RViz's zeros) is kept as None: the filter's default.
 """
 
 import math
@@ -14,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from beams_common.geometry.pose2d import Pose2D, yaw_of_quaternion
-from beams_common.intake.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD
+from beams_common.intake.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD, off_table_problem
 from beams_common.intake.validation import SYMMETRY_TOLERANCE, bounded
 
 # The (x, y, yaw) rows and columns of a row-major 6x6 ROS covariance.
@@ -38,6 +39,7 @@ class PoseRefusal(StrEnum):
     WRONG_FRAME = "wrong_frame"
     INVALID = "invalid"
     COVARIANCE = "covariance"
+    OFF_TABLE = "off_table"
 
 
 @dataclass(frozen=True)
@@ -126,9 +128,11 @@ def pose_intake(
     position: Sequence[float],
     quaternion: Sequence[float],
     covariance_6x6: Sequence[float],
+    beacons_xy: Any = None,
 ) -> PoseIntake:
-    """The three rules (see the module docstring) on a pose's fields: position (x, y, z, m), orientation
-    quaternion (x, y, z, w), row-major 6x6 covariance; what is kept or why it is refused."""
+    """The rules (see the module docstring) on a pose's fields: position (x, y, z, m), orientation
+    quaternion (x, y, z, w), row-major 6x6 covariance, and with `beacons_xy` (n x 2, m) the table; what
+    is kept or why it is refused."""
     if frame_id and frame_id != map_frame:
         reason = f"{source} pose in frame {frame_id!r} (expected {map_frame!r})"
         return RefusedPose(source, PoseRefusal.WRONG_FRAME, bounded(reason))
@@ -139,6 +143,8 @@ def pose_intake(
     norm = math.hypot(*values[3:])  # hypot: no overflow on huge entries
     if norm < MIN_QUATERNION_NORM:
         return RefusedPose(source, PoseRefusal.INVALID, f"{source} pose: orientation quaternion of zero norm")
+    if beacons_xy is not None and (off_table := off_table_problem(values[0], values[1], beacons_xy)):
+        return RefusedPose(source, PoseRefusal.OFF_TABLE, f"{source} pose: {off_table}")
     entries = np.asarray(covariance_6x6, dtype=float).ravel()
     if entries.size != 36 or not np.all(np.isfinite(entries)):  # z, roll, pitch too: a corrupt message
         return RefusedPose(source, PoseRefusal.INVALID, f"{source} pose: covariance has a non-finite entry")
@@ -150,20 +156,13 @@ def pose_intake(
 
 
 def pose_message_intake(
-    source: PoseSource, frame_id: str, map_frame: str, stamp_s: float, pose_with_covariance: Any
+    source: PoseSource, frame_id: str, map_frame: str, stamp_s: float, message: Any, beacons_xy: Any = None
 ) -> PoseIntake:
     """`pose_intake` of a geometry_msgs/PoseWithCovariance (an rclpy or a rosbags message), its header's
     frame id and stamp (s)."""
-    position, q = pose_with_covariance.pose.position, pose_with_covariance.pose.orientation
-    return pose_intake(
-        source,
-        frame_id,
-        map_frame,
-        stamp_s,
-        (position.x, position.y, position.z),
-        (q.x, q.y, q.z, q.w),
-        pose_with_covariance.covariance,
-    )
+    position, q = message.pose.position, message.pose.orientation
+    xyz, quaternion = (position.x, position.y, position.z), (q.x, q.y, q.z, q.w)
+    return pose_intake(source, frame_id, map_frame, stamp_s, xyz, quaternion, message.covariance, beacons_xy)
 
 
 def planar_pose_intake(source: PoseSource, stamp_s: float, pose: Pose2D, covariance_3x3: Any) -> PoseIntake:
