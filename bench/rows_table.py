@@ -29,7 +29,7 @@ def print_rows(table: Sequence[tuple[str, float, str, str]], unit_width: int = 1
 
 def bench_main(doc: str, rows: Callable[..., Sequence[tuple]], argv: Sequence[str] | None = None) -> int:
     """Run `rows` with its keywords as options (`--flood-s` for `flood_s`: the default's type, a list's
-    items repeated, a path for a None default) and print the table."""
+    items repeated, a path for a None default) and print the table; 1 when a budget row is MISSED."""
     parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     for name, parameter in inspect.signature(rows).parameters.items():
         default = parameter.default
@@ -37,5 +37,6 @@ def bench_main(doc: str, rows: Callable[..., Sequence[tuple]], argv: Sequence[st
         kind = pathlib.Path if default is None else type(default[0] if many else default)
         nargs = "+" if many else None
         parser.add_argument(f"--{name.replace('_', '-')}", type=kind, default=default, nargs=nargs, dest=name)
-    print_rows(rows(**vars(parser.parse_args(argv))))
-    return 0
+    table = rows(**vars(parser.parse_args(argv)))
+    print_rows(table)
+    return int(any(str(compared).endswith("MISSED") for *_, compared in table))

@@ -67,6 +67,7 @@ from beams_common.ros.messages import (
     pose2d_of,
     ros_covariance,
     seconds_to_stamp,
+    set_planar_tf,
     set_pose2d,
     stamp_to_seconds,
 )
@@ -164,6 +165,12 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         self.tf_publisher = (
             self.create_publisher(TFMessage, topics.TF, TF_QOS) if self.parameters["publish_tf"] else None
         )
+        # the outputs, built once and filled at each publication (rclpy builds a message field by field),
+        # one header and one pose shared by the three
+        self._odometry = Odometry(child_frame_id=self.base_frame)
+        self._odometry.header.frame_id = self.map_frame
+        self._pose = PoseWithCovarianceStamped(header=self._odometry.header, pose=self._odometry.pose)
+        self._tf = planar_tf_message(self._odometry.header, self.odom_frame, (0.0, 0.0, 0.0))
         self.create_subscription(Odometry, topics.ODOMETRY, self._on_odometry, qos_profile_sensor_data)
         self.create_subscription(BeaconBearingArray, topics.BEARINGS, self._on_bearings, BEARINGS_QOS)
         self.create_subscription(TriangulatedPose, topics.POSE, self._on_total_pose, 10)
@@ -371,24 +378,21 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
             return
         self._published_stamp_s = estimate.stamp_s
         self._changed = False
-        odometry = Odometry()
+        odometry = self._odometry
         odometry.header.stamp = self._stamp_of(estimate)
-        odometry.header.frame_id = self.map_frame
-        odometry.child_frame_id = self.base_frame
-        _fill_pose(odometry.pose, estimate)
+        set_pose2d(odometry.pose.pose, estimate.pose)
+        odometry.pose.covariance = ros_covariance(estimate.covariance)
         if self._last_twist is not None:
             odometry.twist = self._last_twist
         else:
             odometry.twist.twist.linear.x, odometry.twist.twist.linear.y = estimate.twist[:2]
             odometry.twist.twist.angular.z = estimate.twist[2]
         self.odometry_publisher.publish(odometry)
-        pose = PoseWithCovarianceStamped()
-        pose.header = odometry.header
-        pose.pose = odometry.pose
-        self.pose_publisher.publish(pose)
+        self.pose_publisher.publish(self._pose)
         map_to_odom = estimate.map_to_odom
         if self.tf_publisher is not None and map_to_odom is not None:
-            self.tf_publisher.publish(planar_tf_message(odometry.header, self.odom_frame, map_to_odom))
+            set_planar_tf(self._tf, map_to_odom)
+            self.tf_publisher.publish(self._tf)
 
     def _update_diagnostics(self, estimate: Estimate | None) -> None:
         """The counters, and the status (`ekf_health`): its level and message, and `status` (waiting,
@@ -422,11 +426,6 @@ def _newest_stamp_s(intake: RevolutionIntake) -> float:
         b.stamp_s for b in (*intake.kept, *(r.bearing for r in intake.refused)) if math.isfinite(b.stamp_s)
     ]
     return max(stamps) if stamps else math.nan
-
-
-def _fill_pose(pose_with_covariance, estimate: Estimate) -> None:
-    set_pose2d(pose_with_covariance.pose, estimate.pose)
-    pose_with_covariance.covariance = ros_covariance(estimate.covariance)
 
 
 def main(args: list[str] | None = None) -> None:
