@@ -1,26 +1,17 @@
-"""Whole-system benchmark ("Latency and throughput"): every node its own process, over DDS, and the budget
-of the three nodes a robot runs (driver, triangulation, EKF) at 10 revolutions/s with 50 Hz odometry.
+"""Whole-system benchmark ("Latency and throughput") and the budget of the three nodes a robot runs.
 
-Starts sim_world_node, driver_node, triangulation_node and ekf_node from the install tree (as `make demo`
-does, in ROS_DOMAIN_ID 68 unless the environment sets one), driver_node reading its serial source on a
-pseudo-terminal fed by a simulated turret in its own process (beams_tools.serial_feed, following the
-world's truth), and measures, with a probe node in this process:
-- end-to-end latency from the driver's publication of a revolution (its arrival at the probe) to the
-  first EKF output after it (the EKF publishes right after each revolution's update, and on its timer);
-- the same to triangulation_node's beams/pose computed from that revolution;
-- CPU use of each node (utime + stime from /proc/<pid>/stat), and of the three robot nodes together also
-  as a ratio to a fixed numpy workload's CPU time measured in the same run (a loaded machine slows both);
-- a flood: the probe republishes the driver's revolutions at 10x the rate for 30 s (stamps moved to
-  now) on top of the driver's own, then each node's peak RSS (VmHWM) and the RSS growth during the flood;
-- kill -9 (and SIGTERM) and restart of the triangulation and of the EKF: the delay to their first output.
-A budget row says `met` or `MISSED`; the bench exits 1 when one is missed.
-`--source sim`: the driver simulates the sensor itself (its CPU includes the edge-level simulation);
-`--source virtual_turret`: the turret firmware in simavr on a pty (`make hil`; its CPU includes simavr's);
-rows named by the source. `--profile NODE`: that node runs under cProfile during the latency and CPU
-window (NODE.prof written in the current directory; docs/performance.md), only those rows.
+Starts sim_world_node, driver_node, triangulation_node and ekf_node from the install tree, one process each,
+in ROS_DOMAIN_ID 68 unless the environment sets one; driver_node reads its serial source on a pty fed by a
+simulated turret in its own process (beams_tools.serial_feed_node, on the world's truth). A probe node here
+measures: the latency from a revolution's arrival to the first EKF output, and to its ToTal pose; each
+node's CPU (/proc/<pid>/stat), the three robot nodes' together also per CPU second of a fixed numpy
+workload run alongside (a loaded machine slows both), and their resident memory; a flood of 10x the
+revolutions for 30 s (peak RSS, growth); kill -9 and SIGTERM restarts (delay to the first output). A
+budget row says `met` or `MISSED` (exit 1). `--source sim`: the driver simulates the sensor (its CPU
+includes the simulation); `virtual_turret`: the firmware in simavr (`make hil`). `--profile NODE`: NODE
+under cProfile during the latency window, NODE.prof written here (docs/performance.md), only those rows.
 
 Usage: python bench/bench_system.py [--flood-s S] [--source sim|virtual_turret] [--profile NODE]
-(`rows()`: bench/run_all.py)
 """
 
 import os
@@ -33,7 +24,7 @@ from copy import deepcopy
 from dataclasses import dataclass, field
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import bench_main, budget_row
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
@@ -48,7 +39,6 @@ FEED_ARGUMENTS = ["-p", "max_stamp_age_s:=0.5"]
 DEFAULT_DOMAIN_ID = "68"  # 61-69 are the developers' (test/conftest.py); the tests never use it
 START_TIMEOUT_S = 60.0
 LATENCY_WINDOW_S = 15.0
-CPU_WINDOW_S = 10.0
 FLOOD_RATE_FACTOR = 10
 FLOOD_S = 30.0
 RESTARTS = 4
@@ -61,11 +51,10 @@ ROBOT = ("driver_node", "triangulation_node", "ekf_node")
 CPU_BUDGET_PERCENT = 8.0
 RSS_BUDGET_MIB = 250.0
 LATENCY_BUDGET_MS = {50: 1.0, 99: 2.0}
-# the reference workload's CPU time (s) on this machine, unloaded, 2026-11-27: the CPU budget in its unit
-REFERENCE_CPU_S_CALIBRATED = 0.05
+# the reference workload's CPU time (s) here, 2026-11-27 (median of 10 runs, load 6-18): the budget's unit
+REFERENCE_CPU_S_CALIBRATED = 0.046
 CPU_BUDGET_REFERENCES = CPU_BUDGET_PERCENT / 100.0 / REFERENCE_CPU_S_CALIBRATED
-# `--profile NODE`: the node's executable run under a profiler that SIGUSR1 starts and SIGUSR2 stops and
-# writes (its start-up left out): python -c PROFILED OUTPUT EXECUTABLE ARGUMENTS...
+# python -c PROFILED OUTPUT EXECUTABLE ARGS...: cProfile from SIGUSR1 to SIGUSR2 (the start-up left out)
 PROFILED = (
     "import cProfile, runpy, signal, sys, time; "
     "profile, output = cProfile.Profile(time.process_time), sys.argv[1]; "
@@ -112,12 +101,6 @@ def reference_cpu_s(rounds: int = 5) -> float:
             np.linalg.solve(a, a @ b)
         times.append(time.process_time() - start)
     return float(np.median(times))
-
-
-def budget_row(figure: str, value: float, unit: str, limit: float, at_least: bool = False) -> Row:
-    """A figure beside its budget, `met` or `MISSED` (rows_table.bench_main exits 1 on a miss)."""
-    met = value >= limit if at_least else value <= limit
-    return figure, value, unit, f"budget {'>=' if at_least else '<='} {limit:g}: {'met' if met else 'MISSED'}"
 
 
 def latencies_ms(causes: list[float], effects: list[float]) -> np.ndarray:
@@ -240,7 +223,7 @@ def rows(flood_s: float = FLOOD_S, source: str = "serial_feed", profile: str = "
             executable = INSTALL_BASE / "beams_sim/lib/beams_sim/virtual_turret"
             turret = {source: [str(executable), "--link", str(link), *commands.pop("sim_world_node")[1:]]}
         elif source == "serial_feed":
-            turret = {source: [sys.executable, "-m", "beams_tools.serial_feed", str(link)]}
+            turret = {source: [sys.executable, "-m", "beams_tools.serial_feed_node", str(link)]}
         elif source != "sim":
             raise ValueError(f"source: serial_feed, sim or virtual_turret, not {source!r}")
         if turret:

@@ -18,6 +18,13 @@ def best_per_call_s(function: Callable[[], object], number: int, repeat: int = 7
     return min(timeit.repeat(function, number=number, repeat=repeat)) / number
 
 
+def budget_row(figure: str, value: float, unit: str, limit: float, at_least: bool = False) -> Row:
+    """A figure beside its budget, `met` or `MISSED` (bench_main exits 1 on a miss)."""
+    met = value >= limit if at_least else value <= limit
+    verdict = "met" if met else "MISSED"
+    return figure, value, unit, f"budget {'>=' if at_least else '<='} {limit:.3g}: {verdict}"
+
+
 def print_rows(table: Sequence[tuple[str, float, str, str]], unit_width: int = 13) -> None:
     """One header line, then one line per row: figure | value (4 significant digits) | unit | compared."""
     width = max(len(figure) for figure, *_ in table)

@@ -1,41 +1,12 @@
 """ekf_node: wheel odometry and every BeAMS bearing fused in an EKF (thesis fig. 8.1), ToTal to initialise it.
 
-Subscribes (relative names): `odom` (nav_msgs/Odometry, odom frame), `beams/bearings`
-(beams_msgs/BeaconBearingArray), `beams/pose` (beams_msgs/TriangulatedPose, accepted fixes initialise
-the filter or re-initialise it after a kidnapping), `/initialpose`
-(geometry_msgs/PoseWithCovarianceStamped, an operator's pose: always re-initialises; the service
-`~/set_pose` (beams_msgs/SetPose) does the same).
-Publishes `beams/ekf/odometry` (nav_msgs/Odometry, map -> base_link, pose and twist with covariance)
-and `beams/ekf/pose` (PoseWithCovarianceStamped) after each revolution's bearings and at
-`publish_rate_hz` as odometry moves it, the map -> odom transform on `/tf` (REP-105: the odometry's
-source publishes odom -> base_link), plus `/diagnostics`.
-Service `~/reset` (std_srvs/Trigger) forgets the pose estimate until the next pose (what the filter
-learnt of the sensor and the odometry is kept, as across every re-initialisation); `~/save_calibration`
-(std_srvs/Trigger) writes the power bias (and the turret offset and beacon coordinates, when estimated)
-learnt while driving to `self_calibration_file`.
-All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
-A (re)start resumes from `checkpoint_file` (beams_ekf.checkpoint: the learnt states and the runtime-set
-parameters, written every `checkpoint_period_s` and at a clean stop), said in the log and as `checkpoint`
-on /diagnostics, with the reason for what it did not take back.
-
-Every pose (ToTal's accepted fix, /initialpose, `~/set_pose`) goes through the one pose intake
-(`beams_common.intake.pose_intake`, as the offline replay's): in another frame than `map_frame`, non-finite,
-or with a covariance asymmetric, not positive semi-definite or beyond 4 m / 2 pi rad, it is refused with the
-reason, counted `<total|operator>_poses_<kind>` on /diagnostics (`~/set_pose` answers it).
-
-Plausibility (`beams_common.intake.plausibility`): a revolution whose newest bearing, an odometry
-message, or an accepted ToTal pose, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s`
-ahead of the node's clock is refused with the reason (`<bearings|odometry|total_pose>_stamp_refused`,
-`last_refusal`; two in a row degrade the status); an odometry increment beyond `max_speed_m_per_s` or
-`max_yaw_rate_rad_per_s` is never followed (the localiser re-references and grows the covariance); a
-calibration is checked against
-chapter 7's ranges and the nominal geometry, and flagged when it makes the recent bearings worse.
-/diagnostics carries the status (`ekf_health`: waiting, tracking, degraded or lost, with the reasons; the
-`status` value), published at once when it changes; the pose messages cannot carry it, so it is also on
-beams/ekf/status (beams_msgs/LocalisationStatus, latched: on each change and every second). A pose the
-bearings have not confirmed since a break of the estimate's continuity (an operator's pose, an odometry
-jump or silence, a time jump, a re-initialisation after a kidnap) is degraded, not tracking
-(`consistency.PoseConfirmation`).
+Its topics, services and parameters: docs/nodes.md; its status (waiting, tracking, degraded, lost:
+`ekf_health`, on /diagnostics and beams/ekf/status): docs/status.md. It publishes after each revolution's
+bearings and at `publish_rate_hz` as odometry moves the estimate; all data times are message stamps
+(use_sim_time works), odometry going back in time resets the filter. Every input goes through its intake
+(`beams_common.intake`: the bearing, pose and stamp-plausibility checks, each refusal counted with its reason
+on /diagnostics), then the Localiser's door for it. A (re)start resumes from `checkpoint_file`
+(beams_ekf.checkpoint), said in the log and as `checkpoint` on /diagnostics.
 """
 
 import math

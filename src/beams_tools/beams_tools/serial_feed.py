@@ -1,14 +1,11 @@
 """A simulated BeAMS sensor on a pseudo-terminal, for driver_node's serial source under the fault campaign:
 one revolution per turret period in real time, written at its end behind a fixed symlink (as udev's by-id
 links are), with the line's faults: line noise, a spurious zero reference SPURIOUS_ZERO_EARLY_S before every
-real one (a bouncing optical switch), silence, and unplugging until `clear`/`plug`.
-`python -m beams_tools.serial_feed LINK`: the feed alone in its process, following beams/sim/ground_truth
-(bench/bench_system.py's turret)."""
+real one (a bouncing optical switch), silence, and unplugging until `clear`/`plug`."""
 
 import contextlib
 import os
 import pathlib
-import sys
 import threading
 import time
 import tty
@@ -17,7 +14,6 @@ from collections.abc import Callable
 import numpy as np
 
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
-from beams_common.interfaces import topics
 from beams_driver.serial_protocol import EventKind, FrameEncoder, seconds_to_ticks
 from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_tools.fault_schedule import SERIAL_LINE_FAULTS
@@ -129,36 +125,3 @@ def spurious_zero_then(encoder: FrameEncoder, opening_s: float) -> bytes:
         return encoder.event(EventKind.ZERO_REFERENCE, seconds_to_ticks(opening_s - SPURIOUS_ZERO_EARLY_S))
     except ValueError:
         return b""
-
-
-def main(link: str) -> None:
-    """The feed behind `link` until SIGINT, following the true pose of sim_world_node's robot."""
-    import rclpy
-    from nav_msgs.msg import Odometry
-    from rclpy.executors import ExternalShutdownException
-
-    from beams_common.ros.messages import pose2d_of, stamp_to_seconds
-    from beams_sim.occlusion import truth_buffer
-
-    truth, lock = truth_buffer(), threading.Lock()
-
-    def on_truth(msg: Odometry) -> None:
-        with lock:
-            twist = (msg.twist.twist.linear.x, msg.twist.twist.angular.z)
-            truth.add(stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose), twist)
-
-    def pose_at(host_s: float) -> tuple[float, float, float] | None:
-        with lock:
-            return truth.pose_at(host_s)
-
-    rclpy.init()
-    node = rclpy.create_node("serial_feed")
-    node.create_subscription(Odometry, topics.GROUND_TRUTH, on_truth, 50)
-    feed = SerialFeed(pathlib.Path(link), pose_at, seed=1)
-    with contextlib.suppress(KeyboardInterrupt, ExternalShutdownException):
-        rclpy.spin(node)
-    feed.close()
-
-
-if __name__ == "__main__":
-    main(sys.argv[1])
