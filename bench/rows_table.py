@@ -18,6 +18,13 @@ def best_per_call_s(function: Callable[[], object], number: int, repeat: int = 7
     return min(timeit.repeat(function, number=number, repeat=repeat)) / number
 
 
+def budget_row(figure: str, value: float, unit: str, limit: float, at_least: bool = False) -> Row:
+    """A figure beside its budget, `met` or `MISSED` (bench_main exits 1 on a miss)."""
+    met = value >= limit if at_least else value <= limit
+    verdict = "met" if met else "MISSED"
+    return figure, value, unit, f"budget {'>=' if at_least else '<='} {limit:.3g}: {verdict}"
+
+
 def print_rows(table: Sequence[tuple[str, float, str, str]], unit_width: int = 13) -> None:
     """One header line, then one line per row: figure | value (4 significant digits) | unit | compared."""
     width = max(len(figure) for figure, *_ in table)
@@ -29,7 +36,7 @@ def print_rows(table: Sequence[tuple[str, float, str, str]], unit_width: int = 1
 
 def bench_main(doc: str, rows: Callable[..., Sequence[tuple]], argv: Sequence[str] | None = None) -> int:
     """Run `rows` with its keywords as options (`--flood-s` for `flood_s`: the default's type, a list's
-    items repeated, a path for a None default) and print the table."""
+    items repeated, a path for a None default) and print the table; 1 when a budget row is MISSED."""
     parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     for name, parameter in inspect.signature(rows).parameters.items():
         default = parameter.default
@@ -40,5 +47,6 @@ def bench_main(doc: str, rows: Callable[..., Sequence[tuple]], argv: Sequence[st
         kind = pathlib.Path if default is None else type(default[0] if many else default)
         nargs = "+" if many else None
         parser.add_argument(f"--{name.replace('_', '-')}", type=kind, default=default, nargs=nargs, dest=name)
-    print_rows(rows(**vars(parser.parse_args(argv))))
-    return 0
+    table = rows(**vars(parser.parse_args(argv)))
+    print_rows(table)
+    return int(any(str(compared).endswith("MISSED") for *_, compared in table))

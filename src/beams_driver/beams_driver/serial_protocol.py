@@ -496,16 +496,22 @@ class RevolutionAssembler:
         self._tolerance_ticks = self.period_tolerance * self.ticks_per_revolution
         self._min_tolerance_ticks = self.min_tolerance_s * self.tick_rate_hz
         self._spans.clear()  # lengths measured with another clock mean nothing now
+        self._measure_span()
 
     def expected_span(self) -> tuple[float, float]:
         """(ticks, tolerance in ticks) of the next revolution: measured (robust spread) once known."""
         assert self.ticks_per_revolution is not None
+        return self._expected_span
+
+    def _measure_span(self) -> None:
+        """The expected span, again at each span measured (read at every zero reference and poll)."""
         if len(self._spans) < MIN_MEASURED_SPANS:
-            return float(self.ticks_per_revolution), self._min_tolerance_ticks
+            self._expected_span = float(self.ticks_per_revolution), self._min_tolerance_ticks
+            return
         spans = np.asarray(self._spans, dtype=float)
         median = float(np.median(spans))
         sigma = _MAD_TO_SIGMA * float(np.median(np.abs(spans - median)))
-        return median, max(self._min_tolerance_ticks, SPAN_SIGMAS * sigma)
+        self._expected_span = median, max(self._min_tolerance_ticks, SPAN_SIGMAS * sigma)
 
     def reset(self) -> None:
         """Forget the open revolution (a reconnection); the measured turret speed is kept."""
@@ -594,6 +600,7 @@ class RevolutionAssembler:
         expected, _ = self.expected_span()
         if abs(span_ticks - self.ticks_per_revolution) <= self._tolerance_ticks:
             self._spans.append(span_ticks)  # the measured turret speed, refused lengths included
+            self._measure_span()
         else:
             plausible = False
         result = []

@@ -304,8 +304,11 @@ class SerialEdgeSource:
 
     def recent_drops(self) -> Counter[str]:
         """The drops of the last RECENT_DROPS_WARN_S seconds, by reason (for a warning that clears itself)."""
-        since = self._monotonic() - RECENT_DROPS_WARN_S
-        return sum((Counter({reason: n}) for s, reason, n in self._recent_drops if s >= since), Counter())
+        since, recent = self._monotonic() - RECENT_DROPS_WARN_S, Counter()
+        for s, reason, n in self._recent_drops:
+            if s >= since:
+                recent[reason] += n
+        return +recent  # as a sum of Counters: no reason counted zero
 
     def _log_new_drops(self) -> None:
         """One line per drop_log_period_s at most, with the drops counted since the previous line."""

@@ -1,41 +1,12 @@
 """ekf_node: wheel odometry and every BeAMS bearing fused in an EKF (thesis fig. 8.1), ToTal to initialise it.
 
-Subscribes (relative names): `odom` (nav_msgs/Odometry, odom frame), `beams/bearings`
-(beams_msgs/BeaconBearingArray), `beams/pose` (beams_msgs/TriangulatedPose, accepted fixes initialise
-the filter or re-initialise it after a kidnapping), `/initialpose`
-(geometry_msgs/PoseWithCovarianceStamped, an operator's pose: always re-initialises; the service
-`~/set_pose` (beams_msgs/SetPose) does the same).
-Publishes `beams/ekf/odometry` (nav_msgs/Odometry, map -> base_link, pose with covariance, the filter's twist)
-and `beams/ekf/pose` (PoseWithCovarianceStamped) after each revolution's bearings and at
-`publish_rate_hz` as odometry moves it, the map -> odom transform on `/tf` (REP-105: the odometry's
-source publishes odom -> base_link), plus `/diagnostics`.
-Service `~/reset` (std_srvs/Trigger) forgets the pose estimate until the next pose (what the filter
-learnt of the sensor and the odometry is kept, as across every re-initialisation); `~/save_calibration`
-(std_srvs/Trigger) writes the power bias (and the turret offset and beacon coordinates, when estimated)
-learnt while driving to `self_calibration_file`.
-All data times are message stamps (use_sim_time works); odometry going back in time resets the filter.
-A (re)start resumes from `checkpoint_file` (beams_ekf.checkpoint: the learnt states and the runtime-set
-parameters, written every `checkpoint_period_s` and at a clean stop), said in the log and as `checkpoint`
-on /diagnostics, with the reason for what it did not take back.
-
-Every pose (ToTal's accepted fix, /initialpose, `~/set_pose`) goes through the one pose intake
-(`beams_common.intake.pose_intake`, as the offline replay's): in another frame than `map_frame`, non-finite,
-off the beacons' table, or with a covariance asymmetric, not positive semi-definite or beyond 4 m / 2 pi rad,
-it is refused with the reason, counted `<total|operator>_poses_<kind>` on /diagnostics (`~/set_pose` answers).
-
-Plausibility (`beams_common.intake.plausibility`): a revolution whose newest bearing, an odometry
-message, or an accepted ToTal pose, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s`
-ahead of the node's clock is refused with the reason (`<bearings|odometry|total_pose>_stamp_refused`,
-`last_refusal`; two in a row degrade the status); an odometry increment beyond `max_speed_m_per_s` or
-`max_yaw_rate_rad_per_s` is never followed (the localiser re-references and grows the covariance); a
-calibration is checked against
-chapter 7's ranges and the nominal geometry, and flagged when it makes the recent bearings worse.
-/diagnostics carries the status (`ekf_health`: waiting, tracking, degraded or lost, with the reasons; the
-`status` value), published at once when it changes; the pose messages cannot carry it, so it is also on
-beams/ekf/status (beams_msgs/LocalisationStatus, latched: on each change and every second). A pose the
-bearings have not confirmed since a break of the estimate's continuity (an operator's pose, an odometry
-jump or silence, a time jump, a re-initialisation after a kidnap) is degraded, not tracking
-(`consistency.PoseConfirmation`).
+Its topics, services and parameters: docs/nodes.md; its status (waiting, tracking, degraded, lost:
+`ekf_health`, on /diagnostics and beams/ekf/status): docs/status.md. It publishes after each revolution's
+bearings and at `publish_rate_hz` as odometry moves the estimate; all data times are message stamps
+(use_sim_time works), odometry going back in time resets the filter. Every input goes through its intake
+(`beams_common.intake`: the bearing, pose and stamp-plausibility checks, each refusal counted with its reason
+on /diagnostics), then the Localiser's door for it. A (re)start resumes from `checkpoint_file`
+(beams_ekf.checkpoint), said in the log and as `checkpoint` on /diagnostics.
 """
 
 import math
@@ -67,6 +38,7 @@ from beams_common.ros.messages import (
     pose2d_of,
     ros_covariance,
     seconds_to_stamp,
+    set_planar_tf,
     set_pose2d,
     stamp_to_seconds,
 )
@@ -163,6 +135,12 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         self.tf_publisher = (
             self.create_publisher(TFMessage, topics.TF, TF_QOS) if self.parameters["publish_tf"] else None
         )
+        # the outputs, built once and filled at each publication (rclpy builds a message field by field),
+        # one header and one pose shared by the three
+        self._odometry = Odometry(child_frame_id=self.base_frame)
+        self._odometry.header.frame_id = self.map_frame
+        self._pose = PoseWithCovarianceStamped(header=self._odometry.header, pose=self._odometry.pose)
+        self._tf = planar_tf_message(self._odometry.header, self.odom_frame, (0.0, 0.0, 0.0))
         self.create_subscription(Odometry, topics.ODOMETRY, self._on_odometry, qos_profile_sensor_data)
         self.create_subscription(BeaconBearingArray, topics.BEARINGS, self._on_bearings, BEARINGS_QOS)
         self.create_subscription(TriangulatedPose, topics.POSE, self._on_total_pose, 10)
@@ -370,22 +348,19 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
             return
         self._published_stamp_s = estimate.stamp_s
         self._changed = False
-        odometry = Odometry()
+        odometry = self._odometry
         odometry.header.stamp = self._stamp_of(estimate)
-        odometry.header.frame_id = self.map_frame
-        odometry.child_frame_id = self.base_frame
-        _fill_pose(odometry.pose, estimate)
+        set_pose2d(odometry.pose.pose, estimate.pose)
+        odometry.pose.covariance = ros_covariance(estimate.covariance)
         # the velocity over the last odometry step the filter took: no input's twist passes through
         odometry.twist.twist.linear.x, odometry.twist.twist.linear.y = estimate.twist[:2]
         odometry.twist.twist.angular.z = estimate.twist[2]
         self.odometry_publisher.publish(odometry)
-        pose = PoseWithCovarianceStamped()
-        pose.header = odometry.header
-        pose.pose = odometry.pose
-        self.pose_publisher.publish(pose)
+        self.pose_publisher.publish(self._pose)
         map_to_odom = estimate.map_to_odom
         if self.tf_publisher is not None and map_to_odom is not None:
-            self.tf_publisher.publish(planar_tf_message(odometry.header, self.odom_frame, map_to_odom))
+            set_planar_tf(self._tf, map_to_odom)
+            self.tf_publisher.publish(self._tf)
 
     def _update_diagnostics(self, estimate: Estimate | None) -> None:
         """The counters, and the status (`ekf_health`): its level and message, and `status` (waiting,
@@ -411,11 +386,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         if exact is not None and exact[0] == estimate.stamp_s:
             return exact[1]
         return seconds_to_stamp(estimate.stamp_s)
-
-
-def _fill_pose(pose_with_covariance, estimate: Estimate) -> None:
-    set_pose2d(pose_with_covariance.pose, estimate.pose)
-    pose_with_covariance.covariance = ros_covariance(estimate.covariance)
 
 
 def main(args: list[str] | None = None) -> None:

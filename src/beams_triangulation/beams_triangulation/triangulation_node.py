@@ -1,25 +1,11 @@
 """triangulation_node: ToTal (thesis ch. 6) on every BeAMS revolution, with 1/|D| gating and a covariance.
 
-Subscribes (relative names): `beams/bearings` (beams_msgs/BeaconBearingArray, one revolution per
-message, each bearing stamped with its own instant) and, when `use_odometry` is true, `odom`
-(nav_msgs/Odometry) to bring the bearings of a revolution to one instant before ToTal.
-Publishes `beams/pose` (beams_msgs/TriangulatedPose, every pose, rejected ones with `accepted = false`
-and the reason), `beams/pose_cov` (geometry_msgs/PoseWithCovarianceStamped, accepted poses only), both
-stamped with the bearings' mean instant in the map frame; `beams/markers` (visualization_msgs/
-MarkerArray: beacons, pose arrow, 2-sigma covariance ellipse) and `/diagnostics`. A revolution the
-odometry does not cover yet waits for it, at most until the next revolution
-(`pipeline.TriangulationPipeline`).
-Bad input (NaN bearing, duplicated beacon, fewer than three beacons) gives a log line and no pose; a
-bearing of a beacon not on the map (another team's) is counted and left out, the others still count.
-The beacon map and turret offset come from the calibration file when one is given.
-
-Plausibility (`beams_common.intake.plausibility`): a revolution whose newest bearing, or an odometry
-message, is stamped more than `max_stamp_age_s` behind or `max_stamp_lead_s` ahead of the node's clock
-is refused with the reason; an odometry increment beyond `max_speed_m_per_s` or
-`max_yaw_rate_rad_per_s` restarts the odometry history (no revolution compensated across it). The
-status on /diagnostics (`triangulation_health`: waiting, tracking, degraded or lost, with the reasons;
-the `status` value), also on beams/triangulation/status (beams_msgs/LocalisationStatus, latched: on
-each change and every second); each pose message carries its own verdict (accepted, reason).
+Its topics, services and parameters: docs/nodes.md. With `use_odometry`, a revolution's bearings are brought
+to one instant with `odom` (a revolution the odometry does not cover yet waits for it, at most until the
+next one: `pipeline.TriangulationPipeline`). Every pose is published, rejected ones with the reason; bad
+input (`beams_common.intake`: a bearing refused, fewer than three beacons, a stamp beyond the plausibility
+tolerance) gives no pose, with the reason on /diagnostics. Its status (`triangulation_health`) is on
+/diagnostics and beams/triangulation/status (docs/status.md).
 """
 
 from __future__ import annotations

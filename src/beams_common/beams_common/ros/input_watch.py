@@ -115,7 +115,9 @@ class WatchedInputs:
             if p.topic_name not in watched and type_name(p.msg_type) in SINGLE_SOURCE_OUTPUTS
         ]
         for topic in [*watched, *outputs]:
-            publishers = self.get_publishers_info_by_topic(topic) if topic in (*subscribed, *outputs) else []
+            # the count first: the endpoints' descriptions cost rclpy a QoS profile each, every check
+            crowded = topic in (*subscribed, *outputs) and self.count_publishers(topic) > 1
+            publishers = self.get_publishers_info_by_topic(topic) if crowded else []
             if len(publishers) <= 1:
                 self._clear_input_condition(f"publishers {topic}")
                 continue

@@ -64,12 +64,17 @@ def set_pose2d(pose: Pose, planar: Pose2D) -> None:
 
 def planar_tf_message(header: Header, child_frame_id: str, planar: Pose2D) -> TFMessage:
     """A /tf message of one transform header.frame_id -> child_frame_id: (x, y, yaw), z = 0, rotation
-    about z only."""
-    transform = TransformStamped(header=header, child_frame_id=child_frame_id)
-    transform.transform.translation.x, transform.transform.translation.y = float(planar[0]), float(planar[1])
-    transform.transform.rotation.z = math.sin(0.5 * planar[2])
-    transform.transform.rotation.w = math.cos(0.5 * planar[2])
-    return TFMessage(transforms=[transform])
+    about z only; `set_planar_tf` moves it (a message built once, published at every estimate)."""
+    message = TFMessage(transforms=[TransformStamped(header=header, child_frame_id=child_frame_id)])
+    set_planar_tf(message, planar)
+    return message
+
+
+def set_planar_tf(message: TFMessage, planar: Pose2D) -> None:
+    transform = message.transforms[0].transform
+    transform.translation.x, transform.translation.y = float(planar[0]), float(planar[1])
+    transform.rotation.z = math.sin(0.5 * planar[2])
+    transform.rotation.w = math.cos(0.5 * planar[2])
 
 
 def planar_covariance(covariance_6x6) -> np.ndarray:
@@ -78,11 +83,12 @@ def planar_covariance(covariance_6x6) -> np.ndarray:
     return full[np.ix_(PLANAR_INDICES, PLANAR_INDICES)]
 
 
-def ros_covariance(planar: np.ndarray) -> list[float]:
-    """Row-major 6x6 ROS covariance holding a (x, y, yaw) 3x3 block; z, roll, pitch marked unknown."""
+def ros_covariance(planar: np.ndarray) -> np.ndarray:
+    """Row-major 6x6 ROS covariance holding a (x, y, yaw) 3x3 block; z, roll, pitch marked unknown. A
+    float64 array: rclpy takes it as it is (a list, it checks entry by entry)."""
     full = np.diag([0.0, 0.0, UNKNOWN_VARIANCE, UNKNOWN_VARIANCE, UNKNOWN_VARIANCE, 0.0])
     full[np.ix_(PLANAR_INDICES, PLANAR_INDICES)] = planar
-    return full.ravel().tolist()
+    return full.ravel()
 
 
 def pose_with_covariance(planar: Pose2D, covariance: np.ndarray) -> PoseWithCovariance:
