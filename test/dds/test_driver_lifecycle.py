@@ -295,3 +295,27 @@ def test_autostart_by_default_publishes_at_once_and_is_read_only(rclpy_node, sta
     request = SetParameters.Request(parameters=[Parameter(name="autostart", value=value)])
     (result,) = rclpy_node.call(SetParameters, "/driver_node/set_parameters", request, WAIT_S).results
     assert not result.successful and "read-only" in result.reason
+
+
+def test_a_destroyed_driver_node_leaves_the_graph(rclpy_context):
+    """In one process (the one-process robot, in-process tests): rclpy's LifecycleNode keeps its node while
+    its state machine lives; driver_node's destroy_node releases both, so the node leaves the graph."""
+    from beams_driver.driver_node import DriverNode
+
+    driver = DriverNode()
+    observer = rclpy_context.create_node("observer")
+
+    def in_graph() -> bool:
+        rclpy_context.spin_once(observer, timeout_sec=0.05)
+        return "driver_node" in observer.get_node_names()
+
+    end = time.monotonic() + WAIT_S
+    while not in_graph() and time.monotonic() < end:
+        pass
+    assert in_graph(), "driver_node never appeared in the graph"
+    driver.destroy_node()
+    end = time.monotonic() + 5.0
+    while in_graph() and time.monotonic() < end:
+        pass
+    assert not in_graph(), "driver_node still in the graph 5 s after destroy_node"
+    observer.destroy_node()

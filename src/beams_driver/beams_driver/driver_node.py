@@ -313,6 +313,9 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
         # the source is released on every stop, so a restarted driver (or a terminal program) can open
         # the serial port
         self._release()
+        # rclpy's LifecycleNode leaves its state machine holding the node: the node would stay in the
+        # graph (and in the process) until the process ends
+        self._state_machine.destroy_when_not_in_use()
         super().destroy_node()
 
     # ---- parameters ----
