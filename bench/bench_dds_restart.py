@@ -6,6 +6,7 @@ and started again, RESTARTS times, timing creation to first message, with the pr
 No BeAMS node takes part. In ROS_DOMAIN_ID 67 unless the environment sets one.
 """
 
+import functools
 import os
 import pathlib
 import re
@@ -97,25 +98,13 @@ def restart_delays(profile: pathlib.Path) -> list[float]:
         ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
         ROS_DOMAIN_ID=os.environ.get("ROS_DOMAIN_ID", DEFAULT_DOMAIN_ID),
     )
-    publisher = subprocess.Popen(
-        [sys.executable, "-c", PUBLISHER],
-        env=env,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        stdin=subprocess.DEVNULL,
-    )
+    spawn = functools.partial(subprocess.Popen, env=env, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL)
+    publisher = spawn([sys.executable, "-c", PUBLISHER], stdout=subprocess.DEVNULL)
     delays = []
     try:
         time.sleep(PUBLISHER_SETTLE_S)
         for restart in range(RESTARTS + 1):
-            subscriber = subprocess.Popen(
-                [sys.executable, "-c", SUBSCRIBER],
-                env=env,
-                stdout=subprocess.PIPE,
-                stderr=subprocess.DEVNULL,
-                stdin=subprocess.DEVNULL,
-                text=True,
-            )
+            subscriber = spawn([sys.executable, "-c", SUBSCRIBER], stdout=subprocess.PIPE, text=True)
             delay = first_message_delay(subscriber)
             kill(subscriber)
             if restart:  # the first subscriber starts fresh: no killed process before it

@@ -209,48 +209,39 @@ def _match_rows(
     odometry_position, odometry_heading, odometry_poses = odometry_alone(match)
     total_position, total_heading, total_median, fixes = total_alone(match)
     label = f"{duration_s:.0f} s match seed {seed}"
-    table = (
-        [
-            (
-                f"EKF RMS position ({run.mode} R), {label}",
-                1000 * run.figures.rms_position_m,
-                "mm",
-                "target <= 10 mm",
-            )
-            for run in runs
-        ]
-        + [
-            (
-                f"EKF RMS heading ({run.mode} R)",
-                math.degrees(run.figures.rms_heading_rad),
-                "deg",
-                "target <= 0.3 deg",
-            )
-            for run in runs
-        ]
-        + [
-            (
-                f"EKF NEES in 95% band ({run.mode} R)",
-                100 * run.figures.nees_in_band,
-                "%",
-                f"target >= 90% (mean NEES {run.figures.nees_mean:.2f}, ideal 3)",
-            )
-            for run in runs
-        ]
-        + [
-            (
-                "EKF bearings gated (published R)",
-                float(runs[0].result.counts.get("bearings_gated", 0)),
-                "bearings",
-                f"of {sum(len(r.bearings) for r in match.revolutions)}",
-            ),
-            ("odometry alone RMS position", 1000 * odometry_position, "mm", "EKF row above"),
-            ("odometry alone RMS heading", math.degrees(odometry_heading), "deg", "EKF row above"),
-            ("ToTal alone, uncompensated, RMS position", 1000 * total_position, "mm", "EKF row above"),
-            ("ToTal alone, uncompensated, RMS heading", math.degrees(total_heading), "deg", "EKF row above"),
-            ("ToTal alone, uncompensated, median error", 1000 * total_median, "mm", "EKF row above"),
-        ]
+    per_run = (
+        lambda r: (
+            f"EKF RMS position ({r.mode} R), {label}",
+            1000 * r.figures.rms_position_m,
+            "mm",
+            "target <= 10 mm",
+        ),
+        lambda r: (
+            f"EKF RMS heading ({r.mode} R)",
+            math.degrees(r.figures.rms_heading_rad),
+            "deg",
+            "target <= 0.3 deg",
+        ),
+        lambda r: (
+            f"EKF NEES in 95% band ({r.mode} R)",
+            100 * r.figures.nees_in_band,
+            "%",
+            f"target >= 90% (mean NEES {r.figures.nees_mean:.2f}, ideal 3)",
+        ),
     )
+    table = [row(run) for row in per_run for run in runs] + [
+        (
+            "EKF bearings gated (published R)",
+            float(runs[0].result.counts.get("bearings_gated", 0)),
+            "bearings",
+            f"of {sum(len(r.bearings) for r in match.revolutions)}",
+        ),
+        ("odometry alone RMS position", 1000 * odometry_position, "mm", "EKF row above"),
+        ("odometry alone RMS heading", math.degrees(odometry_heading), "deg", "EKF row above"),
+        ("ToTal alone, uncompensated, RMS position", 1000 * total_position, "mm", "EKF row above"),
+        ("ToTal alone, uncompensated, RMS heading", math.degrees(total_heading), "deg", "EKF row above"),
+        ("ToTal alone, uncompensated, median error", 1000 * total_median, "mm", "EKF row above"),
+    ]
     if plot_path:
         plot_trajectory(match, runs[0], odometry_poses, fixes, plot_path)
     return table

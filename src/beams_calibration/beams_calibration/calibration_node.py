@@ -245,11 +245,16 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
     def _dataset_map(self) -> BeaconMap:
         return load_dataset(self.dataset_file).beacon_map if self.dataset_file.exists() else self.prior_map
 
+    def _refuse(self, response: Any, message: str, counter: str = "") -> Any:
+        response.success = False
+        response.message = bounded(message)
+        if counter:
+            self.diagnostics.refuse(counter, response.message)
+        return response
+
     async def _on_calibrate(self, request: Calibrate.Request, response: Calibrate.Response):
         if self._busy:
-            response.success = False
-            response.message = BUSY
-            return response
+            return self._refuse(response, BUSY)
         self._busy = True
         try:
             dataset = load_dataset(self.dataset_file)
@@ -263,10 +268,7 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
             files = await self._in_worker(lambda: write_outputs(result, output, plots))
             written = "" if output is None else str(output)
         except (OSError, DatasetError, CalibrationRefusedError) as error:
-            response.success = False
-            response.message = bounded(f"not calibrated, no file changed: {error}")
-            self.diagnostics.refuse("calibrations_refused", response.message)
-            return response
+            return self._refuse(response, f"not calibrated, no file changed: {error}", "calibrations_refused")
         finally:
             self._busy = False
         response.success = True
@@ -326,9 +328,7 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
 
     def _on_clear(self, _request: Trigger.Request, response: Trigger.Response):
         if self._busy:
-            response.success = False
-            response.message = BUSY
-            return response
+            return self._refuse(response, BUSY)
         if not self.dataset_file.exists():
             response.success = True
             response.message = f"nothing to clear: {self.dataset_file} does not exist (no .bak made)"
@@ -338,10 +338,7 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
             dataset = load_dataset(self.dataset_file)
             save_dataset(dataset.cleared(), self.dataset_file)  # keeps the previous file as .bak
         except (OSError, DatasetError) as error:
-            response.success = False
-            response.message = bounded(f"not cleared, the dataset is unchanged: {error}")
-            self.diagnostics.refuse("clears_refused", response.message)
-            return response
+            return self._refuse(response, f"not cleared, the dataset is unchanged: {error}", "clears_refused")
         response.success = True
         response.message = (
             f"cleared {len(dataset.configurations)} configurations; the previous dataset is kept as "

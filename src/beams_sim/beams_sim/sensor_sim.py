@@ -230,21 +230,14 @@ class SensorSimulator:
         pass_index = int(np.floor(0.5 * (window[0] + window[1]) / self.config.period_s))
         noise = np.random.Generator(np.random.Philox(key=[self._noise_key + k, pass_index % 2**63]))
         opens, closes = window
-        if self.config.hardware is not None:
-            opens, closes = self._jitter_window(code, opens, closes, noise)
+        if self.config.hardware is not None:  # the AGC's jitter of the threshold crossings (fig. 5.3)
+            omega = self.config.turret_speed_rad_s
+            rising_std, falling_std = self.config.hardware.edge_std_rad((closes - opens) * omega, code)
+            opens += noise.normal(0.0, float(rising_std)) / omega
+            closes += noise.normal(0.0, float(falling_std)) / omega
         min_burst = self.config.receiver.min_burst_s(code)
         starts, ends = bursts_in_window(code, opens - t0 + phase, closes - t0 + phase, min_burst)
         return self._add_edge_noise(starts - phase, ends - phase, noise)
-
-    def _jitter_window(
-        self, code: BeaconCode, opens: float, closes: float, rng: np.random.Generator
-    ) -> tuple[float, float]:
-        """The threshold crossings as the AGC makes them jitter (HardwareNoise, fig. 5.3), in s."""
-        omega = self.config.turret_speed_rad_s
-        rising_std, falling_std = self.config.hardware.edge_std_rad((closes - opens) * omega, code)  # type: ignore[union-attr]
-        return opens + rng.normal(0.0, float(rising_std)) / omega, closes + rng.normal(
-            0.0, float(falling_std)
-        ) / omega
 
     def _window_times(
         self, beacon: SimulatedBeacon, pose_at: PoseAt, t0: float, t_guess: float

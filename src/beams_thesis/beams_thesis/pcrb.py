@@ -135,31 +135,7 @@ def trajectory_pcrb(
     prior[:3, :3] = initial_covariance
     if with_errors:
         prior[3:, 3:] = odometry_errors.prior_covariance
-    attached = _bearing_information(
-        times_s, true_poses, bearings, beacons_xy, true_pose_at, turret_offset_m, dim
-    )
-    information = np.linalg.inv(prior) + attached.get(0, 0.0)
-    bounds = np.empty((len(times_s), 3, 3))
-    bounds[0] = np.linalg.inv(information)[:3, :3]
-    for k in range(1, len(times_s)):
-        transition, covariance = odometry_step(
-            tuple(true_poses[k - 1]), tuple(reported_increments[k - 1]), wheel_noise, with_errors
-        )
-        information = gaussian_information_step(information, transition, covariance, attached.get(k, 0.0))
-        bounds[k] = np.linalg.inv(information)[:3, :3]
-    return PcrbTrack(np.asarray(times_s, dtype=float), bounds)
-
-
-def _bearing_information(
-    times_s: np.ndarray,
-    true_poses: np.ndarray,
-    bearings: Sequence[tuple[float, int, float]],
-    beacons_xy: Mapping[int, Sequence[float]],
-    true_pose_at: Callable[[float], Pose2D],
-    turret_offset_m: tuple[float, float],
-    dim: int,
-) -> dict[int, np.ndarray]:
-    """Information of the bearings by the index of the odometry instant at or before their stamp."""
+    # each bearing's information, attached to the odometry instant at or before its stamp
     attached: dict[int, np.ndarray] = {}
     for stamp_s, beacon_id, variance_rad2 in bearings:
         k = int(np.searchsorted(times_s, stamp_s, side="right")) - 1
@@ -171,4 +147,13 @@ def _bearing_information(
         jacobian = np.zeros(dim)
         jacobian[:3] = d_pose
         attached[k] = attached.get(k, 0.0) + bearing_information(jacobian, variance_rad2)
-    return attached
+    information = np.linalg.inv(prior) + attached.get(0, 0.0)
+    bounds = np.empty((len(times_s), 3, 3))
+    bounds[0] = np.linalg.inv(information)[:3, :3]
+    for k in range(1, len(times_s)):
+        transition, covariance = odometry_step(
+            tuple(true_poses[k - 1]), tuple(reported_increments[k - 1]), wheel_noise, with_errors
+        )
+        information = gaussian_information_step(information, transition, covariance, attached.get(k, 0.0))
+        bounds[k] = np.linalg.inv(information)[:3, :3]
+    return PcrbTrack(np.asarray(times_s, dtype=float), bounds)

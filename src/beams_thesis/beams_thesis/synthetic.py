@@ -51,31 +51,6 @@ def lissajous_pose(t_s: float) -> Pose2D:
     return (x, y, atan2(vy, vx))
 
 
-def _drifting_odometry(
-    truth: np.ndarray,
-    rng: np.random.Generator,
-    scale_error: float,
-    rotation_error: float,
-    noise_m: float,
-    noise_rad: float,
-) -> np.ndarray:
-    """Integrate true increments corrupted by a scale error, a rotation (wheel-base) error and a noise
-    whose variance grows with the distance (noise_m and noise_rad are standard deviations per sqrt(m))."""
-    odometry = np.zeros_like(truth)
-    pose: Pose2D = (0.0, 0.0, 0.0)
-    for k in range(1, len(truth)):
-        dx, dy, dtheta = between(tuple(truth[k - 1]), tuple(truth[k]))
-        root_distance = hypot(dx, dy) ** 0.5
-        step = (
-            (1.0 + scale_error) * dx + noise_m * root_distance * rng.standard_normal(),
-            (1.0 + scale_error) * dy + noise_m * root_distance * rng.standard_normal(),
-            (1.0 + rotation_error) * dtheta + noise_rad * root_distance * rng.standard_normal(),
-        )
-        pose = compose(pose, step)
-        odometry[k] = pose
-    return odometry
-
-
 def _sensor_bearing(pose: Pose2D, beacon_xy: tuple[float, float], offset_m: tuple[float, float]) -> float:
     """Bearing of a beacon from the turret at `offset_m` on the robot, in the sensor frame."""
     sensor = compose(pose, (offset_m[0], offset_m[1], 0.0))
@@ -109,9 +84,20 @@ def synthetic_match(
     rng = np.random.default_rng(seed)
     times_s = np.arange(0.0, duration_s, 1.0 / odometry_rate_hz)
     truth = np.array([lissajous_pose(t) for t in times_s])
-    odometry = _drifting_odometry(
-        truth, rng, scale_error, rotation_error, odometry_noise_m, odometry_noise_rad
-    )
+    # true increments corrupted by a scale error, a rotation (wheel-base) error and a noise whose variance
+    # grows with the distance (odometry_noise_m and odometry_noise_rad: standard deviations per sqrt(m))
+    odometry = np.zeros_like(truth)
+    pose: Pose2D = (0.0, 0.0, 0.0)
+    for k in range(1, len(truth)):
+        dx, dy, dtheta = between(tuple(truth[k - 1]), tuple(truth[k]))
+        root_distance = hypot(dx, dy) ** 0.5
+        step = (
+            (1.0 + scale_error) * dx + odometry_noise_m * root_distance * rng.standard_normal(),
+            (1.0 + scale_error) * dy + odometry_noise_m * root_distance * rng.standard_normal(),
+            (1.0 + rotation_error) * dtheta + odometry_noise_rad * root_distance * rng.standard_normal(),
+        )
+        pose = compose(pose, step)
+        odometry[k] = pose
     bearings = []
     for start_s in np.arange(0.0, duration_s - revolution_period_s, revolution_period_s):
         for beacon_id, xy in beacons_xy.items():
