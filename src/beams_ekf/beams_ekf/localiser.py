@@ -65,11 +65,6 @@ def operator_pose_stamp_s(stamp_s: float, newest_odometry_s: float | None) -> fl
     return stamp_s
 
 
-# a lost estimate re-initialised by at most this (m) keeps its separations (beams_ekf.separations): beyond,
-# the solutions linearised about it were as wrong as it was
-CARRIED_JUMP_M = 0.1
-
-
 @dataclass
 class LocaliserCounters:
     """Counts for diagnostics (names are the diagnostic keys)."""
@@ -208,9 +203,7 @@ class Localiser:
             # simulator's new match) or a robot pushed meanwhile is not followed
             self._break_continuity(f"an odometry silence of {stamp_s - latest[0]:.1f} s")
         self._late.advance(latest[0], latest[1], stamp_s, odom_pose)
-        dx, dy, _ = between(latest[1], odom_pose)
-        c, s = np.cos(self.ekf.pose[2]), np.sin(self.ekf.pose[2])
-        self.separations.moved(c * dx - s * dy, s * dx + c * dy)
+        self.separations.moved(between(latest[1], odom_pose), self.ekf.pose[2])
         self._late.append(stamp_s, odom_pose)
         self._stamp_s = stamp_s
         self._late.apply_pending(stamp_s)
@@ -270,14 +263,7 @@ class Localiser:
         """Record whether a new bearing was gated (kidnap evidence) and the last accepted one."""
         if outcome.accepted:
             self.stats.last_bearing_stamp_s = bearing.stamp_s
-            if outcome.pose_gain is not None and outcome.pose_jacobian is not None:
-                self.separations.bearing(
-                    bearing.beacon_id,
-                    outcome.pose_gain,
-                    outcome.pose_jacobian,
-                    outcome.residual_rad,
-                    outcome.innovation_variance,
-                )
+            self.separations.bearing(bearing.beacon_id, outcome)
         if outcome.accepted or outcome.reason in (BearingReason.GATED, BearingReason.EXCLUDED):
             # a beacon is to blame only when the estimate is the bearings' own (confirmed, not kidnapped)
             trusted = self.confirmation.confirmed and not self.kidnap.suspected
@@ -345,13 +331,10 @@ class Localiser:
             return PoseOutcome.INVALID
         self.kidnap.clear()
         self.nis_monitor.clear()
-        jump = None if before is None else np.subtract(pose, before[0])
-        if outcome is PoseOutcome.LOST_REINITIALISED and np.hypot(*jump[:2]) <= CARRIED_JUMP_M:
-            # the solutions without each beacon were not lost with the estimate: ToTal's fix, which uses
-            # every beacon, may carry a faulty one's pull
-            self.separations.reinitialised(jump, before[1] - covariance)
-        else:
-            self.separations.clear()
+        # ToTal's fix after the lost test uses every beacon, a faulty one included: the solutions go on
+        self.separations.initialised(
+            pose, covariance, before if outcome is PoseOutcome.LOST_REINITIALISED else None
+        )
         self.exclusion.clear()
         event = _CONTINUITY_EVENTS.get(outcome)
         if operator:
@@ -374,9 +357,7 @@ class Localiser:
         odom_pose = latest[1] if latest is not None and latest[0] == stamp_s else None
         covariance = self.ekf.covariance
         estimate = Estimate(stamp_s, self.ekf.pose, covariance, self._odometry_twist(), odom_pose)
-        for beacon in self.ekf.excluded_beacons:  # its pull undone by the refiltering (late_bearings)
-            self.separations.clear(beacon)
-        hypotheses = self.separations.hypotheses(covariance)
+        hypotheses = self.separations.hypotheses(covariance, self.ekf.excluded_beacons)
         if hypotheses is not None:
             estimate.fault_shifts, estimate.fault_covariances = hypotheses
         return estimate

@@ -18,9 +18,18 @@ fault-free then too). Dropped at every (re)initialisation: a fault already in th
 covered.
 """
 
+import math
+from collections.abc import Iterable
+
 import numpy as np
 
 from beams_common.geometry.angles import wrap_to_pi
+from beams_common.geometry.pose2d import Pose2D
+from beams_ekf.pose_filter import BearingOutcome
+
+# a lost estimate re-initialised by at most this (m) keeps its separations: beyond, the solutions
+# linearised about it were as wrong as it was
+CARRIED_JUMP_M = 0.1
 
 
 class BeaconSeparations:
@@ -50,11 +59,13 @@ class BeaconSeparations:
             k = self._beacons.index(beacon_id)
             self._shifts[k], self._covariances[k] = 0.0, 0.0
 
-    def bearing(
-        self, beacon_id: int, gain: np.ndarray, jacobian: np.ndarray, residual_rad: float, innovation: float
-    ) -> None:
-        """An accepted bearing: its pose gain K, its pose Jacobian h, its residual nu and its innovation
-        variance S."""
+    def bearing(self, beacon_id: int, outcome: BearingOutcome) -> None:
+        """An accepted bearing's outcome: its pose gain K, its pose Jacobian h, its residual nu and its
+        innovation variance S."""
+        gain, jacobian = outcome.pose_gain, outcome.pose_jacobian
+        if gain is None or jacobian is None:
+            return
+        residual_rad, innovation = outcome.residual_rad, outcome.innovation_variance
         if self._to_start > 0:
             self._to_start -= 1
             return
@@ -72,23 +83,37 @@ class BeaconSeparations:
         self._covariances += taken - variances[:, None, None] * gains[:, :, None] * gains[:, None, :]
         self._shifts[k], self._covariances[k] = own
 
-    def moved(self, world_dx_m: float, world_dy_m: float) -> None:
-        """An odometry step that moved the robot by (dx, dy) in the map frame."""
-        if self._beacons and (world_dx_m or world_dy_m):
-            moved = np.array([[1.0, 0.0, -world_dy_m], [0.0, 1.0, world_dx_m], [0.0, 0.0, 1.0]])
+    def moved(self, increment: Pose2D, heading_rad: float) -> None:
+        """An odometry step (robot frame) from the heading heading_rad."""
+        dx, dy, _ = increment
+        if self._beacons and (dx or dy):
+            c, s = math.cos(heading_rad), math.sin(heading_rad)
+            moved = np.array([[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]])
             self._shifts = self._shifts @ moved.T
             self._covariances = moved @ self._covariances @ moved.T
 
-    def reinitialised(self, jump: np.ndarray, covariance_change: np.ndarray) -> None:
-        """The estimate re-initialised elsewhere (jump = new - old pose, covariance_change = old - new P),
-        the solutions without each beacon carried on: Delta_b += jump, D_b += covariance_change."""
+    def initialised(
+        self, pose: Pose2D, covariance: np.ndarray, lost: tuple[Pose2D, np.ndarray] | None = None
+    ) -> None:
+        """The estimate (re)initialised at pose: the solutions start again, unless it was `lost` (its pose
+        and covariance before) and moves by at most CARRIED_JUMP_M: then they go on, Delta_b += the jump,
+        D_b += the covariance's change."""
+        jump = None if lost is None else np.subtract(pose, lost[0])
+        if jump is None or math.hypot(jump[0], jump[1]) > CARRIED_JUMP_M:
+            self.clear()
+            return
         self._shifts += jump
         self._shifts[:, 2] = wrap_to_pi(self._shifts[:, 2])
-        self._covariances += covariance_change
+        self._covariances += lost[1] - covariance
 
-    def hypotheses(self, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    def hypotheses(
+        self, covariance: np.ndarray, excluded: Iterable[int] = ()
+    ) -> tuple[np.ndarray, np.ndarray] | None:
         """(shifts Delta_b, one row per beacon; the covariances P + D_b of the solutions without them), or
-        None before any bearing."""
+        None before any bearing. An `excluded` beacon's separation restarts: the refiltering without it
+        (late_bearings) undid its pull."""
         if not self._beacons:
             return None
+        for beacon_id in excluded:
+            self.clear(beacon_id)
         return self._shifts.copy(), covariance + self._covariances
