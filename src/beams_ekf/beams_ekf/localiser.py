@@ -357,7 +357,7 @@ class Localiser:
         odom_pose = latest[1] if latest is not None and latest[0] == stamp_s else None
         covariance = self.ekf.covariance
         estimate = Estimate(stamp_s, self.ekf.pose, covariance, self._odometry_twist(), odom_pose)
-        hypotheses = self.separations.hypotheses(covariance, self.ekf.excluded_beacons)
+        hypotheses = self.separations.hypotheses(covariance)
         if hypotheses is not None:
             estimate.fault_shifts, estimate.fault_covariances = hypotheses
         return estimate

@@ -19,7 +19,6 @@ covered.
 """
 
 import math
-from collections.abc import Iterable
 
 import numpy as np
 
@@ -50,14 +49,9 @@ class BeaconSeparations:
         """The beacons of the hypotheses' rows."""
         return list(self._beacons)
 
-    def clear(self, beacon_id: int | None = None) -> None:
-        """Forget every beacon's separation (an initialisation), or one beacon's (it is excluded: the
-        refiltered estimate no longer holds its bearings)."""
-        if beacon_id is None:
-            self.__init__(self.starting_bearings)
-        elif beacon_id in self._beacons:
-            k = self._beacons.index(beacon_id)
-            self._shifts[k], self._covariances[k] = 0.0, 0.0
+    def clear(self) -> None:
+        """Forget every beacon's separation (an initialisation)."""
+        self.__init__(self.starting_bearings)
 
     def bearing(self, beacon_id: int, outcome: BearingOutcome) -> None:
         """An accepted bearing's outcome: its pose gain K, its pose Jacobian h, its residual nu and its
@@ -106,14 +100,10 @@ class BeaconSeparations:
         self._shifts[:, 2] = wrap_to_pi(self._shifts[:, 2])
         self._covariances += lost[1] - covariance
 
-    def hypotheses(
-        self, covariance: np.ndarray, excluded: Iterable[int] = ()
-    ) -> tuple[np.ndarray, np.ndarray] | None:
+    def hypotheses(self, covariance: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """(shifts Delta_b, one row per beacon; the covariances P + D_b of the solutions without them), or
-        None before any bearing. An `excluded` beacon's separation restarts: the refiltering without it
-        (late_bearings) undid its pull."""
+        None before any bearing. An excluded beacon keeps its separation: the refiltering without it undid
+        its pull over the odometry history only (late_bearings), and what it pulled before stays."""
         if not self._beacons:
             return None
-        for beacon_id in excluded:
-            self.clear(beacon_id)
         return self._shifts.copy(), covariance + self._covariances
