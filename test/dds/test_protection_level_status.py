@@ -4,7 +4,8 @@ with `within_alert_limits` false, and tracking again once it is back within.
 
 - ekf_node, a robot standing still: initialised by a ToTal fix of 2 cm and 1 deg (level 96 mm, 4.4 deg),
   revolutions of two bearings (beacon 3 hidden) leave the pose unobserved along one direction, so the
-  level stays above the limit (85 mm); three bearings bring it to 3 mm.
+  level stays above the limit; beacon 3 back, it stays above (134 mm: the solution without beacon 3 is
+  the two beacons' alone); an operator's pose, then three bearings from the start bring it to 13 mm.
 - triangulation_node: bearings of 0.5 deg accepted by the gates (position std 2 cm) give a level of
   91 mm; bearings of 0.1 deg, 18 mm.
 """
@@ -66,6 +67,7 @@ class _Status:
 def test_ekf_status_degraded_while_two_bearings_leave_the_level_above_the_limit(
     start_node, rclpy_node, total_pose_message
 ):
+    from geometry_msgs.msg import PoseWithCovarianceStamped
     from nav_msgs.msg import Odometry
 
     from beams_msgs.msg import BeaconBearingArray, LocalisationStatus, TriangulatedPose
@@ -75,7 +77,8 @@ def test_ekf_status_degraded_while_two_bearings_leave_the_level_above_the_limit(
     odometry = rclpy_node.node.create_publisher(Odometry, "odom", 50)
     bearings = rclpy_node.node.create_publisher(BeaconBearingArray, "beams/bearings", 20)
     fixes = rclpy_node.node.create_publisher(TriangulatedPose, "beams/pose", 10)
-    publishers = (odometry, bearings, fixes)
+    initial_pose = rclpy_node.node.create_publisher(PoseWithCovarianceStamped, "/initialpose", 10)
+    publishers = (odometry, bearings, fixes, initial_pose)
     assert rclpy_node.spin_until(lambda: all(p.get_subscription_count() for p in publishers), 20.0)
     start = time.monotonic()
 
@@ -115,9 +118,23 @@ def test_ekf_status_degraded_while_two_bearings_leave_the_level_above_the_limit(
     assert said.single_fault_covered and said.horizontal_alert_limit_m == pytest.approx(0.05)
     assert said.integrity_risk == pytest.approx(1e-5)
 
+    # beacon 3 back: the solution without it is the two beacons' alone, still unobserved along one
+    # direction for a robot standing still: a fault of beacon 3 could go unseen, the level stays above
+    drive(lambda: False, ids=(1, 2, 3), timeout_s=2.0)
+    said = status.said[-1]
+    assert said.status == LocalisationStatus.DEGRADED and said.horizontal_protection_level_m > 0.05, status
+
+    # an operator's pose of 2 cm: the solutions start again after the first revolution of three beacons
+    pose = PoseWithCovarianceStamped()
+    pose.header.frame_id = "map"  # stamp 0: "now"
+    (pose.pose.pose.position.x, pose.pose.pose.position.y), theta = POSE[:2], POSE[2]
+    pose.pose.pose.orientation.z, pose.pose.pose.orientation.w = math.sin(theta / 2), math.cos(theta / 2)
+    pose.pose.covariance[0] = pose.pose.covariance[7] = 0.02**2
+    pose.pose.covariance[35] = math.radians(1.0) ** 2
+    initial_pose.publish(pose)
     assert drive(status.says(LocalisationStatus.TRACKING, True), ids=(1, 2, 3)), (status, node.log())
     said = status.said[-1]
-    assert said.message == "tracking" and 0.0 < said.horizontal_protection_level_m < 0.01
+    assert said.message == "tracking" and 0.0 < said.horizontal_protection_level_m < 0.025
     assert 0.0 < said.heading_protection_level_rad < said.heading_alert_limit_rad
     assert node.process.poll() is None and "Traceback" not in node.log()
 

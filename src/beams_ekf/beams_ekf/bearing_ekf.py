@@ -447,7 +447,12 @@ class BearingEkf:
         # published-estimate invariant allows (else every later estimate is refused)
         self._ekf.P = 0.5 * (self._ekf.P + self._ekf.P.T)
         return BearingOutcome(
-            True, nis, residual, pose_gain=gain[self._pose, 0], innovation_variance=innovation_variance
+            True,
+            nis,
+            residual,
+            pose_gain=gain[self._pose, 0],
+            innovation_variance=innovation_variance,
+            pose_jacobian=jacobian[0, self._pose],
         )
 
     def _joseph_update(

@@ -22,7 +22,7 @@ the estimate is unconfirmed until its bearings confirm it (`consistency.PoseConf
 status is degraded meanwhile); the first initialisation from ToTal is the bearings' own pose.
 """
 
-from collections import Counter, deque
+from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
@@ -46,6 +46,7 @@ from beams_ekf.consistency import (
 from beams_ekf.late_bearings import LateBearings
 from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, PoseFilter
+from beams_ekf.separations import BeaconSeparations
 from beams_ekf.settings import FilterSettings, LocaliserConfig
 
 # ToTal's re-initialisations that break the estimate's continuity (the first initialisation does not:
@@ -112,9 +113,8 @@ class Localiser:
         self.exclusion = BeaconExclusion(ekf, config.exclusion_gated_bearings, config.readmission_bearings)
         self._late.exclusion = self.exclusion
         self._stamp_s: float | None = None
-        # the newest accepted bearings, one revolution's when every beacon is seen: (beacon, the shift
-        # gain * residual, the variance gain gain' S taken away, flat), the protection level's hypotheses
-        self._recent: deque[tuple[int, np.ndarray, np.ndarray]] = deque(maxlen=len(ekf.beacons_xy))
+        # the protection level's fault hypotheses: the solution without each beacon
+        self.separations = BeaconSeparations(len(ekf.beacons_xy))
 
     @property
     def initialised(self) -> bool:
@@ -142,7 +142,7 @@ class Localiser:
         self.motion_limits = settings.motion_limits
         self.default_pose_covariance = settings.default_pose_covariance
         self.ekf.configure(beacons_xy, sensor_offset_m, settings.process_noise, settings.gate_probability)
-        self._recent = deque(maxlen=len(self.ekf.beacons_xy))
+        self.separations = BeaconSeparations(len(self.ekf.beacons_xy))
         self.exclusion.clear()
 
     def reset(self, reason: str = "reset", forget_learnt: bool = False) -> None:
@@ -159,7 +159,7 @@ class Localiser:
         self._stamp_s = None
         self._time_jumps.clear()
         self.confirmation.clear()  # the next initialisation from ToTal is a first one
-        self._recent.clear()
+        self.separations.clear()
         self.exclusion.clear()
         # a bearing of the data before a time jump would make the silence since the last one negative
         self.stats.last_bearing_stamp_s = None
@@ -203,6 +203,7 @@ class Localiser:
             # simulator's new match) or a robot pushed meanwhile is not followed
             self._break_continuity(f"an odometry silence of {stamp_s - latest[0]:.1f} s")
         self._late.advance(latest[0], latest[1], stamp_s, odom_pose)
+        self.separations.moved(between(latest[1], odom_pose), self.ekf.pose[2])
         self._late.append(stamp_s, odom_pose)
         self._stamp_s = stamp_s
         self._late.apply_pending(stamp_s)
@@ -262,10 +263,7 @@ class Localiser:
         """Record whether a new bearing was gated (kidnap evidence) and the last accepted one."""
         if outcome.accepted:
             self.stats.last_bearing_stamp_s = bearing.stamp_s
-            gain = outcome.pose_gain
-            if gain is not None:
-                taken = outcome.innovation_variance * np.outer(gain, gain).ravel()
-                self._recent.append((bearing.beacon_id, gain * outcome.residual_rad, taken))
+            self.separations.bearing(bearing.beacon_id, outcome)
         if outcome.accepted or outcome.reason in (BearingReason.GATED, BearingReason.EXCLUDED):
             # a beacon is to blame only when the estimate is the bearings' own (confirmed, not kidnapped)
             trusted = self.confirmation.confirmed and not self.kidnap.suspected
@@ -325,6 +323,7 @@ class Localiser:
         outcome: PoseOutcome,
         operator: bool = False,
     ) -> PoseOutcome:
+        before = (self.ekf.pose, self.ekf.covariance) if self.ekf.initialised else None
         try:
             self.ekf.initialise(pose, covariance)
         except ValueError:
@@ -332,7 +331,10 @@ class Localiser:
             return PoseOutcome.INVALID
         self.kidnap.clear()
         self.nis_monitor.clear()
-        self._recent.clear()
+        # ToTal's fix after the lost test uses every beacon, a faulty one included: the solutions go on
+        self.separations.initialised(
+            pose, covariance, before if outcome is PoseOutcome.LOST_REINITIALISED else None
+        )
         self.exclusion.clear()
         event = _CONTINUITY_EVENTS.get(outcome)
         if operator:
@@ -355,8 +357,9 @@ class Localiser:
         odom_pose = latest[1] if latest is not None and latest[0] == stamp_s else None
         covariance = self.ekf.covariance
         estimate = Estimate(stamp_s, self.ekf.pose, covariance, self._odometry_twist(), odom_pose)
-        if self._recent:
-            estimate.fault_shifts, estimate.fault_covariances = fault_hypotheses(self._recent, covariance)
+        hypotheses = self.separations.hypotheses(covariance)
+        if hypotheses is not None:
+            estimate.fault_shifts, estimate.fault_covariances = hypotheses
         return estimate
 
     def _odometry_twist(self) -> tuple[float, float, float]:
@@ -366,23 +369,6 @@ class Localiser:
             return (0.0, 0.0, 0.0)
         step_s, (dx, dy, dtheta) = step
         return (dx / step_s, dy / step_s, dtheta / step_s)
-
-
-def fault_hypotheses(
-    recent: Sequence[tuple[int, np.ndarray, np.ndarray]], covariance: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """One faulty bearing of the recent ones, or one faulty beacon (its recent bearings together):
-    the estimate's shift from the solution without them (gain * residual, summed) and that
-    solution's covariance (P + gain gain' S, summed: the variance they took away). First order: the
-    gain and residual of each bearing's own update (docs/protection_level.md)."""
-    ids = [beacon for beacon, _, _ in recent]
-    # one row per hypothesis: each bearing alone, then each beacon seen more than once
-    twice = [beacon for beacon in set(ids) if ids.count(beacon) > 1]
-    members = np.vstack([np.eye(len(ids)), np.equal.outer(twice, ids).reshape(-1, len(ids))])
-    shifts = members @ np.array([shift for _, shift, _ in recent])
-    taken = members @ np.array([taken for _, _, taken in recent])
-    separated = covariance + taken.reshape(-1, 3, 3)
-    return shifts, separated
 
 
 def build_localiser(

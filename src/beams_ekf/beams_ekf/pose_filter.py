@@ -47,10 +47,11 @@ class BearingOutcome:
     nis: float
     residual_rad: float
     reason: BearingReason = BearingReason.ACCEPTED
-    # an accepted bearing's gain on (x, y, theta) and innovation variance S: the shift gain * residual and
-    # the variance gain gain' S it brought (its fault hypothesis, docs/protection_level.md); None: unknown
+    # an accepted bearing's gain on (x, y, theta), its Jacobian on them and its innovation variance S: its
+    # share of the fault hypotheses (beams_ekf.separations); None: unknown
     pose_gain: np.ndarray | None = None
     innovation_variance: float = float("nan")
+    pose_jacobian: np.ndarray | None = None
 
 
 def rejected(reason: BearingReason) -> BearingOutcome:
