@@ -38,7 +38,8 @@ from beams_ekf.outcomes import Estimate
 # No bearing accepted for this long (s, data time): odometry alone carries the estimate.
 MAX_BEARING_SILENCE_S = 1.0
 # Innovations inconsistent (the NIS test) this long (s) after a calibration was applied suspect it: the status
-# is degraded naming it for as long again, past the re-initialisation the lost status asks for.
+# names it, and stays degraded naming it for FAULT_HOLD_S past the re-initialisation the lost status asks
+# for (longer would blame a good file for the faults that follow it).
 CALIBRATION_WATCH_S = 10.0
 WAITING_FOR_POSE = "waiting for an initial pose (beams/pose, /initialpose or the set_pose service)"
 WAITING_FOR_ODOMETRY = (
@@ -115,7 +116,7 @@ class EkfHealth:
                 reason = (
                     f"innovations inconsistent {now_s - applied_s:.1f} s after {what} was applied: check it"
                 )
-                self.fault("calibration_inconsistent", now_s, reason, CALIBRATION_WATCH_S)
+                self.fault("calibration_inconsistent", now_s, reason)
         if kidnap_suspected:
             lost.append("most recent bearings gated out (robot moved?): waiting for a ToTal pose")
         if self._last_odometry_s is not None and now_s - self._last_odometry_s > ODOMETRY_SILENCE_S:

@@ -84,7 +84,7 @@ def test_a_flagged_calibration_degrades_for_its_own_hold():
 
 def test_innovations_inconsistent_after_a_calibration_name_it_past_the_re_initialisation():
     """A calibration applied at runtime is judged by the innovations that follow: the NIS test failing
-    within CALIBRATION_WATCH_S names it, and the status stays degraded naming it as long after."""
+    within CALIBRATION_WATCH_S names it, and the status stays degraded naming it for FAULT_HOLD_S after."""
     health = EkfHealth(VALUES, 0.0)
     _run(health, 0.0, 3.0)
     health.calibration_applied(3.0, "the new beacon geometry (calibration_file 'wild.yaml')")
@@ -94,10 +94,12 @@ def test_innovations_inconsistent_after_a_calibration_name_it_past_the_re_initia
     assert "innovations inconsistent 2.0 s after the new beacon geometry (calibration_file 'wild.yaml')" in (
         lost.message
     )
-    _run(health, 5.0, 8.0)  # re-initialised from ToTal, its innovations consistent again
-    degraded = health.verdict(8.0, **HEALTHY)
+    _run(health, 5.0, 6.5)  # re-initialised from ToTal, its innovations consistent again
+    degraded = health.verdict(6.5, **HEALTHY)
     assert degraded.status is Status.DEGRADED and "'wild.yaml') was applied: check it" in degraded.message
-    _run(health, 8.0, 16.0)
+    _run(health, 6.5, 7.5)
+    assert health.verdict(7.5, **HEALTHY).status is Status.TRACKING  # FAULT_HOLD_S after the last failure
+    _run(health, 7.5, 16.0)
     assert health.verdict(16.0, **HEALTHY).status is Status.TRACKING
     # lost long after the calibration: the NIS test alone, no calibration named
     late = health.verdict(16.0, **{**HEALTHY, "nis_lost": True})

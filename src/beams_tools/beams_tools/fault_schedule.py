@@ -51,11 +51,13 @@ DRAWS: dict[str, tuple[tuple[str, ...], tuple[float, float], float]] = {
     ),
     "parameter_change": (("good", "out_of_range", "wrong_type", "read_only"), (3.0, 3.0), 3.0),
     "calibration_reload": (("good", "rotation_bias_3rad", "power_bias_1e300", "malformed"), (3.0, 6.0), 4.0),
-    # files every start-up and reload check accepts, wrong for this sensor (campaign_faults.CORRECTIONS)
+    # files every start-up and reload check accepts, wrong for this sensor (campaign_faults.CORRECTIONS);
+    # after the good file is back, the EKF unlearns the bias its self-calibration took from the wrong one:
+    # lost, re-initialised and lost again for several seconds (the CI campaign of 2026-11-27)
     "wrong_calibration": (
         ("power_bias_outside_windows", "rotation_bias_under_limit", "power_bias_plausible"),
         (3.0, 6.0),
-        4.0,
+        10.0,
     ),
     "lifecycle": (
         ("deactivate_activate", "cleanup_configure_activate", "invalid_transition"),
