@@ -126,6 +126,13 @@ class Harness:
             return diagnostics.get("last_callback_exception", "?")
         return ""
 
+    def conclude(self, case: Any, problems: list[str]) -> None:
+        """One case's end: a failed callback is a problem too; the count starts again for the next case."""
+        if self.exceptions():
+            problems.append(f"a callback failed: {self.exceptions()}")
+        self.node.diagnostics.set("callback_exceptions", 0)
+        assert not problems, f"{case}: {problems[:5]}"
+
 
 def output_problems(harness: Harness, outputs: list[tuple[str, Any]]) -> list[str]:
     """The output invariants on every message, in REP-105's frames or the node's frame parameters when
@@ -359,10 +366,7 @@ def test_ekf_node_every_input_field_parameter_and_service(sim_time):
         problems += output_problems(harness, outputs)
         if not estimates or error_m(estimates[-1].pose.pose) > POSE_BOUND_M:
             problems.append(f"no true pose afterwards: {estimates[-1].pose.pose if estimates else 'nothing'}")
-        if harness.exceptions():
-            problems.append(f"a callback failed: {harness.exceptions()}")
-        node.diagnostics.set("callback_exceptions", 0)
-        assert not problems, f"{case}: {problems[:5]}"
+        harness.conclude(case, problems)
 
     _settings()(given(cases)(walked(check, explicit_cases)))()
 
@@ -449,10 +453,7 @@ def test_triangulation_node_every_input_field_and_parameter(sim_time):
         accepted = [m for topic, m in outputs if topic.endswith("beams/pose") and m.accepted]
         if not accepted or error_m(accepted[-1].pose.pose) > POSE_BOUND_M:
             problems.append(f"no true pose afterwards: {accepted[-1].pose.pose if accepted else 'nothing'}")
-        if harness.exceptions():
-            problems.append(f"a callback failed: {harness.exceptions()}")
-        node.diagnostics.set("callback_exceptions", 0)
-        assert not problems, f"{case}: {problems[:5]}"
+        harness.conclude(case, problems)
 
     _settings()(given(cases)(walked(check, explicit_cases)))()
 
@@ -591,10 +592,7 @@ def test_calibration_node_every_request_field_bearing_field_and_parameter(sim_ti
         if not answer.success:
             afterwards.append(f"no good capture afterwards: {answer.message}")
         problems += afterwards
-        if harness.exceptions():
-            problems.append(f"a callback failed: {harness.exceptions()}")
-        node.diagnostics.set("callback_exceptions", 0)
-        assert not problems, f"{case}: {problems[:5]}"
+        harness.conclude(case, problems)
 
     _settings()(given(cases)(walked(check, explicit_cases)))()
 
@@ -712,9 +710,6 @@ def test_driver_node_every_input_field_service_field_and_parameter(sim_time):
             abs(math.remainder(last[i] - truth[i], math.tau)) > 0.01 for i in last
         ):
             problems.append(f"no true bearings afterwards: {last}")
-        if harness.exceptions():
-            problems.append(f"a callback failed: {harness.exceptions()}")
-        node.diagnostics.set("callback_exceptions", 0)
-        assert not problems, f"{case}: {problems[:5]}"
+        harness.conclude(case, problems)
 
     _settings()(given(cases)(walked(check, explicit_cases)))()

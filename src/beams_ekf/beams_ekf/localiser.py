@@ -184,10 +184,11 @@ class Localiser:
             self._break_continuity("a time jump (odometry stamps went back)")
             latest = None
         self.stats.counts["odometry"] += 1
+        increment = None if latest is None else between(latest[1], odom_pose)
         jump = (
             ""
-            if latest is None
-            else odometry_step_problem(stamp_s - latest[0], between(latest[1], odom_pose), self.motion_limits)
+            if increment is None
+            else odometry_step_problem(stamp_s - latest[0], increment, self.motion_limits)
         )
         if jump:
             self._rereference(stamp_s, odom_pose, stamp_s - latest[0], jump)
@@ -203,7 +204,7 @@ class Localiser:
             # simulator's new match) or a robot pushed meanwhile is not followed
             self._break_continuity(f"an odometry silence of {stamp_s - latest[0]:.1f} s")
         self._late.advance(latest[0], latest[1], stamp_s, odom_pose)
-        self.separations.moved(between(latest[1], odom_pose), self.ekf.pose[2])
+        self.separations.moved(increment, self.ekf.pose[2])
         self._late.append(stamp_s, odom_pose)
         self._stamp_s = stamp_s
         self._late.apply_pending(stamp_s)
