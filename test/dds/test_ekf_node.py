@@ -68,19 +68,31 @@ class _Feeder:
             "ekf_node did not subscribe to its inputs within 20 s"
         )
 
-    def play(self, match, until_s: float, start_s: float = 0.0, speed: float = 2.0) -> None:
-        """Odometry (50 Hz) and revolutions in arrival order, `speed` times faster than real time."""
+    def play(
+        self,
+        match,
+        until_s: float,
+        start_s: float = 0.0,
+        speed: float = 2.0,
+        odometry: bool = True,
+        revolutions: bool = True,
+    ) -> None:
+        """Odometry (50 Hz) and revolutions in arrival order, `speed` times faster than real time; either
+        left out on request."""
         from itertools import groupby
 
-        revolutions = [list(g) for _, g in groupby(match.bearings, key=lambda b: b.arrival_s)]
+        turns = (
+            [list(g) for _, g in groupby(match.bearings, key=lambda b: b.arrival_s)] if revolutions else []
+        )
         r = 0
         for k, t in enumerate(match.times_s):
             if not start_s <= t < until_s:
                 continue
-            self.odom.publish(_odometry(float(t), match.odometry[k]))
-            while r < len(revolutions) and revolutions[r][0].arrival_s <= t:
-                if revolutions[r][0].arrival_s >= start_s:
-                    self.bearings.publish(_revolution(revolutions[r]))
+            if odometry:
+                self.odom.publish(_odometry(float(t), match.odometry[k]))
+            while r < len(turns) and turns[r][0].arrival_s <= t:
+                if turns[r][0].arrival_s >= start_s:
+                    self.bearings.publish(_revolution(turns[r]))
                 r += 1
             self.graph.spin_for(0.02 / speed)
 
@@ -109,10 +121,14 @@ def _assert_map_to_odom_places_the_odometry_on_the_estimate(transforms, outputs,
     from beams_common.ros.messages import stamp_to_seconds
 
     # one stamp may carry two estimates (after the odometry, then after a revolution's bearings at that
-    # same odometry instant): a transform must match one of the estimates published with its stamp
+    # same odometry instant): a transform must match one of the estimates published with its stamp,
+    # and each stamp goes to /tf once (tf2 ignores a repeated stamp, logging TF_REPEATED_DATA)
     estimates: dict[tuple[int, int], list] = {}
     for output in outputs:
         estimates.setdefault((output.header.stamp.sec, output.header.stamp.nanosec), []).append(output)
+    stamps = [(m.transforms[0].header.stamp.sec, m.transforms[0].header.stamp.nanosec) for m in transforms]
+    assert len(set(stamps)) == len(stamps), f"{len(stamps) - len(set(stamps))} transforms at a repeated stamp"
+    assert any(len(same) > 1 for same in estimates.values()), "no estimate refined at a published instant"
     checked = 0
     for message in transforms:
         (transform,) = message.transforms
@@ -182,13 +198,19 @@ def test_ekf_node_tracks_and_resets(start_node, rclpy_node, match, total_pose_me
         ),
         5.0,
     )
+    # a revolution after the timer published its odometry's instant: the estimate refined at that stamp
+    feeder.play(match, start_s=3.0, until_s=3.25, revolutions=False)
+    rclpy_node.spin_for(0.2)
+    count = len(outputs)
+    feeder.play(match, start_s=3.1, until_s=3.25, odometry=False)
+    assert rclpy_node.spin_until(lambda: len(outputs) > count, 5.0), "no estimate after the revolutions"
     _assert_map_to_odom_places_the_odometry_on_the_estimate(transforms, outputs, match)
 
     answer = rclpy_node.call(Trigger, "/ekf_node/reset", Trigger.Request(), 10.0)
     assert answer.success
     rclpy_node.spin_for(0.3)
     count = len(outputs)
-    feeder.play(match, start_s=3.0, until_s=3.5)
+    feeder.play(match, start_s=3.25, until_s=3.75)
     rclpy_node.spin_for(0.3)
     assert len(outputs) == count, "published after a reset without a new pose"
 

@@ -129,6 +129,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         self._last_odometry_stamp: tuple[float, Time] | None = None
         self._published_stamp_s: float | None = None
         self._changed = False  # a bearing or pose changed the estimate since the last publication
+        self._tf_stamp_s: float | None = None
 
         self.odometry_publisher = self.create_publisher(Odometry, topics.EKF_ODOMETRY, 10)
         self.pose_publisher = self.create_publisher(PoseWithCovarianceStamped, topics.EKF_POSE, 10)
@@ -358,7 +359,10 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         self.odometry_publisher.publish(odometry)
         self.pose_publisher.publish(self._pose)
         map_to_odom = estimate.map_to_odom
-        if self.tf_publisher is not None and map_to_odom is not None:
+        # tf2 ignores (and logs) a transform at a stamp it holds: a refinement at the same instant (a
+        # revolution's bearings, a re-initialisation) goes out with the next odometry's stamp
+        if self.tf_publisher is not None and map_to_odom is not None and estimate.stamp_s != self._tf_stamp_s:
+            self._tf_stamp_s = estimate.stamp_s
             set_planar_tf(self._tf, map_to_odom)
             self.tf_publisher.publish(self._tf)
 

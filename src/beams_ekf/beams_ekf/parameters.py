@@ -57,7 +57,11 @@ EKF_PARAMETERS = ParameterTable(
         ParameterSpec("map_frame", "map", "Frame of the estimate (REP-105)."),
         ParameterSpec("base_frame", "base_link", "The robot's frame (child)."),
         ParameterSpec("odom_frame", "odom", "The odometry's frame (child of the map -> odom transform)."),
-        ParameterSpec("publish_tf", True, "Publish the map -> odom transform on /tf."),
+        ParameterSpec(
+            "publish_tf",
+            True,
+            "Publish the map -> odom transform on /tf, once per estimate stamp (tf2 ignores a repeated one).",
+        ),
         ParameterSpec(
             "publish_rate_hz", 20.0, "Rate of the published estimate (Hz).", minimum=0.1, maximum=1000.0
         ),

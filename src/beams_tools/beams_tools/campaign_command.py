@@ -41,8 +41,9 @@ from beams_tools.serial_feed import SerialFeed
 
 START_TIMEOUT_S = 90.0
 RSS_PERIOD_S = 5.0
-# diagnostic_msgs/DiagnosticStatus levels, to name a status report's level in the reasons
-LEVEL_NAMES = {0: "OK", 1: "WARN", 2: "ERROR", 3: "STALE"}
+# the /diagnostics level of each LocalisationStatus code (waiting, tracking, degraded, lost), to name a
+# report's level in the reasons
+STATUS_LEVELS = {0: "WARN", 1: "OK", 2: "WARN", 3: "ERROR"}
 # the simulator's longest match (its duration_s maximum); the robot stands still after it
 SIM_MAX_MATCH_S = 600.0
 
@@ -206,11 +207,11 @@ class Campaign:
         figures = campaign_figures(
             ekf.reshape(-1, 6),
             truth.reshape(-1, 3),
-            status.reshape(-1, 2),
+            status.reshape(-1, 3),
             windows,
             self.t0_s + self.config.warmup_s,
             self.t0_s + self.config.duration_s,
-            [(stamp, f"{LEVEL_NAMES.get(level, level)}: {text}") for stamp, level, text in messages],
+            [(stamp, f"{STATUS_LEVELS.get(code, code)}: {text}") for stamp, code, text in messages],
         )
         np.savez(
             self.log_dir / "series.npz",
@@ -219,7 +220,7 @@ class Campaign:
             status=status,
             t0_s=self.t0_s,
             status_stamps=np.array([row[0] for row in messages], dtype=float),
-            status_levels=np.array([row[1] for row in messages], dtype=int),
+            status_codes=np.array([row[1] for row in messages], dtype=int),
             status_messages=np.array([row[2] for row in messages], dtype=str),
         )
         if probe.duplicate_estimates:

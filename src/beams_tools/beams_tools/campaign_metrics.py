@@ -2,9 +2,9 @@
 synthetic data. Their definitions (hazardously misleading time, availability): docs/fault_campaign.md.
 
 Every time is a ROS stamp in seconds. The series: the EKF's estimates, rows (stamp, x, y, var_xx, cov_xy,
-var_yy); the truth, rows (stamp, x, y); the EKF's status reports, rows (report stamp, tracking 1/0: the
-/diagnostics `status` value, as beams/ekf/status says it, whatever a refusal adds to the level), and
-optionally their messages (report stamp, message), which say why the time that was not available was not
+var_yy); the truth, rows (stamp, x, y); the EKF's status reports on beams/ekf/status, rows (report stamp,
+tracking 1/0, the stamp of the estimate it judges: `estimate_stamp`, NaN when unknown), and optionally their
+messages (report stamp, message), which say why the time that was not available was not
 (`unavailable_reasons`)."""
 
 import math
@@ -64,25 +64,51 @@ def sigma_along(error_xy: np.ndarray, covariance_rows: np.ndarray) -> np.ndarray
     return np.sqrt(np.maximum(variance, 0.0))
 
 
+def _status_rows(status: np.ndarray) -> np.ndarray:
+    """Status reports as rows (report stamp, tracking, estimate stamp) in the order received; a report
+    without its estimate's stamp (two columns) names none."""
+    status = np.asarray(status, dtype=float)
+    status = status.reshape(-1, status.shape[-1] if status.ndim == 2 else 2)
+    if status.shape[1] == 2:
+        status = np.column_stack([status, np.full(len(status), np.nan)])
+    return status
+
+
 def status_of(stamps: np.ndarray, status: np.ndarray, report: str = "next") -> np.ndarray:
-    """Tracking (bool) at each stamp: by the first report stamped at or after it (report="next"; False
-    after the last report), or by the last report stamped at or before it (report="last"; False before
-    the first). A report holds STATUS_VALIDITY_S (its valid_until on the status topic): past it the node
+    """Tracking (bool) at each stamp: by the report about the estimate of that stamp, else the first
+    report stamped at or after it (report="next"; False after the last report), or by the last report
+    stamped at or before it (report="last"; False before the first).
+
+    "next" judges an estimate as a consumer comparing `estimate_stamp` does (docs/status.md): when
+    reports name its stamp, the last of them received (an estimate re-made at the instant of one already
+    published, an operator's pose, is judged by what the node said of the new one); otherwise by the
+    report that followed it, so that a node finding a fault at its next report is not blamed for the
+    report it had not made yet. A report holds STATUS_VALIDITY_S (its valid_until): past it the node
     stopped saying it (hung, dead) and a consumer takes it as lost, so a stamp the last report no longer
     covers is not tracking either way."""
-    status = np.asarray(status, dtype=float).reshape(-1, 2)
+    rows = _status_rows(status)
     stamps = np.asarray(stamps, dtype=float)
-    if len(status) == 0:
+    if len(rows) == 0:
         return np.zeros(len(stamps), dtype=bool)
-    status = status[np.argsort(status[:, 0], kind="stable")]
-    tracking = status[:, 1] > 0.5
-    last = np.searchsorted(status[:, 0], stamps, side="right") - 1
-    expired = (last >= 0) & (stamps > status[np.maximum(last, 0), 0] + STATUS_VALIDITY_S)
-    if report == "next":
-        return np.append(tracking, False)[np.searchsorted(status[:, 0], stamps, side="left")] & ~expired
+    order = np.argsort(rows[:, 0], kind="stable")
+    said_s, tracking = rows[order, 0], rows[order, 1] > 0.5
+    last = np.searchsorted(said_s, stamps, side="right") - 1
+    expired = (last >= 0) & (stamps > said_s[np.maximum(last, 0)] + STATUS_VALIDITY_S)
     if report == "last":
         return np.insert(tracking, 0, False)[last + 1] & ~expired
-    raise ValueError(f"report must be 'next' or 'last', got {report!r}")
+    if report != "next":
+        raise ValueError(f"report must be 'next' or 'last', got {report!r}")
+    result = np.append(tracking, False)[np.searchsorted(said_s, stamps, side="left")]
+    about = {
+        stamp: value > 0.5
+        for stamp, value in zip(rows[:, 2], rows[:, 1], strict=True)
+        if math.isfinite(stamp)
+    }
+    if about:  # the last report received about each stamp
+        result = np.array(
+            [about.get(stamp, default) for stamp, default in zip(stamps, result, strict=True)], dtype=bool
+        )
+    return result & ~expired
 
 
 def sample_spans(stamps: np.ndarray) -> np.ndarray:

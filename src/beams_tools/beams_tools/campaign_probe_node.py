@@ -1,6 +1,6 @@
 """The fault campaign's probe: its rclpy node records the simulator's truth (from the raw topic: only the
-real simulator publishes there), the EKF's estimates and its /diagnostics, publishes the bad messages and
-makes the service calls, parameter changes and lifecycle transitions, each answer awaited at most
+real simulator publishes there), the EKF's estimates and its status (beams/ekf/status), publishes the bad
+messages and makes the service calls, parameter changes and lifecycle transitions, each answer awaited at most
 CALL_TIMEOUT_S while it keeps recording."""
 
 import collections
@@ -10,7 +10,6 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import PoseWithCovarianceStamped
 from lifecycle_msgs.msg import Transition
 from lifecycle_msgs.srv import ChangeState
@@ -20,7 +19,7 @@ from rcl_interfaces.srv import GetParameters, SetParameters
 from beams_common.interfaces import topics
 from beams_common.interfaces.bearing_messages import BearingFields, nanoseconds
 from beams_common.ros.messages import bearing_array, pose2d_of, seconds_to_stamp, stamp_to_seconds
-from beams_msgs.msg import BeaconBearingArray
+from beams_msgs.msg import BeaconBearingArray, LocalisationStatus
 from beams_tools.campaign_metrics import CallRecord
 from beams_tools.campaign_processes import NODES
 
@@ -42,8 +41,10 @@ class Probe:
         # entered the main host's namespace
         import rclpy
         from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import QoSProfile
 
         from beams_common.ros.node_support import BEARINGS_QOS
+        from beams_common.ros.status_topic import STATUS_QOS
 
         self.context = rclpy.Context()
         rclpy.init(context=self.context, domain_id=domain_id)
@@ -57,12 +58,16 @@ class Probe:
         self._recent_lock = threading.Lock()
         self.ekf: list[tuple[float, ...]] = []
         self.duplicate_estimates = 0  # received from a second ekf_node (duplicate_publisher/ekf)
-        self.status: list[tuple[float, float]] = []
-        self.status_messages: list[tuple[float, int, str]] = []  # (stamp, level, message) of the EKF
+        self.status: list[tuple[float, float, float]] = []  # (stamp, tracking, estimate stamp)
+        self.status_messages: list[tuple[float, int, str]] = []  # (stamp, status code, message)
         node = self.node
         node.create_subscription(Odometry, topics.GROUND_TRUTH + "_raw", self._on_truth, 100)
         node.create_subscription(Odometry, topics.EKF_ODOMETRY, self._on_ekf, 100)
-        node.create_subscription(DiagnosticArray, topics.DIAGNOSTICS, self._on_diagnostics, 100)
+        # every report kept: the topic's depth of 1 would keep only the newest of a burst
+        status_qos = QoSProfile(
+            depth=100, reliability=STATUS_QOS.reliability, durability=STATUS_QOS.durability
+        )
+        node.create_subscription(LocalisationStatus, topics.EKF_STATUS, self._on_status, status_qos)
         # bearings and odom have one publisher by design (a second is said at ERROR, input_watch): the
         # probe's exist only while a bad-message fault uses them (open_publisher, close_publisher)
         self._publisher_kinds = {
@@ -124,16 +129,12 @@ class Probe:
         p = msg.pose.pose.position
         self.ekf.append((stamp_to_seconds(msg.header.stamp), p.x, p.y, c[0], c[1], c[7]))
 
-    def _on_diagnostics(self, msg) -> None:
-        for status in msg.status:
-            if status.name == f"/{NODES['ekf'].executable}: ekf":
-                # the status a consumer of beams/ekf/status reads, whatever a refusal or condition
-                # adds to the diagnostic's level: the misleading test judges what users rely on
-                values = {pair.key: pair.value for pair in status.values}
-                tracking = values.get("status") == "tracking"
-                stamp_s = stamp_to_seconds(msg.header.stamp)
-                self.status.append((stamp_s, 1.0 if tracking else 0.0))
-                self.status_messages.append((stamp_s, ord(status.level), status.message))
+    def _on_status(self, msg) -> None:
+        # what a consumer of beams/ekf/status reads: the misleading test judges what users rely on
+        stamp_s = stamp_to_seconds(msg.header.stamp)
+        tracking = 1.0 if msg.status == LocalisationStatus.TRACKING else 0.0
+        self.status.append((stamp_s, tracking, stamp_to_seconds(msg.estimate_stamp)))
+        self.status_messages.append((stamp_s, msg.status, msg.message))
 
     def pose_at(self, host_s: float) -> tuple[float, float, float] | None:
         """The true pose at a host time: interpolated among the recent poses, extrapolated past the newest

@@ -255,6 +255,28 @@ def test_an_estimate_takes_the_status_of_the_next_report_and_availability_the_la
     assert list(status_of(stamps, status, report="last")) == [False, True, True, False, True]
 
 
+def test_an_estimate_re_made_at_a_published_instant_takes_the_last_report_that_names_its_stamp():
+    """An operator's pose 0.5 m off taken at the newest odometry's instant (3.0 s), where a good estimate
+    was published: a tracking report about 3.0 s came before it, a degraded one after. Both estimates
+    of 3.0 s take the degraded one (a consumer comparing estimate_stamp reads it), stamped later than
+    the tracking report the next-report rule would pick; were the last report about 3.0 s tracking,
+    the wrong one is misleading."""
+    truth = _straight_truth(0.0, 5.0)
+    ekf = _estimates(truth, 0.0, 0.01, 0.0, 5.0)
+    at = np.flatnonzero(np.isclose(ekf[:, 0], 3.0))[0]
+    wrong = ekf[at].copy()
+    wrong[1] += 0.5
+    ekf = np.insert(ekf, at + 1, wrong, axis=0)
+    t3 = ekf[at, 0]
+    said = [(t, True, t) for t in (1.0, 2.0)] + [(3.01, True, t3), (3.016, False, t3), (4.0, True, 4.0)]
+    judged = judge(ekf, truth, np.array(said, dtype=float))
+    assert not np.any(judged.misleading)
+    assert list(status_of(np.array([t3, 3.5]), np.array(said, dtype=float))) == [False, True]
+    said[3] = (3.016, True, t3)
+    judged = judge(ekf, truth, np.array(said, dtype=float))
+    assert judged.error_m[judged.misleading] == pytest.approx([0.5], abs=1e-6)
+
+
 def test_the_truth_is_unknown_across_a_silence_and_such_estimates_are_not_judged():
     truth = _straight_truth(0.0, 10.0)
     truth = truth[(truth[:, 0] < 4.0) | (truth[:, 0] > 5.0)]  # a restarted simulator: one second of silence
