@@ -126,6 +126,10 @@ class KidnapEvidence:
 # An excluded beacon's bearings in a row within the gate after which ToTal's fixes (which use it) may
 # re-initialise a lost filter again: one revolution of it is a single draw, three are evidence.
 AGREEING_AGAIN = 3
+# A gated bearing is a fault detected until its beacon's next bearing is accepted, or until this many
+# bearings of the other beacons (three revolutions of two) were accepted without it: it was not applied, a
+# beacon hidden after it leaves the others to judge the estimate.
+DETECTION_HOLD_BEARINGS = 6
 
 
 class BeaconExclusion:
@@ -140,7 +144,8 @@ class BeaconExclusion:
     `readmission_bearings` of them in a row pass the gate with normalised residuals r / sqrt(S) whose
     mean is zero within 3 sigma (|sum| <= 3 sqrt(n)): a bias that lets single bearings through (a moved
     beacon seen along its displacement) is not readmitted. One beacon at most (a single fault: with two
-    beacons left, a second disagreeing one cannot be told from the first). `gated_bearings` 0 switches
+    beacons left, a second disagreeing one cannot be told from the first). Each gated bearing is a fault
+    detected at once (`problem`, DETECTION_HOLD_BEARINGS). `gated_bearings` 0 switches the detection and
     the exclusion off.
     """
 
@@ -153,6 +158,7 @@ class BeaconExclusion:
         self.suspect: int | None = None
         self._gated_in_a_row: dict[int, int] = {}
         self._others_agreed: dict[int, bool] = {}  # since the first of the beacon's gated bearings
+        self._detected: dict[int, int] = {}  # a gated beacon: the others' bearings accepted since
         self._agreeing: list[float] = []  # the excluded beacon's normalised residuals in a row
 
     def add(self, beacon_id: int, outcome: BearingOutcome, trusted: bool = True) -> str:
@@ -170,9 +176,16 @@ class BeaconExclusion:
             return "readmitted"
         if outcome.reason is not BearingReason.GATED:
             self._gated_in_a_row[beacon_id] = 0
+            self._detected.pop(beacon_id, None)
             for other in self._others_agreed:
                 self._others_agreed[other] = self._others_agreed[other] or other != beacon_id
+            for other, accepted in list(self._detected.items()):
+                self._detected[other] = accepted + 1
+                if accepted + 1 >= DETECTION_HOLD_BEARINGS:
+                    del self._detected[other]
             return ""
+        if self._gated_bearings:
+            self._detected[beacon_id] = 0
         in_a_row = self._gated_in_a_row.get(beacon_id, 0) + 1
         self._gated_in_a_row[beacon_id] = in_a_row
         if in_a_row == 1:
@@ -197,9 +210,14 @@ class BeaconExclusion:
 
     @property
     def problem(self) -> str:
-        """Why the status is degraded while a beacon is excluded, or ''."""
+        """Why the status is degraded while a beacon is excluded, or while a beacon's newest bearing was
+        gated (a fault detected, as RAIM's test alerts before its exclusion: the bias it shows may already
+        be in the estimate, within the gate), or ''."""
         if self.excluded is None:
-            return ""
+            if not self._detected:
+                return ""
+            detected = ", ".join(str(b) for b in sorted(self._detected))
+            return f"newest bearing of beacon {detected} gated: a fault detected, not yet excluded"
         return (
             f"beacon {self.excluded} excluded: its bearings disagree with the other beacons' (moved, "
             f"biased or reflected?); {len(self._agreeing)} of {self._readmission_bearings} agreeing "
@@ -212,6 +230,7 @@ class BeaconExclusion:
         self._filter.excluded_beacons = set()
         self._gated_in_a_row.clear()
         self._others_agreed.clear()
+        self._detected.clear()
         self._agreeing = []
 
 

@@ -17,7 +17,7 @@ from beams_common.geometry.bearing import Bearing
 from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
 from beams_common.status.health import BEARING_RATE_SPECS, ODOMETRY_RATE_SPEC, Status
 from beams_common.status.protection_level import INTEGRITY_SPECS
-from beams_ekf.consistency import BeaconExclusion, PoseConfirmation
+from beams_ekf.consistency import DETECTION_HOLD_BEARINGS, BeaconExclusion, PoseConfirmation
 from beams_ekf.ekf_health import EkfHealth
 from beams_ekf.localiser import Localiser, build_localiser, revolution_of
 from beams_ekf.outcomes import OdometryOutcome, PoseOutcome
@@ -138,12 +138,22 @@ def _statuses(steps: list[Step]) -> list[Status]:
     return [step.status for step in steps]
 
 
+def _tracking_but_detections(steps: list[Step]) -> bool:
+    """Tracking at every step but those degraded by a gated bearing alone (a fault detected, for a
+    revolution or a few: the gate takes out a bearing now and then), at most one step in ten (or one)."""
+    detected = [s for s in steps if s.status is not Status.TRACKING]
+    only = "degraded: newest bearing of beacon"
+    return all(s.message.startswith(only) and ";" not in s.message for s in detected) and (
+        len(detected) <= max(1, len(steps) // 10)
+    )
+
+
 def _tracking(drive: Drive) -> None:
     """Drive to EVENT_S: ToTal's first fix initialises the filter, tracking from its first bearings on."""
     steps = drive.until(EVENT_S)
     assert _statuses(steps[:2]) == [Status.WAITING, Status.DEGRADED]  # before and after the first fix
     assert "no accepted bearing" in steps[1].message and "confirmed" not in steps[1].message
-    assert set(_statuses(steps[2:])) == {Status.TRACKING}
+    assert _tracking_but_detections(steps[2:])
     assert drive.localiser.stats.counts["initialisations"] == 1
     assert drive.localiser.stats.counts["continuity_breaks"] == 0
 
@@ -155,7 +165,7 @@ def test_the_first_initialisation_from_total_is_tracking_at_once(match):
     # until the filter's first bearing (no accepted bearing yet), tracking from the next revolution on
     assert _statuses(steps[:3]) == [Status.WAITING, Status.DEGRADED, Status.TRACKING]
     assert steps[1].message == "degraded: no accepted bearing for 1000000.0 s: odometry only"
-    assert set(_statuses(steps[2:])) == {Status.TRACKING}
+    assert _tracking_but_detections(steps[2:])
     assert not any(step.misleading for step in steps)
 
 
@@ -171,7 +181,7 @@ def test_a_right_operator_pose_is_degraded_until_three_revolutions_agree(match):
     assert _statuses(steps[:3]) == [Status.DEGRADED, Status.DEGRADED, Status.TRACKING]
     assert "(3 of 9 agreeing bearings)" in steps[0].message
     assert "(6 of 9 agreeing bearings)" in steps[1].message
-    assert set(_statuses(steps[2:])) == {Status.TRACKING}
+    assert _tracking_but_detections(steps[2:])
     assert drive.localiser.stats.counts["pose_confirmations"] == 1
     assert max(step.error_m for step in steps) < 0.02
 
@@ -194,7 +204,7 @@ def test_an_operator_pose_half_a_metre_off_stays_degraded_until_the_kidnap_evide
     after = steps[len(wrong) :]
     assert "since a re-initialisation from ToTal after" in after[0].message
     assert _statuses(after[:4]) == [Status.DEGRADED] * 3 + [Status.TRACKING]
-    assert set(_statuses(after[3:])) == {Status.TRACKING}
+    assert _tracking_but_detections(after[3:])
     assert not any(step.misleading for step in steps)
 
 
@@ -332,7 +342,7 @@ def test_a_beacon_biased_half_a_degree_is_excluded_and_never_misleads(long_match
     assert Status.TRACKING not in _statuses(excluded)
     assert end_s < excluded[-1].arrival_s < end_s + 4.0
     after = [step for step in steps if step.arrival_s > excluded[-1].arrival_s + 0.5]
-    assert after and set(_statuses(after)) == {Status.TRACKING}
+    assert after and _tracking_but_detections(after)
     assert max(step.error_m for step in steps) < 0.01
     assert not any(step.misleading for step in steps)
 
@@ -409,6 +419,30 @@ def test_the_exclusion_needs_another_beacon_agreeing_and_a_trusted_estimate():
     for beacon in (2, 1, 2):
         off.add(beacon, GATED if beacon == 2 else ACCEPTED)
     assert off.suspect is None and not off.problem
+
+
+def test_a_gated_bearing_is_a_fault_detected_until_its_beacon_agrees_or_the_others_carry_on():
+    """The alert comes with the first gated bearing (the time to alert: one revolution), before the
+    exclusion's second: it ends with the beacon's next accepted bearing, or after DETECTION_HOLD_BEARINGS
+    of the other beacons' accepted without it (hidden after its gated bearing)."""
+    exclusion = _exclusion()
+    exclusion.add(1, ACCEPTED)
+    assert not exclusion.problem
+    exclusion.add(2, GATED)
+    assert "newest bearing of beacon 2 gated: a fault detected" in exclusion.problem
+    exclusion.add(2, ACCEPTED)
+    assert not exclusion.problem
+    exclusion.add(3, GATED)
+    held = []
+    for k in range(DETECTION_HOLD_BEARINGS):
+        held.append("beacon 3 gated" in exclusion.problem)
+        exclusion.add(1 + k % 2, ACCEPTED)
+    assert held == [True] * DETECTION_HOLD_BEARINGS and not exclusion.problem
+    exclusion.add(2, GATED)
+    exclusion.add(1, ACCEPTED)
+    exclusion.add(2, GATED)  # the second: the suspect, then excluded; its reason replaces the detection
+    exclusion.exclude(exclusion.suspect)
+    assert "beacon 2 excluded" in exclusion.problem and "a fault detected" not in exclusion.problem
 
 
 def test_an_excluded_beacon_is_readmitted_by_agreeing_bearings_of_zero_mean_only():

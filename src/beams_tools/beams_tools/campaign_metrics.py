@@ -218,6 +218,29 @@ class ClassFigures:
     misleading_s: float = 0.0
     availability: float = float("nan")
     max_misleading_error_m: float = 0.0
+    # the faults' times to alert (s): onset to the first report not tracking within the window, for the
+    # faults that raised one (a refused call or a fault the nodes absorb need none)
+    alerts_s: list[float] = field(default_factory=list)
+
+    def alert_summary(self) -> str:
+        if not self.alerts_s:
+            return f"0 of {self.faults} alerted"
+        p50, worst = np.median(self.alerts_s), max(self.alerts_s)
+        return f"{len(self.alerts_s)} of {self.faults} alerted, p50 {p50:.2f} s, worst {worst:.2f} s"
+
+
+def times_to_alert_s(status: np.ndarray, windows: Sequence[tuple[float, float]]) -> list[float]:
+    """Each window's (start, end) time from its start to the first report not tracking in it, for the
+    windows that had one."""
+    rows = _status_rows(status)
+    rows = rows[np.argsort(rows[:, 0], kind="stable")]
+    alerts = rows[rows[:, 1] <= 0.5, 0]
+    first = np.searchsorted(alerts, [start for start, _ in windows], side="left")
+    return [
+        float(alerts[k] - start)
+        for k, (start, end) in zip(first, windows, strict=True)
+        if k < len(alerts) and alerts[k] < end
+    ]
 
 
 @dataclass
@@ -282,6 +305,7 @@ def campaign_figures(
             misleading_s=misleading_time_s(judged, mask),
             availability=fraction(available[grid_mask]),
             max_misleading_error_m=max_error(mask),
+            alerts_s=times_to_alert_s(status, own),
         )
     return figures
 
@@ -350,13 +374,13 @@ class CampaignResult:
             "RSS growth (MB): " + ", ".join(f"{k} {v:+.1f}" for k, v in self.rss_growth_mb.items()),
             *self.notes,
             "per class: class | faults | window s | misleading s | availability % | "
-            "largest misleading error m",
+            "largest misleading error m | time to alert",
         ]
         for figures in f.per_class.values():
             lines.append(
                 f"  {figures.kind} | {figures.faults} | {figures.window_s:.1f} | "
                 f"{figures.misleading_s:.2f} | {100 * figures.availability:.1f} | "
-                f"{figures.max_misleading_error_m:.3g}"
+                f"{figures.max_misleading_error_m:.3g} | {figures.alert_summary()}"
             )
         if f.unavailable_outside_by_reason:
             lines.append("unavailable outside fault windows, by the EKF's status: seconds | reason")

@@ -16,6 +16,7 @@ from beams_tools.campaign_metrics import (
     judge,
     sigma_along,
     status_of,
+    times_to_alert_s,
     truth_at,
 )
 from beams_tools.fault_schedule import (
@@ -315,6 +316,17 @@ def test_figures_attribute_misleading_time_and_availability_to_the_fault_windows
     assert kill_availability == pytest.approx(1.0 - (2.0 - FRESH_S) / 6.0, abs=0.02)
     assert figures.availability_outside == pytest.approx(1.0)
     assert figures.outside_s == pytest.approx(34.0 - 4.0 - 6.0, abs=0.05)
+
+
+def test_a_faults_time_to_alert_is_its_onset_to_the_first_report_not_tracking_in_its_window():
+    said = _status([(t, True) for t in (1.0, 2.0, 3.0)] + [(3.3, False), (4.0, False), (5.0, True)])
+    windows = [(2.95, 4.5), (4.8, 6.0), (0.0, 0.5)]  # alerted 0.35 s after; never; no report
+    assert times_to_alert_s(said, windows) == pytest.approx([0.35])
+    truth = _straight_truth(0.0, 7.0)
+    figures = campaign_figures(
+        _estimates(truth, 0.0, 0.01, 0.0, 7.0), truth, said, [("hung_node", 2.95, 4.5)], 0.5, 6.5
+    )
+    assert figures.per_class["hung_node"].alert_summary() == "1 of 1 alerted, p50 0.35 s, worst 0.35 s"
 
 
 def test_unavailable_time_outside_the_windows_is_attributed_to_the_status_the_user_saw():
