@@ -254,12 +254,23 @@ class PoseConfirmation:
     needs no confirmation: its pose is the bearings' own (one revolution triangulated and gated by ToTal),
     while an operator's is no sensor's, and a re-initialisation after a kidnap or a lost test follows
     evidence that the world broke the estimate (the fix may straddle it).
+
+    A break within RELAPSE_BEARINGS accepted bearings of the last confirmation is a relapse: that
+    confirmation rested on too little (bearings wrong alike, a wrong calibration, agree with the wrong
+    pose ToTal made of them), so each relapse multiplies the bearings needed by RELAPSE_FACTOR (at most
+    MAX_RELAPSES times); RELAPSE_BEARINGS accepted after a confirmation forgive them.
     """
+
+    RELAPSE_BEARINGS = 90
+    RELAPSE_FACTOR = 3
+    MAX_RELAPSES = 2
 
     def __init__(self, confirming_bearings: int) -> None:
         self.confirming_bearings = confirming_bearings
         self._event = ""  # '' when confirmed
         self._run: list[int] = []  # beacon ids of the accepted bearings in a row since the event
+        self._relapses = 0
+        self._since_confirmed: int | None = None  # accepted bearings since the last confirmation
 
     @property
     def confirmed(self) -> bool:
@@ -270,22 +281,34 @@ class PoseConfirmation:
         """The event since which the estimate is unconfirmed ('' when confirmed)."""
         return self._event
 
+    @property
+    def needed(self) -> int:
+        """The accepted bearings in a row that confirm the estimate now."""
+        return self.confirming_bearings * self.RELAPSE_FACTOR**self._relapses
+
     def broken(self, event: str) -> None:
         """An event broke the estimate's continuity (no effect when the check is off)."""
         if self.confirming_bearings:
-            self._event = event
+            relapse = self._since_confirmed is not None and self._since_confirmed < self.RELAPSE_BEARINGS
+            self._relapses = min(self._relapses + 1, self.MAX_RELAPSES) if relapse else 0
+            self._event, self._since_confirmed = event, None
             self._run.clear()
 
     def add(self, beacon_id: int, gated: bool) -> bool:
         """One new bearing judged by the filter; True when it completes the confirmation."""
         if self.confirmed:
+            if self._since_confirmed is not None and not gated:
+                self._since_confirmed += 1
+                if self._since_confirmed >= self.RELAPSE_BEARINGS:
+                    self._relapses = 0
             return False
         if gated:
             self._run.clear()
             return False
         self._run.append(beacon_id)
-        if len(self._run) >= self.confirming_bearings and len(set(self._run)) >= CONFIRMING_BEACONS:
-            self.clear()
+        if len(self._run) >= self.needed and len(set(self._run)) >= CONFIRMING_BEACONS:
+            self._event, self._since_confirmed = "", 0
+            self._run.clear()
             return True
         return False
 
@@ -294,12 +317,13 @@ class PoseConfirmation:
         """Why the estimate is not confirmed, or ''."""
         if self.confirmed:
             return ""
+        relapse = f", {self._relapses} break(s) soon after a confirmation" if self._relapses else ""
         return (
             f"pose not yet confirmed by the bearings since {self._event} "
-            f"({len(self._run)} of {self.confirming_bearings} agreeing bearings)"
+            f"({len(self._run)} of {self.needed} agreeing bearings{relapse})"
         )
 
     def clear(self) -> None:
-        """Confirmed (a reset: the next initialisation from ToTal is a first one)."""
-        self._event = ""
+        """Confirmed, relapses forgotten (a reset: the next initialisation from ToTal is a first one)."""
+        self._event, self._relapses, self._since_confirmed = "", 0, None
         self._run.clear()

@@ -421,6 +421,33 @@ def test_the_exclusion_needs_another_beacon_agreeing_and_a_trusted_estimate():
     assert off.suspect is None and not off.problem
 
 
+def test_a_break_soon_after_a_confirmation_needs_three_times_the_bearings_until_they_hold():
+    """A relapse (the campaign's wrong calibration: bearings wrong alike confirmed ToTal's wrong pose, which
+    broke again 1.6 s later, then was confirmed and 6.8 cm off while tracking): 27 bearings, then 81
+    (at most), then forgiven after RELAPSE_BEARINGS accepted."""
+    confirmation = PoseConfirmation(9)
+
+    def confirm(bearings: int) -> list[bool]:
+        return [confirmation.add(1 + k % 3, gated=False) for k in range(bearings)]
+
+    confirmation.broken("a re-initialisation from ToTal after a kidnap")
+    assert confirm(9)[-1] and confirmation.confirmed
+    confirm(30)
+    needed = []
+    for _ in range(3):
+        confirmation.broken("a re-initialisation from ToTal after a kidnap")
+        needed.append(confirmation.needed)
+        relapses = min(len(needed), PoseConfirmation.MAX_RELAPSES)
+        assert confirmation.problem.endswith(
+            f"(0 of {needed[-1]} agreeing bearings, {relapses} break(s) soon after a confirmation)"
+        )
+        assert not any(confirm(needed[-1] - 1)) and confirm(1) == [True]
+    assert needed == [27, 81, 81]
+    confirm(PoseConfirmation.RELAPSE_BEARINGS)
+    confirmation.broken("an operator's pose")
+    assert confirmation.needed == 9 and "break(s)" not in confirmation.problem
+
+
 def test_a_gated_bearing_is_a_fault_detected_until_its_beacon_agrees_or_the_others_carry_on():
     """The alert comes with the first gated bearing (the time to alert: one revolution), before the
     exclusion's second: it ends with the beacon's next accepted bearing, or after DETECTION_HOLD_BEARINGS
