@@ -279,6 +279,7 @@ class Diagnostics:
         self._last_sent: tuple[str, str] | None = None  # its (level, message)
         self._verdict: Verdict | None = None  # a localisation node's status (set_verdict)
         self.on_publish: Callable[[], None] | None = None  # told after each publication (StatusTopic)
+        self.before_publish: Callable[[], None] | None = None  # asked first: what is read once a second
         self._log = ThrottledLog(node.get_logger())
         self._publisher = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self._timer = node.create_timer(period_s, self.publish)
@@ -381,6 +382,8 @@ class Diagnostics:
         return bool(problem)
 
     def publish(self) -> None:
+        if self.before_publish is not None:
+            self.before_publish()
         verdict = self.verdict()
         if verdict is not None:  # a localisation node: its status under the conditions, as its topic says
             self._values["status"] = str(verdict.status)
