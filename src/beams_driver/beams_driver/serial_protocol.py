@@ -382,9 +382,8 @@ class FrameParser:
             self.problem = ""
         kind, sequence, timer = _HEADER.unpack_from(buffer, start + 2)
         if kind == _HELLO_KIND:
-            version, flags, timer_hz, ticks, dropped = _HELLO_FIELDS.unpack_from(
-                buffer, crc_at - _HELLO_FIELDS.size
-            )
+            fields = _HELLO_FIELDS.unpack_from(buffer, crc_at - _HELLO_FIELDS.size)  # before the CRC
+            version, flags, timer_hz, ticks, dropped = fields
             hello = DeviceHello(version, timer_hz, ticks, dropped, bool(flags & _HELLO_BOOT_FLAG))
             event = self._hello(sequence, timer, hello)
         else:

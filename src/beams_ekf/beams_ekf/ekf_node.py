@@ -46,8 +46,7 @@ from beams_common.ros.node_support import (
     BEARINGS_QOS,
     TF_QOS,
     Diagnostics,
-    refuse_implausible_stamp,
-    ros_now_s,
+    StampedInputs,
     run_node,
     serve_calibration_reload,
     startup_geometry,
@@ -108,7 +107,7 @@ class Checkpointed:
         super().destroy_node()
 
 
-class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
+class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, StampedInputs, Node):
     """ROS wiring of `Localiser` (see the module docstring)."""
 
     def __init__(self) -> None:
@@ -199,13 +198,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         return response
 
     # -- inputs ---------------------------------------------------------------------------------------
-    def _now_s(self) -> float:
-        return ros_now_s(self)
-
-    def _implausible_stamp(self, kind: str, what: str, stamp_s: float, now_s: float) -> bool:
-        checks = (self.stamp_check, self.diagnostics, self.health)
-        return refuse_implausible_stamp(*checks, kind, what, stamp_s, now_s)
-
     def _on_odometry(self, sample: OdometrySample) -> None:
         now_s = self._now_s()
         self.health.on_odometry(now_s)

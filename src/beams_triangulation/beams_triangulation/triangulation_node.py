@@ -38,8 +38,7 @@ from beams_common.ros.messages import (
 from beams_common.ros.node_support import (
     BEARINGS_QOS,
     Diagnostics,
-    refuse_implausible_stamp,
-    ros_now_s,
+    StampedInputs,
     run_node,
     serve_calibration_reload,
     startup_geometry,
@@ -54,7 +53,7 @@ from beams_triangulation.revolution import RevolutionPose
 from beams_triangulation.triangulation_health import TriangulationHealth
 
 
-class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
+class TriangulationNode(WatchedInputs, GuardedCallbacks, StampedInputs, Node):
     """ROS wiring of `pipeline.TriangulationPipeline` (see the module docstring)."""
 
     def __init__(self) -> None:
@@ -126,13 +125,6 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         return f"beacons {list(calibration.beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
 
     # -- inputs ---------------------------------------------------------------------------------------
-    def _now_s(self) -> float:
-        return ros_now_s(self)
-
-    def _implausible_stamp(self, kind: str, what: str, stamp_s: float, now_s: float) -> bool:
-        checks = (self.stamp_check, self.diagnostics, self.health)
-        return refuse_implausible_stamp(*checks, kind, what, stamp_s, now_s)
-
     def _on_odometry(self, sample: OdometrySample) -> None:
         now_s = self._now_s()
         self.health.on_odometry(now_s)
