@@ -162,9 +162,7 @@ class Probe:
         self.arrivals.total_stamps.append(seconds(msg.header.stamp))
 
     def spin_for(self, duration_s: float) -> None:
-        deadline = time.monotonic() + duration_s
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.005)
+        self.spin_until(lambda: False, duration_s)
 
     def spin_until(self, predicate, timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s

@@ -372,8 +372,7 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
         self.revolution_rate.update(now_s)
 
     def _show_source_health(self) -> None:
-        """The source's health on /diagnostics, read as it is published (Diagnostics.before_publish), not
-        at every 10 ms poll; while polling only: an inactive driver says nothing of its kept source."""
+        """The polled source's health, read when /diagnostics is published (not at every 10 ms poll)."""
         if self.source is None or self._poll_timer is None:
             return
         health = self.source.health()

@@ -79,8 +79,7 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, StampedInputs, Node):
         self.pose_publisher = self.create_publisher(TriangulatedPose, topics.POSE, 10)
         self.pose_cov_publisher = self.create_publisher(PoseWithCovarianceStamped, topics.POSE_COV, 10)
         self.marker_publisher = self.create_publisher(MarkerArray, topics.MARKERS, 10)
-        # the outputs, built once and filled at each publication (rclpy builds a message field by field),
-        # one header and one pose shared by the two
+        # the outputs, built once (rclpy builds a message field by field) and filled at each pose
         self._pose = TriangulatedPose()
         self._pose_cov = PoseWithCovarianceStamped(header=self._pose.header, pose=self._pose.pose)
         self.create_subscription(BeaconBearingArray, topics.BEARINGS, self._on_bearings, BEARINGS_QOS)

@@ -28,8 +28,7 @@ UNKNOWN_VARIANCE = 1e6
 
 
 class OdometrySample(NamedTuple):
-    """What the nodes read of a nav_msgs/Odometry: its stamp (s, and exact), pose (x, y, yaw), twist
-    (linear x, angular z)."""
+    """What the nodes read of a nav_msgs/Odometry: stamp (s, and exact), pose (x, y, yaw), twist (vx, wz)."""
 
     stamp_s: float
     sec: int
@@ -39,10 +38,9 @@ class OdometrySample(NamedTuple):
 
 
 def odometry_sample(data: "bytes | Odometry") -> OdometrySample:
-    """The OdometrySample of a serialised nav_msgs/Odometry (a raw subscription's): little-endian CDR read
-    at its fields' offsets (header, child_frame_id, pose.pose 8-aligned, 36 covariance entries,
-    twist.twist), rclpy's conversion into 15 message objects skipped; another encoding through rclpy's
-    deserialisation, and a message object (a test calling the callback) as it is."""
+    """The OdometrySample of a serialised nav_msgs/Odometry (a raw subscription's), read at its fields'
+    offsets in little-endian CDR (rclpy's conversion into 15 objects skipped); another encoding through
+    rclpy's deserialisation, a message object (a test calling the callback) as it is."""
     if isinstance(data, bytes) and data[:2] == b"\x00\x01":  # the encapsulation: CDR, little endian
         body = memoryview(data)[4:]  # CDR aligns from the body's start
         sec, nanosec, length = struct.unpack_from("<iII", body)
