@@ -28,7 +28,7 @@ from copy import deepcopy
 from dataclasses import dataclass, field
 
 import numpy as np
-from rows_table import bench_main, budget_row
+from rows_table import Row, bench_main, budget_row
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
@@ -47,7 +47,6 @@ FLOOD_RATE_FACTOR = 10
 FLOOD_S = 30.0
 RESTARTS = 4
 RECOVERY = "recovery within 2 s"
-Row = tuple[str, float, str, str]  # figure, value, unit, compared with
 REVOLUTION_RATE_HZ = 10.0
 CLOCK_TICKS_HZ = os.sysconf("SC_CLK_TCK")
 ROBOT = ("driver_node", "triangulation_node", "ekf_node")
