@@ -372,7 +372,7 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
         self.revolution_rate.update(now_s)
 
     def _show_source_health(self) -> None:
-        """The polled source's health, read when /diagnostics is published (not at every 10 ms poll)."""
+        """The polled source's health, read once a second for /diagnostics (not at every 10 ms poll)."""
         if self.source is None or self._poll_timer is None:
             return
         health = self.source.health()

@@ -279,10 +279,10 @@ class Diagnostics:
         self._last_sent: tuple[str, str] | None = None  # its (level, message)
         self._verdict: Verdict | None = None  # a localisation node's status (set_verdict)
         self.on_publish: Callable[[], None] | None = None  # told after each publication (StatusTopic)
-        self.before_publish: Callable[[], None] | None = None  # asked first: what is read once a second
+        self.before_publish: Callable[[], None] | None = None  # asked before each timed publication
         self._log = ThrottledLog(node.get_logger())
         self._publisher = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self._timer = node.create_timer(period_s, self.publish)
+        self._timer = node.create_timer(period_s, self._publish_periodically)
         self._clock_waits = 0
         if node.get_parameter("use_sim_time").value:
             # the node's timers run on /clock: without it they never fire, so watch on the steady clock
@@ -381,9 +381,13 @@ class Diagnostics:
             self.refuse("revolutions_too_many_bearings", f"revolution {message.revolution}: {problem}")
         return bool(problem)
 
-    def publish(self) -> None:
+    def _publish_periodically(self) -> None:
+        """The timer's publication, `before_publish` first (its failure is the guarded timer's)."""
         if self.before_publish is not None:
             self.before_publish()
+        self.publish()
+
+    def publish(self) -> None:
         verdict = self.verdict()
         if verdict is not None:  # a localisation node: its status under the conditions, as its topic says
             self._values["status"] = str(verdict.status)
