@@ -8,8 +8,8 @@ node's CPU (/proc/<pid>/stat), the three robot nodes' together also per CPU seco
 workload run alongside (a loaded machine slows both), and their resident memory; a flood of 10x the
 revolutions for 30 s (peak RSS, growth); kill -9 and SIGTERM restarts (delay to the first output). A
 budget row says `met` or `MISSED` (exit 1). `--source sim`: the driver simulates the sensor (its CPU
-includes the simulation); `virtual_turret`: the firmware in simavr (`make hil`). `--profile NODE`: NODE
-under cProfile during the latency window, NODE.prof written here (docs/performance.md), only those rows.
+includes the simulation); `virtual_turret`: the firmware in simavr (`make hil`). `--profile NODE[,NODE...]`:
+each under cProfile during the latency window, NODE.prof written here (docs/performance.md), only those rows.
 
 `--one-process`: driver_node, triangulation_node and ekf_node as nodes of one process (beams_bringup's
 robot), its rows named `robot`.
@@ -28,7 +28,7 @@ from copy import deepcopy
 from dataclasses import dataclass, field
 
 import numpy as np
-from rows_table import bench_main, budget_row
+from rows_table import Row, bench_main, budget_row
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
@@ -47,7 +47,6 @@ FLOOD_RATE_FACTOR = 10
 FLOOD_S = 30.0
 RESTARTS = 4
 RECOVERY = "recovery within 2 s"
-Row = tuple[str, float, str, str]  # figure, value, unit, compared with
 REVOLUTION_RATE_HZ = 10.0
 CLOCK_TICKS_HZ = os.sysconf("SC_CLK_TCK")
 ROBOT = ("driver_node", "triangulation_node", "ekf_node")
@@ -162,9 +161,7 @@ class Probe:
         self.arrivals.total_stamps.append(seconds(msg.header.stamp))
 
     def spin_for(self, duration_s: float) -> None:
-        deadline = time.monotonic() + duration_s
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.005)
+        self.spin_until(lambda: False, duration_s)
 
     def spin_until(self, predicate, timeout_s: float) -> bool:
         deadline = time.monotonic() + timeout_s
@@ -239,8 +236,9 @@ def rows(
         if source == "serial_feed":
             for name in {driver} if one_process else ("triangulation_node", "ekf_node"):
                 commands[name] += FEED_ARGUMENTS
-        if profile:
-            commands[profile][:0] = [sys.executable, "-c", PROFILED, f"{os.getcwd()}/{profile}.prof"]
+        profiled = [name for name in profile.split(",") if name]
+        for name in profiled:
+            commands[name][:0] = [sys.executable, "-c", PROFILED, f"{os.getcwd()}/{name}.prof"]
         # the bench restarts a node itself (restart_rows): it never polls the supervisor
         supervisor = NodeSupervisor(turret, env, pathlib.Path(log_dir))
         supervisor.start()
@@ -251,12 +249,12 @@ def rows(
                 supervisor.add(name, command)
             if not probe.spin_until(lambda: len(probe.arrivals.ekf) > 50, START_TIMEOUT_S):
                 raise RuntimeError(f"no EKF output within {START_TIMEOUT_S} s; logs in {log_dir}")
-            if profile:
-                os.kill(supervisor.pid(profile), signal.SIGUSR1)
+            for name in profiled:
+                os.kill(supervisor.pid(name), signal.SIGUSR1)
             table = latency_and_cpu_rows(probe, supervisor)
-            if profile:
-                os.kill(supervisor.pid(profile), signal.SIGUSR2)
-            else:
+            for name in profiled:
+                os.kill(supervisor.pid(name), signal.SIGUSR2)
+            if not profiled:
                 table += [memory_row(supervisor), *flood_rows(probe, supervisor, flood_s)]
                 table += restart_rows(probe, supervisor)
             return table if source == "serial_feed" else [(f"{source}: {f}", *rest) for f, *rest in table]

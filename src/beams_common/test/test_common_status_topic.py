@@ -146,3 +146,16 @@ def test_every_message_says_who_and_until_when_and_is_said_again_each_heartbeat(
         estimate.nanosec,
     )
     assert statuses[-1].horizontal_protection_level_m == 0.003
+
+
+def test_the_timed_publication_reads_before_publish_first(node):
+    """What a node reads once a second for /diagnostics (driver_node: its source's health) is read by the
+    timer's publication, into it; an ERROR published at once does not wait for it."""
+    timers = []
+    node.create_timer = lambda _period, callback, **_: timers.append(callback)
+    diagnostics = Diagnostics(node, "driver")
+    diagnostics.before_publish = lambda: diagnostics.set("source", "read")
+    diagnostics.set_condition("link", "error", "gone")
+    assert "source" not in [pair.key for pair in said(node)[1][-1].values]
+    timers[0]()
+    assert value(said(node)[1][-1], "source") == "read"

@@ -7,7 +7,6 @@ import traceback
 from collections.abc import Callable
 
 from lifecycle_msgs.srv import ChangeState
-from nav_msgs.msg import Odometry
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.lifecycle import LifecycleNode, LifecyclePublisher, LifecycleState, TransitionCallbackReturn
 from rclpy.node import Node
@@ -22,7 +21,7 @@ from beams_common.interfaces import topics
 from beams_common.interfaces.bearing_messages import BearingFields, nanoseconds
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
-from beams_common.ros.messages import bearing_array, pose2d_of, stamp_to_seconds
+from beams_common.ros.messages import OdometrySample, bearing_array
 from beams_common.ros.node_support import BEARINGS_QOS, Diagnostics, run_node, serve_calibration_reload
 from beams_common.ros.parameters import (
     ApplyChange,
@@ -70,12 +69,11 @@ class RosSourceHost:
         self._subscriptions: list[Subscription] = []
 
     def subscribe_poses(self, topic: str, callback: PoseCallback) -> None:
-        def on_message(msg: Odometry) -> None:
-            twist = (msg.twist.twist.linear.x, msg.twist.twist.angular.z)
-            callback(stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose), twist)
+        def on_sample(sample: OdometrySample) -> None:
+            callback(sample.stamp_s, sample.pose, sample.twist)
 
         self._subscriptions.append(
-            self._node.create_subscription(Odometry, topic, on_message, POSE_QUEUE_DEPTH)
+            self._node.create_odometry_subscription(topic, on_sample, POSE_QUEUE_DEPTH)
         )
 
     def release(self) -> None:
@@ -169,6 +167,7 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
         self.source: EdgeSource | None = None
         self._poll_timer: Timer | None = None
         self._stale_before_s: float | None = None
+        self.diagnostics.before_publish = self._show_source_health
         self.correction = BearingCorrection()
         # a mistyped autostart stops the node at once (exit 2): whether to wait is unknown
         self.autostart: bool = declare_table(self, LIFECYCLE_PARAMETERS)["autostart"]
@@ -371,6 +370,11 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
             self._publish(self.decoder.decode(edges))
         self.revolution_rate.tick(now_s, len(fresh))
         self.revolution_rate.update(now_s)
+
+    def _show_source_health(self) -> None:
+        """The polled source's health, read once a second for /diagnostics (not at every 10 ms poll)."""
+        if self.source is None or self._poll_timer is None:
+            return
         health = self.source.health()
         for key, value in health.values.items():
             self.diagnostics.set(key, value)

@@ -63,7 +63,7 @@ class EdgeSource(Protocol):
         """The revolutions completed since the last poll (called every few milliseconds)."""
 
     def health(self) -> SourceHealth:
-        """The source's state and counters for /diagnostics."""
+        """The source's state and counters, read for /diagnostics once a second."""
 
     def close(self) -> None:
         """Release what the source holds (a serial port); called once when the driver stops."""

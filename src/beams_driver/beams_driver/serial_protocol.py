@@ -6,6 +6,7 @@
 import binascii
 import itertools
 import math
+import statistics
 import struct
 from collections import Counter, deque
 from collections.abc import Callable, Iterable
@@ -370,8 +371,8 @@ class FrameParser:
         size = HELLO_SIZE if buffer[start + 2] == _HELLO_KIND else FRAME_SIZE
         if end - start < size:
             return 0
-        body = bytes(buffer[start + 2 : start + size - 2])
-        if crc16(body) != _CRC.unpack_from(buffer, start + size - 2)[0]:
+        crc_at = start + size - 2
+        if binascii.crc_hqx(buffer[start + 2 : crc_at], _CRC_INIT) != _CRC.unpack_from(buffer, crc_at)[0]:
             truncated = buffer.find(SYNC, start + 1, start + size) >= 0
             self.drops.add("truncated" if truncated else "bad_crc")
             self._gap = True
@@ -379,9 +380,10 @@ class FrameParser:
         self._v1_run = 0
         if self.problem == V1_STREAM_PROBLEM:
             self.problem = ""
-        kind, sequence, timer = _HEADER.unpack_from(body)
+        kind, sequence, timer = _HEADER.unpack_from(buffer, start + 2)
         if kind == _HELLO_KIND:
-            version, flags, timer_hz, ticks, dropped = _HELLO_FIELDS.unpack_from(body, _HEADER.size)
+            fields = _HELLO_FIELDS.unpack_from(buffer, crc_at - _HELLO_FIELDS.size)  # before the CRC
+            version, flags, timer_hz, ticks, dropped = fields
             hello = DeviceHello(version, timer_hz, ticks, dropped, bool(flags & _HELLO_BOOT_FLAG))
             event = self._hello(sequence, timer, hello)
         else:
@@ -508,9 +510,9 @@ class RevolutionAssembler:
         if len(self._spans) < MIN_MEASURED_SPANS:
             self._expected_span = float(self.ticks_per_revolution), self._min_tolerance_ticks
             return
-        spans = np.asarray(self._spans, dtype=float)
-        median = float(np.median(spans))
-        sigma = _MAD_TO_SIGMA * float(np.median(np.abs(spans - median)))
+        spans = [float(span) for span in self._spans]  # a few: numpy's median costs more than sorting
+        median = statistics.median(spans)
+        sigma = _MAD_TO_SIGMA * statistics.median([abs(span - median) for span in spans])
         self._expected_span = median, max(self._min_tolerance_ticks, SPAN_SIGMAS * sigma)
 
     def reset(self) -> None:

@@ -34,8 +34,8 @@ from beams_common.interfaces import topics
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
 from beams_common.ros.messages import (
+    OdometrySample,
     planar_tf_message,
-    pose2d_of,
     ros_covariance,
     seconds_to_stamp,
     set_planar_tf,
@@ -46,8 +46,7 @@ from beams_common.ros.node_support import (
     BEARINGS_QOS,
     TF_QOS,
     Diagnostics,
-    refuse_implausible_stamp,
-    ros_now_s,
+    StampedInputs,
     run_node,
     serve_calibration_reload,
     startup_geometry,
@@ -108,7 +107,7 @@ class Checkpointed:
         super().destroy_node()
 
 
-class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
+class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, StampedInputs, Node):
     """ROS wiring of `Localiser` (see the module docstring)."""
 
     def __init__(self) -> None:
@@ -142,7 +141,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         self._odometry.header.frame_id = self.map_frame
         self._pose = PoseWithCovarianceStamped(header=self._odometry.header, pose=self._odometry.pose)
         self._tf = planar_tf_message(self._odometry.header, self.odom_frame, (0.0, 0.0, 0.0))
-        self.create_subscription(Odometry, topics.ODOMETRY, self._on_odometry, qos_profile_sensor_data)
+        self.create_odometry_subscription(topics.ODOMETRY, self._on_odometry, qos_profile_sensor_data)
         self.create_subscription(BeaconBearingArray, topics.BEARINGS, self._on_bearings, BEARINGS_QOS)
         self.create_subscription(TriangulatedPose, topics.POSE, self._on_total_pose, 10)
         self.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE, self._operator_pose, 10)
@@ -199,20 +198,13 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
         return response
 
     # -- inputs ---------------------------------------------------------------------------------------
-    def _now_s(self) -> float:
-        return ros_now_s(self)
-
-    def _implausible_stamp(self, kind: str, what: str, stamp_s: float, now_s: float) -> bool:
-        checks = (self.stamp_check, self.diagnostics, self.health)
-        return refuse_implausible_stamp(*checks, kind, what, stamp_s, now_s)
-
-    def _on_odometry(self, msg: Odometry) -> None:
+    def _on_odometry(self, sample: OdometrySample) -> None:
         now_s = self._now_s()
         self.health.on_odometry(now_s)
-        stamp_s = stamp_to_seconds(msg.header.stamp)
+        stamp_s = sample.stamp_s
         if self._implausible_stamp("odometry", f"odometry at {stamp_s:.3f} s", stamp_s, now_s):
             return
-        outcome = self.localiser.on_odometry(stamp_s, pose2d_of(msg.pose.pose))
+        outcome = self.localiser.on_odometry(stamp_s, sample.pose)
         if outcome is OdometryOutcome.INVALID:
             self.diagnostics.refuse("odometry_refused", f"odometry at {stamp_s:.3f} s: non-finite pose")
         if outcome is OdometryOutcome.JUMPED:  # counted by the localiser as odometry_jumps
@@ -220,7 +212,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, Node):
             self.diagnostics.refuse("odometry_jumps_refused", reason)
             self.health.fault("odometry_jump", now_s, reason)
         if outcome.used:
-            self._last_odometry_stamp = (stamp_s, msg.header.stamp)
+            self._last_odometry_stamp = (stamp_s, Time(sec=sample.sec, nanosec=sample.nanosec))
         if outcome is OdometryOutcome.REFERENCE:  # a time jump resets what was published too
             self._published_stamp_s = None
         if self.localiser.unconfirmed and self.diagnostics.get("status") == Status.TRACKING:

@@ -15,8 +15,7 @@ import sys
 
 import numpy as np
 from builtin_interfaces.msg import Duration
-from geometry_msgs.msg import PoseWithCovariance, PoseWithCovarianceStamped
-from nav_msgs.msg import Odometry
+from geometry_msgs.msg import PoseWithCovarianceStamped
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from visualization_msgs.msg import Marker, MarkerArray
@@ -29,12 +28,17 @@ from beams_common.intake.validation import bounded, planar_estimate_problem
 from beams_common.interfaces import topics
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
-from beams_common.ros.messages import pose2d_of, pose_with_covariance, seconds_to_stamp, stamp_to_seconds
+from beams_common.ros.messages import (
+    OdometrySample,
+    ros_covariance,
+    seconds_to_stamp,
+    set_pose2d,
+    stamp_to_seconds,
+)
 from beams_common.ros.node_support import (
     BEARINGS_QOS,
     Diagnostics,
-    refuse_implausible_stamp,
-    ros_now_s,
+    StampedInputs,
     run_node,
     serve_calibration_reload,
     startup_geometry,
@@ -49,12 +53,7 @@ from beams_triangulation.revolution import RevolutionPose
 from beams_triangulation.triangulation_health import TriangulationHealth
 
 
-def estimate_pose_with_covariance(estimate: PoseEstimate) -> PoseWithCovariance:
-    """The estimate as geometry_msgs/PoseWithCovariance."""
-    return pose_with_covariance((estimate.x, estimate.y, estimate.heading), estimate.covariance)
-
-
-class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
+class TriangulationNode(WatchedInputs, GuardedCallbacks, StampedInputs, Node):
     """ROS wiring of `pipeline.TriangulationPipeline` (see the module docstring)."""
 
     def __init__(self) -> None:
@@ -80,9 +79,12 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         self.pose_publisher = self.create_publisher(TriangulatedPose, topics.POSE, 10)
         self.pose_cov_publisher = self.create_publisher(PoseWithCovarianceStamped, topics.POSE_COV, 10)
         self.marker_publisher = self.create_publisher(MarkerArray, topics.MARKERS, 10)
+        # the outputs, built once (rclpy builds a message field by field) and filled at each pose
+        self._pose = TriangulatedPose()
+        self._pose_cov = PoseWithCovarianceStamped(header=self._pose.header, pose=self._pose.pose)
         self.create_subscription(BeaconBearingArray, topics.BEARINGS, self._on_bearings, BEARINGS_QOS)
         if self.use_odometry:
-            self.create_subscription(Odometry, topics.ODOMETRY, self._on_odometry, qos_profile_sensor_data)
+            self.create_odometry_subscription(topics.ODOMETRY, self._on_odometry, qos_profile_sensor_data)
         config = settings.gates
         self.get_logger().info(
             f"triangulation_node ready: beacons {list(geometry.beacon_map.ids)}, turret offset "
@@ -122,21 +124,13 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         return f"beacons {list(calibration.beacon_map.ids)} and turret offset {tuple(offset)} m replaced"
 
     # -- inputs ---------------------------------------------------------------------------------------
-    def _now_s(self) -> float:
-        return ros_now_s(self)
-
-    def _implausible_stamp(self, kind: str, what: str, stamp_s: float, now_s: float) -> bool:
-        checks = (self.stamp_check, self.diagnostics, self.health)
-        return refuse_implausible_stamp(*checks, kind, what, stamp_s, now_s)
-
-    def _on_odometry(self, msg: Odometry) -> None:
+    def _on_odometry(self, sample: OdometrySample) -> None:
         now_s = self._now_s()
         self.health.on_odometry(now_s)
-        twist = (msg.twist.twist.linear.x, msg.twist.twist.angular.z)
-        stamp_s, pose = stamp_to_seconds(msg.header.stamp), pose2d_of(msg.pose.pose)
+        stamp_s = sample.stamp_s
         if self._implausible_stamp("odometry", f"odometry at {stamp_s:.3f} s", stamp_s, now_s):
             return
-        refused, completed = self.pipeline.take_odometry(stamp_s, pose, twist)
+        refused, completed = self.pipeline.take_odometry(stamp_s, sample.pose, sample.twist)
         if refused:
             self.diagnostics.refuse("odometry_rejected_non_finite", refused)
         jump = self.pipeline.last_odometry_jump
@@ -186,10 +180,11 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         if problem or not math.isfinite(stamp_s):  # the invariant of every published pose
             self.diagnostics.refuse("poses_not_published_invalid", problem or f"non-finite stamp {stamp_s}")
             return
-        message = TriangulatedPose()
-        message.header.stamp = seconds_to_stamp(stamp_s)
+        message = self._pose
+        message.header.stamp = seconds_to_stamp(stamp_s)  # a new Time: _accepted_stamp keeps the old one
         message.header.frame_id = self.map_frame
-        message.pose = estimate_pose_with_covariance(estimate)
+        set_pose2d(message.pose.pose, (estimate.x, estimate.y, estimate.heading))
+        message.pose.covariance = ros_covariance(estimate.covariance)
         message.inverse_abs_d = float(estimate.inverse_abs_d)
         message.beacon_ids = [int(i) for i in estimate.beacon_ids]
         message.accepted = bool(estimate.accepted)
@@ -197,8 +192,7 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
         self.pose_publisher.publish(message)
         if estimate.accepted:
             self._accepted_stamp = message.header.stamp
-            stamped = PoseWithCovarianceStamped(header=message.header, pose=message.pose)
-            self.pose_cov_publisher.publish(stamped)
+            self.pose_cov_publisher.publish(self._pose_cov)
         if self.publish_markers:
             self.marker_publisher.publish(self._markers(estimate, message.header))
         self._update_diagnostics(estimate, compensated)
@@ -232,7 +226,7 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, Node):
             markers.markers.append(beacon)
         colour = (0.1, 0.8, 0.1) if estimate.accepted else (0.9, 0.2, 0.1)
         arrow = self._marker(header, "pose", 0, Marker.ARROW, colour)
-        arrow.pose = estimate_pose_with_covariance(estimate).pose
+        set_pose2d(arrow.pose, (estimate.x, estimate.y, estimate.heading))
         arrow.scale.x, arrow.scale.y, arrow.scale.z = 0.2, 0.03, 0.03
         arrow.lifetime = lifetime
         markers.markers.append(arrow)

@@ -25,9 +25,11 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from nav_msgs.msg import Odometry
 from rclpy.clock import Clock, ClockType
 
 from beams_common.intake.stream_interleave import InterleaveDetector
+from beams_common.ros.messages import OdometrySample, odometry_sample
 
 GRAPH_CHECK_PERIOD_S = 0.5
 INTERLEAVE_HOLD_S = 1.0  # the message check's ERROR outlives the last switch by this long
@@ -55,6 +57,7 @@ SINGLE_SOURCE_INPUTS = {
     "nav_msgs/msg/Odometry": StreamKey(_stamp_s, max_step=1.0),
     "beams_msgs/msg/TriangulatedPose": StreamKey(_stamp_s, max_step=1.0),
 }
+ODOMETRY_SAMPLES = StreamKey(lambda sample: sample.stamp_s, max_step=1.0)
 # the outputs a second publisher makes untrustworthy: those types, and a localisation node's status
 SINGLE_SOURCE_OUTPUTS = (*SINGLE_SOURCE_INPUTS, "beams_msgs/msg/LocalisationStatus")
 # topics where several publishers are expected whatever their type
@@ -76,6 +79,13 @@ class WatchedInputs:
         if key is not None and resolved not in MANY_PUBLISHERS_ALLOWED and not kwargs.get("raw", False):
             callback = self._watch_input(resolved, key, callback)
         return super().create_subscription(msg_type, topic, callback, *args, **kwargs)
+
+    def create_odometry_subscription(self, topic: str, callback: Callable[[OdometrySample], None], qos: Any):
+        """Odometry to `callback` as `messages.odometry_sample`s (rclpy's conversion skipped), watched."""
+        watched = self._watch_input(self.resolve_topic_name(topic), ODOMETRY_SAMPLES, callback)
+        return self.create_subscription(
+            Odometry, topic, lambda raw: watched(odometry_sample(raw)), qos, raw=True
+        )
 
     def _watch_input(self, topic: str, key: StreamKey, callback: Callable) -> Callable:
         watched = self.__dict__.setdefault("_watched_inputs", {})

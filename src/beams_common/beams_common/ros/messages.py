@@ -5,12 +5,15 @@ row-major over (x, y, z, roll, pitch, yaw) and a planar estimate says nothing of
 """
 
 import math
+import struct
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Pose, PoseWithCovariance, TransformStamped
+from geometry_msgs.msg import Pose, TransformStamped
+from nav_msgs.msg import Odometry
+from rclpy.serialization import deserialize_message
 from std_msgs.msg import Header
 from tf2_msgs.msg import TFMessage
 
@@ -22,6 +25,36 @@ from beams_msgs.msg import BeaconBearing, BeaconBearingArray
 PLANAR_INDICES = (0, 1, 5)
 # Variance reported for z, roll and pitch, which a planar estimate does not know (REP-105 convention).
 UNKNOWN_VARIANCE = 1e6
+
+
+class OdometrySample(NamedTuple):
+    """What the nodes read of a nav_msgs/Odometry: stamp (s, and exact), pose (x, y, yaw), twist (vx, wz)."""
+
+    stamp_s: float
+    sec: int
+    nanosec: int
+    pose: Pose2D
+    twist: tuple[float, float]
+
+
+def odometry_sample(data: "bytes | Odometry") -> OdometrySample:
+    """The OdometrySample of a serialised nav_msgs/Odometry (a raw subscription's), read at its fields'
+    offsets in little-endian CDR (rclpy's conversion into 15 objects skipped); another encoding through
+    rclpy's deserialisation, a message object (a test calling the callback) as it is."""
+    if isinstance(data, bytes) and data[:2] == b"\x00\x01":  # the encapsulation: CDR, little endian
+        body = memoryview(data)[4:]  # CDR aligns from the body's start
+        sec, nanosec, length = struct.unpack_from("<iII", body)
+        offset = 12 + length + (-(12 + length) % 4)
+        offset += 4 + struct.unpack_from("<I", body, offset)[0]
+        offset += -offset % 8
+        x, y, _, qx, qy, qz, qw = struct.unpack_from("<7d", body, offset)
+        linear_x, _, _, _, _, angular_z = struct.unpack_from("<6d", body, offset + 43 * 8)
+        pose = (x, y, yaw_of_quaternion(qx, qy, qz, qw))
+        return OdometrySample(sec + 1e-9 * nanosec, sec, nanosec, pose, (linear_x, angular_z))
+    msg = data if isinstance(data, Odometry) else deserialize_message(data, Odometry)
+    stamp, twist = msg.header.stamp, msg.twist.twist
+    pose, seconds = pose2d_of(msg.pose.pose), stamp_to_seconds(stamp)
+    return OdometrySample(seconds, stamp.sec, stamp.nanosec, pose, (twist.linear.x, twist.angular.z))
 
 
 # rclpy's classes by their ROS names, for beams_common.interfaces.bearing_messages
@@ -89,11 +122,3 @@ def ros_covariance(planar: np.ndarray) -> np.ndarray:
     full = np.diag([0.0, 0.0, UNKNOWN_VARIANCE, UNKNOWN_VARIANCE, UNKNOWN_VARIANCE, 0.0])
     full[np.ix_(PLANAR_INDICES, PLANAR_INDICES)] = planar
     return full.ravel()
-
-
-def pose_with_covariance(planar: Pose2D, covariance: np.ndarray) -> PoseWithCovariance:
-    """geometry_msgs/PoseWithCovariance of a planar pose and its 3x3 covariance."""
-    message = PoseWithCovariance()
-    set_pose2d(message.pose, planar)
-    message.covariance = ros_covariance(covariance)
-    return message

@@ -279,9 +279,10 @@ class Diagnostics:
         self._last_sent: tuple[str, str] | None = None  # its (level, message)
         self._verdict: Verdict | None = None  # a localisation node's status (set_verdict)
         self.on_publish: Callable[[], None] | None = None  # told after each publication (StatusTopic)
+        self.before_publish: Callable[[], None] | None = None  # asked before each timed publication
         self._log = ThrottledLog(node.get_logger())
         self._publisher = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
-        self._timer = node.create_timer(period_s, self.publish)
+        self._timer = node.create_timer(period_s, self._publish_periodically)
         self._clock_waits = 0
         if node.get_parameter("use_sim_time").value:
             # the node's timers run on /clock: without it they never fire, so watch on the steady clock
@@ -380,6 +381,12 @@ class Diagnostics:
             self.refuse("revolutions_too_many_bearings", f"revolution {message.revolution}: {problem}")
         return bool(problem)
 
+    def _publish_periodically(self) -> None:
+        """The timer's publication, `before_publish` first (its failure is the guarded timer's)."""
+        if self.before_publish is not None:
+            self.before_publish()
+        self.publish()
+
     def publish(self) -> None:
         verdict = self.verdict()
         if verdict is not None:  # a localisation node: its status under the conditions, as its topic says
@@ -451,26 +458,21 @@ def _format_value(value: Any) -> str:
     return f"{value:.6g}" if isinstance(value, float) else bounded(str(value))
 
 
-def ros_now_s(node: Node) -> float:
-    """The node's receiving clock (ROS time: /clock under use_sim_time), s."""
-    return node.get_clock().now().nanoseconds * 1e-9
+class StampedInputs:
+    """Mixin of ekf_node and triangulation_node: their receiving clock, and each input's stamp judged
+    against it with the node's `stamp_check`, `diagnostics` and `health`."""
 
+    def _now_s(self) -> float:
+        """The node's receiving clock (ROS time: /clock under use_sim_time), s."""
+        return self.get_clock().now().nanoseconds * 1e-9
 
-def refuse_implausible_stamp(
-    stamp_check: Any,
-    diagnostics: Diagnostics,
-    health: Any,
-    kind: str,
-    what: str,
-    stamp_s: float,
-    now_s: float,
-) -> bool:
-    """True, the input refused with the reason, when its stamp is beyond the tolerance against the
-    receiving clock (`plausibility.StampCheck`); the status (`health.fault`) degraded once the refusals are
-    confirmed (two in a row: not one hiccup). Shared by ekf_node and triangulation_node."""
-    problem, confirmed = stamp_check.check(kind, what, stamp_s, now_s)
-    if problem:
-        diagnostics.refuse(f"{kind}_stamp_refused", problem)
-    if confirmed:
-        health.fault(f"{kind}_stamp", now_s, problem)
-    return bool(problem)
+    def _implausible_stamp(self, kind: str, what: str, stamp_s: float, now_s: float) -> bool:
+        """True, the input refused with the reason, when its stamp is beyond the tolerance against the
+        receiving clock (`plausibility.StampCheck`); the status (`health.fault`) degraded once the refusals
+        are confirmed (two in a row: not one hiccup)."""
+        problem, confirmed = self.stamp_check.check(kind, what, stamp_s, now_s)
+        if problem:
+            self.diagnostics.refuse(f"{kind}_stamp_refused", problem)
+        if confirmed:
+            self.health.fault(f"{kind}_stamp", now_s, problem)
+        return bool(problem)
