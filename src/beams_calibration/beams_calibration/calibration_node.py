@@ -33,22 +33,18 @@ from beams_calibration.dataset import (
     capture_bearing_problem,
     capture_pose_problem,
     load_dataset,
-    now_utc,
     save_dataset,
 )
 from beams_calibration.outputs import rms_regression, write_outputs
 from beams_calibration.parameters import CALIBRATION_PARAMETERS
+from beams_common.calibration.calibration_file import SensorCalibration
 from beams_common.config.geometry_parameters import beacon_map_of
 from beams_common.geometry.beacon_map import BeaconMap
 from beams_common.intake.validation import bounded
 from beams_common.interfaces import topics
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
-from beams_common.ros.node_support import (
-    BEARINGS_QOS,
-    Diagnostics,
-    run_node,
-)
+from beams_common.ros.node_support import BEARINGS_QOS, Diagnostics, run_node
 from beams_common.ros.parameters import ParameterValidationError, apply_runtime_changes, declare_table
 from beams_msgs.msg import BeaconBearingArray
 from beams_msgs.srv import Calibrate, CaptureReference, ListConfigurations
@@ -193,7 +189,9 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
             mismatch = capture_bearing_problem(pose, observations, dataset_map)
             if mismatch and not request.force:
                 raise DatasetError(f"{mismatch} (force: true records it)")
-            configuration = Configuration(*map(float, pose), observations, revolutions, now_utc())
+            configuration = Configuration(
+                *map(float, pose), observations, revolutions, SensorCalibration.now_utc()
+            )
             dataset = append_configuration(self.dataset_file, dataset_map, configuration)
         except (OSError, DatasetError) as error:
             self.diagnostics.set("last_capture", f"refused: {error}")
