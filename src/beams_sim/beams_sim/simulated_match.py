@@ -128,9 +128,7 @@ def simulate_match(
     )
     # the receiver's minimum burst in the window correction, as driver_node decodes
     decoder = BearingDecoder(
-        config.codes,
-        variance_model or default_variance_model(config.codes, config),
-        receiver=config.receiver,
+        config.codes, variance_model or default_variance_model(config.codes, config), receiver=config.receiver
     )
     revolutions, edges = _run_sensor(
         simulator, decoder, trajectory.pose_at, duration_s, config.period_s, keep_edges

@@ -19,9 +19,7 @@ START_SIGMA = (0.01, 0.01, math.radians(1.0))
 
 
 def bearing_events(
-    revolutions: Iterable,
-    variance_rad2: Callable[[int, float], float] | None = None,
-    calibrated: bool = True,
+    revolutions: Iterable, variance_rad2: Callable[[int, float], float] | None = None, calibrated: bool = True
 ) -> list[BearingEvent]:
     """The bearings of decoded revolutions (beams_driver.decoder.DecodedRevolution), arriving when their
     revolution ends; `variance_rad2(beacon_id, angular_window_rad)` replaces the published variance;

@@ -125,12 +125,7 @@ def _map_points(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
 
 
 def beacon_noise_maps(
-    beacons_xy: np.ndarray,
-    x: np.ndarray,
-    y: np.ndarray,
-    sigma_m: float,
-    draws: int,
-    rng: np.random.Generator,
+    beacons_xy: np.ndarray, x: np.ndarray, y: np.ndarray, sigma_m: float, draws: int, rng: np.random.Generator
 ) -> ErrorMaps:
     """Figure 7.10, left: exact bearings, beacon coordinates given to ToTal with Gaussian noise sigma_m
     on each coordinate; standard deviations of the position (eq. 6.25) and orientation (eq. 6.26)
