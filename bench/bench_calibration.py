@@ -9,7 +9,7 @@ import time
 import timeit
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import Row, bench_main
 from scipy.stats import spearmanr
 
 from beams_calibration.calibrate import PARAMETER_COUNT, Problem, calibrate, optimise_groups
@@ -22,7 +22,7 @@ DEFAULT_SEED = 1
 REVOLUTIONS = 100
 
 
-def rows(seed: int = DEFAULT_SEED) -> list[tuple[str, float, str, str]]:
+def rows(seed: int = DEFAULT_SEED) -> list[Row]:
     sensor = thesis_setup.SimulatedSensor(
         thesis_setup.TRUE_BEACONS,
         np.random.default_rng(seed),
@@ -137,7 +137,7 @@ def rows(seed: int = DEFAULT_SEED) -> list[tuple[str, float, str, str]]:
     ]
 
 
-def figure_rows(seed: int) -> list[tuple[str, float, str, str]]:
+def figure_rows(seed: int) -> list[Row]:
     """Figure 7.7 (rotation experiment at P_9, corrected by the table 7.5 line-3 fit) and figure 7.10
     (beacon coordinates with 1 cm of noise against bearings with 0.1 deg, section 6.4.1's layout)."""
     problem = Problem.of(to_arrays(thesis_setup.thesis_dataset(seed)))

@@ -8,7 +8,7 @@ import timeit
 from dataclasses import dataclass
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import Row, bench_main
 
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.bearing import Bearing
@@ -173,7 +173,7 @@ def plot_trajectory(
 
 def rows(
     seed: int = DEFAULT_SEED, duration_s: float = DEFAULT_DURATION_S, plot_path: str | None = None
-) -> list[tuple[str, float, str, str]]:
+) -> list[Row]:
     """(figure, value, unit, compared with) rows: each sensor model's, then the costs, then the ideal
     receiver's variance modes."""
     table = []
@@ -198,9 +198,7 @@ def rows(
     return table
 
 
-def _match_rows(
-    sensor_model: str, seed: int, duration_s: float, plot_path: str | None
-) -> list[tuple[str, float, str, str]]:
+def _match_rows(sensor_model: str, seed: int, duration_s: float, plot_path: str | None) -> list[Row]:
     """The EKF's accuracy and consistency in each variance mode, odometry alone and ToTal alone, on the
     match of one sensor model."""
     config = sensor_config_of(sensor_model)
@@ -247,7 +245,7 @@ def _match_rows(
     return table
 
 
-def _ideal_receiver_rows(seed: int, duration_s: float) -> list[tuple[str, float, str, str]]:
+def _ideal_receiver_rows(seed: int, duration_s: float) -> list[Row]:
     """The variance modes when the OOK noise of chapters 3-4 is the only bearing noise (ideal receiver):
     what the exact variance buys once the natural noise no longer hides it."""
     config = SensorSimConfig.ideal()

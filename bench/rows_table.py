@@ -26,7 +26,7 @@ def budget_row(figure: str, value: float, unit: str, limit: float, at_least: boo
     return figure, value, unit, f"budget {'>=' if at_least else '<='} {limit:.3g}: {verdict}"
 
 
-def print_rows(table: Sequence[tuple[str, float, str, str]], unit_width: int = 13) -> None:
+def print_rows(table: Sequence[Row], unit_width: int = 13) -> None:
     """One header line, then one line per row: figure | value (4 significant digits) | unit | compared."""
     width = max(len(figure) for figure, *_ in table)
     print(f"{'figure':<{width}} | {'value':>10} | {'unit':<{unit_width}} | compared with")
