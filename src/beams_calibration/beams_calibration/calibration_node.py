@@ -26,7 +26,6 @@ from beams_calibration.calibrate import (
 )
 from beams_calibration.dataset import (
     Configuration,
-    Dataset,
     DatasetError,
     append_configuration,
     average_capture,
@@ -208,11 +207,8 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
         return response
 
     def _capture_reply(self, response: CaptureReference.Response, message: str) -> CaptureReference.Response:
-        response.success = False
-        response.message = bounded(message)
         response.configurations = self._count()
-        self.diagnostics.refuse("captures_refused", message)
-        return response
+        return self._refuse(response, message, "captures_refused")
 
     def _dataset_map_or_prior(self) -> BeaconMap:
         """The dataset's beacon map, or the a-priori one when the dataset is missing or unreadable."""
@@ -256,7 +252,17 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
         self._busy = True
         try:
             dataset = load_dataset(self.dataset_file)
-            result = await self._in_worker(lambda: self._run_calibration(dataset))
+            result = await self._in_worker(
+                lambda: calibrate(
+                    dataset,
+                    eta_m_per_rad=self.eta,
+                    threshold=self.threshold,
+                    max_iterations=self.max_iterations,
+                    leave_one_out=self.leave_one_out,
+                    requirements=self.requirements,
+                    progress=lambda line: self.get_logger().info(f"calibrate: {line}"),
+                )
+            )
             worse = rms_regression(result, self.eta)
             if worse and not request.force:
                 raise CalibrationRefusedError(f"{worse} (force: true writes it); nothing written")
@@ -286,17 +292,6 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
         self.diagnostics.set_level("warn" if result.warnings else "ok", response.message)
         self.get_logger().info(response.message)
         return response
-
-    def _run_calibration(self, dataset: Dataset) -> CalibrationResult:
-        return calibrate(
-            dataset,
-            eta_m_per_rad=self.eta,
-            threshold=self.threshold,
-            max_iterations=self.max_iterations,
-            leave_one_out=self.leave_one_out,
-            requirements=self.requirements,
-            progress=lambda line: self.get_logger().info(f"calibrate: {line}"),
-        )
 
     async def _in_worker(self, work: Callable[[], Any]) -> Any:
         """Run blocking work in a thread and await it: the executor keeps serving meanwhile."""
