@@ -26,6 +26,7 @@ from beams_driver.variance import VarianceModel
 from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_sim.simulated_match import default_variance_model, simulate_match
 from beams_sim.world import EurobotTrajectory, OdometrySimulator
+from beams_tools.serial_feed import with_line_noise
 
 # 8N1: ten line bits per byte.
 LINK_FRAMES_PER_S = DEFAULT_BAUDRATE / 10 / FRAME_SIZE
@@ -125,16 +126,10 @@ def inserted_noise_rows(bytes_per_revolution: int = 5) -> list[Row]:
     and how many of them differ from the clean stream's."""
     config, revolutions, _ = _simulated(REVOLUTIONS, seed=5)
     encoder, rng = FrameEncoder(), np.random.default_rng(6)
-    data = bytearray()
-    for revolution in revolutions:
-        chunk = bytearray(encoder.revolution(revolution))
-        for _ in range(bytes_per_revolution):
-            position = int(rng.integers(len(chunk) + 1))
-            chunk[position:position] = bytes([int(rng.integers(256))])
-        data += chunk
+    data = b"".join(with_line_noise(encoder.revolution(r), bytes_per_revolution, rng) for r in revolutions)
     clean = _bearings(config, _assemble(FrameEncoder().revolutions(revolutions)))
     kept = {
-        cost: _bearings(config, _assemble(bytes(data), RevolutionAssembler(lost_frames_cost=cost)))
+        cost: _bearings(config, _assemble(data, RevolutionAssembler(lost_frames_cost=cost)))
         for cost in ("revolution", "window")
     }
     wrong = sum(kept["window"][key] != clean.get(key) for key in kept["window"])
