@@ -147,8 +147,7 @@ def beacon_noise_maps(
         position_std[rows] = distance.std(axis=1)
         heading_std[rows] = np.asarray(wrap_to_pi(fixes.heading.reshape(count, draws))).std(axis=1)
         inverse_d[rows] = fixes.inverse_abs_d.reshape(count, draws).mean(axis=1)
-    shape = x.shape
-    return ErrorMaps(x, y, position_std.reshape(shape), heading_std.reshape(shape), inverse_d.reshape(shape))
+    return ErrorMaps(x, y, *(v.reshape(x.shape) for v in (position_std, heading_std, inverse_d)))
 
 
 def equivalent_angle_sigma_rad(
@@ -183,11 +182,5 @@ def equivalent_angle_maps(beacons_xy: np.ndarray, x: np.ndarray, y: np.ndarray, 
     sigma = equivalent_angle_sigma_rad(beacons_xy, x, y, sigma_m)
     covariance = pose_covariance_many(beacons_xy, (px, py, heading), sigma**2)
     fixes = triangulate_many(beacons_xy, expected_bearings(beacons_xy, (px, py, heading)))
-    shape = x.shape
-    return ErrorMaps(
-        x,
-        y,
-        np.asarray(distance_error_std_m(covariance)).reshape(shape),
-        np.sqrt(covariance[:, 2, 2]).reshape(shape),
-        fixes.inverse_abs_d.reshape(shape),
-    )
+    position_std, heading_std = np.asarray(distance_error_std_m(covariance)), np.sqrt(covariance[:, 2, 2])
+    return ErrorMaps(x, y, *(v.reshape(x.shape) for v in (position_std, heading_std, fixes.inverse_abs_d)))
