@@ -207,27 +207,20 @@ def _match_rows(sensor_model: str, seed: int, duration_s: float, plot_path: str 
     odometry_position, odometry_heading, odometry_poses = odometry_alone(match)
     total_position, total_heading, total_median, fixes = total_alone(match)
     label = f"{duration_s:.0f} s match seed {seed}"
-    per_run = (
-        lambda r: (
-            f"EKF RMS position ({r.mode} R), {label}",
-            1000 * r.figures.rms_position_m,
-            "mm",
-            "target <= 10 mm",
-        ),
-        lambda r: (
-            f"EKF RMS heading ({r.mode} R)",
-            math.degrees(r.figures.rms_heading_rad),
-            "deg",
-            "target <= 0.3 deg",
-        ),
-        lambda r: (
-            f"EKF NEES in 95% band ({r.mode} R)",
-            100 * r.figures.nees_in_band,
-            "%",
-            f"target >= 90% (mean NEES {r.figures.nees_mean:.2f}, ideal 3)",
-        ),
-    )
-    table = [row(run) for row in per_run for run in runs] + [
+    per_run = [  # (position, heading, NEES) of each run
+        (
+            (f"EKF RMS position ({r.mode} R), {label}", 1000 * f.rms_position_m, "mm", "target <= 10 mm"),
+            (f"EKF RMS heading ({r.mode} R)", math.degrees(f.rms_heading_rad), "deg", "target <= 0.3 deg"),
+            (
+                f"EKF NEES in 95% band ({r.mode} R)",
+                100 * f.nees_in_band,
+                "%",
+                f"target >= 90% (mean NEES {f.nees_mean:.2f}, ideal 3)",
+            ),
+        )
+        for r, f in ((run, run.figures) for run in runs)
+    ]
+    table = [row for kind in zip(*per_run, strict=True) for row in kind] + [
         (
             "EKF bearings gated (published R)",
             float(runs[0].result.counts.get("bearings_gated", 0)),
