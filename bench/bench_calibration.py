@@ -9,7 +9,7 @@ import time
 import timeit
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import Row, bench_main
 from scipy.stats import spearmanr
 
 from beams_calibration.calibrate import PARAMETER_COUNT, Problem, calibrate, optimise_groups
@@ -22,30 +22,26 @@ DEFAULT_SEED = 1
 REVOLUTIONS = 100
 
 
-def rows(seed: int = DEFAULT_SEED) -> list[tuple[str, float, str, str]]:
+def rows(seed: int = DEFAULT_SEED) -> list[Row]:
     sensor = thesis_setup.SimulatedSensor(
         thesis_setup.TRUE_BEACONS,
         np.random.default_rng(seed),
         correction=THESIS_CORRECTION,
         turret_offset_m=thesis_setup.THESIS_TURRET_OFFSET_M,
     )
-    poses = thesis_setup.reference_poses()
-    start = time.process_time()
-    dataset = thesis_setup.capture_dataset(
-        sensor,
-        poses,
-        revolutions=REVOLUTIONS,
-        placement_sigma=thesis_setup.PLACEMENT_SIGMA,
-        rng=np.random.default_rng(seed + 1),
-    )
-    capture_s = time.process_time() - start
 
-    start = time.process_time()
-    fitted = calibrate(dataset, leave_one_out=False)
-    algorithm_s = time.process_time() - start
-    start = time.process_time()
-    result = calibrate(dataset)
-    whole_s = time.process_time() - start
+    def cpu_timed(work):  # (its result, the CPU time it took in s)
+        start = time.process_time()
+        return work(), time.process_time() - start
+
+    poses, sigma = thesis_setup.reference_poses(), thesis_setup.PLACEMENT_SIGMA
+    dataset, capture_s = cpu_timed(
+        lambda: thesis_setup.capture_dataset(
+            sensor, poses, revolutions=REVOLUTIONS, placement_sigma=sigma, rng=np.random.default_rng(seed + 1)
+        )
+    )
+    fitted, algorithm_s = cpu_timed(lambda: calibrate(dataset, leave_one_out=False))
+    result, whole_s = cpu_timed(lambda: calibrate(dataset))
     # Table 7.5 on the stand-in for the thesis's recordings (thesis-hardware receiver, chapter 7's biases).
     table = calibrate(thesis_setup.thesis_dataset(seed), leave_one_out=False, with_table_7_5=True).table_7_5
 
@@ -57,23 +53,14 @@ def rows(seed: int = DEFAULT_SEED) -> list[tuple[str, float, str, str]]:
     loo = result.leave_one_out
     assert loo is not None and fitted.after == result.after
     count = len(dataset.configurations)
-    table_rows = [
-        (
-            row.stage.replace("table 7.5", "calibration: table 7.5"),
-            row.position_rms_m * 1e3,
-            "mm",
-            f"{position} mm",
-        )
-        for row, (position, _) in zip(table, thesis_setup.THESIS_TABLE_7_5, strict=True)
+    lines = [
+        (row.stage.replace("table 7.5", "calibration: table 7.5"), row, thesis)
+        for row, thesis in zip(table, thesis_setup.THESIS_TABLE_7_5, strict=True)
     ]
+    table_rows = [(stage, row.position_rms_m * 1e3, "mm", f"{mm} mm") for stage, row, (mm, _) in lines]
     table_rows += [
-        (
-            row.stage.replace("table 7.5", "calibration: table 7.5") + " (orientation)",
-            math.degrees(row.orientation_rms_rad),
-            "deg",
-            f"{orientation} deg",
-        )
-        for row, (_, orientation) in zip(table, thesis_setup.THESIS_TABLE_7_5, strict=True)
+        (f"{stage} (orientation)", math.degrees(row.orientation_rms_rad), "deg", f"{deg} deg")
+        for stage, row, (_, deg) in lines
     ]
     return [
         (
@@ -137,7 +124,7 @@ def rows(seed: int = DEFAULT_SEED) -> list[tuple[str, float, str, str]]:
     ]
 
 
-def figure_rows(seed: int) -> list[tuple[str, float, str, str]]:
+def figure_rows(seed: int) -> list[Row]:
     """Figure 7.7 (rotation experiment at P_9, corrected by the table 7.5 line-3 fit) and figure 7.10
     (beacon coordinates with 1 cm of noise against bearings with 0.1 deg, section 6.4.1's layout)."""
     problem = Problem.of(to_arrays(thesis_setup.thesis_dataset(seed)))

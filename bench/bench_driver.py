@@ -7,7 +7,7 @@ detection rate against the window with one or two complete codes required (secti
 import sys
 
 import numpy as np
-from rows_table import bench_main, best_per_call_s
+from rows_table import Row, bench_main, best_per_call_s
 
 from beams_driver.codes import BeaconCode, code_family
 from beams_driver.decoder import BearingDecoder
@@ -39,7 +39,7 @@ BEACONS = [
 ]
 
 
-def rows() -> list[tuple[str, float, str, str]]:
+def rows() -> list[Row]:
     """(figure, value, unit, compared with) for the table of BENCHMARKS.md."""
     config = SensorSimConfig()
     codes = code_family()
@@ -87,7 +87,7 @@ def rows() -> list[tuple[str, float, str, str]]:
     ]
 
 
-def table_5_1_rows(name: str, config: SensorSimConfig) -> list[tuple[str, float, str, str]]:
+def table_5_1_rows(name: str, config: SensorSimConfig) -> list[Row]:
     """Section 5.3's experiment on the simulated receiver: 100 windows (1-6 m) x 1000 measures per code."""
     rng = np.random.default_rng(0)
     windows = np.linspace(config.window_rad(6.0), config.window_rad(1.0), 100)
@@ -119,7 +119,7 @@ def table_5_1_rows(name: str, config: SensorSimConfig) -> list[tuple[str, float,
     return rows
 
 
-def detection_rows() -> list[tuple[str, float, str, str]]:
+def detection_rows() -> list[Row]:
     """Bearings per revolution of one beacon (codes 1-5 in turn) against its window, thesis_hardware."""
     config = SensorSimConfig.thesis_hardware()
     phi0 = config.codes[0].bit_time_s * config.turret_speed_rad_s

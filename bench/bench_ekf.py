@@ -8,7 +8,7 @@ import timeit
 from dataclasses import dataclass
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import Row, bench_main
 
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.bearing import Bearing
@@ -173,7 +173,7 @@ def plot_trajectory(
 
 def rows(
     seed: int = DEFAULT_SEED, duration_s: float = DEFAULT_DURATION_S, plot_path: str | None = None
-) -> list[tuple[str, float, str, str]]:
+) -> list[Row]:
     """(figure, value, unit, compared with) rows: each sensor model's, then the costs, then the ideal
     receiver's variance modes."""
     table = []
@@ -198,9 +198,7 @@ def rows(
     return table
 
 
-def _match_rows(
-    sensor_model: str, seed: int, duration_s: float, plot_path: str | None
-) -> list[tuple[str, float, str, str]]:
+def _match_rows(sensor_model: str, seed: int, duration_s: float, plot_path: str | None) -> list[Row]:
     """The EKF's accuracy and consistency in each variance mode, odometry alone and ToTal alone, on the
     match of one sensor model."""
     config = sensor_config_of(sensor_model)
@@ -209,27 +207,20 @@ def _match_rows(
     odometry_position, odometry_heading, odometry_poses = odometry_alone(match)
     total_position, total_heading, total_median, fixes = total_alone(match)
     label = f"{duration_s:.0f} s match seed {seed}"
-    per_run = (
-        lambda r: (
-            f"EKF RMS position ({r.mode} R), {label}",
-            1000 * r.figures.rms_position_m,
-            "mm",
-            "target <= 10 mm",
-        ),
-        lambda r: (
-            f"EKF RMS heading ({r.mode} R)",
-            math.degrees(r.figures.rms_heading_rad),
-            "deg",
-            "target <= 0.3 deg",
-        ),
-        lambda r: (
-            f"EKF NEES in 95% band ({r.mode} R)",
-            100 * r.figures.nees_in_band,
-            "%",
-            f"target >= 90% (mean NEES {r.figures.nees_mean:.2f}, ideal 3)",
-        ),
-    )
-    table = [row(run) for row in per_run for run in runs] + [
+    per_run = [  # (position, heading, NEES) of each run
+        (
+            (f"EKF RMS position ({r.mode} R), {label}", 1000 * f.rms_position_m, "mm", "target <= 10 mm"),
+            (f"EKF RMS heading ({r.mode} R)", math.degrees(f.rms_heading_rad), "deg", "target <= 0.3 deg"),
+            (
+                f"EKF NEES in 95% band ({r.mode} R)",
+                100 * f.nees_in_band,
+                "%",
+                f"target >= 90% (mean NEES {f.nees_mean:.2f}, ideal 3)",
+            ),
+        )
+        for r, f in ((run, run.figures) for run in runs)
+    ]
+    table = [row for kind in zip(*per_run, strict=True) for row in kind] + [
         (
             "EKF bearings gated (published R)",
             float(runs[0].result.counts.get("bearings_gated", 0)),
@@ -247,7 +238,7 @@ def _match_rows(
     return table
 
 
-def _ideal_receiver_rows(seed: int, duration_s: float) -> list[tuple[str, float, str, str]]:
+def _ideal_receiver_rows(seed: int, duration_s: float) -> list[Row]:
     """The variance modes when the OOK noise of chapters 3-4 is the only bearing noise (ideal receiver):
     what the exact variance buys once the natural noise no longer hides it."""
     config = SensorSimConfig.ideal()

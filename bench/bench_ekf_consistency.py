@@ -11,7 +11,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import Row, bench_main
 
 from beams_common.geometry.pose2d import between
 from beams_ekf.bearing_ekf import BearingEkf
@@ -184,7 +184,7 @@ def rows(
     seeds: int = DEFAULT_SEEDS,
     duration_s: float = DEFAULT_DURATION_S,
     sensor_models: tuple[str, ...] = SENSOR_MODELS,
-) -> list[tuple[str, float, str, str]]:
+) -> list[Row]:
     """(figure, value, unit, compared with) rows of every sensor model, each row named by its model."""
     return [
         (f"{model} sensor: {figure}", value, unit, compared)
@@ -193,7 +193,7 @@ def rows(
     ]
 
 
-def model_rows(seeds: int, duration_s: float, sensor_model: str) -> list[tuple[str, float, str, str]]:
+def model_rows(seeds: int, duration_s: float, sensor_model: str) -> list[Row]:
     """(figure, value, unit, compared with) rows of one sensor model."""
     config = sensor_config_of(sensor_model)
     pooled = {f.name: Pooled([], [], [], []) for f in FILTERS}

@@ -7,7 +7,7 @@ import pathlib
 import sys
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import Row, bench_main
 
 from beams_tools.campaign_command import CampaignConfig, CampaignResult, run_campaign
 
@@ -15,7 +15,7 @@ BENCH_DURATION_S = 1200.0
 BENCH_SEED = 18
 
 
-def result_rows(result: CampaignResult) -> list[tuple[str, float, str, str]]:
+def result_rows(result: CampaignResult) -> list[Row]:
     """The campaign's figures as bench rows (figure, value, unit, compared with)."""
     f = result.figures
     minutes = f"{f.span_s / 60:.0f}-min campaign"
@@ -44,7 +44,7 @@ def result_rows(result: CampaignResult) -> list[tuple[str, float, str, str]]:
 
 def rows(
     duration_s: float = BENCH_DURATION_S, seed: int = BENCH_SEED, output: pathlib.Path | None = None
-) -> list[tuple[str, float, str, str]]:
+) -> list[Row]:
     domain_id = int(os.environ.get("ROS_DOMAIN_ID", "66"))
     config = CampaignConfig(
         seed=seed, duration_s=duration_s, output_dir=output, domain_id=domain_id, serial=True, hosts=True

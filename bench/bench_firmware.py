@@ -21,7 +21,7 @@ from beams_sim.world import EurobotTrajectory
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1] / "test" / "hil"))
 import turret_hil
-from rows_table import bench_main
+from rows_table import Row, bench_main
 
 SPEED_TURRET_S = 21.0
 LATENCY_TURRET_S = 5.0
@@ -115,7 +115,7 @@ def image_size() -> tuple[int, int]:
     return text + data, data + bss
 
 
-def rows() -> list[tuple[str, float, str, str]]:
+def rows() -> list[Row]:
     why = turret_hil.missing()
     if why:
         raise RuntimeError(why)

@@ -15,7 +15,7 @@ import sys
 import tempfile
 import time
 
-from rows_table import bench_main
+from rows_table import RosProbe, Row, bench_main
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 DEFAULT_DOMAIN_ID = "69"  # 61-69 are the developers' (test/conftest.py); the tests never use it
@@ -26,22 +26,16 @@ BACK_TIMEOUT_S = 20.0
 SETTLE_S = 2.0
 SILENCE_WINDOW_S = 8.0
 STANDBY_WATCH_S = 10.0
-Row = tuple[str, float, str, str]
 
 
-class Probe:
+class Probe(RosProbe):
     """An rclpy node timing the EKF's output and the watchers' /diagnostics."""
 
     def __init__(self) -> None:
-        import rclpy
         from diagnostic_msgs.msg import DiagnosticArray
         from nav_msgs.msg import Odometry
-        from rclpy.executors import SingleThreadedExecutor
 
-        rclpy.init()
-        self.node = rclpy.create_node("integrity_bench_probe")
-        self.executor = SingleThreadedExecutor()
-        self.executor.add_node(self.node)
+        super().__init__("integrity_bench_probe")
         self.ekf_outputs: list[float] = []
         self.statuses: dict[str, list] = {"ekf_node": [], "triangulation_node": []}
         self.node.create_subscription(Odometry, "/beams/ekf/odometry", self._on_ekf, 10)
@@ -55,22 +49,6 @@ class Probe:
             for name, seen in self.statuses.items():
                 if f"/{name}:" in status.name:
                     seen.append((time.monotonic(), status))
-
-    def spin_until(self, predicate, timeout_s: float, during=lambda: None) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline:
-            during()
-            if predicate():
-                return True
-            self.executor.spin_once(timeout_sec=0.01)
-        return predicate()
-
-    def close(self) -> None:
-        import rclpy
-
-        self.executor.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown()
 
 
 def longest_silence(arrivals: list[float], start: float, end: float) -> float:

@@ -8,7 +8,7 @@ import math
 import sys
 
 import numpy as np
-from rows_table import bench_main
+from rows_table import Row, bench_main
 
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.estimate_noise import estimate
@@ -41,7 +41,7 @@ def _injected_rad2(window_rad: float) -> float:
     return float(HARDWARE.hardware.natural_variance_rad2(window_rad, None))
 
 
-def rows() -> list[tuple[str, float, str, str]]:
+def rows() -> list[Row]:
     """(figure, value, unit, compared with) for the table of BENCHMARKS.md."""
     defaults = DRIVER_PARAMETERS.defaults()
     report = estimate(_recordings(defaults, 0), defaults, **LIMITS)

@@ -14,7 +14,7 @@ from dataclasses import replace
 
 import numpy as np
 from bench_self_calibration import default_driver_match, run
-from rows_table import bench_main
+from rows_table import Row, bench_main
 
 from beams_common.geometry.angles import wrap_to_pi
 from beams_ekf.power_bias_states import PowerBiasStates
@@ -123,7 +123,7 @@ def rows(
     seeds: int = DEFAULT_SEEDS,
     duration_s: float = DEFAULT_DURATION_S,
     plot_directory: pathlib.Path | None = None,
-) -> list[tuple[str, float, str, str]]:
+) -> list[Row]:
     pooled: dict[str, list[dict[str, np.ndarray]]] = {name: [] for name, *_ in SCENARIOS}
     for seed in range(seeds):
         matches = {c: default_driver_match(duration_s, seed, c) for c in (False, True)}

@@ -6,7 +6,7 @@ import pathlib
 import sys
 import tempfile
 
-from rows_table import bench_main, budget_row
+from rows_table import Row, bench_main, budget_row
 
 from beams_sim.simulated_match import simulate_match
 from beams_tools.bag_io import beams_typestore
@@ -31,9 +31,7 @@ def replay_once(duration_s: float, seed: int, storage: str) -> ReplayResult:
         return replay_bag(bag, pathlib.Path(directory) / "output", typestore=typestore, storage=storage)
 
 
-def rows(
-    duration_s: float = DEFAULT_DURATION_S, seed: int = DEFAULT_SEED
-) -> list[tuple[str, float, str, str]]:
+def rows(duration_s: float = DEFAULT_DURATION_S, seed: int = DEFAULT_SEED) -> list[Row]:
     table = []
     for storage in ("mcap", "sqlite3"):
         result = replay_once(duration_s, seed, storage)

@@ -10,7 +10,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from bench_ekf_consistency import match_bound
-from rows_table import bench_main
+from rows_table import Row, bench_main
 
 from beams_driver.parameters import SENSOR_PARAMETERS, corrected_variance_of, variance_model_of
 from beams_ekf.localiser import FilterSettings, Localiser, build_localiser
@@ -133,7 +133,7 @@ class Pool:
             "bound_m": float(np.sqrt(np.mean(bound[:, 0, 0] + bound[:, 1, 1]))),
         }
 
-    def window_rows(self, name: str, duration_s: float) -> list[tuple[str, float, str, str]]:
+    def window_rows(self, name: str, duration_s: float) -> list[Row]:
         """The 30 s windows of every seed against the consistent band (from the NEES's correlation pooled
         over the seeds) and against the target's band."""
         correlation, means, bands = windows_against_band(self.series, duration_s)
@@ -179,9 +179,7 @@ RUNS = (
 )
 
 
-def rows(
-    seeds: int = DEFAULT_SEEDS, duration_s: float = DEFAULT_DURATION_S
-) -> list[tuple[str, float, str, str]]:
+def rows(seeds: int = DEFAULT_SEEDS, duration_s: float = DEFAULT_DURATION_S) -> list[Row]:
     config = sensor_config_of(SENSOR_MODEL)
     pools = {name: Pool.empty() for name, _, _ in RUNS}
     curve_errors: list[float] = []

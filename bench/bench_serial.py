@@ -7,7 +7,7 @@ zero references.
 import sys
 
 import numpy as np
-from rows_table import bench_main, best_per_call_s
+from rows_table import Row, bench_main, best_per_call_s
 
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_driver.decoder import BearingDecoder
@@ -26,6 +26,7 @@ from beams_driver.variance import VarianceModel
 from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 from beams_sim.simulated_match import default_variance_model, simulate_match
 from beams_sim.world import EurobotTrajectory, OdometrySimulator
+from beams_tools.serial_feed import with_line_noise
 
 # 8N1: ten line bits per byte.
 LINK_FRAMES_PER_S = DEFAULT_BAUDRATE / 10 / FRAME_SIZE
@@ -36,12 +37,8 @@ def _simulated(count: int, seed: int) -> tuple[SensorSimConfig, list[RevolutionE
     """`count` simulated revolutions of a robot standing at (1.0, 0.7), 3 beacons."""
     config = SensorSimConfig()
     simulator = SensorSimulator(config, EUROBOT_BEACON_MAP, np.random.default_rng(seed))
-    pose = (1.0, 0.7, 0.4)
-    return (
-        config,
-        [simulator.revolution(lambda t: pose, k * config.period_s) for k in range(count)],
-        simulator,
-    )
+    revolutions = [simulator.revolution(lambda t: (1.0, 0.7, 0.4), k * config.period_s) for k in range(count)]
+    return config, revolutions, simulator
 
 
 def _stream() -> tuple[bytes, int]:
@@ -68,19 +65,15 @@ def _assemble(data: bytes, assembler: RevolutionAssembler | None = None) -> list
     return revolutions
 
 
-def noise_rows(byte_error_rate: float) -> list[tuple[str, float, str, str]]:
+def noise_rows(byte_error_rate: float) -> list[Row]:
     """Random byte substitutions at byte_error_rate over REVOLUTIONS simulated revolutions: the share of
     the revolutions the noise did not touch (their frames, opening and closing zero references included)
     that are published, and of all revolutions."""
     config, revolutions, _ = _simulated(REVOLUTIONS, seed=2)
     encoder = FrameEncoder()
     chunks = [encoder.revolution(r) for r in revolutions]
-    chunks.append(
-        encoder.event(
-            EventKind.ZERO_REFERENCE,
-            round((revolutions[-1].start_time_s + revolutions[-1].period_s) * TIMER_HZ),
-        )
-    )
+    end_ticks = round((revolutions[-1].start_time_s + revolutions[-1].period_s) * TIMER_HZ)
+    chunks.append(encoder.event(EventKind.ZERO_REFERENCE, end_ticks))
     zero_offsets, position = [], 0
     for chunk in chunks:
         offset = 0
@@ -127,22 +120,16 @@ def noise_rows(byte_error_rate: float) -> list[tuple[str, float, str, str]]:
     ]
 
 
-def inserted_noise_rows(bytes_per_revolution: int = 5) -> list[tuple[str, float, str, str]]:
-    """The issue's line-noise fault (and the fault campaign's): random bytes inserted at random places of
+def inserted_noise_rows(bytes_per_revolution: int = 5) -> list[Row]:
+    """The line-noise fault (the fault campaign's): random bytes inserted at random places of
     every revolution's frames; the share of the clean stream's bearings kept with each lost_frames_cost,
     and how many of them differ from the clean stream's."""
     config, revolutions, _ = _simulated(REVOLUTIONS, seed=5)
     encoder, rng = FrameEncoder(), np.random.default_rng(6)
-    data = bytearray()
-    for revolution in revolutions:
-        chunk = bytearray(encoder.revolution(revolution))
-        for _ in range(bytes_per_revolution):
-            position = int(rng.integers(len(chunk) + 1))
-            chunk[position:position] = bytes([int(rng.integers(256))])
-        data += chunk
+    data = b"".join(with_line_noise(encoder.revolution(r), bytes_per_revolution, rng) for r in revolutions)
     clean = _bearings(config, _assemble(FrameEncoder().revolutions(revolutions)))
     kept = {
-        cost: _bearings(config, _assemble(bytes(data), RevolutionAssembler(lost_frames_cost=cost)))
+        cost: _bearings(config, _assemble(data, RevolutionAssembler(lost_frames_cost=cost)))
         for cost in ("revolution", "window")
     }
     wrong = sum(kept["window"][key] != clean.get(key) for key in kept["window"])
@@ -157,8 +144,8 @@ def inserted_noise_rows(bytes_per_revolution: int = 5) -> list[tuple[str, float,
     ]
 
 
-def spurious_zero_rows() -> list[tuple[str, float, str, str]]:
-    """The issue's fault: a spurious zero reference 1.2 ms before every real one. The worst error of the
+def spurious_zero_rows() -> list[Row]:
+    """A spurious zero reference 1.2 ms before every real one. The worst error of the
     published bearings against the simulator's truth, in their own published standard deviations, with
     the measured turret speed and with the nominal +-2 % alone (a tolerance of 2 % of a turn)."""
     config, revolutions, simulator = _simulated(REVOLUTIONS, seed=4)
@@ -208,7 +195,7 @@ def spurious_zero_rows() -> list[tuple[str, float, str, str]]:
     ]
 
 
-def rows() -> list[tuple[str, float, str, str]]:
+def rows() -> list[Row]:
     data, frames = _stream()
     frames_per_revolution = frames / REVOLUTIONS
 

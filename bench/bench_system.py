@@ -28,7 +28,7 @@ from copy import deepcopy
 from dataclasses import dataclass, field
 
 import numpy as np
-from rows_table import Row, bench_main, budget_row
+from rows_table import RosProbe, Row, bench_main, budget_row
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
@@ -126,21 +126,15 @@ def pose_latencies_ms(arrivals: "Arrivals", since: float) -> np.ndarray:
     return np.array(delays)
 
 
-class Probe:
+class Probe(RosProbe):
     """The benchmark's rclpy node: arrival times of the bearings, EKF outputs and ToTal poses."""
 
     def __init__(self) -> None:
-        import rclpy
         from nav_msgs.msg import Odometry
-        from rclpy.executors import SingleThreadedExecutor
 
         from beams_msgs.msg import BeaconBearingArray, TriangulatedPose
 
-        self.context = rclpy.Context()
-        rclpy.init(context=self.context)
-        self.node = rclpy.create_node("beams_bench_probe", context=self.context)
-        self.executor = SingleThreadedExecutor(context=self.context)
-        self.executor.add_node(self.node)
+        super().__init__("beams_bench_probe")
         self.arrivals = Arrivals()
         self.node.create_subscription(BeaconBearingArray, "beams/bearings", self._on_bearings, 10)
         self.node.create_subscription(
@@ -163,12 +157,6 @@ class Probe:
     def spin_for(self, duration_s: float) -> None:
         self.spin_until(lambda: False, duration_s)
 
-    def spin_until(self, predicate, timeout_s: float) -> bool:
-        deadline = time.monotonic() + timeout_s
-        while time.monotonic() < deadline and not predicate():
-            self.executor.spin_once(timeout_sec=0.05)
-        return predicate()
-
     def flood(self, duration_s: float, rate_hz: float) -> int:
         """Republish the newest revolution at rate_hz, its stamps moved to now; the count published."""
         # only now: a second publisher on beams/bearings is an ERROR condition of the nodes (input_watch)
@@ -187,11 +175,6 @@ class Probe:
                 self.executor.spin_once(timeout_sec=max(0.0, next_s - time.monotonic()))
         self.flooding = False
         return count
-
-    def close(self) -> None:
-        self.executor.shutdown()
-        self.node.destroy_node()
-        self.context.try_shutdown()
 
 
 def seconds(stamp) -> float:

@@ -6,6 +6,7 @@ Not a benchmark itself (run_all.py runs bench_*.py); imported by those run as sc
 import argparse
 import inspect
 import pathlib
+import time
 import timeit
 from collections.abc import Callable, Sequence
 
@@ -25,7 +26,7 @@ def budget_row(figure: str, value: float, unit: str, limit: float, at_least: boo
     return figure, value, unit, f"budget {'>=' if at_least else '<='} {limit:.3g}: {verdict}"
 
 
-def print_rows(table: Sequence[tuple[str, float, str, str]], unit_width: int = 13) -> None:
+def print_rows(table: Sequence[Row], unit_width: int = 13) -> None:
     """One header line, then one line per row: figure | value (4 significant digits) | unit | compared."""
     width = max(len(figure) for figure, *_ in table)
     print(f"{'figure':<{width}} | {'value':>10} | {'unit':<{unit_width}} | compared with")
@@ -50,3 +51,33 @@ def bench_main(doc: str, rows: Callable[..., Sequence[tuple]], argv: Sequence[st
     table = rows(**vars(parser.parse_args(argv)))
     print_rows(table)
     return int(any(str(compared).endswith("MISSED") for *_, compared in table))
+
+
+class RosProbe:
+    """A bench's own rclpy node on its own context and executor, spun by hand (rclpy is imported here only:
+    the benches without DDS run without it)."""
+
+    def __init__(self, name: str) -> None:
+        import rclpy
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.context = rclpy.Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def spin_until(self, predicate: Callable[[], bool], timeout_s: float, during=lambda: None) -> bool:
+        """Spin (calling `during` each turn) until `predicate` holds or timeout_s passed; the predicate."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            during()
+            if predicate():
+                return True
+            self.executor.spin_once(timeout_sec=0.01)
+        return predicate()
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.context.try_shutdown()

@@ -418,26 +418,24 @@ def table_7_5(
     progress: Progress | None = None,
 ) -> list[RmsFigures]:
     """The eleven lines of table 7.5 for this dataset; `stages` are those of the full Algorithm 7.1."""
-    rows = [
-        RmsFigures(
-            f"table 7.5 line 1: {stages[0].stage}", stages[0].position_rms_m, stages[0].orientation_rms_rad
-        )
-    ]
+
+    def line_of(number: int, label: str, figures: RmsFigures) -> RmsFigures:
+        name = f"table 7.5 line {number}: {label}"
+        return RmsFigures(name, figures.position_rms_m, figures.orientation_rms_rad)
+
+    rows = [line_of(1, stages[0].stage, stages[0])]
     for line, (label, groups) in enumerate(TABLE_7_5_SUBSETS, start=2):
         vector, _ = optimise_groups(problem, np.zeros(PARAMETER_COUNT), groups, options)
         rows.append(_report(problem, vector, f"table 7.5 line {line}: {label}", progress))
     _, no_turret, _ = run_algorithm_7_1(
         problem, threshold=threshold, max_iterations=max_iterations, options=options, with_turret=False
     )
-    for line, label, figures in (
-        (9, "global calibration, no turret offset", no_turret[-1]),
-        (10, "global calibration, no final optimisation", stages[-2]),
-        (11, "global calibration", stages[-1]),
-    ):
-        rows.append(
-            RmsFigures(f"table 7.5 line {line}: {label}", figures.position_rms_m, figures.orientation_rms_rad)
-        )
-    return rows
+    return [
+        *rows,
+        line_of(9, "global calibration, no turret offset", no_turret[-1]),
+        line_of(10, "global calibration, no final optimisation", stages[-2]),
+        line_of(11, "global calibration", stages[-1]),
+    ]
 
 
 def leave_one_position_out(
@@ -588,8 +586,9 @@ def calibrate(
         problem = Problem.of(arrays, eta_m_per_rad)
         vector, stages, iterations = algorithm_7_1(problem)
     model = problem.model(vector)
-    table = (
-        table_7_5(
+    table = []
+    if with_table_7_5:
+        table = table_7_5(
             problem,
             stages,
             threshold=threshold,
@@ -597,9 +596,6 @@ def calibrate(
             options=options,
             progress=progress,
         )
-        if with_table_7_5
-        else []
-    )
     generalisation = leave_one_position_out(problem, vector, options, progress) if leave_one_out else None
     if generalisation is not None and progress is not None:
         progress(

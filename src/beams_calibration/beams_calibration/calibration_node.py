@@ -26,29 +26,24 @@ from beams_calibration.calibrate import (
 )
 from beams_calibration.dataset import (
     Configuration,
-    Dataset,
     DatasetError,
     append_configuration,
     average_capture,
     capture_bearing_problem,
     capture_pose_problem,
     load_dataset,
-    now_utc,
     save_dataset,
 )
 from beams_calibration.outputs import rms_regression, write_outputs
 from beams_calibration.parameters import CALIBRATION_PARAMETERS
+from beams_common.calibration.calibration_file import SensorCalibration
 from beams_common.config.geometry_parameters import beacon_map_of
 from beams_common.geometry.beacon_map import BeaconMap
 from beams_common.intake.validation import bounded
 from beams_common.interfaces import topics
 from beams_common.ros.callback_guard import GuardedCallbacks
 from beams_common.ros.input_watch import WatchedInputs
-from beams_common.ros.node_support import (
-    BEARINGS_QOS,
-    Diagnostics,
-    run_node,
-)
+from beams_common.ros.node_support import BEARINGS_QOS, Diagnostics, run_node
 from beams_common.ros.parameters import ParameterValidationError, apply_runtime_changes, declare_table
 from beams_msgs.msg import BeaconBearingArray
 from beams_msgs.srv import Calibrate, CaptureReference, ListConfigurations
@@ -193,7 +188,9 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
             mismatch = capture_bearing_problem(pose, observations, dataset_map)
             if mismatch and not request.force:
                 raise DatasetError(f"{mismatch} (force: true records it)")
-            configuration = Configuration(*map(float, pose), observations, revolutions, now_utc())
+            configuration = Configuration(
+                *map(float, pose), observations, revolutions, SensorCalibration.now_utc()
+            )
             dataset = append_configuration(self.dataset_file, dataset_map, configuration)
         except (OSError, DatasetError) as error:
             self.diagnostics.set("last_capture", f"refused: {error}")
@@ -210,11 +207,8 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
         return response
 
     def _capture_reply(self, response: CaptureReference.Response, message: str) -> CaptureReference.Response:
-        response.success = False
-        response.message = bounded(message)
         response.configurations = self._count()
-        self.diagnostics.refuse("captures_refused", message)
-        return response
+        return self._refuse(response, message, "captures_refused")
 
     def _dataset_map_or_prior(self) -> BeaconMap:
         """The dataset's beacon map, or the a-priori one when the dataset is missing or unreadable."""
@@ -258,7 +252,17 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
         self._busy = True
         try:
             dataset = load_dataset(self.dataset_file)
-            result = await self._in_worker(lambda: self._run_calibration(dataset))
+            result = await self._in_worker(
+                lambda: calibrate(
+                    dataset,
+                    eta_m_per_rad=self.eta,
+                    threshold=self.threshold,
+                    max_iterations=self.max_iterations,
+                    leave_one_out=self.leave_one_out,
+                    requirements=self.requirements,
+                    progress=lambda line: self.get_logger().info(f"calibrate: {line}"),
+                )
+            )
             worse = rms_regression(result, self.eta)
             if worse and not request.force:
                 raise CalibrationRefusedError(f"{worse} (force: true writes it); nothing written")
@@ -288,17 +292,6 @@ class CalibrationNode(WatchedInputs, GuardedCallbacks, Node):
         self.diagnostics.set_level("warn" if result.warnings else "ok", response.message)
         self.get_logger().info(response.message)
         return response
-
-    def _run_calibration(self, dataset: Dataset) -> CalibrationResult:
-        return calibrate(
-            dataset,
-            eta_m_per_rad=self.eta,
-            threshold=self.threshold,
-            max_iterations=self.max_iterations,
-            leave_one_out=self.leave_one_out,
-            requirements=self.requirements,
-            progress=lambda line: self.get_logger().info(f"calibrate: {line}"),
-        )
 
     async def _in_worker(self, work: Callable[[], Any]) -> Any:
         """Run blocking work in a thread and await it: the executor keeps serving meanwhile."""

@@ -5,7 +5,7 @@ import math
 import os
 import re
 from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +14,7 @@ import yaml
 
 from beams_calibration.parameters import CALIBRATION_PARAMETERS
 from beams_common.calibration import file_schema
-from beams_common.calibration.calibration_file import SensorCalibration, atomic_write_text
+from beams_common.calibration.calibration_file import atomic_write_text
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.beacon_map import BeaconMap
 from beams_common.intake.plausibility import TABLE_MARGIN_M, off_table_problem
@@ -276,13 +276,7 @@ def _configuration_to_dict(configuration: Configuration) -> dict[str, Any]:
         "recorded_utc": configuration.recorded_utc,
         "label": configuration.label,
         "beacons": [
-            {
-                "id": o.beacon_id,
-                "bearing_rad": o.bearing_rad,
-                "window_rad": o.window_rad,
-                "spread_rad": o.spread_rad,
-                "revolutions": o.revolutions,
-            }
+            {"id" if key == "beacon_id" else key: value for key, value in asdict(o).items()}
             for o in configuration.observations
         ],
     }
@@ -314,16 +308,12 @@ def load_dataset(path: str | os.PathLike) -> Dataset:
         raise DatasetError(f"dataset file {source}: {error}") from None
 
 
-def load_or_create_dataset(path: str | os.PathLike, beacon_map: BeaconMap) -> Dataset:
-    """The dataset at `path`, or an empty one on `beacon_map` when the file does not exist yet."""
-    return load_dataset(path) if Path(path).is_file() else Dataset(beacon_map)
-
-
 def append_configuration(
     path: str | os.PathLike, beacon_map: BeaconMap, configuration: Configuration
 ) -> Dataset:
     """Append one configuration to the dataset file (created on `beacon_map` if absent); atomic."""
-    dataset = load_or_create_dataset(path, beacon_map).with_configuration(configuration)
+    dataset = load_dataset(path) if Path(path).is_file() else Dataset(beacon_map)
+    dataset = dataset.with_configuration(configuration)
     save_dataset(dataset, path)
     return dataset
 
@@ -380,8 +370,3 @@ def _observation_from_dict(item: Any, path: str, revolutions: int) -> BeaconObse
 
 def _non_negative(value: Any, path: str) -> float:
     return file_schema.number(value, path, minimum=0.0)
-
-
-def now_utc() -> str:
-    """Timestamp format of recorded configurations (same as the calibration file's)."""
-    return SensorCalibration.now_utc()

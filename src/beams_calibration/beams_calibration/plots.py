@@ -46,11 +46,7 @@ def positions_figure(result: CalibrationResult):
             )
         axes.plot([0.0], [0.0], "k+", markersize=12)
         limit = PANEL_HALF_SIDE_M / 1e-3
-        axes.set_xlim(-limit, limit)
-        axes.set_ylim(-limit, limit)
-        axes.set_xticks(ticks_mm)
-        axes.set_yticks(ticks_mm)
-        axes.set_aspect("equal")
+        axes.set(xlim=(-limit, limit), ylim=(-limit, limit), xticks=ticks_mm, yticks=ticks_mm, aspect="equal")
         axes.grid(True, linewidth=0.3)
         axes.set_title(f"({reference[0]:.3f}, {reference[1]:.3f}) m", fontsize=9)
         axes.tick_params(labelsize=7)
@@ -75,8 +71,7 @@ def corrections_figure(result: CalibrationResult):
     power_axes.plot(np.degrees(windows), np.degrees(result.correction.power_bias(windows)), "|", color="grey")
     a, b, c, d = result.correction.power_bias_coefficients
     power_axes.set_title(f"power bias\n(a={a:.2f}, b={b:.2f}, c={c:.2f}, d={d:.3f})", fontsize=9)
-    power_axes.set_xlabel("angular window (deg)")
-    power_axes.set_ylabel("correction (deg)")
+    power_axes.set(xlabel="angular window (deg)", ylabel="correction (deg)")
     power_axes.grid(True, linewidth=0.3)
     rotation_axes = figure.add_subplot(1, 2, 2)
     angles = np.linspace(-np.pi, np.pi, 361)
@@ -90,9 +85,7 @@ def corrections_figure(result: CalibrationResult):
         for name, value in zip("ABCD", result.correction.rotation_bias_coefficients, strict=True)
     )
     rotation_axes.set_title(f"rotation bias\n({coefficients})", fontsize=9)
-    rotation_axes.set_xlabel("turret angle (deg)")
-    rotation_axes.set_ylabel("correction (deg)")
-    rotation_axes.set_xlim(-180, 180)
+    rotation_axes.set(xlabel="turret angle (deg)", ylabel="correction (deg)", xlim=(-180, 180))
     rotation_axes.grid(True, linewidth=0.3)
     figure.tight_layout()
     return figure

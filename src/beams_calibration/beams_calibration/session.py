@@ -303,10 +303,7 @@ NO_DRIVER = re.compile(r"revolutions received in time|no revolution")
 _HINTS = (
     (re.compile(r"beacon (\d+) seen in"), "clear the line of sight to beacon {0}, check it is powered"),
     (re.compile(r"did the robot move|spread"), "keep the robot still (nobody touching it or the table)"),
-    (
-        re.compile(r"revolutions received in time|no revolution"),
-        "start the driver (without calibration_file)",
-    ),
+    (NO_DRIVER, "start the driver (without calibration_file)"),
     (
         re.compile(r"outside the beacons' table|beyond one turn|its bearings give"),
         "check the pose; --force records it anyway",

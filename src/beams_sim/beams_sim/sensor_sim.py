@@ -295,11 +295,9 @@ class SensorSimulator:
         return total
 
     def _occluded(self, beacon_id: int, time_s: float) -> bool:
-        if self.occlusion is None:
-            return False
         if callable(self.occlusion):
             return bool(self.occlusion(beacon_id, time_s))
-        return beacon_id in self.occlusion
+        return self.occlusion is not None and beacon_id in self.occlusion
 
     def _add_edge_noise(
         self, starts: np.ndarray, ends: np.ndarray, rng: np.random.Generator

@@ -39,14 +39,11 @@ class OcclusionSchedule:
     @classmethod
     def from_parameters(cls, occluded: list[int], flat_windows: list[float]) -> "OcclusionSchedule":
         """[-1] and [-1.0] mean none; windows come as [beacon_id, start_s, end_s, ...]."""
-        always = {int(i) for i in occluded if i >= 0}
-        if list(flat_windows) == [-1.0]:
-            return cls(always, [])
-        windows = [
+        windows = [  # [-1.0] holds no triple
             (int(flat_windows[k]), float(flat_windows[k + 1]), float(flat_windows[k + 2]))
             for k in range(0, len(flat_windows) - 2, 3)
         ]
-        return cls(always, windows)
+        return cls({int(i) for i in occluded if i >= 0}, windows)
 
     @property
     def ids(self) -> set[int]:

@@ -40,9 +40,7 @@ class SimWorldNode(GuardedCallbacks, Node):
         self.diagnostics = Diagnostics(self, "sim_world")
         values = declare_table(self, SIM_WORLD_PARAMETERS)
         self.map_frame, self.odom_frame, self.base_frame = (
-            values["map_frame"],
-            values["odom_frame"],
-            values["base_frame"],
+            values[f"{k}_frame"] for k in ("map", "odom", "base")
         )
         rate_hz = values["rate_hz"]
         try:
@@ -62,16 +60,9 @@ class SimWorldNode(GuardedCallbacks, Node):
         self.last_s = -math.inf
         self.finished = False
         self.odometry = self._new_odometry()
-        self.odometry_rate = RateStatus(
-            self.diagnostics,
-            "odometry",
-            RateMonitor(
-                "odometry",
-                RATE_WINDOW_S,
-                rate_hz * (1.0 - ODOMETRY_RATE_TOLERANCE),
-                rate_hz * (1.0 + ODOMETRY_RATE_TOLERANCE),
-            ),
-        )
+        low, high = rate_hz * (1.0 - ODOMETRY_RATE_TOLERANCE), rate_hz * (1.0 + ODOMETRY_RATE_TOLERANCE)
+        monitor = RateMonitor("odometry", RATE_WINDOW_S, low, high)
+        self.odometry_rate = RateStatus(self.diagnostics, "odometry", monitor)
         self.create_timer(1.0 / rate_hz, self._tick)
         self.get_logger().info(
             f"{self.trajectory.duration_s:.0f} s trajectory starting at {self.trajectory.pose_at(0.0)}, "
@@ -112,14 +103,8 @@ class SimWorldNode(GuardedCallbacks, Node):
             self.diagnostics.set_level("ok", "match over")
 
     def _publish_truth(self, now: Time, match_s: float) -> None:
-        msg = _odometry_message(
-            now,
-            self.map_frame,
-            self.base_frame,
-            self.trajectory.pose_at(match_s),
-            self.trajectory.twist_at(match_s),
-        )
-        self.truth_publisher.publish(msg)
+        pose, twist = self.trajectory.pose_at(match_s), self.trajectory.twist_at(match_s)
+        self.truth_publisher.publish(_odometry_message(now, self.map_frame, self.base_frame, pose, twist))
 
     def _publish_odometry(self, now: Time, match_s: float) -> None:
         sample = self.odometry.advance(match_s)

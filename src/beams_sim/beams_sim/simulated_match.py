@@ -108,13 +108,8 @@ def simulate_match(
     wheel_base_m: float = SIM_WORLD_PARAMETERS.default("wheel_base_m"),
     keep_edges: bool = False,
 ) -> SimulatedMatch:
-    """Run a match offline (see the module docstring).
-
-    trajectory: default `EurobotTrajectory.random(seed, duration_s)`; true_beacons: where the beacons
-    really stand (default: exactly on beacon_map); sensor_config: default `SensorSimConfig()` (the
-    thesis's device, code family C1..C5); variance_model: default "exact" with the sensor's natural
-    variance; odometry_drift: default `OdometryDrift()`; keep_edges keeps every revolution's raw edges.
-    """
+    """Run a match offline (the module docstring): true_beacons where the beacons really stand (default
+    on beacon_map), variance_model the driver's (default "exact" with the sensor's natural variance)."""
     if not duration_s > 0.0 or not odometry_rate_hz > 0.0:
         raise ValueError(f"duration_s ({duration_s}) and odometry_rate_hz ({odometry_rate_hz}) must be > 0")
     trajectory_seed, sensor_seed, odometry_seed = np.random.SeedSequence(seed).spawn(3)
@@ -133,9 +128,7 @@ def simulate_match(
     )
     # the receiver's minimum burst in the window correction, as driver_node decodes
     decoder = BearingDecoder(
-        config.codes,
-        variance_model or default_variance_model(config.codes, config),
-        receiver=config.receiver,
+        config.codes, variance_model or default_variance_model(config.codes, config), receiver=config.receiver
     )
     revolutions, edges = _run_sensor(
         simulator, decoder, trajectory.pose_at, duration_s, config.period_s, keep_edges
@@ -226,12 +219,8 @@ def simulated_edge_variances(config: SensorSimConfig) -> EdgeVariances:
 def calibrated_match(
     sensor_model: str, duration_s: float = MATCH_DURATION_S, seed: int = 0, **options: object
 ) -> SimulatedMatch:
-    """A match as a calibrated robot's driver publishes it (what ekf_node and triangulation_node get).
-
-    The receiver of sensor_model; the driver's exact variance with the natural variance of
-    `table_natural_variance_rad2`; bearings corrected by a perfect calibration (`calibration_of`);
-    other options go to `simulate_match`.
-    """
+    """A match as a calibrated robot's driver publishes it: the exact variance with
+    `table_natural_variance_rad2`, bearings corrected by `calibration_of`; options to `simulate_match`."""
     config = sensor_config_of(sensor_model)
     correction = calibration_of(config)
     model = default_variance_model(config.codes, config, table_natural_variance_rad2(config))
@@ -281,15 +270,8 @@ def _run_sensor(
 
 
 def _ground_truth(trajectory: EurobotTrajectory, stamps_s: np.ndarray) -> PoseTwistSamples:
-    states = trajectory.states_at(stamps_s)
-    return PoseTwistSamples(
-        stamp_s=stamps_s,
-        x_m=states[:, 0],
-        y_m=states[:, 1],
-        theta_rad=np.asarray(wrap_to_pi(states[:, 2])),
-        speed_mps=states[:, 4],
-        yaw_rate_radps=states[:, 5],
-    )
+    x, y, heading, _, speed, yaw_rate = trajectory.states_at(stamps_s).T
+    return PoseTwistSamples(stamps_s, x, y, np.asarray(wrap_to_pi(heading)), speed, yaw_rate)
 
 
 def _concatenate(first: PoseTwistSamples, rest: PoseTwistSamples) -> PoseTwistSamples:

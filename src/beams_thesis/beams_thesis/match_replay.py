@@ -19,9 +19,7 @@ START_SIGMA = (0.01, 0.01, math.radians(1.0))
 
 
 def bearing_events(
-    revolutions: Iterable,
-    variance_rad2: Callable[[int, float], float] | None = None,
-    calibrated: bool = True,
+    revolutions: Iterable, variance_rad2: Callable[[int, float], float] | None = None, calibrated: bool = True
 ) -> list[BearingEvent]:
     """The bearings of decoded revolutions (beams_driver.decoder.DecodedRevolution), arriving when their
     revolution ends; `variance_rad2(beacon_id, angular_window_rad)` replaces the published variance;
@@ -59,22 +57,15 @@ def total_fix_events(
 
     events = []
     for revolution in revolutions:
+        bearings = [b.as_bearing() for b in revolution.bearings]
         outcome = estimate_revolution(
-            [b.as_bearing() for b in revolution.bearings],
-            beacon_map,
-            turret_offset_m=turret_offset_m,
-            odometry_at=odometry_at,
+            bearings, beacon_map, turret_offset_m=turret_offset_m, odometry_at=odometry_at
         )
         result = outcome.result
         if getattr(result, "accepted", False):
-            events.append(
-                PoseEvent(
-                    revolution.start_time_s + revolution.period_s,
-                    outcome.stamp_s,
-                    (result.x, result.y, result.heading),
-                    result.covariance,
-                )
-            )
+            pose = (result.x, result.y, result.heading)
+            arrival_s = revolution.start_time_s + revolution.period_s
+            events.append(PoseEvent(arrival_s, outcome.stamp_s, pose, result.covariance))
     return events
 
 

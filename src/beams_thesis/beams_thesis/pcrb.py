@@ -62,12 +62,8 @@ class WheelNoiseModel:
             self.noise_m_per_sqrt_m**2 * np.abs(wheels) + self.slip_std**2 * (1.0 - 2.0 / np.pi) * wheels**2
         )
         base = self.wheel_base_m
-        return np.array(
-            [
-                [0.25 * (left + right), 0.5 * (right - left) / base],
-                [0.5 * (right - left) / base, (left + right) / base**2],
-            ]
-        )
+        mixed = 0.5 * (right - left) / base
+        return np.array([[0.25 * (left + right), mixed], [mixed, (left + right) / base**2]])
 
 
 def _rotation(theta: float) -> np.ndarray:

@@ -121,15 +121,9 @@ def replay(
             level, _, verdict = health.judge(arrival_s, localiser, estimate)
             levels.append((level.horizontal_m, level.heading_rad))
             tracking.append(verdict.status is Status.TRACKING)
-    return ReplayResult(
-        np.array(times),
-        np.array(estimates),
-        np.array(covariances),
-        np.array(truths),
-        dict(localiser.stats.counts),
-        np.array(levels).reshape(-1, 2),
-        np.array(tracking, dtype=bool),
-    )
+    arrays = (np.array(values) for values in (times, estimates, covariances, truths))
+    counts, levels_array = dict(localiser.stats.counts), np.array(levels).reshape(-1, 2)
+    return ReplayResult(*arrays, counts, levels_array, np.array(tracking, dtype=bool))
 
 
 def accuracy(result: ReplayResult, settle_s: float = 1.0) -> Accuracy:

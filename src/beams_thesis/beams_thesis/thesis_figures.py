@@ -125,12 +125,7 @@ def _map_points(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, n
 
 
 def beacon_noise_maps(
-    beacons_xy: np.ndarray,
-    x: np.ndarray,
-    y: np.ndarray,
-    sigma_m: float,
-    draws: int,
-    rng: np.random.Generator,
+    beacons_xy: np.ndarray, x: np.ndarray, y: np.ndarray, sigma_m: float, draws: int, rng: np.random.Generator
 ) -> ErrorMaps:
     """Figure 7.10, left: exact bearings, beacon coordinates given to ToTal with Gaussian noise sigma_m
     on each coordinate; standard deviations of the position (eq. 6.25) and orientation (eq. 6.26)
@@ -152,8 +147,7 @@ def beacon_noise_maps(
         position_std[rows] = distance.std(axis=1)
         heading_std[rows] = np.asarray(wrap_to_pi(fixes.heading.reshape(count, draws))).std(axis=1)
         inverse_d[rows] = fixes.inverse_abs_d.reshape(count, draws).mean(axis=1)
-    shape = x.shape
-    return ErrorMaps(x, y, position_std.reshape(shape), heading_std.reshape(shape), inverse_d.reshape(shape))
+    return ErrorMaps(x, y, *(v.reshape(x.shape) for v in (position_std, heading_std, inverse_d)))
 
 
 def equivalent_angle_sigma_rad(
@@ -188,11 +182,5 @@ def equivalent_angle_maps(beacons_xy: np.ndarray, x: np.ndarray, y: np.ndarray, 
     sigma = equivalent_angle_sigma_rad(beacons_xy, x, y, sigma_m)
     covariance = pose_covariance_many(beacons_xy, (px, py, heading), sigma**2)
     fixes = triangulate_many(beacons_xy, expected_bearings(beacons_xy, (px, py, heading)))
-    shape = x.shape
-    return ErrorMaps(
-        x,
-        y,
-        np.asarray(distance_error_std_m(covariance)).reshape(shape),
-        np.sqrt(covariance[:, 2, 2]).reshape(shape),
-        fixes.inverse_abs_d.reshape(shape),
-    )
+    position_std, heading_std = np.asarray(distance_error_std_m(covariance)), np.sqrt(covariance[:, 2, 2])
+    return ErrorMaps(x, y, *(v.reshape(x.shape) for v in (position_std, heading_std, fixes.inverse_abs_d)))

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from beams_calibration.calibrate import THESIS_TABLE_7_5  # noqa: F401 (the thesis's table, with its setup)
-from beams_calibration.dataset import Configuration, Dataset, average_capture, now_utc, save_dataset
+from beams_calibration.dataset import Configuration, Dataset, average_capture, save_dataset
 from beams_calibration.reference_layout import PRIOR_BEACONS, REFERENCE_ORIENTATIONS, REFERENCE_POSITIONS
 from beams_common.calibration.bearing_correction import (
     IDENTITY_CORRECTION,
@@ -21,6 +21,7 @@ from beams_common.calibration.bearing_correction import (
     THESIS_ROTATION_BIAS_COEFFICIENTS,
     BearingCorrection,
 )
+from beams_common.calibration.calibration_file import SensorCalibration
 from beams_common.config.command_line import command
 from beams_common.geometry.beacon_map import BeaconMap
 from beams_driver.codes import BeaconCode
@@ -155,16 +156,9 @@ def capture_dataset(
         actual = np.asarray(pose, dtype=float) + rng.normal(0.0, 1.0, 3) * sigmas
         samples = measure((float(actual[0]), float(actual[1]), float(actual[2])), revolutions)
         observations = average_capture(samples, prior_map.ids)
+        recorded = SensorCalibration.now_utc()
         configurations.append(
-            Configuration(
-                float(pose[0]),
-                float(pose[1]),
-                float(pose[2]),
-                observations,
-                revolutions,
-                recorded_utc=now_utc(),
-                label=f"C{index + 1}",
-            )
+            Configuration(*map(float, pose), observations, revolutions, recorded, f"C{index + 1}")
         )
     return Dataset(prior_map, tuple(configurations))
 
@@ -215,21 +209,14 @@ def thesis_dataset(
     )
 
 
-def simulate_thesis_dataset(path: Path, seed: int) -> None:
-    """The 48 configurations of section 7.3.1 as the thesis's prototype would record them
-    (`thesis_dataset`: the thesis-hardware receiver with chapter 7's biases), written to `path`."""
-    save_dataset(thesis_dataset(seed), path)
-
-
 @command("simulate_thesis_dataset")
 def entry_point(argv: Sequence[str] | None = None) -> int:
-    """`simulate_thesis_dataset DATASET.yaml [--seed 1]`: the thesis's recordings for `calibrate`
-    (what `calibrate --simulate-thesis` did before the thesis's code had a package of its own)."""
+    """`simulate_thesis_dataset DATASET.yaml [--seed 1]`: the thesis's recordings for `calibrate`."""
     parser = argparse.ArgumentParser(prog="simulate_thesis_dataset", description=entry_point.__doc__)
     parser.add_argument("dataset", type=Path, help="dataset file to write (YAML, as calibration_node writes)")
     parser.add_argument("--seed", type=int, default=1, help="random seed of the simulated sensor")
     args = parser.parse_args(argv)
     tempfile.TemporaryFile(dir=args.dataset.parent).close()  # a place it cannot write: said before the minute
-    simulate_thesis_dataset(args.dataset, args.seed)
+    save_dataset(thesis_dataset(args.seed), args.dataset)
     print(f"simulate_thesis_dataset: the thesis's 48 configurations written to {args.dataset}")
     return 0

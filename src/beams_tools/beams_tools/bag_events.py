@@ -146,14 +146,6 @@ def read_events(path: pathlib.Path, typestore: Any, counts: Counter, namespace: 
                 counts["messages_undecodable"] += 1
                 continue
             counts[f"messages_{topic}"] += 1
-            yield Event(
-                due,
-                _TOPIC_ORDER[topic],
-                next(sequence),
-                topic,
-                bag_ns,
-                connection.msgtype,
-                raw,
-                message,
-                tuple(getattr(connection.ext, "offered_qos_profiles", ())),
-            )
+            qos = tuple(getattr(connection.ext, "offered_qos_profiles", ()))
+            order = (due, _TOPIC_ORDER[topic], next(sequence))
+            yield Event(*order, topic, bag_ns, connection.msgtype, raw, message, qos)

@@ -257,12 +257,6 @@ def summary(result: ReplayResult, live: tuple[Track, Track] | None = None) -> st
     return "\n".join(lines)
 
 
-def plot(result: ReplayResult, path: pathlib.Path) -> None:
-    """Trajectories in the map frame (truth, odometry from the EKF's first pose, ToTal, the EKF) and the
-    EKF's error, 3-sigma, protection level and status against time (`plot_run`)."""
-    plot_run(result, "ekf", path, "BeAMS bag replay")
-
-
 @command("replay_bag")
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
@@ -317,7 +311,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         )
     live = live_tracks(options.input_bag, typestore, options.namespace)
     if options.plot:
-        plot(result, options.plot)
+        plot_run(result, "ekf", options.plot, "BeAMS bag replay")  # the odometry from the EKF's first pose
     print(summary(result, live))
     print(f"bag: {options.output_bag}" + (f"; plot: {options.plot}" if options.plot else ""))
     return 0

@@ -85,14 +85,8 @@ class CampaignProcesses(NodeSupervisor):
     def duplicate(self, name: str, parameters: dict[str, Any]) -> None:
         """A second process of the node `name` (no --standby: it does not wait for the role)."""
         process = f"duplicate_{name}"
-        self.add(
-            process,
-            [
-                NODES[name].installed(self.install_base),
-                "--ros-args",
-                *self.ros_arguments(process, parameters),
-            ],
-        )
+        arguments = self.ros_arguments(process, parameters)
+        self.add(process, [NODES[name].installed(self.install_base), "--ros-args", *arguments])
 
     def sample_rss(self, now_s: float) -> None:
         """Each process's resident memory (VmRSS), from RSS_SETTLE_S after its current process started."""

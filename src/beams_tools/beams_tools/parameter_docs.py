@@ -2,9 +2,8 @@
 /parameters -->`) and beams_bringup's parameter file, written from the nodes' ParameterTables so that neither
 drifts from what the nodes declare (test/static/test_docs_in_sync.py).
 
-python -m beams_tools.parameter_docs # print every node's table python -m beams_tools.parameter_docs --write
-docs/nodes.md # replace the tables between the markers python -m beams_tools.parameter_docs --write
-src/beams_bringup/config/beams_params.yaml"""
+`python -m beams_tools.parameter_docs` prints every node's table; `--write docs/nodes.md` replaces the tables
+between the markers, `--write src/beams_bringup/config/beams_params.yaml` the parameter file."""
 
 import argparse
 import pathlib

@@ -15,12 +15,7 @@ from rosbags.rosbag2 import Reader
 from beams_common.geometry.pose2d import Pose2D, is_finite_pose
 from beams_common.intake.bearing_intake import bearings_message_intake
 from beams_common.intake.pose_intake import PoseSource, planar_pose_intake
-from beams_common.ros.messages import (
-    planar_covariance,
-    pose2d_of,
-    seconds_to_stamp,
-    stamp_to_seconds,
-)
+from beams_common.ros.messages import planar_covariance, pose2d_of, seconds_to_stamp, stamp_to_seconds
 from beams_common.status.health import Verdict
 from beams_common.status.protection_level import ProtectionLevel
 from beams_ekf.ekf_health import EkfHealth

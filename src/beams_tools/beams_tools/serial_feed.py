@@ -79,14 +79,6 @@ class SerialFeed:
         self._thread.join(timeout=5.0)
         self.unplug()
 
-    def _noisy(self, frames: bytes) -> bytes:
-        """The frames with random bytes inserted at random places."""
-        data = bytearray(frames)
-        for _ in range(self.noise_bytes_per_revolution):
-            position = int(self._rng.integers(len(data) + 1))
-            data[position:position] = bytes([int(self._rng.integers(256))])
-        return bytes(data)
-
     def _run(self) -> None:
         config = SensorSimConfig()
         simulator = SensorSimulator(config, EUROBOT_BEACON_MAP, np.random.default_rng(self._seed))
@@ -109,13 +101,22 @@ class SerialFeed:
                 spurious_zero_then(encoder, edges.start_time_s) if self.fault == "spurious_zero" else b""
             ) + encoder.revolution(edges)
             if self.fault == "noise":
-                frames = self._noisy(frames)
+                frames = with_line_noise(frames, self.noise_bytes_per_revolution, self._rng)
             with self._lock:
                 if self._master is not None:
                     with contextlib.suppress(BlockingIOError, OSError):
                         os.write(self._master, frames)
                         self.revolutions_written += 1
             revolution += 1
+
+
+def with_line_noise(frames: bytes, count: int, rng: np.random.Generator) -> bytes:
+    """The frames with `count` random bytes inserted at random places (line noise)."""
+    data = bytearray(frames)
+    for _ in range(count):
+        position = int(rng.integers(len(data) + 1))
+        data[position:position] = bytes([int(rng.integers(256))])
+    return bytes(data)
 
 
 def spurious_zero_then(encoder: FrameEncoder, opening_s: float) -> bytes:

@@ -158,10 +158,7 @@ def plot_run(run: RunTracks, odometry_anchor: str, path: pathlib.Path, title: st
         if len(rows):
             table.plot(rows[:, 2], rows[:, 3], STYLES.get(name, "-"), label=name, markersize=2, linewidth=1)
     table.add_patch(plt.Rectangle((0, 0), 3, 2, fill=False, color="grey"))
-    table.set_aspect("equal")
-    table.set_xlabel("x (m, map)")
-    table.set_ylabel("y (m, map)")
-    table.set_title(title)
+    table.set(aspect="equal", xlabel="x (m, map)", ylabel="y (m, map)", title=title)
     table.legend(loc="upper right")
     _draw_integrity(timeline, run, tracks)
     figure.savefig(path, dpi=110, bbox_inches="tight")
@@ -180,18 +177,13 @@ def status_spans(times_s: np.ndarray, statuses: list[str]) -> list[tuple[float, 
     ]
 
 
-def _first_segment(rows: np.ndarray) -> np.ndarray:
-    """The rows of the first segment (a bag played in a loop repeats its times)."""
-    return rows[rows[:, 0] == rows[0, 0]] if len(rows) else rows
-
-
 def _draw_integrity(axes, run: RunTracks, tracks: Mapping[str, np.ndarray]) -> None:
     """The EKF's error, 3-sigma and protection level (mm) against the time since its first estimate, on
     its status band (the first segment)."""
     ekf = tracks["EKF"]
     if len(run.ekf_covariances) == len(ekf):  # the envelope's column beside the rows
         ekf = np.column_stack([ekf, major_sigma_m(np.array(run.ekf_covariances).reshape(-1, 3, 3))])
-    ekf = _first_segment(ekf)
+    ekf = ekf[ekf[:, 0] == ekf[0, 0]] if len(ekf) else ekf  # a bag played in a loop repeats its times
     judged = np.array([row[:3] for row in run.ekf_integrity.rows], dtype=float).reshape(-1, 3)
     first = judged[:, 0] == judged[0, 0] if len(judged) else np.zeros(0, dtype=bool)
     statuses = [row[3] for row, kept in zip(run.ekf_integrity.rows, first, strict=True) if kept]
@@ -209,7 +201,5 @@ def _draw_integrity(axes, run: RunTracks, tracks: Mapping[str, np.ndarray]) -> N
         axes.axvspan(begin_s, end_s, color=STATUS_COLOURS.get(status, "white"), alpha=0.25, linewidth=0)
     for status, colour in STATUS_COLOURS.items():  # the legend's entries
         axes.axvspan(0, 0, color=colour, alpha=0.25, label=status)
-    axes.set_yscale("log")
-    axes.set_xlabel("time since the EKF's first estimate (s)")
-    axes.set_ylabel("EKF horizontal (mm)")
+    axes.set(yscale="log", xlabel="time since the EKF's first estimate (s)", ylabel="EKF horizontal (mm)")
     axes.legend(loc="upper center", bbox_to_anchor=(0.5, -0.2), ncol=5, fontsize="small")
