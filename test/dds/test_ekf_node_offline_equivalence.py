@@ -67,6 +67,8 @@ def _messages(match):
 def _node_estimates(node, odometry, revolutions, fixes, initial):
     """The messages through the node's callbacks in arrival order (replay's: at one instant the odometry
     up to it, then the bearings, then the fixes); the estimate after each instant."""
+    from beams_common.ros.messages import odometry_sample
+
     clock = {"now_s": 0.0}
     node._now_s = lambda: clock["now_s"]
     node._operator_pose(initial)
@@ -77,7 +79,7 @@ def _node_estimates(node, odometry, revolutions, fixes, initial):
     for arrival_s, group in groupby(arrivals, key=lambda e: e[0]):
         while k < len(odometry) and odometry[k][0] <= arrival_s:
             clock["now_s"] = odometry[k][0]
-            node._on_odometry(odometry[k][1])
+            node._on_odometry(odometry_sample(odometry[k][1]))  # as the raw subscription reads it
             k += 1
         clock["now_s"] = arrival_s
         for _, kind, message in group:
