@@ -297,10 +297,8 @@ class PoseConfirmation:
     def add(self, beacon_id: int, gated: bool) -> bool:
         """One new bearing judged by the filter; True when it completes the confirmation."""
         if self.confirmed:
-            if self._since_confirmed is not None and not gated:
-                self._since_confirmed += 1
-                if self._since_confirmed >= self.RELAPSE_BEARINGS:
-                    self._relapses = 0
+            if self._since_confirmed is not None and not gated:  # `broken` judges a relapse by it
+                self._since_confirmed = min(self._since_confirmed + 1, self.RELAPSE_BEARINGS)
             return False
         if gated:
             self._run.clear()

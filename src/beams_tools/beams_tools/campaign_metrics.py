@@ -222,11 +222,15 @@ class ClassFigures:
     # faults that raised one (a refused call or a fault the nodes absorb need none)
     alerts_s: list[float] = field(default_factory=list)
 
+    @property
+    def alert_p50_s(self) -> float:
+        return float(np.median(self.alerts_s)) if self.alerts_s else float("nan")
+
     def alert_summary(self) -> str:
         if not self.alerts_s:
             return f"0 of {self.faults} alerted"
-        p50, worst = np.median(self.alerts_s), max(self.alerts_s)
-        return f"{len(self.alerts_s)} of {self.faults} alerted, p50 {p50:.2f} s, worst {worst:.2f} s"
+        alerted, p50, worst = len(self.alerts_s), self.alert_p50_s, max(self.alerts_s)
+        return f"{alerted} of {self.faults} alerted, p50 {p50:.2f} s, worst {worst:.2f} s"
 
 
 def times_to_alert_s(status: np.ndarray, windows: Sequence[tuple[float, float]]) -> list[float]:
