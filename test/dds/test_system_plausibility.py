@@ -1,11 +1,11 @@
 """Issue 18's reproductions on the running system, over DDS, every node its own process: wrong inputs that
-are well-formed, relayed by the test between the simulated robot and the localisation nodes.
+are well-formed, relayed by fault_relay_node between the simulated robot and the localisation nodes.
 
-sim_world_node publishes its odometry on `odom_raw` and driver_node its bearings on `beams/bearings_raw`
-(remapped); the test relays both to `odom` and `beams/bearings`, as a faulty bridge, clock or robot
-would, one fault at a time: bearings restamped 1 s late, then 0.5 s early, then the odometry shifted by
-+100 m for good, then another team's beacon (id 9, not on the map) added to every revolution. Measured
-against the simulator's ground truth:
+sim_world_node publishes its odometry and ground truth on raw topics and driver_node its bearings on
+`beams/bearings_raw` (remapped); the relay republishes them to the topics the nodes read, as a faulty
+bridge, clock or robot would, one fault at a time: bearings restamped 1 s late, then 0.5 s early, then
+the odometry shifted by +100 m for good, then another team's beacon (id 9, not on the map) added to
+every revolution. Measured against the simulator's ground truth:
 
 - each stamp fault makes ekf_node's and triangulation_node's status leave "tracking" within
   STATUS_BOUND_S, with the reason on /diagnostics; the odometry jump is counted and degrades the EKF;
@@ -45,54 +45,32 @@ STATUS_BOUND_S = 2.5
 MISLEADING_BOUND_M = 0.1
 FAULT_S = 3.0
 RECOVER_S = 4.0
+# After a fault that cost the EKF its bearings for FAULT_S it is re-initialised; its protection level then
+# stays above the 5 cm alert limit (degraded, honestly) until the solutions without each beacon agree
+# again: 6-19 s measured.
+PROTECTION_RECOVERY_S = 20.0
 # With the fourth beacon, ToTal's accepted poses per revolution: the simulated match gives about 0.9
 # without it (the 1/|D| gate near the critical circle); the issue's node gave 1 in 80.
 MIN_ACCEPTED_FRACTION = 0.5
 
 
 class Relay:
-    """odom_raw -> odom and beams/bearings_raw -> beams/bearings, with the fault in force."""
+    """fault_relay_node (its own process, as the fault campaign runs it) between the robot's publishers and
+    its filters: the test sets its faults through its parameters. In the test's own process the relay
+    shared the interpreter with the probe and, on a loaded machine, held messages past the nodes' stamp
+    tolerance (0.25 s): faults the test did not inject."""
 
-    def __init__(self, graph) -> None:
-        from nav_msgs.msg import Odometry
-        from rclpy.qos import qos_profile_sensor_data
+    def __init__(self, graph, start_node) -> None:
+        self.graph = graph
+        self.process = start_node("beams_tools", "fault_relay_node", {})
 
-        from beams_common.ros.node_support import BEARINGS_QOS
-        from beams_msgs.msg import BeaconBearingArray
+    def set(self, name: str, value: float | int) -> None:
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.parameter import Parameter
 
-        node = graph.node
-        self.bearing_offset_s = 0.0
-        self.odometry_offset_m = 0.0
-        self.stranger = False
-        self.revolutions = 0
-        self.odometry_out = node.create_publisher(Odometry, "odom", qos_profile_sensor_data)
-        self.bearings_out = node.create_publisher(BeaconBearingArray, "beams/bearings", BEARINGS_QOS)
-        node.create_subscription(Odometry, "odom_raw", self._on_odometry, qos_profile_sensor_data)
-        node.create_subscription(BeaconBearingArray, "beams/bearings_raw", self._on_bearings, BEARINGS_QOS)
-
-    def _on_odometry(self, msg) -> None:
-        msg.pose.pose.position.x += self.odometry_offset_m
-        self.odometry_out.publish(msg)
-
-    def _on_bearings(self, msg) -> None:
-        from beams_msgs.msg import BeaconBearing
-
-        if self.bearing_offset_s:
-            msg.header.stamp = _shifted(msg.header.stamp, self.bearing_offset_s)
-            for item in msg.bearings:
-                item.header.stamp = _shifted(item.header.stamp, self.bearing_offset_s)
-        if self.stranger and msg.bearings:
-            item = BeaconBearing(beacon_id=9, bearing=0.5, variance=msg.bearings[0].variance)
-            item.header.stamp = msg.bearings[-1].header.stamp
-            msg.bearings.append(item)
-        self.revolutions += 1
-        self.bearings_out.publish(msg)
-
-
-def _shifted(stamp, offset_s: float):
-    from beams_common.ros.messages import seconds_to_stamp, stamp_to_seconds
-
-    return seconds_to_stamp(stamp_to_seconds(stamp) + offset_s)
+        request = SetParameters.Request(parameters=[Parameter(name, value=value).to_parameter_msg()])
+        (result,) = self.graph.call(SetParameters, "/fault_relay_node/set_parameters", request, 5.0).results
+        assert result.successful, result.reason
 
 
 def _statuses(probe: RobotProbe, tag: str, since: float) -> list[str]:
@@ -118,10 +96,13 @@ def _tracking_again(graph, probe: RobotProbe, tag: str, timeout_s: float) -> boo
 
 def test_implausible_inputs_never_make_a_misleading_estimate(start_node, rclpy_node, tmp_path):
     parameters = system.robot_parameters(seed=31)
-    remaps = {"sim_world": ["-r", "odom:=odom_raw"], "driver": ["-r", "beams/bearings:=beams/bearings_raw"]}
+    remaps = {
+        "sim_world": ["-r", "odom:=odom_raw", "-r", "beams/sim/ground_truth:=beams/sim/ground_truth_raw"],
+        "driver": ["-r", "beams/bearings:=beams/bearings_raw"],
+    }
     probe = RobotProbe("")
     probe.attach(rclpy_node)
-    relay = Relay(rclpy_node)
+    relay = Relay(rclpy_node, start_node)
     nodes = {
         name: start_node(*NODE_EXECUTABLES[name], parameters[name], extra_args=remaps.get(name))
         for name in NODE_EXECUTABLES
@@ -135,7 +116,7 @@ def test_implausible_inputs_never_make_a_misleading_estimate(start_node, rclpy_n
 
     for offset_s, words in ((-1.0, "behind the receiving clock"), (0.5, "ahead of the receiving clock")):
         start = time.monotonic()
-        relay.bearing_offset_s = offset_s
+        relay.set("bearing_stamp_offset_s", offset_s)
         for tag in ("ekf", "triangulation"):
             assert _leaves_tracking(graph, probe, tag, start), (
                 f"{tag} still tracking with {offset_s} s stamps"
@@ -143,20 +124,22 @@ def test_implausible_inputs_never_make_a_misleading_estimate(start_node, rclpy_n
         graph.spin_for(max(0.0, start + FAULT_S - time.monotonic()))
         values = _latest(probe, "ekf")
         assert float(values.get("bearings_stamp_refused", 0)) > 0 and words in values.get("last_refusal", "")
-        relay.bearing_offset_s = 0.0
-        assert _tracking_again(graph, probe, "ekf", RECOVER_S + 3.0), _latest(probe, "ekf")
+        relay.set("bearing_stamp_offset_s", 0.0)
+        assert _tracking_again(graph, probe, "ekf", RECOVER_S + PROTECTION_RECOVERY_S), _latest(probe, "ekf")
 
     start = time.monotonic()
-    relay.odometry_offset_m = 100.0  # for good: the odometry source "reset" 100 m away
+    relay.set("odometry_offset_x_m", 100.0)  # for good: the odometry source "reset" 100 m away
     assert _leaves_tracking(graph, probe, "ekf", start), "the EKF kept tracking across a 100 m jump"
     assert float(_latest(probe, "ekf").get("odometry_jumps", 0)) >= 1
-    assert _tracking_again(graph, probe, "ekf", RECOVER_S + 3.0), _latest(probe, "ekf")
+    assert _tracking_again(graph, probe, "ekf", RECOVER_S + PROTECTION_RECOVERY_S), _latest(probe, "ekf")
 
-    relay.stranger = True
-    revolutions, accepted = relay.revolutions, len(probe.total)
+    relay.set("unknown_beacon_id", 9)
+    revolutions, accepted = len(probe.revolutions), len(probe.total)
     graph.spin_for(FAULT_S)
-    relay.stranger = False
-    fraction = (len(probe.total) - accepted) / max(relay.revolutions - revolutions, 1)
+    relay.set("unknown_beacon_id", 0)
+    strangers = sum(9 in ids for _, ids in probe.revolutions[revolutions:])
+    assert strangers >= FAULT_S * 5, f"{strangers} revolutions with the unknown beacon relayed"
+    fraction = (len(probe.total) - accepted) / max(len(probe.revolutions) - revolutions, 1)
     assert fraction >= MIN_ACCEPTED_FRACTION, f"ToTal accepted {fraction:.2f} of the revolutions"
     assert float(_latest(probe, "triangulation").get("bearings_unknown_beacon", 0)) > 0
     # another team's beacon is no fault of the EKF's: it stays tracking (the next report at the latest)

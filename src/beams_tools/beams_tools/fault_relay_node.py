@@ -14,7 +14,7 @@ from rclpy.qos import qos_profile_sensor_data
 from beams_common.interfaces import topics
 from beams_common.ros.messages import seconds_to_stamp, stamp_to_seconds
 from beams_common.ros.node_support import BEARINGS_QOS, run_node
-from beams_msgs.msg import BeaconBearingArray
+from beams_msgs.msg import BeaconBearing, BeaconBearingArray
 
 RAW_SUFFIX = "_raw"
 FAULT_PARAMETERS = ("odometry_offset_x_m", "odometry_delay_s", "bearing_stamp_offset_s")
@@ -30,6 +30,8 @@ class FaultRelayNode(Node):
         self.faults = {name: 0.0 for name in FAULT_PARAMETERS}
         for name in FAULT_PARAMETERS:
             self.declare_parameter(name, 0.0)
+        # another team's beacon (an id not on the map) seen once per revolution; 0: none
+        self.unknown_beacon_id = self.declare_parameter("unknown_beacon_id", 0).value
         self.add_on_set_parameters_callback(self._on_parameters)
         self._held: collections.deque[tuple[float, Odometry]] = collections.deque()
         self.odometry_publisher = self.create_publisher(Odometry, topics.ODOMETRY, QUEUE_DEPTH)
@@ -52,6 +54,10 @@ class FaultRelayNode(Node):
         wrong = [p.name for p in faults if not isinstance(p.value, float) or not math.isfinite(p.value)]
         if wrong:
             return SetParametersResult(successful=False, reason=f"{wrong}: a finite float, please")
+        for parameter in (p for p in parameters if p.name == "unknown_beacon_id"):
+            if not isinstance(parameter.value, int) or not 0 <= parameter.value <= 255:
+                return SetParametersResult(successful=False, reason="unknown_beacon_id: an id 0-255, please")
+            self.unknown_beacon_id = parameter.value
         for parameter in faults:
             self.faults[parameter.name] = parameter.value
             self.get_logger().info(f"{parameter.name} = {parameter.value}")
@@ -76,6 +82,12 @@ class FaultRelayNode(Node):
             msg.header.stamp = seconds_to_stamp(stamp_to_seconds(msg.header.stamp) + offset_s)
             for bearing in msg.bearings:
                 bearing.header.stamp = seconds_to_stamp(stamp_to_seconds(bearing.header.stamp) + offset_s)
+        if self.unknown_beacon_id and msg.bearings:
+            stranger = BeaconBearing(
+                beacon_id=self.unknown_beacon_id, bearing=0.5, variance=msg.bearings[0].variance
+            )
+            stranger.header.stamp = msg.bearings[-1].header.stamp
+            msg.bearings.append(stranger)
         self.bearings_publisher.publish(msg)
 
 
