@@ -26,11 +26,11 @@ from typing import Any
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
-from scipy.stats import chi2
 
 from beams_common.config.parameters import ParameterSpec, ParameterTable
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.pose2d import Pose2D, compose
+from beams_ekf.consistency import chi2_quantile
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, rejected
 from beams_ekf.state_blocks import BearingPart, Sighting, StateBlock
 
@@ -92,7 +92,7 @@ class ProcessNoise:
 
 def gate_threshold(probability: float) -> float:
     """Chi-square (1 dof) quantile that a consistent innovation stays under with `probability`."""
-    return float(chi2.ppf(probability, df=1))
+    return chi2_quantile(probability, 1)
 
 
 def turret_pose(robot_pose: Pose2D, sensor_offset_m: tuple[float, float]) -> Pose2D:

@@ -16,14 +16,63 @@ Either lets the next ToTal fix re-initialise the filter (`Localiser.on_pose`).
 """
 
 from collections import deque
-from math import copysign, hypot, isfinite, sqrt
+from math import copysign, exp, hypot, isfinite, lgamma, log, sqrt
+from statistics import NormalDist
 
 import numpy as np
-from scipy.stats import chi2
 
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.pose2d import Pose2D
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, PoseFilter
+
+
+def chi2_quantile(probability: float, dof: int) -> float:
+    """The chi-square distribution's quantile (scipy.stats' chi2.ppf, to 1e-10): its CDF is the regularised
+    incomplete gamma function P(dof/2, x/2), the lower one summed by its series below x/2 = dof/2 + 1 and
+    the upper one by its continued fraction above (each where it keeps its precision), inverted by Newton's
+    method from the Wilson-Hilferty approximation. scipy.stats' import would be a second of a node's start."""
+    if not 0.0 < probability < 1.0 or dof < 1:
+        raise ValueError(
+            f"chi-square quantile at {probability} with {dof} dof: 0 < probability < 1, dof >= 1"
+        )
+    a = dof / 2.0
+
+    def excess_and_density(x: float) -> tuple[float, float]:
+        """CDF(x) - probability, computed as the smaller tail, and the density at x."""
+        half = x / 2.0
+        scale = exp(a * log(half) - half - lgamma(a))
+        if half < a + 1.0:
+            term = total = 1.0 / a
+            n = 0
+            while term > total * 1e-17:
+                n += 1
+                term *= half / (a + n)
+                total += term
+            excess = scale * total - probability
+        else:  # modified Lentz evaluation of the upper tail's continued fraction
+            b = half + 1.0 - a
+            c, d = 1e300, 1.0 / b
+            fraction = d
+            for n in range(1, 1000):
+                an = -n * (n - a)
+                b += 2.0
+                d = 1.0 / (an * d + b or 1e-300)
+                c = b + an / c or 1e-300
+                fraction *= d * c
+                if abs(d * c - 1.0) < 1e-16:
+                    break
+            excess = (1.0 - probability) - scale * fraction
+        return excess, scale / x
+
+    z = NormalDist().inv_cdf(probability)
+    x = max(dof * (1.0 - 2.0 / (9.0 * dof) + z * sqrt(2.0 / (9.0 * dof))) ** 3, 1e-3)
+    for _ in range(100):
+        excess, density = excess_and_density(x)
+        step = excess / density
+        x = max(x - step, x / 10.0)
+        if abs(step) <= 1e-14 * x:
+            break
+    return x
 
 
 class NisMonitor:
@@ -39,7 +88,7 @@ class NisMonitor:
         self.enabled = window_bearings > 0
         self._gate = gate
         self._thresholds = [float("inf")] + [
-            float(chi2.ppf(probability, df=n)) for n in range(1, max(window_bearings, 1) + 1)
+            chi2_quantile(probability, n) for n in range(1, max(window_bearings, 1) + 1)
         ]
 
     def add(self, nis: float) -> bool:
@@ -82,7 +131,7 @@ class KidnapEvidence:
     ) -> None:
         self._recent_gated: deque[bool] = deque(maxlen=window_bearings)
         self._gated_bearings = gated_bearings
-        self._threshold = float(chi2.ppf(probability, df=3))
+        self._threshold = chi2_quantile(probability, 3)
         self._distance_m = distance_m
         self._heading_rad = heading_rad
 

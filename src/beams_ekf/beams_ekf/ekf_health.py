@@ -20,6 +20,7 @@ The receiving clock is the node's (ROS time: /clock under use_sim_time); pure, t
 """
 
 from collections.abc import Mapping
+from math import isfinite
 from typing import Any
 
 from beams_common.status.health import (
@@ -125,7 +126,8 @@ class EkfHealth:
         degraded += [p for p in (self.bearing_rate.problem(now_s), self._odometry_rate_problem(now_s)) if p]
         degraded += self.faults.active(now_s)
         if bearing_silence_s > MAX_BEARING_SILENCE_S:
-            degraded.append(f"no accepted bearing for {min(bearing_silence_s, 1e6):.1f} s: odometry only")
+            silence = f"for {bearing_silence_s:.1f} s" if isfinite(bearing_silence_s) else "yet"
+            degraded.append(f"no accepted bearing {silence}: odometry only")
         return judge("", lost, degraded)
 
     def judge(

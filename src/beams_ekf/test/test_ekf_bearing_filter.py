@@ -117,6 +117,21 @@ def test_gate_threshold_is_the_chi_square_quantile():
         filter_settings({"gate_probability": 1.0})
 
 
+@pytest.mark.parametrize("dof", [1, 2, 3, 4, 7, 12, 27, 60, 200])
+def test_chi_square_quantile_is_scipys(dof):
+    """chi2_quantile stands in for scipy.stats' chi2.ppf (whose import is a second of ekf_node's start):
+    the same to 1e-12 over the parameters' ranges (gate, kidnap, lost NIS: 0.5 to 1 - 1e-12) and below."""
+    from scipy.stats import chi2
+
+    from beams_ekf.consistency import chi2_quantile
+
+    for probability in (1e-9, 0.01, 0.3, 0.5, 0.9, 0.95, 0.99, 0.999, 1 - 1e-6, 1 - 1e-9, 1 - 1e-12):
+        assert chi2_quantile(probability, dof) == pytest.approx(chi2.ppf(probability, dof), rel=1e-12)
+    for wrong in ((0.0, dof), (1.0, dof), (float("nan"), dof), (0.5, 0)):
+        with pytest.raises(ValueError, match="chi-square quantile"):
+            chi2_quantile(*wrong)
+
+
 @pytest.mark.parametrize(
     ("beacon_id", "bearing", "variance", "reason"),
     [

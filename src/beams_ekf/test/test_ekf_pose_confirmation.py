@@ -164,7 +164,7 @@ def test_the_first_initialisation_from_total_is_tracking_at_once(match):
     # ToTal's fix of the first revolution: the bearings' own pose, nothing to confirm; degraded only
     # until the filter's first bearing (no accepted bearing yet), tracking from the next revolution on
     assert _statuses(steps[:3]) == [Status.WAITING, Status.DEGRADED, Status.TRACKING]
-    assert steps[1].message == "degraded: no accepted bearing for 1000000.0 s: odometry only"
+    assert steps[1].message == "degraded: no accepted bearing yet: odometry only"
     assert _tracking_but_detections(steps[2:])
     assert not any(step.misleading for step in steps)
 
