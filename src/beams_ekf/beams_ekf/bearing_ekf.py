@@ -203,15 +203,6 @@ class PoseStates(StateBlock):
         return BearingPart(sighting.d_pose)
 
 
-class _OdometryEkf(ExtendedKalmanFilter):
-    """filterpy's EKF whose state transition composes the pose (the first block) with the odometry."""
-
-    def predict_x(self, u: Pose2D = (0.0, 0.0, 0.0)) -> None:
-        x = self.x.copy()
-        x[: PoseStates.size, 0] = compose(tuple(self.x[: PoseStates.size, 0].tolist()), u)
-        self.x = x
-
-
 class BearingEkf:
     """EKF over the pose (x, y, theta) in the map frame and the `blocks` after it (None: skipped);
     beacons identified by id, so no data association. The first PoseFilter (pose_filter.py)."""
@@ -231,7 +222,16 @@ class BearingEkf:
         self._heading = self._pose.stop - 1  # theta, the pose's last state
         self.dim = int(ends[-1])
         self._kept = np.array([i for b, p in self._parts if b.learnt for i in range(p.start, p.stop)], int)
-        self._ekf = _OdometryEkf(dim_x=self.dim, dim_z=1)
+        self._ekf = ExtendedKalmanFilter(dim_x=self.dim, dim_z=1)  # x and P; predict and update below
+        # the pose's rows of the prediction's Jacobian F (F is the identity in the other rows)
+        self._motion_rows, self._rotation = np.eye(3, self.dim), np.eye(3)
+        # the blocks past the pose that correct the odometry's increment or add to its noise
+        hooks = (StateBlock.corrected_increment, StateBlock.process_noise)
+        self._moving = [
+            (b, p)
+            for b, p in self._parts[1:]
+            if (type(b).corrected_increment, type(b).process_noise) != hooks
+        ]
         self._memory = [block.new_memory() for block in blocks]
         self._initialised = False
         self.excluded_beacons: set[int] = set()
@@ -361,25 +361,28 @@ class BearingEkf:
             self._memory = [block.new_memory() for block, _ in self._parts]
 
     def predict(self, increment: Pose2D) -> None:
-        """Move by a robot-frame odometry increment (dx, dy, dtheta); P <- F P F' + G M G' (first order)."""
-        x, pose = self._ekf.x, self._pose
+        """Move by a robot-frame odometry increment (dx, dy, dtheta); P <- F P F' + Q (first order). F is
+        the identity but in the pose's rows A (d compose / d (pose, the states correcting the increment)),
+        so only the pose's rows and columns change: A P there, its transpose (P symmetric), A P A'."""
+        x, p, a, rotation, pose = self._ekf.x, self._ekf.P, self._motion_rows, self._rotation, self._pose
         # the increment is expressed in the robot frame at the prior heading
-        theta = float(x[self._heading, 0])
+        px, py, theta = x[pose, 0].tolist()
         c, s = cos(theta), sin(theta)
-        moved, f, q = increment, np.eye(self.dim), np.zeros((self.dim, self.dim))
-        for block, part in self._parts:
+        rotation[0, 0], rotation[0, 1], rotation[1, 0], rotation[1, 1] = c, -s, s, c
+        moved, noises = increment, []
+        for block, part in self._moving:
             # the true motion is the reported one corrected by the blocks (odometry_errors)
             moved, d_moved = block.corrected_increment(moved, x[part, 0])
-            if d_moved is not None:
-                f[pose, part] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ d_moved
-            noise = block.process_noise(increment, x[part, 0])
+            a[:, part] = 0.0 if d_moved is None else rotation.dot(d_moved)
+            noises.append((part, block.process_noise(increment, x[part, 0])))
+        a[0, 2], a[1, 2] = -s * moved[0] - c * moved[1], c * moved[0] - s * moved[1]
+        rows = a.dot(p)
+        p[pose, :], p[:, pose] = rows, rows.T
+        p[pose, pose] = rows.dot(a.T) + self._parts[0][0].process_noise(increment, x[pose, 0])
+        for part, noise in noises:
             if noise is not None:
-                q[part, part] = noise
-        # Jacobian of compose(x, u) with respect to the pose
-        dx, dy = moved[0], moved[1]
-        f[pose, pose] = [[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]]
-        self._ekf.F, self._ekf.Q = f, q
-        self._ekf.predict(u=moved)
+                p[part, part] += noise
+        x[pose, 0] = compose((px, py, theta), moved)
 
     def add_time_noise(self, position_variance_m2: float, heading_variance_rad2: float) -> None:
         """Inflate the covariance (e.g. for an odometry gap during which the robot may have slipped)."""
