@@ -203,9 +203,8 @@ class Localiser:
             # the estimate stood still: an odometry source restarted within its speed limit (a
             # simulator's new match) or a robot pushed meanwhile is not followed
             self._break_continuity(f"an odometry silence of {stamp_s - latest[0]:.1f} s")
-        self._late.advance(latest[0], latest[1], stamp_s, odom_pose)
+        self._late.advance(stamp_s, odom_pose, increment)
         self.separations.moved(increment, self.ekf.pose[2])
-        self._late.append(stamp_s, odom_pose)
         self._stamp_s = stamp_s
         self._late.apply_pending(stamp_s)
         return OdometryOutcome.PREDICTED
