@@ -333,11 +333,11 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, StampedInputs, Node
         self._update_diagnostics(estimate)
         if estimate is None or not math.isfinite(estimate.stamp_s):
             return
+        if estimate.stamp_s == self._published_stamp_s and not self._changed:  # the one published
+            return
         problem = planar_estimate_problem(estimate.pose, estimate.covariance)
         if problem:  # the invariant of every published estimate
             self.diagnostics.refuse("estimates_not_published_invalid", problem, level="error")
-            return
-        if estimate.stamp_s == self._published_stamp_s and not self._changed:  # nothing new since
             return
         self._published_stamp_s = estimate.stamp_s
         self._changed = False

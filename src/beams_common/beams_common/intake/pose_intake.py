@@ -16,7 +16,7 @@ import numpy as np
 
 from beams_common.geometry.pose2d import Pose2D, yaw_of_quaternion
 from beams_common.intake.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD, off_table_problem
-from beams_common.intake.validation import SYMMETRY_TOLERANCE, bounded
+from beams_common.intake.validation import SYMMETRY_TOLERANCE, bounded, clearly_conditioned
 
 # The (x, y, yaw) rows and columns of a row-major 6x6 ROS covariance.
 PLANAR_INDICES = (0, 1, 5)
@@ -96,7 +96,7 @@ def pose_covariance_problem(covariance_3x3: Any) -> str:
     own_scale = np.maximum(np.outer(root, root), np.finfo(float).tiny)
     if float(np.max(np.abs(normalised - normalised.T) / own_scale)) > SYMMETRY_TOLERANCE:
         return "covariance is not symmetric"
-    smallest = float(np.linalg.eigvalsh(normalised)[0])
+    smallest = 1.0 if clearly_conditioned(normalised) else float(np.linalg.eigvalsh(normalised)[0])
     if np.any(np.diag(matrix) < 0.0) or smallest < -PSD_TOLERANCE:
         return bounded(
             f"covariance is not positive semi-definite (smallest eigenvalue {smallest * scale:.3g}): "
@@ -115,7 +115,9 @@ def informative_covariance(covariance_3x3: np.ndarray) -> np.ndarray | None:
     """A covariance that passed rule 3 when positive definite (the filter can take it), else None."""
     matrix = np.asarray(covariance_3x3, dtype=float)
     scale = float(np.max(np.abs(matrix)))
-    if scale == 0.0 or not float(np.linalg.eigvalsh(matrix / scale)[0]) > 0.0:
+    if scale == 0.0 or not (
+        clearly_conditioned(matrix / scale) or np.linalg.eigvalsh(matrix / scale)[0] > 0.0
+    ):
         return None
     return matrix
 
