@@ -90,8 +90,10 @@ _EDGE_COVARIANCES = [
 
 def _decisions(matrix: np.ndarray) -> tuple:
     """What the three covariance checks answer (the published estimate's, a pose's, its information)."""
-    informative = pose_intake.informative_covariance(matrix) if np.all(np.isfinite(matrix)) else "non-finite"
-    return covariance_problem(matrix), pose_intake.pose_covariance_problem(matrix), informative is None
+    kept = pose_intake.planar_pose_intake(pose_intake.PoseSource.TOTAL, 1.0, (1.0, 1.0, 0.0), matrix)
+    return covariance_problem(matrix), kept.reason if isinstance(
+        kept, pose_intake.RefusedPose
+    ) else kept.covariance is None
 
 
 @pytest.mark.parametrize("matrix", _EDGE_COVARIANCES)

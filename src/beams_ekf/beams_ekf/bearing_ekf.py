@@ -22,6 +22,7 @@ sensor's and the odometry's, which a re-initialisation keeps (ToTal's fix after 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from math import atan2, cos, hypot, isfinite, sin
+from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -74,19 +75,11 @@ class ProcessNoise:
 
     def robot_frame_variances(self, increment: Pose2D) -> tuple[float, float, float]:
         """Variances (along, across, heading) of an odometry increment (dx, dy, dtheta), robot frame."""
-        distance_m = hypot(increment[0], increment[1])
-        rotation_rad = abs(increment[2])
-        translation = self.translation_m2_per_m * distance_m + self.floor_variance
-        cross = (
-            translation
-            if self.cross_track_m2_per_m is None
-            else self.cross_track_m2_per_m * distance_m + self.floor_variance
-        )
-        heading = (
-            self.rotation_rad2_per_rad * rotation_rad
-            + self.rotation_rad2_per_m * distance_m
-            + self.floor_variance
-        )
+        distance_m, floor = hypot(increment[0], increment[1]), self.floor_variance
+        translation, rate = self.translation_m2_per_m * distance_m + floor, self.cross_track_m2_per_m
+        cross = translation if rate is None else rate * distance_m + floor
+        heading = self.rotation_rad2_per_rad * abs(increment[2]) + self.rotation_rad2_per_m * distance_m
+        heading += floor
         return translation, cross, heading
 
 
@@ -203,6 +196,10 @@ class PoseStates(StateBlock):
         return BearingPart(sighting.d_pose)
 
 
+# a block's odometry hooks (StateBlock's do nothing)
+_HOOKS = attrgetter("corrected_increment", "process_noise")
+
+
 class BearingEkf:
     """EKF over the pose (x, y, theta) in the map frame and the `blocks` after it (None: skipped);
     beacons identified by id, so no data association. The first PoseFilter (pose_filter.py)."""
@@ -224,14 +221,9 @@ class BearingEkf:
         self._kept = np.array([i for b, p in self._parts if b.learnt for i in range(p.start, p.stop)], int)
         self._ekf = ExtendedKalmanFilter(dim_x=self.dim, dim_z=1)  # x and P; predict and update below
         # the pose's rows of the prediction's Jacobian F (F is the identity in the other rows)
-        self._motion_rows, self._rotation = np.eye(3, self.dim), np.eye(3)
+        self._motion_rows, self._rotation, self._identity = np.eye(3, self.dim), np.eye(3), np.eye(self.dim)
         # the blocks past the pose that correct the odometry's increment or add to its noise
-        hooks = (StateBlock.corrected_increment, StateBlock.process_noise)
-        self._moving = [
-            (b, p)
-            for b, p in self._parts[1:]
-            if (type(b).corrected_increment, type(b).process_noise) != hooks
-        ]
+        self._moving = [(b, p) for b, p in self._parts[1:] if _HOOKS(type(b)) != _HOOKS(StateBlock)]
         self._memory = [block.new_memory() for block in blocks]
         self._initialised = False
         self.excluded_beacons: set[int] = set()
@@ -386,9 +378,8 @@ class BearingEkf:
 
     def add_time_noise(self, position_variance_m2: float, heading_variance_rad2: float) -> None:
         """Inflate the covariance (e.g. for an odometry gap during which the robot may have slipped)."""
-        added = np.zeros(self.dim)
-        added[self._pose] = (position_variance_m2, position_variance_m2, heading_variance_rad2)
-        self._ekf.P = self._ekf.P + np.diag(added)
+        position, heading = position_variance_m2, heading_variance_rad2
+        self._ekf.P[self._pose, self._pose] += np.diag((position, position, heading))
 
     def predicted_bearing(
         self, beacon_id: int, lever: Pose2D | None = None, uncorrected_window_rad: float = 0.0
@@ -474,7 +465,7 @@ class BearingEkf:
         gain = (p @ jacobian.T) / innovation_variance
         for part in frozen:
             gain[part] = 0.0
-        reduce = np.eye(self.dim) - gain @ jacobian
+        reduce = self._identity - gain @ jacobian
         self._ekf.x = self._ekf.x + gain * residual
         self._ekf.P = reduce @ p @ reduce.T + variance_rad2 * (gain @ gain.T)
         return gain

@@ -31,8 +31,7 @@ MAX_PENDING_BEARINGS = 64
 @dataclass
 class _Slot:
     """What is kept with an odometry sample: the filter state there (before the bearings of the interval
-    that starts at the sample) and those bearings, to filter again from there; the step that led to it
-    (its duration and odometry increment), predicted with again by a replay."""
+    that starts at the sample) and those bearings, to filter again from there with the step to it."""
 
     state: tuple[np.ndarray, np.ndarray]
     step: tuple[float, Pose2D] | None = None
@@ -70,9 +69,10 @@ class LateBearings:
         self.history.clear()
         self._pending.clear()
 
-    def append(self, stamp_s: float, odom_pose: Pose2D) -> None:
-        """A new newest odometry sample, with the filter's state when it has one."""
-        self.history.append(stamp_s, odom_pose, _Slot(self.ekf.state()) if self.ekf.initialised else None)
+    def append(self, stamp_s: float, odom_pose: Pose2D, step: tuple[float, Pose2D] | None = None) -> None:
+        """A new newest odometry sample, with the filter's state when it has one and the step to it."""
+        slot = _Slot(self.ekf.state(), step) if self.ekf.initialised else None
+        self.history.append(stamp_s, odom_pose, slot)
 
     def restart_states(self) -> None:
         """The filter was (re-)initialised: the states kept for late bearings belong to the old estimate;
@@ -82,15 +82,9 @@ class LateBearings:
         if self.history.latest is not None:
             self.history.set_payload(-1, _Slot(self.ekf.state()))
 
-    def advance(self, stamp_s: float, odom_pose: Pose2D, increment: Pose2D) -> None:
-        """Predict over the odometry step (`increment`, robot frame) to a new newest sample, appended."""
-        step = (stamp_s - self.history.latest[0], increment)
-        self._predict(*step)
-        self.history.append(stamp_s, odom_pose, _Slot(self.ekf.state(), step))
-
-    def _predict(self, step_s: float, increment: Pose2D) -> None:
-        """Predict over one odometry step; a long silence of odometry (the robot may have slipped) also
-        grows the covariance with its duration."""
+    def predict(self, step_s: float, increment: Pose2D) -> None:
+        """Predict over one odometry step (duration, robot-frame increment); a long silence of odometry (the
+        robot may have slipped) also grows the covariance with its duration."""
         self.ekf.predict(increment)
         if step_s > self.config.odometry_gap_s:
             duration_s = min(step_s, self.config.max_gap_inflation_s)
@@ -200,7 +194,7 @@ class LateBearings:
             if index == first:
                 self.ekf.restore(slot.state)
             else:
-                self._predict(*slot.step)
+                self.predict(*slot.step)
                 slot.state = self.ekf.state()
             new = scheduled.get(index, [])
             if not (new or slot.bearings):

@@ -137,10 +137,8 @@ def corrected_increment(increment: Pose2D, errors: np.ndarray) -> tuple[Pose2D, 
     s, turn = arc_of_increment(increment)
     true_s, true_turn = k_s * s, k_theta * turn + h * s
     a, b, da, db = _arc_terms(true_turn)
-    # d g / d (s, Delta) of the true arc: (a, b, 0) and true_s (da, db, 0) + (0, 0, 1)
-    ds_da, ds_db = true_s * da, true_s * db
-    d_errors = np.array([[a * s, ds_da * turn, ds_da * s], [b * s, ds_db * turn, ds_db * s], [0.0, turn, s]])
-    d_reported = np.array(
-        [[a * k_s + ds_da * h, ds_da * k_theta], [b * k_s + ds_db * h, ds_db * k_theta], [h, k_theta]]
-    )
+    # d g / d (s, Delta) of the true arc: columns (a, b, 0) and (p, q, 1), (p, q) = true_s (da, db)
+    p, q = true_s * da, true_s * db
+    d_errors = np.array([[a * s, p * turn, p * s], [b * s, q * turn, q * s], [0.0, turn, s]])
+    d_reported = np.array([[a * k_s + p * h, p * k_theta], [b * k_s + q * h, q * k_theta], [h, k_theta]])
     return (true_s * a, true_s * b, true_turn), d_errors, d_reported

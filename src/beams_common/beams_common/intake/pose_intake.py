@@ -111,17 +111,6 @@ def pose_covariance_problem(covariance_3x3: Any) -> str:
     return ""
 
 
-def informative_covariance(covariance_3x3: np.ndarray) -> np.ndarray | None:
-    """A covariance that passed rule 3 when positive definite (the filter can take it), else None."""
-    matrix = np.asarray(covariance_3x3, dtype=float)
-    scale = float(np.max(np.abs(matrix)))
-    if scale == 0.0 or not (
-        clearly_conditioned(matrix / scale) or np.linalg.eigvalsh(matrix / scale)[0] > 0.0
-    ):
-        return None
-    return matrix
-
-
 def pose_intake(
     source: PoseSource,
     frame_id: str,
@@ -179,4 +168,9 @@ def planar_pose_intake(source: PoseSource, stamp_s: float, pose: Pose2D, covaria
     problem = pose_covariance_problem(matrix)
     if problem:
         return RefusedPose(source, PoseRefusal.COVARIANCE, f"{source} pose: {problem}")
-    return KeptPose(source, float(stamp_s), tuple(float(v) for v in pose), informative_covariance(matrix))
+    # a semi-definite covariance carries no information in some direction: the default replaces it
+    scale = float(np.max(np.abs(matrix)))
+    definite = scale > 0.0 and (
+        clearly_conditioned(matrix / scale) or np.linalg.eigvalsh(matrix / scale)[0] > 0.0
+    )
+    return KeptPose(source, float(stamp_s), tuple(float(v) for v in pose), matrix if definite else None)

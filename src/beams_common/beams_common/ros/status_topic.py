@@ -67,8 +67,7 @@ class StatusTopic:
         self._estimate = (integrity, level, Time() if stamp is None else stamp)
         self._say(self.diagnostics.set_verdict(verdict))
 
-    def _say(self, verdict: Verdict | None = None) -> None:
-        """Say the verdict under the conditions (None: judged now)."""
+    def _say(self, verdict: Verdict | None = None) -> None:  # the verdict under the conditions, or judged now
         verdict = self.diagnostics.verdict() if verdict is None else verdict
         if verdict is None or self._estimate is None:
             return
