@@ -22,6 +22,7 @@ sensor's and the odometry's, which a re-initialisation keeps (ToTal's fix after 
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from math import atan2, cos, hypot, isfinite, sin
+from operator import attrgetter
 from typing import Any
 
 import numpy as np
@@ -74,19 +75,11 @@ class ProcessNoise:
 
     def robot_frame_variances(self, increment: Pose2D) -> tuple[float, float, float]:
         """Variances (along, across, heading) of an odometry increment (dx, dy, dtheta), robot frame."""
-        distance_m = hypot(increment[0], increment[1])
-        rotation_rad = abs(increment[2])
-        translation = self.translation_m2_per_m * distance_m + self.floor_variance
-        cross = (
-            translation
-            if self.cross_track_m2_per_m is None
-            else self.cross_track_m2_per_m * distance_m + self.floor_variance
-        )
-        heading = (
-            self.rotation_rad2_per_rad * rotation_rad
-            + self.rotation_rad2_per_m * distance_m
-            + self.floor_variance
-        )
+        distance_m, floor = hypot(increment[0], increment[1]), self.floor_variance
+        translation, rate = self.translation_m2_per_m * distance_m + floor, self.cross_track_m2_per_m
+        cross = translation if rate is None else rate * distance_m + floor
+        heading = self.rotation_rad2_per_rad * abs(increment[2]) + self.rotation_rad2_per_m * distance_m
+        heading += floor
         return translation, cross, heading
 
 
@@ -203,13 +196,8 @@ class PoseStates(StateBlock):
         return BearingPart(sighting.d_pose)
 
 
-class _OdometryEkf(ExtendedKalmanFilter):
-    """filterpy's EKF whose state transition composes the pose (the first block) with the odometry."""
-
-    def predict_x(self, u: Pose2D = (0.0, 0.0, 0.0)) -> None:
-        x = self.x.copy()
-        x[: PoseStates.size, 0] = compose(tuple(self.x[: PoseStates.size, 0].tolist()), u)
-        self.x = x
+# a block's odometry hooks (StateBlock's do nothing)
+_HOOKS = attrgetter("corrected_increment", "process_noise")
 
 
 class BearingEkf:
@@ -231,7 +219,11 @@ class BearingEkf:
         self._heading = self._pose.stop - 1  # theta, the pose's last state
         self.dim = int(ends[-1])
         self._kept = np.array([i for b, p in self._parts if b.learnt for i in range(p.start, p.stop)], int)
-        self._ekf = _OdometryEkf(dim_x=self.dim, dim_z=1)
+        self._ekf = ExtendedKalmanFilter(dim_x=self.dim, dim_z=1)  # x and P; predict and update below
+        # the pose's rows of the prediction's Jacobian F (F is the identity in the other rows)
+        self._motion_rows, self._rotation, self._identity = np.eye(3, self.dim), np.eye(3), np.eye(self.dim)
+        # the blocks past the pose that correct the odometry's increment or add to its noise
+        self._moving = [(b, p) for b, p in self._parts[1:] if _HOOKS(type(b)) != _HOOKS(StateBlock)]
         self._memory = [block.new_memory() for block in blocks]
         self._initialised = False
         self.excluded_beacons: set[int] = set()
@@ -361,31 +353,33 @@ class BearingEkf:
             self._memory = [block.new_memory() for block, _ in self._parts]
 
     def predict(self, increment: Pose2D) -> None:
-        """Move by a robot-frame odometry increment (dx, dy, dtheta); P <- F P F' + G M G' (first order)."""
-        x, pose = self._ekf.x, self._pose
+        """Move by a robot-frame odometry increment (dx, dy, dtheta); P <- F P F' + Q (first order). F is
+        the identity but in the pose's rows A (d compose / d (pose, the states correcting the increment)),
+        so only the pose's rows and columns change: A P there, its transpose (P symmetric), A P A'."""
+        x, p, a, rotation, pose = self._ekf.x, self._ekf.P, self._motion_rows, self._rotation, self._pose
         # the increment is expressed in the robot frame at the prior heading
-        theta = float(x[self._heading, 0])
+        px, py, theta = x[pose, 0].tolist()
         c, s = cos(theta), sin(theta)
-        moved, f, q = increment, np.eye(self.dim), np.zeros((self.dim, self.dim))
-        for block, part in self._parts:
+        rotation[0, 0], rotation[0, 1], rotation[1, 0], rotation[1, 1] = c, -s, s, c
+        moved, noises = increment, []
+        for block, part in self._moving:
             # the true motion is the reported one corrected by the blocks (odometry_errors)
             moved, d_moved = block.corrected_increment(moved, x[part, 0])
-            if d_moved is not None:
-                f[pose, part] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ d_moved
-            noise = block.process_noise(increment, x[part, 0])
+            a[:, part] = 0.0 if d_moved is None else rotation.dot(d_moved)
+            noises.append((part, block.process_noise(increment, x[part, 0])))
+        a[0, 2], a[1, 2] = -s * moved[0] - c * moved[1], c * moved[0] - s * moved[1]
+        rows = a.dot(p)
+        p[pose, :], p[:, pose] = rows, rows.T
+        p[pose, pose] = rows.dot(a.T) + self._parts[0][0].process_noise(increment, x[pose, 0])
+        for part, noise in noises:
             if noise is not None:
-                q[part, part] = noise
-        # Jacobian of compose(x, u) with respect to the pose
-        dx, dy = moved[0], moved[1]
-        f[pose, pose] = [[1.0, 0.0, -s * dx - c * dy], [0.0, 1.0, c * dx - s * dy], [0.0, 0.0, 1.0]]
-        self._ekf.F, self._ekf.Q = f, q
-        self._ekf.predict(u=moved)
+                p[part, part] += noise
+        x[pose, 0] = compose((px, py, theta), moved)
 
     def add_time_noise(self, position_variance_m2: float, heading_variance_rad2: float) -> None:
         """Inflate the covariance (e.g. for an odometry gap during which the robot may have slipped)."""
-        added = np.zeros(self.dim)
-        added[self._pose] = (position_variance_m2, position_variance_m2, heading_variance_rad2)
-        self._ekf.P = self._ekf.P + np.diag(added)
+        position, heading = position_variance_m2, heading_variance_rad2
+        self._ekf.P[self._pose, self._pose] += np.diag((position, position, heading))
 
     def predicted_bearing(
         self, beacon_id: int, lever: Pose2D | None = None, uncorrected_window_rad: float = 0.0
@@ -471,7 +465,7 @@ class BearingEkf:
         gain = (p @ jacobian.T) / innovation_variance
         for part in frozen:
             gain[part] = 0.0
-        reduce = np.eye(self.dim) - gain @ jacobian
+        reduce = self._identity - gain @ jacobian
         self._ekf.x = self._ekf.x + gain * residual
         self._ekf.P = reduce @ p @ reduce.T + variance_rad2 * (gain @ gain.T)
         return gain

@@ -54,12 +54,7 @@ from beams_common.ros.node_support import (
 from beams_common.ros.parameters import ApplyChange, apply_runtime_changes, declare_table
 from beams_common.ros.status_topic import StatusTopic
 from beams_common.status.health import Status
-from beams_ekf.checkpoint import (
-    RuntimeChanges,
-    checkpoint_path,
-    resume_from,
-    save_checkpoint,
-)
+from beams_ekf.checkpoint import RuntimeChanges, checkpoint_path, resume_from, save_checkpoint
 from beams_ekf.ekf_health import EkfHealth
 from beams_ekf.localiser import build_localiser
 from beams_ekf.outcomes import Estimate, OdometryOutcome, PoseOutcome
@@ -333,11 +328,11 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, StampedInputs, Node
         self._update_diagnostics(estimate)
         if estimate is None or not math.isfinite(estimate.stamp_s):
             return
+        if estimate.stamp_s == self._published_stamp_s and not self._changed:  # the one published
+            return
         problem = planar_estimate_problem(estimate.pose, estimate.covariance)
         if problem:  # the invariant of every published estimate
             self.diagnostics.refuse("estimates_not_published_invalid", problem, level="error")
-            return
-        if estimate.stamp_s == self._published_stamp_s and not self._changed:  # nothing new since
             return
         self._published_stamp_s = estimate.stamp_s
         self._changed = False
@@ -361,8 +356,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, StampedInputs, Node
     def _update_diagnostics(self, estimate: Estimate | None) -> None:
         """The counters, and the status (`ekf_health`): its level and message, and `status` (waiting,
         tracking, degraded or lost) as a value of its own."""
-        stats = self.localiser.stats
-        for key, value in stats.counts.items():
+        for key, value in self.localiser.stats.counts.items():
             self.diagnostics.set(key, value)
         now_s = self._now_s()
         level, since_s, verdict = self.health.judge(now_s, self.localiser, estimate)

@@ -31,9 +31,10 @@ MAX_PENDING_BEARINGS = 64
 @dataclass
 class _Slot:
     """What is kept with an odometry sample: the filter state there (before the bearings of the interval
-    that starts at the sample) and those bearings, to filter again from there."""
+    that starts at the sample) and those bearings, to filter again from there with the step to it."""
 
     state: tuple[np.ndarray, np.ndarray]
+    step: tuple[float, Pose2D] | None = None
     bearings: list[Bearing] = field(default_factory=list)
 
 
@@ -68,9 +69,10 @@ class LateBearings:
         self.history.clear()
         self._pending.clear()
 
-    def append(self, stamp_s: float, odom_pose: Pose2D) -> None:
-        """A new newest odometry sample, with the filter's state when it has one."""
-        self.history.append(stamp_s, odom_pose, _Slot(self.ekf.state()) if self.ekf.initialised else None)
+    def append(self, stamp_s: float, odom_pose: Pose2D, step: tuple[float, Pose2D] | None = None) -> None:
+        """A new newest odometry sample, with the filter's state when it has one and the step to it."""
+        slot = _Slot(self.ekf.state(), step) if self.ekf.initialised else None
+        self.history.append(stamp_s, odom_pose, slot)
 
     def restart_states(self) -> None:
         """The filter was (re-)initialised: the states kept for late bearings belong to the old estimate;
@@ -80,11 +82,10 @@ class LateBearings:
         if self.history.latest is not None:
             self.history.set_payload(-1, _Slot(self.ekf.state()))
 
-    def advance(self, from_s: float, from_pose: Pose2D, to_s: float, to_pose: Pose2D) -> None:
-        """Predict over one odometry step; a long silence of odometry (the robot may have slipped) also
-        grows the covariance with its duration."""
-        self.ekf.predict(between(from_pose, to_pose))
-        step_s = to_s - from_s
+    def predict(self, step_s: float, increment: Pose2D) -> None:
+        """Predict over one odometry step (duration, robot-frame increment); a long silence of odometry (the
+        robot may have slipped) also grows the covariance with its duration."""
+        self.ekf.predict(increment)
         if step_s > self.config.odometry_gap_s:
             duration_s = min(step_s, self.config.max_gap_inflation_s)
             self.ekf.add_time_noise(
@@ -189,12 +190,11 @@ class LateBearings:
         """Go back to the earliest scheduled sample and filter forward through the history."""
         first = min(scheduled)
         for index in range(first, 0):
-            t0, pose0, slot = self.history.sample(index)
+            _, pose0, slot = self.history.sample(index)
             if index == first:
                 self.ekf.restore(slot.state)
             else:
-                t_prev, pose_prev, _ = self.history.sample(index - 1)
-                self.advance(t_prev, pose_prev, t0, pose0)
+                self.predict(*slot.step)
                 slot.state = self.ekf.state()
             new = scheduled.get(index, [])
             if not (new or slot.bearings):

@@ -85,7 +85,7 @@ class Localiser:
         default_pose_covariance: np.ndarray | None = None,
     ) -> None:
         self.ekf = ekf
-        self.config = config or LocaliserConfig()
+        config = self.config = config or LocaliserConfig()
         self.motion_limits = motion_limits or MotionLimits()
         if default_pose_covariance is None:
             default_pose_covariance = FilterSettings().default_pose_covariance
@@ -95,7 +95,6 @@ class Localiser:
         self.stats = LocaliserCounters()
         self._late = LateBearings(ekf, self.config, self.stats.counts, self._track_gating)
         self.history = self._late.history
-        config = self.config
         self.kidnap = KidnapEvidence(
             config.kidnap_window_bearings,
             config.kidnap_gated_bearings,
@@ -103,13 +102,9 @@ class Localiser:
             config.kidnap_distance_m,
             config.kidnap_heading_rad,
         )
-        self._time_jumps = TimeJumpDetector(
-            self.config.time_jump_tolerance_s, self.config.time_jump_confirmations
-        )
-        self.nis_monitor = NisMonitor(
-            self.config.lost_nis_window_bearings, self.config.lost_nis_probability, ekf.gate
-        )
-        self.confirmation = PoseConfirmation(self.config.confirming_bearings)
+        self._time_jumps = TimeJumpDetector(config.time_jump_tolerance_s, config.time_jump_confirmations)
+        self.nis_monitor = NisMonitor(config.lost_nis_window_bearings, config.lost_nis_probability, ekf.gate)
+        self.confirmation = PoseConfirmation(config.confirming_bearings)
         self.exclusion = BeaconExclusion(ekf, config.exclusion_gated_bearings, config.readmission_bearings)
         self._late.exclusion = self.exclusion
         self._stamp_s: float | None = None
@@ -203,9 +198,10 @@ class Localiser:
             # the estimate stood still: an odometry source restarted within its speed limit (a
             # simulator's new match) or a robot pushed meanwhile is not followed
             self._break_continuity(f"an odometry silence of {stamp_s - latest[0]:.1f} s")
-        self._late.advance(latest[0], latest[1], stamp_s, odom_pose)
+        step = (stamp_s - latest[0], increment)
+        self._late.predict(*step)
         self.separations.moved(increment, self.ekf.pose[2])
-        self._late.append(stamp_s, odom_pose)
+        self._late.append(stamp_s, odom_pose, step)
         self._stamp_s = stamp_s
         self._late.apply_pending(stamp_s)
         return OdometryOutcome.PREDICTED

@@ -30,23 +30,24 @@ from beams_ekf.state_blocks import StateBlock
 _SMALL_TURN_RAD = 1e-4
 
 
+def _arc_terms(d: float) -> tuple[float, float, float, float]:
+    """a = sin(Delta)/Delta, b = (1 - cos(Delta))/Delta and their derivatives in Delta."""
+    if abs(d) < _SMALL_TURN_RAD:
+        return 1.0 - d * d / 6.0, 0.5 * d - d**3 / 24.0, -d / 3.0, 0.5 - d * d / 8.0
+    sin_d, cos_d = sin(d), cos(d)
+    return sin_d / d, (1.0 - cos_d) / d, (d * cos_d - sin_d) / (d * d), (d * sin_d - (1.0 - cos_d)) / (d * d)
+
+
 def arc_increment(s_m: float, turn_rad: float) -> tuple[Pose2D, np.ndarray]:
     """g(s, Delta) and its 3x2 Jacobian d g / d (s, Delta)."""
-    d = turn_rad
-    if abs(d) < _SMALL_TURN_RAD:
-        a, b = 1.0 - d * d / 6.0, 0.5 * d - d**3 / 24.0
-        da, db = -d / 3.0, 0.5 - d * d / 8.0
-    else:
-        a, b = sin(d) / d, (1.0 - cos(d)) / d
-        da, db = (d * cos(d) - sin(d)) / (d * d), (d * sin(d) - (1.0 - cos(d))) / (d * d)
-    jacobian = np.array([[a, s_m * da], [b, s_m * db], [0.0, 1.0]])
-    return (s_m * a, s_m * b, d), jacobian
+    a, b, da, db = _arc_terms(turn_rad)
+    return (s_m * a, s_m * b, turn_rad), np.array([[a, s_m * da], [b, s_m * db], [0.0, 1.0]])
 
 
 def arc_of_increment(increment: Pose2D) -> tuple[float, float]:
     """(s, Delta) of an odometry increment (dx, dy, dtheta): the arc through it (least squares on the
     chord, exact for an increment that is an arc)."""
-    (a, b, _), _ = arc_increment(1.0, increment[2])
+    a, b, _, _ = _arc_terms(increment[2])
     return (increment[0] * a + increment[1] * b) / (a * a + b * b), increment[2]
 
 
@@ -114,7 +115,9 @@ class OdometryErrorStates(StateBlock):
         moved, d_errors, _ = corrected_increment(increment, mean)
         return moved, d_errors
 
-    def process_noise(self, increment: Pose2D, mean: np.ndarray) -> np.ndarray:
+    def process_noise(self, increment: Pose2D, mean: np.ndarray) -> np.ndarray | None:
+        if not self.walk_variance_per_m:
+            return None  # constants
         return self.walk_variance_per_m * hypot(increment[0], increment[1]) * np.eye(self.size)
 
 
@@ -130,9 +133,12 @@ def corrected_increment(increment: Pose2D, errors: np.ndarray) -> tuple[Pose2D, 
     Returns the increment, its 3x3 Jacobian with respect to the error states and its 3x2 Jacobian
     with respect to the reported arc (s, Delta) (through which the wheels' random noise enters).
     """
-    k_s, k_theta, h = (float(v) for v in errors)
+    k_s, k_theta, h = errors.tolist()
     s, turn = arc_of_increment(increment)
-    increment_true, d_arc = arc_increment(k_s * s, k_theta * turn + h * s)
-    d_errors = d_arc @ np.array([[s, 0.0, 0.0], [0.0, turn, s]])
-    d_reported = d_arc @ np.array([[k_s, 0.0], [h, k_theta]])
-    return increment_true, d_errors, d_reported
+    true_s, true_turn = k_s * s, k_theta * turn + h * s
+    a, b, da, db = _arc_terms(true_turn)
+    # d g / d (s, Delta) of the true arc: columns (a, b, 0) and (p, q, 1), (p, q) = true_s (da, db)
+    p, q = true_s * da, true_s * db
+    d_errors = np.array([[a * s, p * turn, p * s], [b * s, q * turn, q * s], [0.0, turn, s]])
+    d_reported = np.array([[a * k_s + p * h, p * k_theta], [b * k_s + q * h, q * k_theta], [h, k_theta]])
+    return (true_s * a, true_s * b, true_turn), d_errors, d_reported

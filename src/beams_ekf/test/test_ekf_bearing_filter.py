@@ -1,15 +1,22 @@
 """The EKF itself: measurement model and Jacobians, update, wrapping, gating, process noise."""
 
-from math import atan2, pi, sqrt
+from math import atan2, cos, pi, sin, sqrt
 
 import numpy as np
 import pytest
+from filterpy.kalman import ExtendedKalmanFilter
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP
 from beams_common.geometry.pose2d import compose
+from beams_ekf.beacon_states import BeaconStates
 from beams_ekf.bearing_ekf import BearingEkf, ProcessNoise, gate_threshold, turret_pose
+from beams_ekf.odometry_errors import OdometryErrorStates
 from beams_ekf.parameters import filter_settings
+from beams_ekf.power_bias_states import PowerBiasStates
+from beams_ekf.turret_offset_states import TurretOffsetStates
 
 EUROBOT_BEACONS = EUROBOT_BEACON_MAP.as_dict()
 
@@ -59,6 +66,62 @@ def test_predict_moves_by_the_increment_and_grows_the_covariance():
     # heading uncertainty couples into position when moving
     assert np.trace(ekf.covariance) > np.trace(before)
     assert ekf.covariance[0, 2] != 0.0
+
+
+def _filterpy_predict(ekf: BearingEkf, increment) -> tuple[np.ndarray, np.ndarray]:
+    """x and P after filterpy's EKF.predict with the whole F and Q of the state blocks (P <- F P F' + Q)."""
+    x, p = ekf.state()
+    c, s = cos(x[2, 0]), sin(x[2, 0])
+    f, q, moved = np.eye(ekf.dim), np.zeros((ekf.dim, ekf.dim)), increment
+    for block, part in ekf._parts:
+        moved, d_moved = block.corrected_increment(moved, x[part, 0])
+        if d_moved is not None:
+            f[:3, part] = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ d_moved
+        noise = block.process_noise(increment, x[part, 0])
+        if noise is not None:
+            q[part, part] = noise
+    f[:3, :3] = [[1.0, 0.0, -s * moved[0] - c * moved[1]], [0.0, 1.0, c * moved[0] - s * moved[1]], [0, 0, 1]]
+    reference = ExtendedKalmanFilter(dim_x=ekf.dim, dim_z=1)
+    reference.x, reference.P, reference.F, reference.Q = x, p, f, q
+
+    def compose_pose(u) -> None:
+        reference.x = reference.x.copy()
+        reference.x[:3, 0] = compose(tuple(reference.x[:3, 0].tolist()), u)
+
+    reference.predict_x = compose_pose
+    reference.predict(u=moved)
+    return reference.x, reference.P
+
+
+_LAYOUTS = (
+    (OdometryErrorStates(), PowerBiasStates()),  # ekf_node's default
+    (OdometryErrorStates(walk_variance_per_m=1e-4), TurretOffsetStates(), BeaconStates((4, 5))),
+    (),
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.sampled_from(_LAYOUTS),
+    st.tuples(*(st.floats(-3.0, 3.0),) * 3),
+    st.tuples(st.floats(-0.05, 0.05), st.floats(-0.01, 0.01), st.floats(-0.3, 0.3)),
+    st.integers(0, 2**32 - 1),
+)
+def test_predict_is_filterpys_predict_with_the_whole_jacobian(blocks, pose, increment, seed):
+    """The prediction touching only the pose's rows and columns gives filterpy's x and P (random states
+    and covariances, every block layout)."""
+    ekf = BearingEkf({**EUROBOT_BEACONS, 4: (1.5, -0.062), 5: (1.5, 2.062)}, OFFSET, blocks=blocks)
+    rng = np.random.default_rng(seed)
+    root = rng.normal(size=(ekf.dim, ekf.dim)) * rng.uniform(1e-4, 1.0, ekf.dim)
+    x = rng.normal(size=(ekf.dim, 1)) * 0.1
+    x[:3, 0] = pose
+    ekf.initialise(pose, np.eye(3))
+    ekf.restore((x, root @ root.T + 1e-9 * np.eye(ekf.dim)))
+    expected_x, expected_p = _filterpy_predict(ekf, increment)
+    ekf.predict(increment)
+    x_after, p_after = ekf.state()
+    assert np.allclose(x_after, expected_x, rtol=0.0, atol=1e-12)
+    assert np.allclose(p_after, expected_p, rtol=1e-12, atol=1e-12)
 
 
 def test_process_noise_grows_with_distance_and_rotation():

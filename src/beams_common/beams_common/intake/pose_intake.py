@@ -16,7 +16,7 @@ import numpy as np
 
 from beams_common.geometry.pose2d import Pose2D, yaw_of_quaternion
 from beams_common.intake.plausibility import MAX_POSE_SIGMA_M, MAX_POSE_SIGMA_RAD, off_table_problem
-from beams_common.intake.validation import SYMMETRY_TOLERANCE, bounded
+from beams_common.intake.validation import SYMMETRY_TOLERANCE, bounded, clearly_conditioned
 
 # The (x, y, yaw) rows and columns of a row-major 6x6 ROS covariance.
 PLANAR_INDICES = (0, 1, 5)
@@ -96,7 +96,7 @@ def pose_covariance_problem(covariance_3x3: Any) -> str:
     own_scale = np.maximum(np.outer(root, root), np.finfo(float).tiny)
     if float(np.max(np.abs(normalised - normalised.T) / own_scale)) > SYMMETRY_TOLERANCE:
         return "covariance is not symmetric"
-    smallest = float(np.linalg.eigvalsh(normalised)[0])
+    smallest = 1.0 if clearly_conditioned(normalised) else float(np.linalg.eigvalsh(normalised)[0])
     if np.any(np.diag(matrix) < 0.0) or smallest < -PSD_TOLERANCE:
         return bounded(
             f"covariance is not positive semi-definite (smallest eigenvalue {smallest * scale:.3g}): "
@@ -109,15 +109,6 @@ def pose_covariance_problem(covariance_3x3: Any) -> str:
             f"{MAX_POSE_SIGMA_M:g} m (the table) or {MAX_POSE_SIGMA_RAD:.3g} rad (a turn): no information"
         )
     return ""
-
-
-def informative_covariance(covariance_3x3: np.ndarray) -> np.ndarray | None:
-    """A covariance that passed rule 3 when positive definite (the filter can take it), else None."""
-    matrix = np.asarray(covariance_3x3, dtype=float)
-    scale = float(np.max(np.abs(matrix)))
-    if scale == 0.0 or not float(np.linalg.eigvalsh(matrix / scale)[0]) > 0.0:
-        return None
-    return matrix
 
 
 def pose_intake(
@@ -177,4 +168,9 @@ def planar_pose_intake(source: PoseSource, stamp_s: float, pose: Pose2D, covaria
     problem = pose_covariance_problem(matrix)
     if problem:
         return RefusedPose(source, PoseRefusal.COVARIANCE, f"{source} pose: {problem}")
-    return KeptPose(source, float(stamp_s), tuple(float(v) for v in pose), informative_covariance(matrix))
+    # a semi-definite covariance carries no information in some direction: the default replaces it
+    scale = float(np.max(np.abs(matrix)))
+    definite = scale > 0.0 and (
+        clearly_conditioned(matrix / scale) or np.linalg.eigvalsh(matrix / scale)[0] > 0.0
+    )
+    return KeptPose(source, float(stamp_s), tuple(float(v) for v in pose), matrix if definite else None)

@@ -108,11 +108,21 @@ def odometry_problem(stamp_s: float, pose: Sequence[float], twist: Sequence[floa
     return ""
 
 
-def covariance_problem(covariance: Any, size: int = 3) -> str:
+def clearly_conditioned(matrix: np.ndarray, ratio: float = 0.0) -> bool:
+    """Whether the symmetric matrix of a normalised 3x3's lower triangle has lambda_min > 2 ratio lambda_max
+    + 1e-12 for sure (definite by Sylvester's criterion, lambda_min >= det/(trace/2)^2, lambda_max <= trace):
+    eigvalsh (backward stable, errors ~1e-15 here) then decides `lambda_min > ratio lambda_max` alike."""
+    (a, _, _), (b, c, _), (d, e, f) = matrix.tolist()
+    trace, det = a + c + f, a * (c * f - e * e) - b * (b * f - e * d) + d * (b * e - c * d)
+    definite = a > 0.0 and a * c - b * b > 0.0 and det > 0.0
+    return definite and 4.0 * det / (trace * trace) > 2.0 * ratio * trace + 1e-12
+
+
+def covariance_problem(covariance: Any) -> str:
     """Why a covariance cannot be published (shape, non-finite, asymmetric, not positive definite), or ''."""
     matrix = np.asarray(covariance, dtype=float)
-    if matrix.shape != (size, size):
-        return f"covariance of shape {matrix.shape}, expected ({size}, {size})"
+    if matrix.shape != (3, 3):
+        return f"covariance of shape {matrix.shape}, expected (3, 3)"
     if not np.all(np.isfinite(matrix)):
         return "covariance has a non-finite entry"
     scale = float(np.max(np.abs(matrix)))
@@ -121,7 +131,10 @@ def covariance_problem(covariance: Any, size: int = 3) -> str:
     normalised = matrix / scale  # entries in [-1, 1]: no overflow whatever the magnitude
     if float(np.max(np.abs(normalised - normalised.T))) > SYMMETRY_TOLERANCE:
         return "covariance is not symmetric"
-    eigenvalues = np.linalg.eigvalsh(0.5 * (normalised + normalised.T))
+    symmetric = 0.5 * (normalised + normalised.T)
+    if clearly_conditioned(symmetric, MAX_CONDITION_RECIPROCAL):
+        return ""
+    eigenvalues = np.linalg.eigvalsh(symmetric)
     if not eigenvalues[0] > MAX_CONDITION_RECIPROCAL * eigenvalues[-1]:
         return f"covariance is not positive definite (eigenvalues {eigenvalues.tolist()} x {scale:.3g})"
     return ""

@@ -407,18 +407,18 @@ class Diagnostics:
         if self.on_publish is not None:
             self.on_publish()
 
-    def set_verdict(self, verdict: Verdict) -> None:
-        """The node's status (beams_common.status.health), said under the conditions in force (`verdict`):
-        one other than the last said at once, not at the next tick (tracking after `_close_span`); else an
-        ERROR condition's end at once."""
-        self._verdict = verdict
-        status = self.verdict().status
-        if self._values.get("status") == status:
+    def set_verdict(self, verdict: Verdict) -> Verdict:
+        """The node's status (beams_common.status.health), said under the conditions in force (`verdict`,
+        returned): one other than the last said at once, not at the next tick (tracking after
+        `_close_span`); else an ERROR condition's end at once."""
+        self._verdict, under = verdict, verdict.under(self._ordered_conditions())
+        if self._values.get("status") == under.status:
             self.publish_if_conditions_changed()
-            return
-        if status is Status.TRACKING:
-            self._close_span()
-        self.publish()
+        else:
+            if under.status is Status.TRACKING:
+                self._close_span()
+            self.publish()
+        return under
 
     def verdict(self) -> Verdict | None:
         """The node's verdict (set_verdict) under the conditions in force (`Verdict.under`), None without."""

@@ -65,11 +65,10 @@ class StatusTopic:
             self.diagnostics.set("horizontal_protection_level_m", level.horizontal_m)
             self.diagnostics.set("heading_protection_level_rad", level.heading_rad)
         self._estimate = (integrity, level, Time() if stamp is None else stamp)
-        self.diagnostics.set_verdict(verdict)
-        self._say()
+        self._say(self.diagnostics.set_verdict(verdict))
 
-    def _say(self) -> None:
-        verdict = self.diagnostics.verdict()
+    def _say(self, verdict: Verdict | None = None) -> None:  # the verdict under the conditions, or judged now
+        verdict = self.diagnostics.verdict() if verdict is None else verdict
         if verdict is None or self._estimate is None:
             return
         integrity, level, stamp = self._estimate
