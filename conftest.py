@@ -23,6 +23,12 @@ import os
 import pathlib
 
 import pytest
+from hypothesis import settings
+
+# Timing is the benches' business, not the tests': on 2 shared cores an example may take 0.5 s (a first
+# call's imports, the load), past hypothesis' 200 ms deadline, and a test would fail for it alone.
+settings.register_profile("beams", deadline=None)
+settings.load_profile("beams")
 
 # before any test module (or node process, which inherits it) loads numpy
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
