@@ -62,10 +62,12 @@ REVOLUTION_RATE_TOLERANCE = 0.5
 
 class RosSourceHost:
     """What an edge source may ask of driver_node (edge_source.SourceHost), done with ROS; `release`
-    removes the subscriptions the source asked for (its cleanup)."""
+    removes the subscriptions the source asked for (its cleanup). `wake` hands `poll` to the node's
+    executor as a task (thread-safe): Jazzy's EventsExecutor runs no guard condition."""
 
-    def __init__(self, node: Node) -> None:
+    def __init__(self, node: Node, poll: Callable[[], None]) -> None:
         self._node = node
+        self._poll = poll
         self._subscriptions: list[Subscription] = []
 
     def subscribe_poses(self, topic: str, callback: PoseCallback) -> None:
@@ -92,6 +94,11 @@ class RosSourceHost:
 
     def now_s(self) -> float:
         return self._node.get_clock().now().nanoseconds * 1e-9
+
+    def wake(self) -> None:
+        executor = self._node.executor
+        if executor is not None:  # not yet spinning (autostart): the poll timer takes the revolutions
+            executor.create_task(self._poll)
 
 
 class TransitionRefusedError(Exception):
@@ -159,7 +166,7 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
                 turret_hz * (1.0 + REVOLUTION_RATE_TOLERANCE),
             ),
         )
-        self.host = RosSourceHost(self)
+        self.host = RosSourceHost(self, self.guard_callback("source wake", self._poll, lambda *_: None))
         self.failure = ""  # the last failed transition's reason
         self.unexpected: Exception | None = None
         self.decoder: BearingDecoder | None = None
@@ -359,8 +366,8 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
     # ---- the source ----
 
     def _poll(self) -> None:
-        if self.source is None or self.decoder is None:
-            return  # a timer event queued before the deactivation
+        if self._poll_timer is None:
+            return  # inactive: a wake or a timer event queued before the deactivation
         now_s = self.host.now_s()
         poll = self.source.poll(now_s)
         if poll.continuity_broken:
@@ -372,7 +379,7 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
         self.revolution_rate.update(now_s)
 
     def _show_source_health(self) -> None:
-        """The polled source's health, read once a second for /diagnostics (not at every 10 ms poll)."""
+        """The polled source's health, read once a second for /diagnostics (not at every poll)."""
         if self.source is None or self._poll_timer is None:
             return
         health = self.source.health()

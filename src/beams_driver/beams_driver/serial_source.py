@@ -6,6 +6,8 @@ import contextlib
 import errno
 import grp
 import os
+import select
+import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Mapping, Sequence
@@ -160,9 +162,23 @@ class SerialEdgeSource:
 
     def read(self) -> list[RevolutionEdges]:
         """Wait at most about read_timeout_s for bytes; return the revolutions they complete. Never raises."""
+        return self.take() if self.wait_readable() else []
+
+    def wait_readable(self) -> bool:
+        """Block until the port has bytes (or hung up), at most read_timeout_s; while the device is lost,
+        until its next reconnection attempt (at most read_timeout_s). True when take() has work."""
+        if self._port is not None:
+            return bool(select.select([self._port], [], [], self.read_timeout_s)[0])
+        self._sleep(max(0.0, min(self.read_timeout_s, self._next_attempt_s - time.monotonic())))
+        return True
+
+    def take(self) -> list[RevolutionEdges]:
+        """The revolutions the bytes waiting complete, or a reconnection attempt while the device is lost.
+        Never raises; blocks only when the port is readable yet has no byte (a hang-up: it raises)."""
         if not self._opened:
             return []
-        if self._port is None and not self._reconnect():
+        if self._port is None:
+            self._reconnect()
             return []
         try:
             data = self._port.read(max(1, self._port.in_waiting))
@@ -260,14 +276,12 @@ class SerialEdgeSource:
         self._next_attempt_s = time.monotonic() + self._backoff_s
         self._log(f"serial device {self.device} lost ({error}); reconnecting")
 
-    def _reconnect(self) -> bool:
-        """One attempt when the back-off allows it or the missing device path is back, else sleep a
-        little; True when connected again."""
+    def _reconnect(self) -> None:
+        """One attempt when the back-off allows it or the missing device path is back."""
         now = time.monotonic()
         back = self._device_missing and os.path.exists(self.device)
         if now < self._next_attempt_s and not back:
-            self._sleep(min(self.read_timeout_s, self._next_attempt_s - now))
-            return False
+            return
         try:
             self._device_missing = not os.path.exists(self.device)
             if self._device_missing:
@@ -280,7 +294,7 @@ class SerialEdgeSource:
             if str(error) != self.last_error:
                 self.last_error = str(error)
                 self._log(self.last_error)
-            return False
+            return
         # A new stream: its sequence numbers, timer epoch and open revolution are unrelated to the old one.
         self.parser.new_stream()
         self.assembler.reset()
@@ -292,7 +306,6 @@ class SerialEdgeSource:
         self.last_error = ""
         self.reconnections += 1
         self._log(f"serial device {self.device} reconnected")
-        return True
 
     def _dropped(self, reason: str, count: int) -> None:
         """The parser or the assembler dropped something: kept for the next log line and the recent drops."""
@@ -391,7 +404,11 @@ SERIAL_PARAMETERS = (
     MIN_REVOLUTION_TOLERANCE,
     LOST_FRAMES_COST,
 )
-SERIAL_POLL_PERIOD_S = 0.01
+# The reader thread's longest wait on the port: how soon close() stops it, how often a lost device's path
+# is looked at.
+READ_WAIT_S = 0.05
+# Revolutions kept for a driver that does not poll (inactive): 10 s; more break the continuity.
+MAX_PENDING_REVOLUTIONS = 100
 # The drops /diagnostics warns about while recent, and what each means for the operator.
 WARNED_DROPS = {
     "lost_frames": (
@@ -415,7 +432,9 @@ WARNED_DROPS = {
 
 class SerialSource:
     """SerialEdgeSource as an EdgeSource: opened at start-up (a missing device stops the driver with the
-    reason), read at every poll; a reconnection breaks the revolutions' continuity."""
+    reason), read and assembled by a thread of its own that waits on the port and wakes the driver
+    (`host.wake`) when a revolution is complete; poll() hands the revolutions to the driver's thread. The
+    lock keeps health() and poll() off a half-read stream. A reconnection breaks the continuity."""
 
     def __init__(self, values: Mapping[str, Any], _codes: Sequence[Any], host: SourceHost) -> None:
         def value(spec: ParameterSpec) -> Any:
@@ -426,7 +445,7 @@ class SerialSource:
         self.serial = SerialEdgeSource(
             values["device"],
             values["baud_rate"],
-            read_timeout_s=SERIAL_POLL_PERIOD_S / 2,
+            read_timeout_s=READ_WAIT_S,
             assembler=RevolutionAssembler(
                 min_tolerance_s=float(value(MIN_REVOLUTION_TOLERANCE)),
                 lost_frames_cost=self.lost_frames_cost,
@@ -435,17 +454,44 @@ class SerialSource:
             log=host.log_warning,
         )
         self.serial.open()
-        self._log_info = host.log_info
-        self._reconnections = 0
+        self._log_info, self._wake = host.log_info, host.wake
+        self._lock = threading.Lock()
+        self._pending: list[RevolutionEdges] = []
+        self._broken = False
+        self._stopping = threading.Event()
+        self._reader = threading.Thread(target=self._read, name="serial_source", daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        """The reader thread: wait on the port, take its bytes, keep the revolutions they complete."""
+        serial, reconnections = self.serial, 0
+        while not self._stopping.is_set():
+            if not serial.wait_readable():
+                continue
+            with self._lock:
+                revolutions = serial.take()
+                # a window cut by the disconnection (or by revolutions left out) must not be joined to
+                # the next one: the old stream's revolutions not yet polled go
+                if serial.reconnections != reconnections or len(self._pending) >= MAX_PENDING_REVOLUTIONS:
+                    reconnections = serial.reconnections
+                    self._pending.clear()
+                    self._broken = True
+                woken = bool(self._pending)  # the driver is woken already: it takes these too
+                self._pending += revolutions
+            if revolutions and not woken:
+                self._wake()
 
     def poll(self, now_s: float) -> SourcePoll:
-        revolutions = self.serial.read()
-        # a window cut by the disconnection must not be joined to the new stream's first one
-        broken = self.serial.reconnections != self._reconnections
-        self._reconnections = self.serial.reconnections
-        return SourcePoll(revolutions, continuity_broken=broken)
+        with self._lock:
+            poll = SourcePoll(self._pending, continuity_broken=self._broken)
+            self._pending, self._broken = [], False
+        return poll
 
     def health(self) -> SourceHealth:
+        with self._lock:
+            return self._health()
+
+    def _health(self) -> SourceHealth:
         serial = self.serial
         values: dict[str, Any] = {f"serial_drops_{reason}": count for reason, count in serial.drops.items()}
         values.update(
@@ -496,8 +542,11 @@ class SerialSource:
         return SourceHealth("ok", None, values)
 
     def close(self) -> None:
-        self.serial.close()
+        self._stopping.set()
+        self._reader.join(timeout=10 * READ_WAIT_S)
+        with self._lock:
+            self.serial.close()
         self._log_info(f"serial device {self.serial.device} released")
 
 
-EDGE_SOURCE = EdgeSourceKind("serial", SERIAL_PARAMETERS, SerialSource, poll_period_s=SERIAL_POLL_PERIOD_S)
+EDGE_SOURCE = EdgeSourceKind("serial", SERIAL_PARAMETERS, SerialSource)
