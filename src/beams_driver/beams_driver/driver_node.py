@@ -61,13 +61,11 @@ REVOLUTION_RATE_TOLERANCE = 0.5
 
 
 class RosSourceHost:
-    """What an edge source may ask of driver_node (edge_source.SourceHost), done with ROS; `release`
-    removes the subscriptions the source asked for (its cleanup). `wake` hands `poll` to the node's
-    executor as a task (thread-safe): Jazzy's EventsExecutor runs no guard condition."""
+    """What an edge source may ask of driver_node (edge_source.SourceHost), with ROS; `release` drops its
+    subscriptions; `wake` makes `poll` an executor task (Jazzy's EventsExecutor runs no guard condition)."""
 
     def __init__(self, node: Node, poll: Callable[[], None]) -> None:
-        self._node = node
-        self._poll = poll
+        self._node, self._poll = node, poll
         self._subscriptions: list[Subscription] = []
 
     def subscribe_poses(self, topic: str, callback: PoseCallback) -> None:
@@ -96,8 +94,7 @@ class RosSourceHost:
         return self._node.get_clock().now().nanoseconds * 1e-9
 
     def wake(self) -> None:
-        executor = self._node.executor
-        if executor is not None:  # not yet spinning (autostart): the poll timer takes the revolutions
+        if (executor := self._node.executor) is not None:  # None before it spins: the poll timer takes them
             executor.create_task(self._poll)
 
 
@@ -258,7 +255,7 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
             # what the kept source gathered while inactive is old: no window joins it, none is published
             self.decoder.reset()
             self._stale_before_s = self.host.now_s()
-        self._poll_timer = self.create_timer(self.kind.poll_period_s, self._poll)
+        self._poll_timer = self.create_timer(TURRET_PERIOD_S, self._poll)  # and when the source wakes it
         self.revolution_rate.start(self.host.now_s())
         self._show_state("active")
         self.get_logger().info(

@@ -11,7 +11,7 @@ from typing import Any, Protocol
 from beams_common.config.parameters import ParameterSpec
 from beams_common.geometry.pose2d import Pose2D
 from beams_driver.codes import BeaconCode
-from beams_driver.edges import TURRET_PERIOD_S, RevolutionEdges
+from beams_driver.edges import RevolutionEdges
 from beams_driver.receiver import ReceiverModel
 
 # A pose stream sample: (stamp s, pose (x, y, theta) m/rad, twist (speed m/s, yaw rate rad/s)).
@@ -63,7 +63,7 @@ class EdgeSource(Protocol):
     """A stream of revolutions of edges (the BeAMS sensor, its simulation, a recording)."""
 
     def poll(self, now_s: float) -> SourcePoll:
-        """The revolutions completed since the last poll (every poll_period_s, and when woken)."""
+        """The revolutions completed since the last poll (every turret period, and when woken)."""
 
     def health(self) -> SourceHealth:
         """The source's state and counters, read for /diagnostics once a second."""
@@ -77,15 +77,14 @@ SourceFactory = Callable[[Mapping[str, Any], Sequence[BeaconCode], SourceHost], 
 
 @dataclass(frozen=True)
 class EdgeSourceKind:
-    """A kind of source: its name, its parameters, their start-up checks, its factory, how often the driver
-    polls it (besides when the source wakes it) and the receiver model of its edges. The factory raises
-    ValueError or OSError with the reason when the source cannot start: the driver exits 2 with it."""
+    """A kind of source: its name, its parameters, their start-up checks, its factory and the receiver model
+    of its edges. The factory raises ValueError or OSError with the reason when the source cannot start:
+    the driver exits 2 with that line."""
 
     name: str
     parameters: tuple[ParameterSpec, ...]
     create: SourceFactory
     together: tuple[Callable[[Mapping[str, Any]], str | None], ...] = ()
-    poll_period_s: float = TURRET_PERIOD_S
     # the receiver the edges come through (its minimum burst shapes the window correction and the
     # variance): the thesis hardware's unless the source says otherwise (a simulation of another one)
     receiver: Callable[[Mapping[str, Any], Sequence[BeaconCode]], ReceiverModel] = lambda _values, _codes: (

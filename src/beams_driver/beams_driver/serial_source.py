@@ -92,9 +92,10 @@ class SerialEdgeSource:
         self._sleep = sleep
         self._log = log or (lambda message: None)
         self._serial_factory = serial_factory
-        self._port: Any = None
+        self.port: Any = None  # the open pyserial port, None while the device is lost
         self._opened = False
-        self._backoff_s = self.reconnect_initial_s
+        # the back-off between reconnection attempts (doubles per failure up to reconnect_max_s)
+        self.reconnect_delay_s = self.reconnect_initial_s
         self._next_attempt_s = 0.0
         self._offset_s: float | None = None
         self._last_arrival_s = 0.0
@@ -123,7 +124,7 @@ class SerialEdgeSource:
                 f"serial device {self.device!r} does not exist: is the BeAMS sensor plugged in, and is the "
                 f"`device` parameter right (e.g. /dev/ttyUSB0 or a /dev/serial/by-id/ link)?"
             )
-        self._port = self._open_port()
+        self.port = self._open_port()
         self._opened = True
         self._connected()
 
@@ -146,12 +147,7 @@ class SerialEdgeSource:
 
     @property
     def connected(self) -> bool:
-        return self._port is not None
-
-    @property
-    def reconnect_delay_s(self) -> float:
-        """The current back-off between reconnection attempts (doubles per failure up to reconnect_max_s)."""
-        return self._backoff_s
+        return self.port is not None
 
     @property
     def drops(self) -> Counter[str]:
@@ -162,26 +158,12 @@ class SerialEdgeSource:
 
     def read(self) -> list[RevolutionEdges]:
         """Wait at most about read_timeout_s for bytes; return the revolutions they complete. Never raises."""
-        return self.take() if self.wait_readable() else []
-
-    def wait_readable(self) -> bool:
-        """Block until the port has bytes (or hung up), at most read_timeout_s; while the device is lost,
-        until its next reconnection attempt (at most read_timeout_s). True when take() has work."""
-        if self._port is not None:
-            return bool(select.select([self._port], [], [], self.read_timeout_s)[0])
-        self._sleep(max(0.0, min(self.read_timeout_s, self._next_attempt_s - time.monotonic())))
-        return True
-
-    def take(self) -> list[RevolutionEdges]:
-        """The revolutions the bytes waiting complete, or a reconnection attempt while the device is lost.
-        Never raises; blocks only when the port is readable yet has no byte (a hang-up: it raises)."""
         if not self._opened:
             return []
-        if self._port is None:
-            self._reconnect()
+        if self.port is None and not self._reconnect():
             return []
         try:
-            data = self._port.read(max(1, self._port.in_waiting))
+            data = self.port.read(max(1, self.port.in_waiting))
         except (serial.SerialException, OSError) as error:
             self._lost(error)
             return []
@@ -261,7 +243,7 @@ class SerialEdgeSource:
             raise DeviceOpenError(open_failure_reason(self.device, self.baudrate, error)) from None
 
     def _close_port(self) -> None:
-        port, self._port = self._port, None
+        port, self.port = self.port, None
         if port is not None:
             # The device may already be gone; there is nothing more to release then.
             with contextlib.suppress(serial.SerialException, OSError):
@@ -272,29 +254,31 @@ class SerialEdgeSource:
         self._close_port()
         self.disconnections += 1
         self._device_missing = not os.path.exists(self.device)
-        self._backoff_s = self.reconnect_initial_s
-        self._next_attempt_s = time.monotonic() + self._backoff_s
+        self.reconnect_delay_s = self.reconnect_initial_s
+        self._next_attempt_s = time.monotonic() + self.reconnect_delay_s
         self._log(f"serial device {self.device} lost ({error}); reconnecting")
 
-    def _reconnect(self) -> None:
-        """One attempt when the back-off allows it or the missing device path is back."""
+    def _reconnect(self) -> bool:
+        """One attempt when the back-off allows it or the missing device path is back, else sleep a
+        little; True when connected again."""
         now = time.monotonic()
         back = self._device_missing and os.path.exists(self.device)
         if now < self._next_attempt_s and not back:
-            return
+            self._sleep(min(self.read_timeout_s, self._next_attempt_s - now))
+            return False
         try:
             self._device_missing = not os.path.exists(self.device)
             if self._device_missing:
                 raise DeviceNotFoundError(f"serial device {self.device} does not exist")
-            self._port = self._open_port()
+            self.port = self._open_port()
         except OSError as error:
             self.failed_reconnections += 1
-            self._backoff_s = min(2.0 * self._backoff_s, self.reconnect_max_s)
-            self._next_attempt_s = now + self._backoff_s
+            self.reconnect_delay_s = min(2.0 * self.reconnect_delay_s, self.reconnect_max_s)
+            self._next_attempt_s = now + self.reconnect_delay_s
             if str(error) != self.last_error:
                 self.last_error = str(error)
                 self._log(self.last_error)
-            return
+            return False
         # A new stream: its sequence numbers, timer epoch and open revolution are unrelated to the old one.
         self.parser.new_stream()
         self.assembler.reset()
@@ -306,6 +290,7 @@ class SerialEdgeSource:
         self.last_error = ""
         self.reconnections += 1
         self._log(f"serial device {self.device} reconnected")
+        return True
 
     def _dropped(self, reason: str, count: int) -> None:
         """The parser or the assembler dropped something: kept for the next log line and the recent drops."""
@@ -404,11 +389,9 @@ SERIAL_PARAMETERS = (
     MIN_REVOLUTION_TOLERANCE,
     LOST_FRAMES_COST,
 )
-# The reader thread's longest wait on the port: how soon close() stops it, how often a lost device's path
-# is looked at.
-READ_WAIT_S = 0.05
-# Revolutions kept for a driver that does not poll (inactive): 10 s; more break the continuity.
-MAX_PENDING_REVOLUTIONS = 100
+READ_WAIT_S = 0.05  # the reader thread's longest wait on the port: how soon close() stops it
+READ_INTERVAL_S = 0.005  # between its reads: a stream (each edge, each byte as it comes) read in batches
+MAX_PENDING_REVOLUTIONS = 100  # kept while the driver does not poll (inactive): 10 s, then dropped
 # The drops /diagnostics warns about while recent, and what each means for the operator.
 WARNED_DROPS = {
     "lost_frames": (
@@ -431,10 +414,8 @@ WARNED_DROPS = {
 
 
 class SerialSource:
-    """SerialEdgeSource as an EdgeSource: opened at start-up (a missing device stops the driver with the
-    reason), read and assembled by a thread of its own that waits on the port and wakes the driver
-    (`host.wake`) when a revolution is complete; poll() hands the revolutions to the driver's thread. The
-    lock keeps health() and poll() off a half-read stream. A reconnection breaks the continuity."""
+    """SerialEdgeSource as an EdgeSource, opened at start-up, read by a thread of its own that waits on the
+    port and wakes the driver (`host.wake`) at each revolution; the lock keeps poll() and health() off it."""
 
     def __init__(self, values: Mapping[str, Any], _codes: Sequence[Any], host: SourceHost) -> None:
         def value(spec: ParameterSpec) -> Any:
@@ -446,6 +427,7 @@ class SerialSource:
             values["device"],
             values["baud_rate"],
             read_timeout_s=READ_WAIT_S,
+            sleep=lambda _s: None,  # the reader thread waits for a lost device itself, not in the lock
             assembler=RevolutionAssembler(
                 min_tolerance_s=float(value(MIN_REVOLUTION_TOLERANCE)),
                 lost_frames_cost=self.lost_frames_cost,
@@ -455,30 +437,25 @@ class SerialSource:
         )
         self.serial.open()
         self._log_info, self._wake = host.log_info, host.wake
-        self._lock = threading.Lock()
-        self._pending: list[RevolutionEdges] = []
-        self._broken = False
-        self._stopping = threading.Event()
+        self._lock, self._stopping = threading.Lock(), threading.Event()
+        self._pending, self._broken = [], False
         self._reader = threading.Thread(target=self._read, name="serial_source", daemon=True)
         self._reader.start()
 
     def _read(self) -> None:
-        """The reader thread: wait on the port, take its bytes, keep the revolutions they complete."""
+        """The reader thread: wait for bytes (or a lost device's next attempt), read, keep, wake."""
         serial, reconnections = self.serial, 0
-        while not self._stopping.is_set():
-            if not serial.wait_readable():
+        while not self._stopping.wait(READ_INTERVAL_S):
+            port = serial.port
+            if not select.select([port] if port else [], [], [], READ_WAIT_S)[0] and port:
                 continue
             with self._lock:
-                revolutions = serial.take()
-                # a window cut by the disconnection (or by revolutions left out) must not be joined to
-                # the next one: the old stream's revolutions not yet polled go
+                revolutions = serial.read()
+                # no window joins across a reconnection (the old stream's unpolled revolutions go) or a drop
                 if serial.reconnections != reconnections or len(self._pending) >= MAX_PENDING_REVOLUTIONS:
-                    reconnections = serial.reconnections
-                    self._pending.clear()
-                    self._broken = True
-                woken = bool(self._pending)  # the driver is woken already: it takes these too
+                    reconnections, self._pending, self._broken = serial.reconnections, [], True
                 self._pending += revolutions
-            if revolutions and not woken:
+            if revolutions:
                 self._wake()
 
     def poll(self, now_s: float) -> SourcePoll:
@@ -544,8 +521,7 @@ class SerialSource:
     def close(self) -> None:
         self._stopping.set()
         self._reader.join(timeout=10 * READ_WAIT_S)
-        with self._lock:
-            self.serial.close()
+        self.serial.close()
         self._log_info(f"serial device {self.serial.device} released")
 
 
