@@ -61,11 +61,11 @@ REVOLUTION_RATE_TOLERANCE = 0.5
 
 
 class RosSourceHost:
-    """What an edge source may ask of driver_node (edge_source.SourceHost), done with ROS; `release`
-    removes the subscriptions the source asked for (its cleanup)."""
+    """What an edge source may ask of driver_node (edge_source.SourceHost), with ROS; `release` drops its
+    subscriptions; `wake` makes `poll` an executor task (Jazzy's EventsExecutor runs no guard condition)."""
 
-    def __init__(self, node: Node) -> None:
-        self._node = node
+    def __init__(self, node: Node, poll: Callable[[], None]) -> None:
+        self._node, self._poll = node, poll
         self._subscriptions: list[Subscription] = []
 
     def subscribe_poses(self, topic: str, callback: PoseCallback) -> None:
@@ -92,6 +92,10 @@ class RosSourceHost:
 
     def now_s(self) -> float:
         return self._node.get_clock().now().nanoseconds * 1e-9
+
+    def wake(self) -> None:
+        if (executor := self._node.executor) is not None:  # None before it spins: the poll timer takes them
+            executor.create_task(self._poll)
 
 
 class TransitionRefusedError(Exception):
@@ -159,7 +163,7 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
                 turret_hz * (1.0 + REVOLUTION_RATE_TOLERANCE),
             ),
         )
-        self.host = RosSourceHost(self)
+        self.host = RosSourceHost(self, self.guard_callback("source wake", self._poll, lambda *_: None))
         self.failure = ""  # the last failed transition's reason
         self.unexpected: Exception | None = None
         self.decoder: BearingDecoder | None = None
@@ -251,7 +255,7 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
             # what the kept source gathered while inactive is old: no window joins it, none is published
             self.decoder.reset()
             self._stale_before_s = self.host.now_s()
-        self._poll_timer = self.create_timer(self.kind.poll_period_s, self._poll)
+        self._poll_timer = self.create_timer(TURRET_PERIOD_S, self._poll)  # and when the source wakes it
         self.revolution_rate.start(self.host.now_s())
         self._show_state("active")
         self.get_logger().info(
@@ -359,8 +363,8 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
     # ---- the source ----
 
     def _poll(self) -> None:
-        if self.source is None or self.decoder is None:
-            return  # a timer event queued before the deactivation
+        if self._poll_timer is None:
+            return  # inactive: a wake or a timer event queued before the deactivation
         now_s = self.host.now_s()
         poll = self.source.poll(now_s)
         if poll.continuity_broken:
@@ -372,7 +376,7 @@ class DriverNode(WatchedInputs, GuardedCallbacks, LifecycleNode):
         self.revolution_rate.update(now_s)
 
     def _show_source_health(self) -> None:
-        """The polled source's health, read once a second for /diagnostics (not at every 10 ms poll)."""
+        """The polled source's health, read once a second for /diagnostics (not at every poll)."""
         if self.source is None or self._poll_timer is None:
             return
         health = self.source.health()

@@ -55,12 +55,15 @@ class SourceHost(Protocol):
     def now_s(self) -> float:
         """The node's clock (s): the ROS time, simulated under use_sim_time."""
 
+    def wake(self) -> None:
+        """Have the driver poll soon (a source's own thread may call it: revolutions waiting)."""
+
 
 class EdgeSource(Protocol):
     """A stream of revolutions of edges (the BeAMS sensor, its simulation, a recording)."""
 
     def poll(self, now_s: float) -> SourcePoll:
-        """The revolutions completed since the last poll (called every few milliseconds)."""
+        """The revolutions completed since the last poll (every turret period, and when woken)."""
 
     def health(self) -> SourceHealth:
         """The source's state and counters, read for /diagnostics once a second."""
@@ -74,15 +77,14 @@ SourceFactory = Callable[[Mapping[str, Any], Sequence[BeaconCode], SourceHost], 
 
 @dataclass(frozen=True)
 class EdgeSourceKind:
-    """A kind of source: its name, its parameters, their start-up checks, its factory, how often the driver
-    polls it and the receiver model of its edges. The factory raises ValueError or OSError with the reason
-    when the source cannot start: the driver exits 2 with that line."""
+    """A kind of source: its name, its parameters, their start-up checks, its factory and the receiver model
+    of its edges. The factory raises ValueError or OSError with the reason when the source cannot start:
+    the driver exits 2 with that line."""
 
     name: str
     parameters: tuple[ParameterSpec, ...]
     create: SourceFactory
     together: tuple[Callable[[Mapping[str, Any]], str | None], ...] = ()
-    poll_period_s: float = 0.01
     # the receiver the edges come through (its minimum burst shapes the window correction and the
     # variance): the thesis hardware's unless the source says otherwise (a simulation of another one)
     receiver: Callable[[Mapping[str, Any], Sequence[BeaconCode]], ReceiverModel] = lambda _values, _codes: (

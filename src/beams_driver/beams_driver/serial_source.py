@@ -6,6 +6,8 @@ import contextlib
 import errno
 import grp
 import os
+import select
+import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Mapping, Sequence
@@ -90,9 +92,10 @@ class SerialEdgeSource:
         self._sleep = sleep
         self._log = log or (lambda message: None)
         self._serial_factory = serial_factory
-        self._port: Any = None
+        self.port: Any = None  # the open pyserial port, None while the device is lost
         self._opened = False
-        self._backoff_s = self.reconnect_initial_s
+        # the back-off between reconnection attempts (doubles per failure up to reconnect_max_s)
+        self.reconnect_delay_s = self.reconnect_initial_s
         self._next_attempt_s = 0.0
         self._offset_s: float | None = None
         self._last_arrival_s = 0.0
@@ -121,7 +124,7 @@ class SerialEdgeSource:
                 f"serial device {self.device!r} does not exist: is the BeAMS sensor plugged in, and is the "
                 f"`device` parameter right (e.g. /dev/ttyUSB0 or a /dev/serial/by-id/ link)?"
             )
-        self._port = self._open_port()
+        self.port = self._open_port()
         self._opened = True
         self._connected()
 
@@ -144,12 +147,7 @@ class SerialEdgeSource:
 
     @property
     def connected(self) -> bool:
-        return self._port is not None
-
-    @property
-    def reconnect_delay_s(self) -> float:
-        """The current back-off between reconnection attempts (doubles per failure up to reconnect_max_s)."""
-        return self._backoff_s
+        return self.port is not None
 
     @property
     def drops(self) -> Counter[str]:
@@ -162,10 +160,10 @@ class SerialEdgeSource:
         """Wait at most about read_timeout_s for bytes; return the revolutions they complete. Never raises."""
         if not self._opened:
             return []
-        if self._port is None and not self._reconnect():
+        if self.port is None and not self._reconnect():
             return []
         try:
-            data = self._port.read(max(1, self._port.in_waiting))
+            data = self.port.read(max(1, self.port.in_waiting))
         except (serial.SerialException, OSError) as error:
             self._lost(error)
             return []
@@ -245,7 +243,7 @@ class SerialEdgeSource:
             raise DeviceOpenError(open_failure_reason(self.device, self.baudrate, error)) from None
 
     def _close_port(self) -> None:
-        port, self._port = self._port, None
+        port, self.port = self.port, None
         if port is not None:
             # The device may already be gone; there is nothing more to release then.
             with contextlib.suppress(serial.SerialException, OSError):
@@ -256,8 +254,8 @@ class SerialEdgeSource:
         self._close_port()
         self.disconnections += 1
         self._device_missing = not os.path.exists(self.device)
-        self._backoff_s = self.reconnect_initial_s
-        self._next_attempt_s = time.monotonic() + self._backoff_s
+        self.reconnect_delay_s = self.reconnect_initial_s
+        self._next_attempt_s = time.monotonic() + self.reconnect_delay_s
         self._log(f"serial device {self.device} lost ({error}); reconnecting")
 
     def _reconnect(self) -> bool:
@@ -272,11 +270,11 @@ class SerialEdgeSource:
             self._device_missing = not os.path.exists(self.device)
             if self._device_missing:
                 raise DeviceNotFoundError(f"serial device {self.device} does not exist")
-            self._port = self._open_port()
+            self.port = self._open_port()
         except OSError as error:
             self.failed_reconnections += 1
-            self._backoff_s = min(2.0 * self._backoff_s, self.reconnect_max_s)
-            self._next_attempt_s = now + self._backoff_s
+            self.reconnect_delay_s = min(2.0 * self.reconnect_delay_s, self.reconnect_max_s)
+            self._next_attempt_s = now + self.reconnect_delay_s
             if str(error) != self.last_error:
                 self.last_error = str(error)
                 self._log(self.last_error)
@@ -391,7 +389,9 @@ SERIAL_PARAMETERS = (
     MIN_REVOLUTION_TOLERANCE,
     LOST_FRAMES_COST,
 )
-SERIAL_POLL_PERIOD_S = 0.01
+READ_WAIT_S = 0.05  # the reader thread's longest wait on the port: how soon close() stops it
+READ_INTERVAL_S = 0.005  # between its reads: a stream (each edge, each byte as it comes) read in batches
+MAX_PENDING_REVOLUTIONS = 100  # kept while the driver does not poll (inactive): 10 s, then dropped
 # The drops /diagnostics warns about while recent, and what each means for the operator.
 WARNED_DROPS = {
     "lost_frames": (
@@ -414,8 +414,8 @@ WARNED_DROPS = {
 
 
 class SerialSource:
-    """SerialEdgeSource as an EdgeSource: opened at start-up (a missing device stops the driver with the
-    reason), read at every poll; a reconnection breaks the revolutions' continuity."""
+    """SerialEdgeSource as an EdgeSource, opened at start-up, read by a thread of its own that waits on the
+    port and wakes the driver (`host.wake`) at each revolution; the lock keeps poll() and health() off it."""
 
     def __init__(self, values: Mapping[str, Any], _codes: Sequence[Any], host: SourceHost) -> None:
         def value(spec: ParameterSpec) -> Any:
@@ -426,7 +426,8 @@ class SerialSource:
         self.serial = SerialEdgeSource(
             values["device"],
             values["baud_rate"],
-            read_timeout_s=SERIAL_POLL_PERIOD_S / 2,
+            read_timeout_s=READ_WAIT_S,
+            sleep=lambda _s: None,  # the reader thread waits for a lost device itself, not in the lock
             assembler=RevolutionAssembler(
                 min_tolerance_s=float(value(MIN_REVOLUTION_TOLERANCE)),
                 lost_frames_cost=self.lost_frames_cost,
@@ -435,17 +436,39 @@ class SerialSource:
             log=host.log_warning,
         )
         self.serial.open()
-        self._log_info = host.log_info
-        self._reconnections = 0
+        self._log_info, self._wake = host.log_info, host.wake
+        self._lock, self._stopping = threading.Lock(), threading.Event()
+        self._pending, self._broken = [], False
+        self._reader = threading.Thread(target=self._read, name="serial_source", daemon=True)
+        self._reader.start()
+
+    def _read(self) -> None:
+        """The reader thread: wait for bytes (or a lost device's next attempt), read, keep, wake."""
+        serial, reconnections = self.serial, 0
+        while not self._stopping.wait(READ_INTERVAL_S):
+            port = serial.port
+            if not select.select([port] if port else [], [], [], READ_WAIT_S)[0] and port:
+                continue
+            with self._lock:
+                revolutions = serial.read()
+                # no window joins across a reconnection (the old stream's unpolled revolutions go) or a drop
+                if serial.reconnections != reconnections or len(self._pending) >= MAX_PENDING_REVOLUTIONS:
+                    reconnections, self._pending, self._broken = serial.reconnections, [], True
+                self._pending += revolutions
+            if revolutions:
+                self._wake()
 
     def poll(self, now_s: float) -> SourcePoll:
-        revolutions = self.serial.read()
-        # a window cut by the disconnection must not be joined to the new stream's first one
-        broken = self.serial.reconnections != self._reconnections
-        self._reconnections = self.serial.reconnections
-        return SourcePoll(revolutions, continuity_broken=broken)
+        with self._lock:
+            poll = SourcePoll(self._pending, continuity_broken=self._broken)
+            self._pending, self._broken = [], False
+        return poll
 
     def health(self) -> SourceHealth:
+        with self._lock:
+            return self._health()
+
+    def _health(self) -> SourceHealth:
         serial = self.serial
         values: dict[str, Any] = {f"serial_drops_{reason}": count for reason, count in serial.drops.items()}
         values.update(
@@ -496,8 +519,10 @@ class SerialSource:
         return SourceHealth("ok", None, values)
 
     def close(self) -> None:
+        self._stopping.set()
+        self._reader.join(timeout=10 * READ_WAIT_S)
         self.serial.close()
         self._log_info(f"serial device {self.serial.device} released")
 
 
-EDGE_SOURCE = EdgeSourceKind("serial", SERIAL_PARAMETERS, SerialSource, poll_period_s=SERIAL_POLL_PERIOD_S)
+EDGE_SOURCE = EdgeSourceKind("serial", SERIAL_PARAMETERS, SerialSource)

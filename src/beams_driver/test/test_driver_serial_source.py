@@ -343,10 +343,16 @@ def test_stream_at_another_baud_rate_is_named_once(device: FakeDevice, link: pat
 
 
 class FakeHost:
-    """What SerialSource asks of driver_node: a clock and a log."""
+    """What SerialSource asks of driver_node: a clock, a log and a wake (from the source's thread)."""
 
     def __init__(self) -> None:
         self.warnings: list[str] = []
+        self.woken = threading.Event()
+        self.wakes = 0
+
+    def wake(self) -> None:
+        self.wakes += 1
+        self.woken.set()
 
     def now_s(self) -> float:
         return time.time()
@@ -359,11 +365,12 @@ class FakeHost:
 
 
 def poll_until(source: SerialSource, predicate, timeout_s: float = WAIT_S) -> list[RevolutionEdges]:
-    """Poll until predicate(revolutions received so far) holds, or timeout_s."""
+    """Poll every 10 ms until predicate(revolutions received so far) holds, or timeout_s."""
     received: list[RevolutionEdges] = []
     deadline = time.monotonic() + timeout_s
     while not predicate(received) and time.monotonic() < deadline:
         received += source.poll(time.time()).revolutions
+        time.sleep(0.01)
     return received
 
 
@@ -604,3 +611,62 @@ def test_the_source_hears_of_each_drop_and_its_recent_drops_clear_themselves():
     source.parser.drops.add("lost_frames")
     assert source.recent_drops() == {"lost_frames": 1}
     assert source.drops == {"lost_frames": 4, "bad_revolution_period": 1}
+
+
+def serial_readers() -> list[threading.Thread]:
+    return [thread for thread in threading.enumerate() if thread.name == "serial_source"]
+
+
+def test_the_reader_thread_wakes_the_driver_at_each_revolution_and_stops_on_close(
+    device: FakeDevice, link: pathlib.Path
+) -> None:
+    """No poll loop: the source's thread reads the port as bytes come and wakes its host once per
+    revolution assembled (a revolution ends with the next one's zero reference), which the first poll
+    after the wake hands over; close() stops the thread at once and releases the port."""
+    sent = simulated_revolutions(5, seed=35)
+    host = FakeHost()
+    source = SerialSource({"device": str(link), "baud_rate": 500_000}, (), host)
+    encoder, received = FrameEncoder(), []
+    try:
+        assert len(serial_readers()) == 1
+        for edges in sent:
+            os.write(device.master, encoder.revolution(edges))
+            if edges.revolution == 0:
+                continue  # open until the next zero reference
+            written_s = time.monotonic()
+            assert host.woken.wait(WAIT_S), f"no wake for revolution {edges.revolution - 1}"
+            assert time.monotonic() - written_s < 1.0
+            host.woken.clear()
+            poll = source.poll(time.time())
+            assert [r.revolution for r in poll.revolutions] == [edges.revolution - 1]
+            assert not poll.continuity_broken
+            received += poll.revolutions
+        assert host.wakes == len(sent) - 1
+        assert source.poll(time.time()).revolutions == []
+    finally:
+        closing_s = time.monotonic()
+        source.close()
+    assert time.monotonic() - closing_s < 2 * serial_source.READ_WAIT_S + 0.2
+    assert serial_readers() == [] and not source.serial.connected
+    assert_same_edges(sent[:-1], received)
+
+
+def test_revolutions_nobody_polls_are_bounded_and_break_the_continuity(
+    device: FakeDevice, link: pathlib.Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A driver that does not poll (inactive) leaves at most MAX_PENDING_REVOLUTIONS (and a read's worth)
+    waiting: the older ones go, and the next poll says the first one does not follow the last polled."""
+    monkeypatch.setattr(serial_source, "MAX_PENDING_REVOLUTIONS", 2)
+    sent = simulated_revolutions(8, seed=36)
+    data = FrameEncoder().revolutions(sent)
+    source = SerialSource({"device": str(link), "baud_rate": 500_000}, (), FakeHost())
+    try:
+        device.write_in_background(data, chunk=len(data) // 8 + 1, pause_s=0.05).join(WAIT_S)
+        deadline = time.monotonic() + WAIT_S
+        while source.serial.parser.bytes_fed < len(data) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        poll = source.poll(time.time())
+    finally:
+        source.close()
+    numbers = [r.revolution for r in poll.revolutions]
+    assert poll.continuity_broken and numbers == list(range(8 - len(numbers), 8)) and len(numbers) < 8

@@ -269,6 +269,5 @@ EDGE_SOURCE = EdgeSourceKind(
     PARAMETERS,
     SimulatedSource,
     together=(beacon_map_check("sim_beacon_"), _windows_check),
-    poll_period_s=TURRET_PERIOD_S,
     receiver=simulated_receiver,
 )

@@ -70,5 +70,4 @@ EDGE_SOURCE = EdgeSourceKind(
     "replay",
     (ParameterSpec("replay_file", "", "Recorded edges (.npz) to replay in a loop."),),
     ReplaySource,
-    poll_period_s=TURRET_PERIOD_S,
 )
