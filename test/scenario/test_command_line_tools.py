@@ -55,7 +55,7 @@ USAGE = {
     "calibration_session": ["--wait", "0.5", "--yes"],  # no calibration_node in its domain
     "simulate_thesis_dataset": ["{out_file}.yaml"],
     "variance_plot": ["--family", "2", "--max-window", "2", "--output", "{out_file}.png"],
-    "error_map": ["--step", "0.25", "-o", "{out_file}.png"],
+    "error_map": ["--step", "0.25", "--sigma-deg", "1", "-o", "{out_file}.png"],
     "demo": ["--duration", "1", "--output", "{out_dir}"],
     "fault_campaign": ["--duration", "1", "--output", "{out_dir}"],
     "virtual_turret": ["--link", "{out_file}.pty", "--firmware", "/nonexistent/turret.elf"],
@@ -255,8 +255,9 @@ def test_a_tool_refuses_bad_input_in_one_line_and_writes_nothing(tool, paths, ro
         arguments = _arguments(tool, inputs, {kind: out / kind for kind in output_kinds} | unwritable)
         runs.append((name, out, [*arguments, "--no-such-option"] if usage_error else arguments, usage_error))
     failures = []
-    # the last case again through the installed executable: the console script's own exit status
-    for k, (name, out, arguments, usage_error) in enumerate([*runs, runs[-1]]):
+    # the first refusal past argparse again through the installed executable: the console script's own
+    # exit status (a missing input where the tool takes one: refused before any work)
+    for k, (name, out, arguments, usage_error) in enumerate([*runs, runs[1]]):
         installed = k == len(runs)
         result = _run(tool, arguments, ros_env) if installed else _call(tool, arguments, capfd)
         problem = _refused(tool, result, usage_error)

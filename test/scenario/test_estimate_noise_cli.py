@@ -1,5 +1,6 @@
 """estimate_noise end to end: bags of a still robot on the thesis-hardware simulator, written with rosbags
-(MCAP and sqlite3), through the installed console script; its parameter file read by the driver's table."""
+(MCAP and sqlite3), through the installed console script; its parameter file read by the driver's table.
+Its refusals through the console script's function in this process (its exit status, its stderr)."""
 
 import math
 import os
@@ -9,6 +10,7 @@ import subprocess
 import pytest
 
 from beams_common.config.parameters import ParameterTable, load_parameter_file
+from beams_driver.estimate_noise import main
 from beams_driver.parameters import DRIVER_PARAMETERS
 from beams_sim.sensor_sim import SensorSimConfig
 from beams_sim.sim_source import PARAMETERS as SIM_PARAMETERS
@@ -24,8 +26,10 @@ HARDWARE = SensorSimConfig.thesis_hardware()
 POSES = [(1.5, 1.0, 0.0), (0.9, 1.2, 1.0), (2.0, 0.5, -2.0)]
 
 
-def _bag(path: pathlib.Path, trajectory: EurobotTrajectory, seed: int, storage: str) -> pathlib.Path:
-    match = simulate_match(60.0, seed, trajectory=trajectory, sensor_config=HARDWARE)
+def _bag(
+    path: pathlib.Path, trajectory: EurobotTrajectory, seed: int, storage: str, duration_s: float = 60.0
+) -> pathlib.Path:
+    match = simulate_match(duration_s, seed, trajectory=trajectory, sensor_config=HARDWARE)
     return write_bag(path, simulated_messages(match, beams_typestore()), beams_typestore(), storage=storage)
 
 
@@ -71,15 +75,18 @@ def test_estimate_noise_writes_a_driver_parameter_file_with_the_injected_noise(s
     assert math.radians(5.0) < window < math.radians(8.0)
 
 
-def test_estimate_noise_refuses_a_moving_robot_and_a_bag_without_bearings(tmp_path):
-    """A bag of a moving robot: exit 2 with one line naming the beacon and the movement; a bag with no
-    bearings topic, or a path that is no bag: exit 2 with the reason."""
-    moving = _bag(tmp_path / "moving", EurobotTrajectory.random(3, 60.0), 3, "mcap")
-    result = _run(str(moving))
-    assert result.returncode == 2
-    assert result.stderr.count("\n") == 1 and "the robot moved" in result.stderr
+def test_estimate_noise_refuses_a_moving_robot_and_a_bag_without_bearings(tmp_path, capsys):
+    """A bag of a moving robot (10 s: 100 revolutions, twice the bearings per beacon it needs): exit 2
+    with one line naming the beacon and the movement; a bag with no bearings topic, or a path that is no
+    bag: exit 2 with the reason."""
+    moving = _bag(tmp_path / "moving", EurobotTrajectory.random(3, 10.0), 3, "mcap", 10.0)
     empty = write_bag(tmp_path / "empty", [], beams_typestore())
-    for bag, reason in ((empty, "no /beams/bearings"), (tmp_path / "nothing", "not a readable rosbag2 bag")):
-        result = _run(str(bag))
-        assert result.returncode == 2 and reason in result.stderr, result.stderr
-        assert result.stderr.count("\n") == 1
+    for bag, reason in (
+        (moving, "the robot moved"),
+        (empty, "no /beams/bearings"),
+        (tmp_path / "nothing", "not a readable rosbag2 bag"),
+    ):
+        capsys.readouterr()
+        assert main([str(bag)]) == 2
+        stderr = capsys.readouterr().err
+        assert reason in stderr and stderr.count("\n") == 1, stderr

@@ -7,8 +7,7 @@ says 3.6 cm away (1.53, -0.082): with its coordinates as states the filter finds
 consistent; without them it is overconfident by two orders of magnitude.
 """
 
-import pathlib
-import sys
+import copy
 from dataclasses import replace
 
 import numpy as np
@@ -27,9 +26,6 @@ from beams_ekf.self_calibration import save_self_calibration
 from beams_sim.sensor_sim import SimulatedBeacon, beacons_from_map
 from beams_sim.simulated_match import sensor_config_of, simulate_match
 from beams_thesis.match_replay import START_SIGMA, match_fixes, replay_match
-
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "bench"))
-from bench_self_calibration import default_driver_match, run
 
 NEES_BAND = (2.0, 4.5)
 TRUE_XY = (1.5, -0.062)
@@ -54,7 +50,7 @@ def _replay(states: BeaconStates | None, seed: int = 0):
     start = (x + START_SIGMA[0], y - START_SIGMA[1], theta + START_SIGMA[2])
     covariance = np.diag(np.square(START_SIGMA))
     result = replay_match(localiser, match, start, covariance, match_fixes(match), calibrated=False)
-    return result, localiser
+    return result, localiser, match
 
 
 def _window_nees(result, start_s: float, end_s: float) -> float:
@@ -68,7 +64,7 @@ def learnt():
 
 
 def test_a_fourth_beacon_off_its_map_position_is_learnt_while_driving(learnt, tmp_path):
-    result, localiser = learnt
+    result, localiser, _ = learnt
     ekf = localiser.ekf
     (xy, covariance) = ekf.block(BeaconStates).learnt(*ekf.estimate(BeaconStates), ekf.beacons_xy)[4]
     # 3.6 cm off at the start; observability analysis: to 0.2 mm (docs/self_calibration.md)
@@ -87,7 +83,7 @@ def test_a_fourth_beacon_off_its_map_position_is_learnt_while_driving(learnt, tm
 
 
 def test_without_the_states_the_misplaced_beacon_makes_the_filter_overconfident():
-    result, _ = _replay(None)
+    result, _, _ = _replay(None)
     assert _window_nees(result, 30.0, 90.0) > 100.0  # measured ~500
 
 
@@ -106,12 +102,12 @@ def test_estimated_beacons_need_three_fixed_ones():
     BearingEkf(MAP.as_dict(), blocks=(BeaconStates((4,)),))  # four beacons, three fixed
 
 
-def test_a_reinitialisation_keeps_what_was_learnt_of_the_sensor():
+def test_a_reinitialisation_keeps_what_was_learnt_of_the_sensor(learnt):
     """A reset (a callback exception, ~/reset) then a pose, or a re-initialisation from ToTal (kidnap,
-    lost): the power-bias curve and the odometry errors learnt over 60 s stay, with their covariance;
-    the pose takes the new one's."""
-    match = default_driver_match(60.0, 0, calibrated=False)
-    _, localiser = run(match, PowerBiasStates(), calibrated=False)
+    lost): the power-bias curve, the odometry errors and the fourth beacon learnt over the match stay,
+    with their covariance; the pose takes the new one's."""
+    _, learnt_localiser, match = learnt
+    localiser = copy.deepcopy(learnt_localiser)  # the module's fixture stays as it learnt
     ekf = localiser.ekf
     bias, bias_covariance = ekf.estimate(PowerBiasStates)
     prior = PowerBiasStates().prior_covariance
