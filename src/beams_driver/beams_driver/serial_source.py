@@ -447,7 +447,9 @@ class SerialSource:
         serial, reconnections = self.serial, 0
         while not self._stopping.wait(READ_INTERVAL_S):
             port = serial.port
-            if not select.select([port] if port else [], [], [], READ_WAIT_S)[0] and port:
+            if port is None:  # a lost device: read() tries it again once its back-off allows
+                self._stopping.wait(READ_WAIT_S)
+            elif not select.select([port], [], [], READ_WAIT_S)[0]:
                 continue
             with self._lock:
                 revolutions = serial.read()

@@ -23,12 +23,7 @@ class _LoadedAtFirstUse(types.ModuleType):
         return getattr(self.real(), name)
 
 
-def _stand_in(name: str) -> types.ModuleType:
-    return sys.modules.setdefault(name, _LoadedAtFirstUse(name))
-
-
-if "filterpy" not in sys.modules:
-    _stats = _stand_in("filterpy.stats")
-    _stand_in("filterpy.discrete_bayes")
-    if isinstance(_stats, _LoadedAtFirstUse):
-        _stats.logpdf = lambda *args, **kwargs: _stats.real().logpdf(*args, **kwargs)
+if "filterpy" not in sys.modules:  # its submodules neither: the stand-ins go in before the package
+    _stats = sys.modules["filterpy.stats"] = _LoadedAtFirstUse("filterpy.stats")
+    _stats.logpdf = lambda *args, **kwargs: _stats.real().logpdf(*args, **kwargs)
+    sys.modules["filterpy.discrete_bayes"] = _LoadedAtFirstUse("filterpy.discrete_bayes")

@@ -27,7 +27,7 @@ from beams_ekf.pose_filter import BearingOutcome, BearingReason, PoseFilter
 
 
 def chi2_quantile(probability: float, dof: int) -> float:
-    """The chi-square distribution's quantile (scipy.stats' chi2.ppf, to 1e-10): its CDF is the regularised
+    """The chi-square distribution's quantile (scipy.stats' chi2.ppf, to 1e-12): its CDF is the regularised
     incomplete gamma function P(dof/2, x/2), the lower one summed by its series below x/2 = dof/2 + 1 and
     the upper one by its continued fraction above (each where it keeps its precision), inverted by Newton's
     method from the Wilson-Hilferty approximation. scipy.stats' import would be a second of a node's start."""

@@ -55,8 +55,10 @@ class FaultRelayNode(Node):
         if wrong:
             return SetParametersResult(successful=False, reason=f"{wrong}: a finite float, please")
         for parameter in (p for p in parameters if p.name == "unknown_beacon_id"):
-            if not isinstance(parameter.value, int) or not 0 <= parameter.value <= 255:
-                return SetParametersResult(successful=False, reason="unknown_beacon_id: an id 0-255, please")
+            if not isinstance(parameter.value, int) or not 0 <= parameter.value <= 65535:
+                return SetParametersResult(
+                    successful=False, reason="unknown_beacon_id: an id 0-65535 (uint16), please"
+                )
             self.unknown_beacon_id = parameter.value
         for parameter in faults:
             self.faults[parameter.name] = parameter.value
