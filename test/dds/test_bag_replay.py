@@ -33,7 +33,7 @@ def differences(replayed, live) -> np.ndarray:
     ).reshape(-1, 2)
 
 
-def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
+def test_replay_of_a_demo_bag(tmp_path, ros_env):
     """A 15 s demo, then the replay. The replay runs the pure objects the nodes wrap, in stamp order; the
     live nodes saw the messages in arrival order. Tolerances against the live poses, from five 12 s demos
     (and earlier 10-15 s ones, one with a load average of 8 on the 2 cores):
@@ -59,7 +59,10 @@ def test_replay_of_a_demo_bag(tmp_path, ros_domain_id):
     from beams_tools.bag_replay import live_tracks, replay_bag
     from beams_tools.trajectory_metrics import errors_against_truth, rms
 
-    env = dict(os.environ, ROS_DOMAIN_ID=str(ros_domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    # ros_env's own ROS_HOME: a demo's ekf_node resuming the learnt states an earlier run left in
+    # ~/.ros/beams made its estimates differ from the replay's (which starts from the priors) by 5-6 mm at
+    # the 95 % quantile, against 1.7-1.9 mm from the priors (2026-11-28)
+    env = ros_env
     run(
         [
             sys.executable,
