@@ -12,10 +12,12 @@ includes the simulation); `virtual_turret`: the firmware in simavr (`make hil`).
 each under cProfile during the latency window, NODE.prof written here (docs/performance.md), only those rows.
 
 `--one-process`: driver_node, triangulation_node and ekf_node as nodes of one process (beams_bringup's
-robot), its rows named `robot`.
+robot), its rows named `robot`. `--floor`: triangulation_node and ekf_node replaced by stand-ins with their
+topics, rates and executor and no work of their own (bench/floor_node.py): what rclpy costs them; only
+the latency and CPU rows.
 
 Usage: python bench/bench_system.py [--flood-s S] [--source sim|virtual_turret] [--profile NODE]
-[--one-process]   (`rows()`: bench/run_all.py)
+[--one-process | --floor]   (`rows()`: bench/run_all.py)
 """
 
 import os
@@ -193,7 +195,11 @@ def restamped(msg, now_ns: int):
 
 
 def rows(
-    flood_s: float = FLOOD_S, source: str = "serial_feed", profile: str = "", one_process: bool = False
+    flood_s: float = FLOOD_S,
+    source: str = "serial_feed",
+    profile: str = "",
+    one_process: bool = False,
+    floor: bool = False,
 ) -> list[Row]:
     os.environ.setdefault("ROS_DOMAIN_ID", DEFAULT_DOMAIN_ID)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
@@ -219,6 +225,9 @@ def rows(
         if source == "serial_feed":
             for name in {driver} if one_process else ("triangulation_node", "ekf_node"):
                 commands[name] += FEED_ARGUMENTS
+        for role in ("triangulation", "ekf") if floor else ():
+            stand_in = [sys.executable, str(ROOT / "bench/floor_node.py"), role]
+            commands[f"{role}_node"] = [*stand_in, "--ros-args", "-r", f"__node:={role}_node"]
         profiled = [name for name in profile.split(",") if name]
         for name in profiled:
             commands[name][:0] = [sys.executable, "-c", PROFILED, f"{os.getcwd()}/{name}.prof"]
@@ -237,9 +246,10 @@ def rows(
             table = latency_and_cpu_rows(probe, supervisor)
             for name in profiled:
                 os.kill(supervisor.pid(name), signal.SIGUSR2)
-            if not profiled:
+            if not (profiled or floor):
                 table += [memory_row(supervisor), *flood_rows(probe, supervisor, flood_s)]
                 table += restart_rows(probe, supervisor)
+            table = [(f"floor: {f}", *rest) for f, *rest in table] if floor else table
             return table if source == "serial_feed" else [(f"{source}: {f}", *rest) for f, *rest in table]
         finally:
             supervisor.stop()

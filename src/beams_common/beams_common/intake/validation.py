@@ -3,6 +3,7 @@ the bearing and odometry rules of ToTal and the EKF alike, `planar_estimate_prob
 """
 
 import math
+import statistics
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -76,8 +77,7 @@ def one_sighting_per_beacon(bearings: Sequence[Sighting]) -> Sightings:
     """One bearing per beacon: of a beacon seen at two instants (a robot turning against the turret), the
     sighting nearest the revolution's median instant (the least motion compensation); at one instant,
     conflicting."""
-    finite = [b.stamp_s for b in bearings if math.isfinite(b.stamp_s)]
-    median_s = float(np.median(finite)) if finite else 0.0
+    median_s = None  # needed only for a beacon seen twice (rare): found then
     kept: dict[int, Any] = {}
     dropped: list[Any] = []
     conflicting: list[int] = []
@@ -90,7 +90,11 @@ def one_sighting_per_beacon(bearings: Sequence[Sighting]) -> Sightings:
             if bearing.beacon_id not in conflicting:
                 conflicting.append(bearing.beacon_id)
             dropped.append(bearing)
-        elif abs(bearing.stamp_s - median_s) < abs(previous.stamp_s - median_s):
+            continue
+        if median_s is None:
+            finite = [b.stamp_s for b in bearings if math.isfinite(b.stamp_s)]
+            median_s = statistics.median(finite) if finite else 0.0
+        if abs(bearing.stamp_s - median_s) < abs(previous.stamp_s - median_s):
             dropped.append(previous)
             kept[bearing.beacon_id] = bearing
         else:
