@@ -32,6 +32,9 @@ Occlusion = Collection[int] | Callable[[int, float], bool]
 _PASS_MARGIN_RAD = 1.0
 _FIXED_POINT_STEPS = 3
 _TWO_PI = 2.0 * math.pi
+# Generator(Philox(key)) anew costs 60 us (a SeedSequence drawn first): one generator is re-keyed per pass
+_ZERO_COUNTER = np.zeros(4, dtype=np.uint64)
+_FRESH_PHILOX = dict(bit_generator="Philox", buffer=_ZERO_COUNTER, buffer_pos=4, has_uint32=0, uinteger=0)
 
 
 @dataclass(frozen=True)
@@ -168,6 +171,7 @@ class SensorSimulator:
         # Receiver noise of one pass is drawn from a key of (beacon, pass instant): a pass over the zero
         # reference, simulated in two revolutions, is the same pass in both.
         self._noise_key = int(rng.integers(0, 2**62))
+        self._noise = np.random.Generator(np.random.Philox(key=[0, 0]))
         self._power_bias = power_bias_rad
         self._rotation_bias = rotation_bias_rad
         self._turret_offset_m = (float(turret_offset_m[0]), float(turret_offset_m[1]))
@@ -228,16 +232,17 @@ class SensorSimulator:
         # Code time of instant t0 + r: the beacon's clock runs from its own phase.
         phase = float(np.mod(t0 + self._phase_s[k], code.duration_s))
         pass_index = int(np.floor(0.5 * (window[0] + window[1]) / self.config.period_s))
-        noise = np.random.Generator(np.random.Philox(key=[self._noise_key + k, pass_index % 2**63]))
+        key = np.array([self._noise_key + k, pass_index % 2**63], dtype=np.uint64)
+        self._noise.bit_generator.state = {**_FRESH_PHILOX, "state": {"counter": _ZERO_COUNTER, "key": key}}
         opens, closes = window
         if self.config.hardware is not None:  # the AGC's jitter of the threshold crossings (fig. 5.3)
             omega = self.config.turret_speed_rad_s
             rising_std, falling_std = self.config.hardware.edge_std_rad((closes - opens) * omega, code)
-            opens += noise.normal(0.0, float(rising_std)) / omega
-            closes += noise.normal(0.0, float(falling_std)) / omega
+            opens += self._noise.normal(0.0, float(rising_std)) / omega
+            closes += self._noise.normal(0.0, float(falling_std)) / omega
         min_burst = self.config.receiver.min_burst_s(code)
         starts, ends = bursts_in_window(code, opens - t0 + phase, closes - t0 + phase, min_burst)
-        return self._add_edge_noise(starts - phase, ends - phase, noise)
+        return self._add_edge_noise(starts - phase, ends - phase, self._noise)
 
     def _window_times(
         self, beacon: SimulatedBeacon, pose_at: PoseAt, t0: float, t_guess: float
