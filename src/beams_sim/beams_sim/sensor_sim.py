@@ -122,10 +122,8 @@ class SensorSimConfig:
         """True angular window phi_W = phi_F - phi_R (rad) at distance(s) d (figure 2.8)."""
         if np.ndim(distance_m) == 0:
             return 2.0 * self.half_window_rad(float(distance_m), power_scale)  # type: ignore[arg-type]
-        distances = np.asarray(distance_m, dtype=float)
-        return np.array([2.0 * self.half_window_rad(d, power_scale) for d in distances.ravel()]).reshape(
-            distances.shape
-        )
+        window = np.vectorize(lambda d: 2.0 * self.half_window_rad(d, power_scale), otypes=[float])
+        return window(np.asarray(distance_m, dtype=float))
 
 
 @dataclass(frozen=True)
@@ -172,6 +170,7 @@ class SensorSimulator:
         # reference, simulated in two revolutions, is the same pass in both.
         self._noise_key = int(rng.integers(0, 2**62))
         self._noise = np.random.Generator(np.random.Philox(key=[0, 0]))
+        self._hardware_bias = config.hardware.power_bias_correction() if config.hardware else None
         self._power_bias = power_bias_rad
         self._rotation_bias = rotation_bias_rad
         self._turret_offset_m = (float(turret_offset_m[0]), float(turret_offset_m[1]))
@@ -291,8 +290,8 @@ class SensorSimulator:
     def _bias(self, window_rad: float, bearing_rad: float) -> float:
         """Injected chapter-7 biases (rad) added to the bearing this window gives (and the hardware's)."""
         total = 0.0
-        if self.config.hardware is not None:
-            total += float(self.config.hardware.power_bias_rad(window_rad))
+        if self._hardware_bias is not None:
+            total += float(self._hardware_bias.power_bias(window_rad))
         if self._power_bias is not None:
             total += float(np.asarray(self._power_bias(np.array([window_rad]))).reshape(-1)[0])
         if self._rotation_bias is not None:
