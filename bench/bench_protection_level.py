@@ -13,7 +13,7 @@ import sys
 from dataclasses import replace
 
 import numpy as np
-from bench_self_calibration import default_driver_match, run
+from bench_self_calibration import default_driver_matches, run
 from rows_table import Row, bench_main
 
 from beams_common.geometry.angles import wrap_to_pi
@@ -126,7 +126,7 @@ def rows(
 ) -> list[Row]:
     pooled: dict[str, list[dict[str, np.ndarray]]] = {name: [] for name, *_ in SCENARIOS}
     for seed in range(seeds):
-        matches = {c: default_driver_match(duration_s, seed, c) for c in (False, True)}
+        matches = default_driver_matches(duration_s, seed)
         for name, calibrated, fault in SCENARIOS:
             match = fault(matches[calibrated]) if fault else matches[calibrated]
             result, _ = run(match, PowerBiasStates(), calibrated)

@@ -36,19 +36,16 @@ def windows_of(duration_s: float) -> list[tuple[float, float]]:
     return [(max(start, SETTLE_S), start + WINDOW_S) for start in np.arange(0.0, duration_s - 1e-9, WINDOW_S)]
 
 
-def default_driver_match(duration_s: float, seed: int, calibrated: bool) -> SimulatedMatch:
-    """A match of the thesis hardware as driver_node publishes it with its defaults: its variance model,
-    and, `calibrated`, the bearings corrected by a perfect chapter-7 calibration, their variance with what
-    the correction at the noisy decoded window adds (`corrected_variance_of`, as the driver publishes)."""
+def default_driver_matches(duration_s: float, seed: int) -> dict[bool, SimulatedMatch]:
+    """A match of the thesis hardware as driver_node publishes it with its defaults, by calibrated: its
+    variance model, and, calibrated, the bearings corrected by a perfect chapter-7 calibration, their variance
+    with what the correction at the noisy decoded window adds (`corrected_variance_of`, as the driver
+    publishes): the same edges decoded either way."""
     config = sensor_config_of(SENSOR_MODEL)
     model = variance_model_of(SENSOR_PARAMETERS.defaults(), config.codes, config)
-    if not calibrated:
-        return simulate_match(duration_s, seed, sensor_config=config, variance_model=model)
+    match = simulate_match(duration_s, seed, sensor_config=config, variance_model=model)
     correction = calibration_of(config)
-    variance = corrected_variance_of(model, correction)
-    return simulate_match(duration_s, seed, sensor_config=config, variance_model=variance).corrected(
-        correction
-    )
+    return {False: match, True: match.corrected(correction, corrected_variance_of(model, correction))}
 
 
 def run(
@@ -184,7 +181,7 @@ def rows(seeds: int = DEFAULT_SEEDS, duration_s: float = DEFAULT_DURATION_S) -> 
     pools = {name: Pool.empty() for name, _, _ in RUNS}
     curve_errors: list[float] = []
     for seed in range(seeds):
-        matches = {c: default_driver_match(duration_s, seed, c) for c in (False, True)}
+        matches = default_driver_matches(duration_s, seed)
         bound = match_bound(matches[True], config, True)
         for name, calibrated, states in RUNS:
             result, localiser = run(matches[calibrated], states, calibrated)

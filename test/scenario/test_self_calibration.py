@@ -2,7 +2,7 @@
 consistent on the thesis hardware uncalibrated (the power bias self-calibrated) as well as calibrated.
 
 Matches of the thesis-hardware receiver decoded with driver_node's default variance model
-(bench_self_calibration's `default_driver_match`), replayed through ekf_node's default filter.
+(bench_self_calibration's `default_driver_matches`), replayed through ekf_node's default filter.
 """
 
 import math
@@ -23,7 +23,7 @@ from beams_sim.world import EurobotTrajectory
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[2] / "bench"))
 from bench_self_calibration import (
     bias_curve_error_rad,
-    default_driver_match,
+    default_driver_matches,
     nees_series,
     run,
     windows_against_band,
@@ -103,14 +103,13 @@ def replays():
     the perfectly calibrated match, and with the bias as white noise (the filter before issue 19)."""
     runs = {"learning": [], "perfect": [], "white": [], "localisers": [], "matches": []}
     for seed in SEEDS:
-        uncalibrated = default_driver_match(90.0, seed, calibrated=False)
+        matches = default_driver_matches(90.0, seed)
+        uncalibrated = matches[False]
         learning, localiser = run(uncalibrated, PowerBiasStates(), calibrated=False)
         runs["learning"].append(learning)
         runs["localisers"].append(localiser)
         runs["matches"].append(uncalibrated)
-        runs["perfect"].append(
-            run(default_driver_match(90.0, seed, calibrated=True), PowerBiasStates(), True)[0]
-        )
+        runs["perfect"].append(run(matches[True], PowerBiasStates(), True)[0])
         runs["white"].append(run(uncalibrated, None, calibrated=False)[0])
     return runs
 

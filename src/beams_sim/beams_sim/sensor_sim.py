@@ -32,6 +32,9 @@ Occlusion = Collection[int] | Callable[[int, float], bool]
 _PASS_MARGIN_RAD = 1.0
 _FIXED_POINT_STEPS = 3
 _TWO_PI = 2.0 * math.pi
+# Generator(Philox(key)) anew costs 60 us (a SeedSequence drawn first): one generator is re-keyed per pass
+_ZERO_COUNTER = np.zeros(4, dtype=np.uint64)
+_FRESH_PHILOX = dict(bit_generator="Philox", buffer=_ZERO_COUNTER, buffer_pos=4, has_uint32=0, uinteger=0)
 
 
 @dataclass(frozen=True)
@@ -119,10 +122,8 @@ class SensorSimConfig:
         """True angular window phi_W = phi_F - phi_R (rad) at distance(s) d (figure 2.8)."""
         if np.ndim(distance_m) == 0:
             return 2.0 * self.half_window_rad(float(distance_m), power_scale)  # type: ignore[arg-type]
-        distances = np.asarray(distance_m, dtype=float)
-        return np.array([2.0 * self.half_window_rad(d, power_scale) for d in distances.ravel()]).reshape(
-            distances.shape
-        )
+        window = np.vectorize(lambda d: 2.0 * self.half_window_rad(d, power_scale), otypes=[float])
+        return window(np.asarray(distance_m, dtype=float))
 
 
 @dataclass(frozen=True)
@@ -168,6 +169,8 @@ class SensorSimulator:
         # Receiver noise of one pass is drawn from a key of (beacon, pass instant): a pass over the zero
         # reference, simulated in two revolutions, is the same pass in both.
         self._noise_key = int(rng.integers(0, 2**62))
+        self._noise = np.random.Generator(np.random.Philox(key=[0, 0]))
+        self._hardware_bias = config.hardware.power_bias_correction() if config.hardware else None
         self._power_bias = power_bias_rad
         self._rotation_bias = rotation_bias_rad
         self._turret_offset_m = (float(turret_offset_m[0]), float(turret_offset_m[1]))
@@ -228,16 +231,17 @@ class SensorSimulator:
         # Code time of instant t0 + r: the beacon's clock runs from its own phase.
         phase = float(np.mod(t0 + self._phase_s[k], code.duration_s))
         pass_index = int(np.floor(0.5 * (window[0] + window[1]) / self.config.period_s))
-        noise = np.random.Generator(np.random.Philox(key=[self._noise_key + k, pass_index % 2**63]))
+        key = np.array([self._noise_key + k, pass_index % 2**63], dtype=np.uint64)
+        self._noise.bit_generator.state = {**_FRESH_PHILOX, "state": {"counter": _ZERO_COUNTER, "key": key}}
         opens, closes = window
         if self.config.hardware is not None:  # the AGC's jitter of the threshold crossings (fig. 5.3)
             omega = self.config.turret_speed_rad_s
             rising_std, falling_std = self.config.hardware.edge_std_rad((closes - opens) * omega, code)
-            opens += noise.normal(0.0, float(rising_std)) / omega
-            closes += noise.normal(0.0, float(falling_std)) / omega
+            opens += self._noise.normal(0.0, float(rising_std)) / omega
+            closes += self._noise.normal(0.0, float(falling_std)) / omega
         min_burst = self.config.receiver.min_burst_s(code)
         starts, ends = bursts_in_window(code, opens - t0 + phase, closes - t0 + phase, min_burst)
-        return self._add_edge_noise(starts - phase, ends - phase, noise)
+        return self._add_edge_noise(starts - phase, ends - phase, self._noise)
 
     def _window_times(
         self, beacon: SimulatedBeacon, pose_at: PoseAt, t0: float, t_guess: float
@@ -286,8 +290,8 @@ class SensorSimulator:
     def _bias(self, window_rad: float, bearing_rad: float) -> float:
         """Injected chapter-7 biases (rad) added to the bearing this window gives (and the hardware's)."""
         total = 0.0
-        if self.config.hardware is not None:
-            total += float(self.config.hardware.power_bias_rad(window_rad))
+        if self._hardware_bias is not None:
+            total += float(self._hardware_bias.power_bias(window_rad))
         if self._power_bias is not None:
             total += float(np.asarray(self._power_bias(np.array([window_rad]))).reshape(-1)[0])
         if self._rotation_bias is not None:

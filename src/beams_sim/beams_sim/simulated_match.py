@@ -18,7 +18,7 @@ from beams_common.geometry.angles import wrap_to_pi
 from beams_common.geometry.beacon_map import EUROBOT_BEACON_MAP, BeaconMap
 from beams_common.geometry.pose2d import compose
 from beams_driver.codes import BeaconCode
-from beams_driver.decoder import BearingDecoder, DecodedRevolution, VarianceSource
+from beams_driver.decoder import BearingDecoder, DecodedBearing, DecodedRevolution, VarianceSource
 from beams_driver.edges import RevolutionEdges
 from beams_driver.variance import CorrectedVariance, EdgeVariances, VarianceMode, VarianceModel
 from beams_sim.parameters import SIM_WORLD_PARAMETERS
@@ -74,19 +74,17 @@ class SimulatedMatch:
         turret_x, turret_y, theta = self.turret_at(t)
         return float(wrap_to_pi(math.atan2(beacon.y_m - turret_y, beacon.x_m - turret_x) - theta))
 
-    def corrected(self, correction: BearingCorrection) -> "SimulatedMatch":
+    def corrected(
+        self, correction: BearingCorrection, variance: VarianceSource | None = None
+    ) -> "SimulatedMatch":
         """The match with every bearing corrected as driver_node publishes it (eq. 7.18 and 7.24, at the
-        decoded window)."""
-        revolutions = [
-            replace(
-                revolution,
-                bearings=[
-                    replace(b, bearing=float(correction.correct(b.bearing, b.angular_window)))
-                    for b in revolution.bearings
-                ],
-            )
-            for revolution in self.revolutions
-        ]
+        decoded window); with `variance`, the variance that model gives (the same edges decoded with it)."""
+
+        def published(b: DecodedBearing) -> DecodedBearing:
+            v = b.variance if variance is None else float(variance.variance(b.beacon_id, b.angular_window))
+            return replace(b, bearing=float(correction.correct(b.bearing, b.angular_window)), variance=v)
+
+        revolutions = [replace(r, bearings=[published(b) for b in r.bearings]) for r in self.revolutions]
         return replace(self, revolutions=revolutions)
 
 
