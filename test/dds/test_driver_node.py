@@ -92,8 +92,10 @@ def test_serial_source_through_a_pseudo_terminal(rclpy_node, start_node, tmp_pat
     import time
 
     from diagnostic_msgs.msg import DiagnosticArray
+    from rclpy.qos import qos_profile_sensor_data
 
     from beams_driver.serial_protocol import FrameEncoder
+    from beams_msgs.msg import BeaconBearingArray
     from beams_sim.sensor_sim import SensorSimConfig, SensorSimulator
 
     master, slave = os.openpty()
@@ -113,11 +115,23 @@ def test_serial_source_through_a_pseudo_terminal(rclpy_node, start_node, tmp_pat
             time.sleep(config.period_s)
 
     rclpy_node.subscribe(DiagnosticArray, "/diagnostics")
+    revolutions = rclpy_node.subscribe(BeaconBearingArray, "beams/bearings", qos_profile_sensor_data)
     node = start_node("beams_driver", "driver_node", params={"source": "serial", "device": os.ttyname(slave)})
+    # the stream starts once the driver has opened the port (the pty raw) and the probe hears it: a pty's
+    # line discipline mangles what comes before, and a backlog read at once is a burst the probe drops
+    assert rclpy_node.spin_until(
+        lambda: (
+            "publishing /beams/bearings" in node.log() and rclpy_node.node.count_publishers("/beams/bearings")
+        ),
+        WAIT_S,
+    ), node.log()
     writer = threading.Thread(target=device, daemon=True)
     writer.start()
     try:
-        received = collect_revolutions(rclpy_node, 25)
+        assert rclpy_node.spin_until(lambda: len(revolutions) >= 25, WAIT_S), (
+            f"{len(revolutions)} revolutions"
+        )
+        received = revolutions
     finally:
         stop.set()
         writer.join(timeout=10)

@@ -83,13 +83,16 @@ def test_the_status_topics_say_what_diagnostics_says_at_once_and_latched(start_n
         gaps = [b - a for a, b in itertools.pairwise(stamps)]
         assert len(stamps) >= 3 and max(gaps) <= HEARTBEAT_BOUND_S, (kind, gaps)
 
-    # latched: a subscriber that comes now gets the current status at once
+    # latched: a subscriber that comes now gets the current status at once (tracking, or degraded for a
+    # while on a loaded machine: two ToTal poses in a row delayed past the 0.25 s stamp tolerance)
     late: list[LocalisationStatus] = []
     node.create_subscription(LocalisationStatus, "/" + topics.EKF_STATUS, late.append, STATUS_QOS)
     assert rclpy_node.spin_until(lambda: bool(late), SAID_AT_ONCE_S + 0.5)
-    assert late[0].status == LocalisationStatus.TRACKING, late[0].message
+    assert late[0].header.stamp in [m.header.stamp for _, m in said["ekf"][-3:]], late[0].message
 
-    # an operator's pose 0.5 m off the truth: degraded at once, the reason as /diagnostics gives it
+    # an operator's pose 0.5 m off the truth: degraded at once, the reason as /diagnostics gives it (from
+    # tracking: a change of status is said on both at once, a new reason within one at the 1 Hz tick)
+    assert rclpy_node.spin_until(lambda: tracking("ekf"), BACK_TIMEOUT_S), said["ekf"][-1][1].message
     assert truth, "no ground truth received"
     true_pose = truth[-1].pose.pose
     pose = PoseWithCovarianceStamped()
@@ -105,15 +108,20 @@ def test_the_status_topics_say_what_diagnostics_says_at_once_and_latched(start_n
     assert reply.success, reply.message
     answered = time.monotonic()
 
-    def degraded_after(t0: float) -> list[tuple[float, LocalisationStatus]]:
-        return [(t, m) for t, m in said["ekf"] if t >= t0 and m.status == LocalisationStatus.DEGRADED]
+    unconfirmed = "pose not yet confirmed by the bearings since"
 
-    assert rclpy_node.spin_until(lambda: bool(degraded_after(sent)), SAID_AT_ONCE_S + 1.0)
+    def degraded_after(t0: float) -> list[tuple[float, LocalisationStatus]]:
+        return [
+            (t, m)
+            for t, m in said["ekf"]
+            if t >= t0 and m.status == LocalisationStatus.DEGRADED and unconfirmed in m.message
+        ]
+
+    assert rclpy_node.spin_until(lambda: bool(degraded_after(sent)), SAID_AT_ONCE_S + 1.0), said["ekf"][-1]
     at, degraded = degraded_after(sent)[0]
     assert at - answered <= SAID_AT_ONCE_S, at - answered
-    assert "pose not yet confirmed by the bearings since" in degraded.message, degraded.message
-    rclpy_node.spin_until(lambda: any(t >= at and m.startswith("degraded") for t, m in diagnostics), 2.0)
-    diagnosed = [m for t, m in diagnostics if t >= sent and m.startswith("degraded")]
+    rclpy_node.spin_until(lambda: any(t >= at and unconfirmed in m for t, m in diagnostics), 2.0)
+    diagnosed = [m for t, m in diagnostics if t >= sent and m.startswith("degraded") and unconfirmed in m]
     assert diagnosed and diagnosed[0].split("(")[0] == degraded.message.split("(")[0], (diagnosed, degraded)
     # the bearings find the pose wrong and re-initialise it from ToTal: tracking again
     assert rclpy_node.spin_until(lambda: tracking("ekf"), BACK_TIMEOUT_S), [
