@@ -48,7 +48,8 @@ def stand_in(role: str) -> Node:
         total, total_cov = TriangulatedPose(accepted=True), PoseWithCovarianceStamped()
 
         def on_bearings(msg: BeaconBearingArray) -> None:
-            total.header = total_cov.header = msg.header
+            # stamped within its bearings, as ToTal's pose is (the bench matches a pose to its revolution so)
+            total.header = total_cov.header = msg.bearings[-1].header if msg.bearings else msg.header
             pose.publish(total)
             pose_cov.publish(total_cov)
 
