@@ -83,32 +83,38 @@ def planar_pose_problem(stamp_s: float, pose: Sequence[float]) -> str:
 
 def pose_covariance_problem(covariance_3x3: Any) -> str:
     """Rule 3 (with rule 2's finiteness of the entries) on a planar (x, y, yaw) covariance, or ''."""
+    return _judged_covariance(covariance_3x3)[0]
+
+
+def _judged_covariance(covariance_3x3: Any) -> tuple[str, bool]:
+    """(rule 3's problem or '', whether the covariance is positive definite: one that passes but is only
+    semi-definite carries no information in some direction)."""
     matrix = np.asarray(covariance_3x3, dtype=float)
     if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
-        return "covariance is not three by three finite numbers"
+        return "covariance is not three by three finite numbers", False
     scale = float(np.max(np.abs(matrix)))
     if scale == 0.0:
-        return ""  # no information given: the default replaces it
+        return "", False  # no information given: the default replaces it
     normalised = matrix / scale  # entries in [-1, 1]: no overflow whatever the magnitude
     # asymmetry relative to the entries' own scale, sqrt(a_ii a_jj) (a 6 % asymmetry of a 1e-8 m^2 block
     # next to a 1 rad^2 variance is not rounding)
     root = np.sqrt(np.abs(np.diag(normalised)))
     own_scale = np.maximum(np.outer(root, root), np.finfo(float).tiny)
     if float(np.max(np.abs(normalised - normalised.T) / own_scale)) > SYMMETRY_TOLERANCE:
-        return "covariance is not symmetric"
+        return "covariance is not symmetric", False
     smallest = 1.0 if clearly_conditioned(normalised) else float(np.linalg.eigvalsh(normalised)[0])
     if np.any(np.diag(matrix) < 0.0) or smallest < -PSD_TOLERANCE:
         return bounded(
             f"covariance is not positive semi-definite (smallest eigenvalue {smallest * scale:.3g}): "
             f"variances {np.diag(matrix).tolist()}"
-        )
+        ), False
     sigma = np.sqrt(np.maximum(np.diag(matrix), 0.0))
     if max(sigma[0], sigma[1]) > MAX_POSE_SIGMA_M or sigma[2] > MAX_POSE_SIGMA_RAD:
         return (
             f"covariance standard deviations ({sigma[0]:.3g} m, {sigma[1]:.3g} m, {sigma[2]:.3g} rad) beyond "
             f"{MAX_POSE_SIGMA_M:g} m (the table) or {MAX_POSE_SIGMA_RAD:.3g} rad (a turn): no information"
-        )
-    return ""
+        ), False
+    return "", smallest > 0.0
 
 
 def pose_intake(
@@ -165,12 +171,8 @@ def planar_pose_intake(source: PoseSource, stamp_s: float, pose: Pose2D, covaria
     matrix = np.asarray(covariance_3x3, dtype=float)
     if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
         return RefusedPose(source, PoseRefusal.INVALID, f"{source} pose: covariance has a non-finite entry")
-    problem = pose_covariance_problem(matrix)
+    problem, definite = _judged_covariance(matrix)
     if problem:
         return RefusedPose(source, PoseRefusal.COVARIANCE, f"{source} pose: {problem}")
     # a semi-definite covariance carries no information in some direction: the default replaces it
-    scale = float(np.max(np.abs(matrix)))
-    definite = scale > 0.0 and (
-        clearly_conditioned(matrix / scale) or np.linalg.eigvalsh(matrix / scale)[0] > 0.0
-    )
     return KeptPose(source, float(stamp_s), tuple(float(v) for v in pose), matrix if definite else None)
