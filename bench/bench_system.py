@@ -201,8 +201,13 @@ def rows(
     one_process: bool = False,
     floor: bool = False,
 ) -> list[Row]:
+    if floor and one_process:
+        raise ValueError(
+            "--floor stands in for triangulation_node and ekf_node: a process each, not --one-process"
+        )
     os.environ.setdefault("ROS_DOMAIN_ID", DEFAULT_DOMAIN_ID)
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+    from beams_ekf.parameters import EKF_PARAMETERS
     from beams_tools.robot_processes import ONE_PROCESS, process_commands, robot_processes
     from beams_tools.supervisor import NodeSupervisor
 
@@ -226,7 +231,8 @@ def rows(
             for name in {driver} if one_process else ("triangulation_node", "ekf_node"):
                 commands[name] += FEED_ARGUMENTS
         for role in ("triangulation", "ekf") if floor else ():
-            stand_in = [sys.executable, str(ROOT / "bench/floor_node.py"), role]
+            rate_hz = EKF_PARAMETERS.defaults()["publish_rate_hz"]
+            stand_in = [sys.executable, str(ROOT / "bench/floor_node.py"), role, str(rate_hz)]
             commands[f"{role}_node"] = [*stand_in, "--ros-args", "-r", f"__node:={role}_node"]
         profiled = [name for name in profile.split(",") if name]
         for name in profiled:

@@ -3,7 +3,8 @@ triangulation_node's or ekf_node's subscriptions (odometry raw, as the nodes rea
 and executor, each callback doing nothing but what its publications need (a message built once, its stamp
 set). The real node's CPU above the stand-in's is the node's own work.
 
-Usage: python bench/floor_node.py triangulation|ekf --ros-args -r __node:=NAME
+Usage: python bench/floor_node.py triangulation|ekf PUBLISH_RATE_HZ --ros-args -r __node:=NAME
+(PUBLISH_RATE_HZ: ekf_node's publish_rate_hz; bench_system passes its default, the stand-in stays light)
 """
 
 import sys
@@ -17,16 +18,13 @@ from rclpy.qos import qos_profile_sensor_data
 from tf2_msgs.msg import TFMessage
 
 from beams_common.interfaces import topics
+from beams_common.ros.input_watch import GRAPH_CHECK_PERIOD_S
 from beams_common.ros.node_support import BEARINGS_QOS, TF_QOS, run_node
 from beams_common.ros.status_topic import STATUS_QOS
 from beams_msgs.msg import BeaconBearingArray, LocalisationStatus, TriangulatedPose
 
-# the real nodes' rates: ekf_node's publish_rate_hz default, the graph check, /diagnostics and the status
-EKF_PUBLISH_RATE_HZ = 20.0
-GRAPH_CHECK_PERIOD_S = 0.5
 
-
-def stand_in(role: str) -> Node:
+def stand_in(role: str, publish_rate_hz: float) -> Node:
     """The stand-in node of `role`, its publications and subscriptions made."""
     node = rclpy.create_node(f"{role}_node")
     diagnostics = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
@@ -69,7 +67,7 @@ def stand_in(role: str) -> Node:
                 tf.transforms[0].header.stamp = odometry.header.stamp
                 tf_out.publish(tf)
 
-        node.create_timer(1.0 / EKF_PUBLISH_RATE_HZ, lambda: publish(True))
+        node.create_timer(1.0 / publish_rate_hz, lambda: publish(True))
         node.create_subscription(BeaconBearingArray, topics.BEARINGS, lambda _: publish(False), BEARINGS_QOS)
         node.create_subscription(TriangulatedPose, topics.POSE, lambda _: None, 10)
         node.create_subscription(PoseWithCovarianceStamped, topics.INITIAL_POSE, lambda _: None, 10)
@@ -77,4 +75,4 @@ def stand_in(role: str) -> Node:
 
 
 if __name__ == "__main__":  # spun as the nodes are (run_node: their executor, their stop signals)
-    sys.exit(run_node(lambda: stand_in(sys.argv[1]), [sys.argv[0], *sys.argv[2:]]))
+    sys.exit(run_node(lambda: stand_in(sys.argv[1], float(sys.argv[2])), [sys.argv[0], *sys.argv[3:]]))
