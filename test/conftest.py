@@ -119,16 +119,29 @@ class RosGraph:
         while time.monotonic() < deadline:
             self.executor.spin_once(timeout_sec=0.05)
 
-    def call(self, srv_type: Any, name: str, request: Any, timeout_s: float) -> Any:
-        """Call a service and wait (bounded) for its answer; fails the test on a time-out."""
+    def call(
+        self, srv_type: Any, name: str, request: Any, timeout_s: float, resend_s: float | None = None
+    ) -> Any:
+        """Call a service and wait (bounded) for its answer; fails the test on a time-out.
+
+        `resend_s`: send the request again each resend_s without an answer (a request that is safe to
+        repeat). A node restarted after a kill -9 needs it: the dead process's server stays in the graph
+        for the DDS lease (5 s), so wait_for_service answers at once, and a request sent before the new
+        server's reader has matched this client (the next discovery announcement, up to 0.25 s) reaches
+        only the dead one and is never answered."""
         client = self.node.create_client(srv_type, name)
         if not client.wait_for_service(timeout_sec=timeout_s):
             pytest.fail(f"service {name} not available within {timeout_s} s")
-        future = client.call_async(request)
-        self.spin_until(future.done, timeout_s)
-        if not future.done():
+        deadline = time.monotonic() + timeout_s
+        futures = [client.call_async(request)]
+        while not any(f.done() for f in futures) and time.monotonic() < deadline:
+            wait_s = min(resend_s or timeout_s, deadline - time.monotonic())
+            if not self.spin_until(lambda: any(f.done() for f in futures), wait_s) and resend_s:
+                futures.append(client.call_async(request))
+        done = [f for f in futures if f.done()]
+        if not done:
             pytest.fail(f"service {name} did not answer within {timeout_s} s")
-        return future.result()
+        return done[0].result()
 
 
 @contextlib.contextmanager

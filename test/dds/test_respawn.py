@@ -247,7 +247,7 @@ def test_a_killed_ekf_node_resumes_its_learnt_states_and_runtime_parameters_exac
     assert rclpy_node.spin_until(lambda: said in second.log(), UP_TIMEOUT_S), second.log()
     assert RESUMED in second.log() and "not taken back" not in second.log(), second.log()
     request = GetParameters.Request(names=["gate_probability"])
-    (gate,) = rclpy_node.call(GetParameters, "/ekf_node/get_parameters", request, UP_TIMEOUT_S).values
+    (gate,) = rclpy_node.call(GetParameters, "/ekf_node/get_parameters", request, UP_TIMEOUT_S, 1.0).values
     assert gate.double_value == 0.99
     second.assert_clean_exit()  # the clean stop writes the checkpoint
     document = yaml.safe_load(path.read_text())

@@ -58,6 +58,7 @@ def test_a_second_driver_is_said_at_error_naming_both_and_the_error_clears(start
     settled = [s for n in WATCHERS for t, s in statuses[n] if t > time.monotonic() - 2.5]
     assert settled and all(s.level != DiagnosticStatus.ERROR for s in settled), [s.message for s in settled]
 
+    started = time.monotonic()
     second = start_node("beams_driver", "driver_node")
 
     def publishers() -> int:
@@ -68,9 +69,11 @@ def test_a_second_driver_is_said_at_error_naming_both_and_the_error_clears(start
     assert rclpy_node.spin_until(
         lambda: all(says_two_drivers(latest(n)) for n in WATCHERS), DETECTION_BOUND_S + 1.0
     ), [(n, latest(n).message) for n in WATCHERS]
+    # a node may see the new publisher before the probe does (each hears the others' discovery
+    # announcements on its own schedule): an ERROR said since its start and before the probe saw it counts,
+    # its delay negative
     detected = {
-        n: min(t for t, s in statuses[n] if t >= appeared and says_two_drivers(s)) - appeared
-        for n in WATCHERS
+        n: min(t for t, s in statuses[n] if t >= started and says_two_drivers(s)) - appeared for n in WATCHERS
     }
     print(f"second driver said at ERROR {detected} s after it appeared in the probe's graph")
     assert all(delay <= DETECTION_BOUND_S for delay in detected.values()), detected

@@ -62,9 +62,8 @@ ROBOT_LINK = "eth0"
 NAMESPACE_PREFIX = "beams-hosts-"
 STALE_NAMESPACE = re.compile(rf"^{NAMESPACE_PREFIX}(\d+)-")
 IP_TIMEOUT_S = 10.0
-# From the base station's node creation to each robot's EKF publisher seen: the profile announces every
-# 0.1 s (10 initial announcements); measured 0.05-0.23 s here (0.20 s without the profile), 2 s is
-# issue 7's recovery bound.
+# From the base station's node creation to each robot's EKF publisher seen: the profile announces a new
+# participant ten times 0.1 s apart, and every participant every 0.25 s; 2 s is the recovery bound.
 DISCOVERY_BOUND_S = 2.0
 # A robot's link down this long (a Wi-Fi drop): the base station receives nothing from it meanwhile
 # (after the datagrams already queued, OUTAGE_MARGIN_S), then receives again within RECOVERY_BOUND_S

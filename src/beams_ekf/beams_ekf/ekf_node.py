@@ -114,9 +114,12 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, StampedInputs, Node
         self.localiser = build_localiser(beacons, offset, self.settings)
         self.map_frame, self.base_frame, self.odom_frame = (self.parameters[f"{k}_frame"] for k in FRAMES)
         self.diagnostics = Diagnostics(self, "ekf")
+        self.health = EkfHealth(self.parameters, self._now_s())
+        # the estimate last judged and its bearing silence (s), reported with /diagnostics
+        self._judged: tuple[Estimate | None, float] = (None, math.inf)
+        self.diagnostics.refresh_values = self._report_values
         self.status_topic = StatusTopic(self, topics.EKF_STATUS, self.diagnostics)
         self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
-        self.health = EkfHealth(self.parameters, self._now_s())
         self._update_diagnostics(None)  # waiting, said at once
         self.recent_bearings = RecentBearings()
         # the newest odometry header stamp, republished exactly (a float loses nanoseconds at epoch scale)
@@ -354,12 +357,20 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, StampedInputs, Node
             self.tf_publisher.publish(self._tf)
 
     def _update_diagnostics(self, estimate: Estimate | None) -> None:
-        """The counters, and the status (`ekf_health`): its level and message, and `status` (waiting,
-        tracking, degraded or lost) as a value of its own."""
+        """The status of each estimate (`ekf_health`): its level and message, and `status` (waiting,
+        tracking, degraded or lost) as a value of its own; the counters wait for the report
+        (`_report_values`)."""
+        level, since_s, verdict = self.health.judge(self._now_s(), self.localiser, estimate)
+        self._judged = (estimate, since_s)
+        stamp = self._stamp_of(estimate) if estimate and math.isfinite(estimate.stamp_s) else None
+        self.status_topic.say(verdict, self.health.integrity, level, stamp)
+
+    def _report_values(self) -> None:
+        """The counters, rates and the last judged estimate's figures, as /diagnostics is sent."""
         for key, value in self.localiser.stats.counts.items():
             self.diagnostics.set(key, value)
         now_s = self._now_s()
-        level, since_s, verdict = self.health.judge(now_s, self.localiser, estimate)
+        estimate, since_s = self._judged
         if estimate is not None:
             self.diagnostics.set("covariance_trace", float(np.trace(estimate.covariance)))
             self.diagnostics.set("recent_gated_bearings", self.localiser.kidnap.recent_gated_bearings)
@@ -367,8 +378,6 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, StampedInputs, Node
             self.diagnostics.set("time_since_last_bearing_s", since_s)
         self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
         self.diagnostics.set("odometry_rate_hz", self.health.odometry_rate.rate_hz(now_s))
-        stamp = self._stamp_of(estimate) if estimate and math.isfinite(estimate.stamp_s) else None
-        self.status_topic.say(verdict, self.health.integrity, level, stamp)
 
     def _stamp_of(self, estimate: Estimate) -> Time:
         """The estimate's header stamp: the odometry's own at its instant (a float loses nanoseconds)."""

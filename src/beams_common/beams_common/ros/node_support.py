@@ -280,6 +280,9 @@ class Diagnostics:
         self._verdict: Verdict | None = None  # a localisation node's status (set_verdict)
         self.on_publish: Callable[[], None] | None = None  # told after each publication (StatusTopic)
         self.before_publish: Callable[[], None] | None = None  # asked before each timed publication
+        # sets the values read only for /diagnostics (counters, rates) as each report is sent: a node's
+        # per-message path then does not copy them at every estimate
+        self.refresh_values: Callable[[], None] | None = None
         self._log = ThrottledLog(node.get_logger())
         self._publisher = node.create_publisher(DiagnosticArray, topics.DIAGNOSTICS, 10)
         self._timer = node.create_timer(period_s, self._publish_periodically)
@@ -433,6 +436,8 @@ class Diagnostics:
         return [conditions[name] for name in ordered]
 
     def _send(self, level: str, message: str, stamp: Any) -> None:
+        if self.refresh_values is not None:
+            self.refresh_values()
         status = DiagnosticStatus(
             level=_LEVELS[level],
             name=self._name,
