@@ -70,6 +70,9 @@ class TriangulationPipeline:
         self.odometry_jumps = 0
         self.last_odometry_jump = ""
         self._pending: tuple[Tag, RevolutionIntake] | None = None
+        # revolutions estimated before the odometry covered them (`flush`): extrapolated or uncompensated,
+        # so an offline replay, which has all the odometry, estimates them otherwise (a starved node)
+        self.revolutions_before_odometry = 0
 
     def configure(
         self,
@@ -114,7 +117,7 @@ class TriangulationPipeline:
                 self.odometry.clear()
         self.odometry.add_valid(stamp_s, tuple(pose), twist)  # the odometry rule ran above
         if self._pending is not None and self._covered(self._pending[1]):
-            return "", self.flush()
+            return "", self._release()
         return "", []
 
     def on_revolution(self, tag: Tag, bearings: Sequence[Bearing]) -> list[tuple[Tag, RevolutionPose]]:
@@ -131,7 +134,14 @@ class TriangulationPipeline:
         return [*completed, (tag, self._estimate(intake))]
 
     def flush(self) -> list[tuple[Tag, RevolutionPose]]:
-        """The waiting revolution (if any), estimated now (when the streams stop or time jumps)."""
+        """The waiting revolution (if any), estimated now, before odometry covers it (the next revolution
+        came first, the streams stop or time jumps): counted in `revolutions_before_odometry`."""
+        if self._pending is not None:
+            self.revolutions_before_odometry += 1
+        return self._release()
+
+    def _release(self) -> list[tuple[Tag, RevolutionPose]]:
+        """The waiting revolution (if any), estimated with the odometry there is."""
         if self._pending is None:
             return []
         tag, intake = self._pending

@@ -68,6 +68,7 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, StampedInputs, Node):
         apply_runtime_changes(self, TRIANGULATION_PARAMETERS, self.parameters, self._prepare_parameters)
         serve_calibration_reload(self, self._apply_calibration)
         self.diagnostics = Diagnostics(self, "triangulation")
+        self.diagnostics.refresh_values = self._report_values
         self.status_topic = StatusTopic(self, topics.TRIANGULATION_STATUS, self.diagnostics)
         self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
         self.health = TriangulationHealth(self.parameters, self._now_s(), use_odometry=self.use_odometry)
@@ -94,8 +95,10 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, StampedInputs, Node):
 
     def recover_from_callback_exception(self, site: str) -> str:
         """A callback failed halfway (GuardedCallbacks): a new pipeline, without the waiting revolution."""
-        settings, geometry = self.pipeline.settings, self.geometry
-        self.pipeline = TriangulationPipeline(geometry.beacon_map, settings, geometry.turret_offset_m)
+        old, geometry = self.pipeline, self.geometry
+        self.pipeline = TriangulationPipeline(geometry.beacon_map, old.settings, geometry.turret_offset_m)
+        # a count of the node's life, as /diagnostics' others are
+        self.pipeline.revolutions_before_odometry = old.revolutions_before_odometry
         return "pipeline reset: the waiting revolution and the odometry history dropped"
 
     # -- parameters -----------------------------------------------------------------------------------
@@ -206,6 +209,11 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, StampedInputs, Node):
             self.diagnostics.set("last_rejection", estimate.reason)
         self.health.on_pose(self._now_s(), bool(estimate.accepted), estimate.covariance)
         self._update_status()
+
+    def _report_values(self) -> None:
+        """The pipeline's counts, as /diagnostics is sent."""
+        early = self.pipeline.revolutions_before_odometry
+        self.diagnostics.set("revolutions_estimated_before_their_odometry", early)
 
     def _update_status(self) -> None:
         """The status (`triangulation_health`): its level and message, and `status` (waiting, tracking,

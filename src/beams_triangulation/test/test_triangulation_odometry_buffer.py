@@ -178,6 +178,7 @@ def test_pipeline_result_does_not_depend_on_arrival_order():
         expected.result.covariance.tobytes(),
     )
     assert _position_error(expected.result, expected.stamp_s) < 1e-3
+    assert odometry_first.revolutions_before_odometry == revolution_first.revolutions_before_odometry == 0
 
 
 def test_pipeline_waits_at_most_until_the_next_revolution():
@@ -190,8 +191,10 @@ def test_pipeline_waits_at_most_until_the_next_revolution():
     [(tag, outcome)] = pipeline.on_revolution(2, _revolution(0.65))
     assert tag == 1 and not outcome.result.accepted
     assert outcome.result.reason == REASON_NOT_COMPENSATED
+    assert pipeline.revolutions_before_odometry == 1
     [(tag, outcome)] = pipeline.flush()
     assert tag == 2 and pipeline.flush() == []
+    assert pipeline.revolutions_before_odometry == 2  # counted once each, an empty flush not at all
     without = TriangulationPipeline(EUROBOT_BEACON_MAP, TriangulationSettings(use_odometry=False))
     assert without.on_odometry(*_odometry_messages(0.0, 0.0)[0]) == []
     [(tag, outcome)] = without.on_revolution(3, _revolution(0.55))
