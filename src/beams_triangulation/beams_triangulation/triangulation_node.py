@@ -68,10 +68,10 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, StampedInputs, Node):
         apply_runtime_changes(self, TRIANGULATION_PARAMETERS, self.parameters, self._prepare_parameters)
         serve_calibration_reload(self, self._apply_calibration)
         self.diagnostics = Diagnostics(self, "triangulation")
-        self.diagnostics.refresh_values = self._report_values
         self.status_topic = StatusTopic(self, topics.TRIANGULATION_STATUS, self.diagnostics)
         self.stamp_check = StampCheck(stamp_tolerance_of(self.parameters))
         self.health = TriangulationHealth(self.parameters, self._now_s(), use_odometry=self.use_odometry)
+        self.diagnostics.refresh_values = self._report_values
         # the status follows the clock even when no pose comes (lost after a second without one)
         self.create_timer(1.0, self._update_status)
         self._accepted_stamp = None  # the last accepted pose's header stamp
@@ -211,16 +211,15 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, StampedInputs, Node):
         self._update_status()
 
     def _report_values(self) -> None:
-        """The pipeline's counts, as /diagnostics is sent."""
+        """The pipeline's count and the bearing rate, as /diagnostics is sent (not at every pose)."""
         early = self.pipeline.revolutions_before_odometry
         self.diagnostics.set("revolutions_estimated_before_their_odometry", early)
+        self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(self._now_s()))
 
     def _update_status(self) -> None:
         """The status (`triangulation_health`): its level and message, and `status` (waiting, tracking,
         degraded or lost) as a value of its own; each pose carries its own verdict (accepted, reason)."""
-        now_s = self._now_s()
-        verdict = self.health.verdict(now_s)
-        self.diagnostics.set("bearing_rate_hz", self.health.bearing_rate.rate_hz(now_s))
+        verdict = self.health.verdict(self._now_s())
         self.status_topic.say(verdict, self.health.integrity, self.health.protection, self._accepted_stamp)
 
     def _markers(self, estimate: PoseEstimate, header) -> MarkerArray:
