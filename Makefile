@@ -68,8 +68,8 @@ DDS_WORKERS ?= 2
 DDS_PARALLEL := $(if $(filter-out 0 1,$(DDS_WORKERS)),-n $(DDS_WORKERS) --dist loadfile --no-loadscope-reorder)
 # Every DDS test passes the first time: a rerun hides a race or a node's defect that users meet, so none is
 # made unless asked for while diagnosing one (`make test DDS_RERUNS=2`; -raR lists the reruns and failures
-# in the summary). The tests marked `alone` (the fault campaign, the respawn timing: the whole suite on the
-# two cores, timed) run after the others, one at a time.
+# in the summary). The tests marked `alone` (the fault campaign, the respawn timing, the EKF over the
+# real-time firmware emulation: the whole suite on the two cores, timed) run after the others, one at a time.
 DDS_RERUNS ?= 0
 test: build lint hil-if-possible
 	$(ROS_ENV) python -m pytest -m "not dds" $(FAST_PARALLEL) $(PYTEST_ARGS) || [ $$? -eq 5 ]

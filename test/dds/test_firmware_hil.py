@@ -357,6 +357,11 @@ LIVE_TURRET_TIME_S = 14.0
 SETTLE_S = 6.0  # the EKF's start (first ToTal pose, convergence) is not scored
 
 
+# The firmware runs in simavr in real time beside the nodes: on a loaded machine the EKF's error grows (RMS
+# 3.6-3.8 mm idle; 5.3 mm once in make test's DDS tier, 3.7 and 6.4 mm with two busy loops beside it, with
+# single estimates 10-21 mm off, cause not found; the driver's stamps stayed within 1.8 ms of the turret's
+# grid), so it runs with the cores to itself.
+@pytest.mark.alone
 @pytest.mark.dds
 def test_driver_node_reads_the_emulated_turret_and_the_ekf_localises(
     rclpy_node, start_node, tmp_path: pathlib.Path
