@@ -16,6 +16,7 @@ Either lets the next ToTal fix re-initialise the filter (`Localiser.on_pose`).
 """
 
 from collections import deque
+from functools import lru_cache
 from math import copysign, exp, hypot, isfinite, lgamma, log, sqrt
 from statistics import NormalDist
 
@@ -26,6 +27,7 @@ from beams_common.geometry.pose2d import Pose2D
 from beams_ekf.pose_filter import BearingOutcome, BearingReason, PoseFilter
 
 
+@lru_cache(maxsize=256)  # a Localiser asks for every window length's quantile at its creation
 def chi2_quantile(probability: float, dof: int) -> float:
     """The chi-square distribution's quantile (scipy.stats' chi2.ppf, to 1e-12): its CDF is the regularised
     incomplete gamma function P(dof/2, x/2), the lower one summed by its series below x/2 = dof/2 + 1 and

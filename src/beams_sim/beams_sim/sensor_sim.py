@@ -176,6 +176,9 @@ class SensorSimulator:
         self._turret_offset_m = (float(turret_offset_m[0]), float(turret_offset_m[1]))
         self.occlusion = occlusion
         self._revolution = 0
+        # per pass: the config's derived values once, not a ReceiverModel built at each pass
+        self._omega = config.turret_speed_rad_s
+        self._min_burst_s = [config.receiver.min_burst_s(code) for code in self._codes]
 
     def revolution(self, pose_at: PoseAt, start_time_s: float) -> RevolutionEdges:
         """Edges captured during the revolution opened by the zero-reference pulse at start_time_s."""
@@ -209,7 +212,7 @@ class SensorSimulator:
         zero reference, the tail of the pass around t0 and the head of the one around t0 + period, each at its
         own pose."""
         beacon = self.beacons[k]
-        omega, period = self.config.turret_speed_rad_s, self.config.period_s
+        omega, period = self._omega, self.config.period_s
         bearing, _ = self._view(beacon, pose_at(t0 + 0.5 * period))
         cycles = [0.0]
         if bearing < _PASS_MARGIN_RAD:
@@ -229,18 +232,17 @@ class SensorSimulator:
             return np.empty(0), np.empty(0)
         code = self._codes[k]
         # Code time of instant t0 + r: the beacon's clock runs from its own phase.
-        phase = float(np.mod(t0 + self._phase_s[k], code.duration_s))
-        pass_index = int(np.floor(0.5 * (window[0] + window[1]) / self.config.period_s))
+        phase = (t0 + self._phase_s[k]) % code.duration_s
+        pass_index = math.floor(0.5 * (window[0] + window[1]) / self.config.period_s)
         key = np.array([self._noise_key + k, pass_index % 2**63], dtype=np.uint64)
         self._noise.bit_generator.state = {**_FRESH_PHILOX, "state": {"counter": _ZERO_COUNTER, "key": key}}
         opens, closes = window
         if self.config.hardware is not None:  # the AGC's jitter of the threshold crossings (fig. 5.3)
-            omega = self.config.turret_speed_rad_s
+            omega = self._omega
             rising_std, falling_std = self.config.hardware.edge_std_rad((closes - opens) * omega, code)
             opens += self._noise.normal(0.0, float(rising_std)) / omega
             closes += self._noise.normal(0.0, float(falling_std)) / omega
-        min_burst = self.config.receiver.min_burst_s(code)
-        starts, ends = bursts_in_window(code, opens - t0 + phase, closes - t0 + phase, min_burst)
+        starts, ends = bursts_in_window(code, opens - t0 + phase, closes - t0 + phase, self._min_burst_s[k])
         return self._add_edge_noise(starts - phase, ends - phase, self._noise)
 
     def _window_times(
@@ -251,12 +253,15 @@ class SensorSimulator:
         Fixed-point iterations on turret angle = beacon bearing (+- half window + bias), the pose taken
         at each iterate; they contract by the ratio of the robot's turn rate to the turret's (~3%).
         """
-        omega = self.config.turret_speed_rad_s
+        omega = self._omega
+        half_window_rad, view = self.config.half_window_rad, self._view
 
         def mismatch(t: float, side: float, bias: float) -> tuple[float, float]:
-            bearing, distance = self._view(beacon, pose_at(t))
-            half = self.config.half_window_rad(distance, beacon.power_scale)
-            return _wrap(bearing + side * half + bias - omega * (t - t0)) / omega, half
+            bearing, distance = view(beacon, pose_at(t))
+            half = half_window_rad(distance, beacon.power_scale)
+            return (
+                (bearing + side * half + bias - omega * (t - t0) + math.pi) % _TWO_PI - math.pi
+            ) / omega, half
 
         centre = t_guess
         for _ in range(_FIXED_POINT_STEPS):
@@ -264,7 +269,7 @@ class SensorSimulator:
             centre += step
         if half <= 0.0:
             return None
-        bias = self._bias(2.0 * half, float(np.mod(omega * (centre - t0), 2.0 * np.pi)))
+        bias = self._bias(2.0 * half, (omega * (centre - t0)) % _TWO_PI)
         edges = []
         for side in (-1.0, 1.0):
             edge = centre + (side * half + bias) / omega
@@ -283,9 +288,13 @@ class SensorSimulator:
 
     def _view(self, beacon: SimulatedBeacon, pose: tuple[float, float, float]) -> tuple[float, float]:
         """(bearing in [0, 2 pi) in the robot frame, distance m) of the beacon from the turret centre."""
-        turret_x, turret_y = self.turret_position(pose)
-        dx, dy = beacon.x_m - turret_x, beacon.y_m - turret_y
-        return (math.atan2(dy, dx) - float(pose[2])) % _TWO_PI, math.hypot(dx, dy)
+        # turret_position's arithmetic inline: seven calls per pass of each beacon
+        x, y, theta = pose
+        theta = float(theta)
+        c, s = math.cos(theta), math.sin(theta)
+        ox, oy = self._turret_offset_m
+        dx, dy = beacon.x_m - (x + c * ox - s * oy), beacon.y_m - (y + s * ox + c * oy)
+        return (math.atan2(dy, dx) - theta) % _TWO_PI, math.hypot(dx, dy)
 
     def _bias(self, window_rad: float, bearing_rad: float) -> float:
         """Injected chapter-7 biases (rad) added to the bearing this window gives (and the hardware's)."""
@@ -350,10 +359,6 @@ class SensorSimulator:
 
 def _is_beacon_sequence(beacons: object) -> bool:
     return isinstance(beacons, Sequence) and all(isinstance(b, SimulatedBeacon) for b in beacons)
-
-
-def _wrap(angle: float) -> float:
-    return (angle + math.pi) % _TWO_PI - math.pi
 
 
 def _union(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -150,21 +150,21 @@ class EurobotTrajectory:
 
     def pose_at(self, t: float) -> Pose2D:
         """True pose (x, y, theta) in the map frame at time t (theta in (-pi, pi])."""
-        x, y, heading, _, _, _ = self._row(t)
+        x, y, heading = self._row(t, 0, 3)
         return (x, y, math.pi - (math.pi - heading) % (2.0 * math.pi))
 
     def twist_at(self, t: float) -> tuple[float, float]:
         """True (forward speed m/s, yaw rate rad/s) at time t."""
-        _, _, _, _, v, omega = self._row(t)
+        v, omega = self._row(t, 4, 6)
         return (v, omega)
 
     def distance_at(self, t: float) -> float:
         """Arc length (m) travelled since t = 0."""
-        return self._row(t)[3]
+        return self._row(t, 3, 4)[0]
 
     def heading_unwrapped_at(self, t: float) -> float:
         """Continuous heading (rad), counting whole turns (the wheels' rotation integral)."""
-        return self._row(t)[2]
+        return self._row(t, 2, 3)[0]
 
     def states_at(self, times_s: np.ndarray) -> np.ndarray:
         """(n, 6) array: x, y, unwrapped heading, distance, speed, yaw rate at each instant (vectorised)."""
@@ -184,15 +184,16 @@ class EurobotTrajectory:
         """True when the robot's disc stays on the 3 m x 2 m table at every sample."""
         return _inside_table(self._columns[:, :2], robot_radius_m)
 
-    def _row(self, t: float) -> tuple[float, ...]:
-        """Linear interpolation of one instant (scalar path: called per edge by the sensor simulator)."""
+    def _row(self, t: float, first: int, end: int) -> list[float]:
+        """Columns first..end-1 interpolated at one instant (scalar path: called per edge by the sensor
+        simulator)."""
         position = min(max(t, 0.0), self.duration_s) / self._step_s
         index = min(int(position), self._last - 1)
         fraction = position - index
         # the two rows as floats: numpy arithmetic on 6-element rows costs more than the loop (a list of
         # every row kept instead held about 90 MiB for sim_world_node's 300 s trajectory)
-        below, above = self._columns[index : index + 2].tolist()
-        return tuple(b + fraction * (a - b) for b, a in zip(below, above, strict=True))
+        below, above = self._columns[index : index + 2, first:end].tolist()
+        return [b + fraction * (a - b) for b, a in zip(below, above, strict=True)]
 
 
 def _inside_table(xy: np.ndarray, robot_radius_m: float) -> bool:
