@@ -64,7 +64,7 @@ hil-if-possible:
 # the workers finish together (xdist's own reordering, by number of tests, is turned off)
 FAST_WORKERS ?= 2
 FAST_PARALLEL := $(if $(filter-out 0 1,$(FAST_WORKERS)),-n $(FAST_WORKERS) --dist loadfile --no-loadscope-reorder)
-DDS_WORKERS ?= 2
+DDS_WORKERS ?= 3
 DDS_PARALLEL := $(if $(filter-out 0 1,$(DDS_WORKERS)),-n $(DDS_WORKERS) --dist loadfile --no-loadscope-reorder)
 # Every DDS test passes the first time: a rerun hides a race or a node's defect that users meet, so none is
 # made unless asked for while diagnosing one (`make test DDS_RERUNS=2`; -raR lists the reruns and failures
