@@ -63,7 +63,12 @@ EKF_PARAMETERS = ParameterTable(
             "Publish the map -> odom transform on /tf, once per estimate stamp (tf2 ignores a repeated one).",
         ),
         ParameterSpec(
-            "publish_rate_hz", 20.0, "Rate of the published estimate (Hz).", minimum=0.1, maximum=1000.0
+            "publish_rate_hz",
+            20.0,
+            "Least rate of the published estimate (Hz): one after each revolution's bearings, and one a "
+            "period after the last as odometry moves it.",
+            minimum=0.1,
+            maximum=1000.0,
         ),
         ParameterSpec(
             "checkpoint_file",
