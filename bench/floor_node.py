@@ -54,13 +54,15 @@ def stand_in(role: str, publish_rate_hz: float) -> Node:
         node.create_subscription(BeaconBearingArray, topics.BEARINGS, on_bearings, BEARINGS_QOS)
     else:
         odometry_out = node.create_publisher(Odometry, topics.EKF_ODOMETRY, 10)
+        pose_out = node.create_publisher(PoseWithCovarianceStamped, topics.EKF_POSE, 10)
         tf_out = node.create_publisher(TFMessage, topics.TF, TF_QOS)
-        odometry = Odometry()
+        odometry, pose = Odometry(), PoseWithCovarianceStamped()
         tf = TFMessage(transforms=[TransformStamped()])
 
         def publish(with_tf: bool) -> None:  # a revolution refines an instant /tf already has
-            odometry.header.stamp = node.get_clock().now().to_msg()
+            odometry.header.stamp = pose.header.stamp = node.get_clock().now().to_msg()
             odometry_out.publish(odometry)
+            pose_out.publish(pose)
             if with_tf:
                 tf.transforms[0].header.stamp = odometry.header.stamp
                 tf_out.publish(tf)

@@ -193,6 +193,7 @@ def test_replay_of_a_demo_bag(tmp_path, ros_env):
         "/beams/pose",
         "/beams/pose_cov",
         "/beams/ekf/odometry",
+        "/beams/ekf/pose",
         "/odom",
         "/beams/bearings",
         "/beams/sim/ground_truth",

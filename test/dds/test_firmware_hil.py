@@ -374,6 +374,7 @@ def test_driver_node_reads_the_emulated_turret_and_the_ekf_localises(
     import time
 
     from diagnostic_msgs.msg import DiagnosticArray
+    from geometry_msgs.msg import PoseWithCovarianceStamped
     from nav_msgs.msg import Odometry
 
     from beams_common.ros.messages import pose2d_of, seconds_to_stamp, set_pose2d, stamp_to_seconds
@@ -384,7 +385,7 @@ def test_driver_node_reads_the_emulated_turret_and_the_ekf_localises(
     schedule = turret_hil.schedule_of(revolutions)
     master, slave = os.openpty()
     bearings = rclpy_node.subscribe(BeaconBearingArray, "beams/bearings", 50)
-    estimates = rclpy_node.subscribe(Odometry, "beams/ekf/odometry", 50)
+    estimates = rclpy_node.subscribe(PoseWithCovarianceStamped, "beams/ekf/pose", 50)
     odometry = rclpy_node.node.create_publisher(Odometry, "odom", 50)
     start_node("beams_driver", "driver_node", params={"source": "serial", "device": os.ttyname(slave)})
     start_node("beams_triangulation", "triangulation_node")

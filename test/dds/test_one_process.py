@@ -31,13 +31,13 @@ def test_the_one_process_robot_publishes_answers_per_node_and_stops_cleanly(
     rclpy_node, start_node, ros_env, signals
 ):
     import yaml
-    from nav_msgs.msg import Odometry
+    from geometry_msgs.msg import PoseWithCovarianceStamped
     from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
     from rcl_interfaces.srv import GetParameters, SetParameters
 
     from beams_tools.replay_settings import installed_params_file
 
-    poses = rclpy_node.subscribe(Odometry, "/beams/ekf/odometry")
+    poses = rclpy_node.subscribe(PoseWithCovarianceStamped, "/beams/ekf/pose")
     start_node("beams_sim", "sim_world_node")
     # the launch file's parameter file, then an override of one node's parameter (every node is given it)
     arguments = ["--params-file", str(installed_params_file()), "-p", "checkpoint_period_s:=3600.0"]

@@ -73,6 +73,7 @@ TOPICS = {
     topics.POSE: TriangulatedPose,
     topics.POSE_COV: PoseWithCovarianceStamped,
     topics.EKF_ODOMETRY: Odometry,
+    topics.EKF_POSE: PoseWithCovarianceStamped,
     topics.EKF_STATUS: LocalisationStatus,
     topics.TRIANGULATION_STATUS: LocalisationStatus,
     topics.MARKERS: MarkerArray,

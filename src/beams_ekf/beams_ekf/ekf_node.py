@@ -130,14 +130,15 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, StampedInputs, Node
         self._tf_stamp_s: float | None = None
 
         self.odometry_publisher = self.create_publisher(Odometry, topics.EKF_ODOMETRY, 10)
+        self.pose_publisher = self.create_publisher(PoseWithCovarianceStamped, topics.EKF_POSE, 10)
         self.tf_publisher = (
             self.create_publisher(TFMessage, topics.TF, TF_QOS) if self.parameters["publish_tf"] else None
         )
         # the outputs, built once and filled at each publication (rclpy builds a message field by field),
-        # one header shared by the two; the odometry carries the pose with its covariance (as
-        # robot_localization's): a PoseWithCovarianceStamped beside it was a third of the publications
+        # one header and one pose shared by the three
         self._odometry = Odometry(child_frame_id=self.base_frame)
         self._odometry.header.frame_id = self.map_frame
+        self._pose = PoseWithCovarianceStamped(header=self._odometry.header, pose=self._odometry.pose)
         self._tf = planar_tf_message(self._odometry.header, self.odom_frame, (0.0, 0.0, 0.0))
         self.create_odometry_subscription(topics.ODOMETRY, self._on_odometry, qos_profile_sensor_data)
         self.create_subscription(BeaconBearingArray, topics.BEARINGS, self._on_bearings, BEARINGS_QOS)
@@ -352,6 +353,7 @@ class EkfNode(WatchedInputs, GuardedCallbacks, Checkpointed, StampedInputs, Node
         odometry.twist.twist.linear.x, odometry.twist.twist.linear.y = estimate.twist[:2]
         odometry.twist.twist.angular.z = estimate.twist[2]
         self.odometry_publisher.publish(odometry)
+        self.pose_publisher.publish(self._pose)
         map_to_odom = estimate.map_to_odom
         # tf2 ignores (and logs) a transform at a stamp it holds: a refinement at the same instant (a
         # revolution's bearings, a re-initialisation) goes out with the next odometry's stamp

@@ -129,6 +129,7 @@ class _Run:
         )
         message = self.build.ekf_odometry(estimate, stamp, odometry, self.map_frame)
         self.write(LIVE_EKF_TOPIC, ODOMETRY_TYPE, stamp, message)
+        self.write(topics.EKF_POSE, POSE_COV_TYPE, stamp, self.build.stamped(message.header, message.pose))
 
     def _write_total(self, estimate: PoseEstimate, stamp_s: float, due: int) -> None:
         stamp = round(stamp_s * 1e9)  # triangulation_node's time_message rounding

@@ -89,7 +89,7 @@ def test_output_bag_holds_the_outputs_and_the_inputs(replayed, typestore, match)
         by_topic.setdefault(topic, []).append(message)
     assert len(by_topic["/odom"]) == len(match.odometry.stamp_s)
     assert len(by_topic["/beams/bearings"]) == len(match.revolutions)
-    assert len(by_topic["/beams/ekf/odometry"]) == len(result.ekf.rows)
+    assert len(by_topic["/beams/ekf/odometry"]) == len(by_topic["/beams/ekf/pose"]) == len(result.ekf.rows)
     accepted = [m for m in by_topic["/beams/pose"] if m.accepted]
     assert len(accepted) == len(by_topic["/beams/pose_cov"]) == len(result.total.rows)
     written = by_topic["/beams/ekf/odometry"][-1]
@@ -293,7 +293,7 @@ def test_bags_named_either_way_in_either_storage_replay_alike(tmp_path, messages
             assert result.total.rows == reference.total.rows, (naming, storage)
             with Reader(output) as reader:
                 qos = {c.topic: c.ext.offered_qos_profiles for c in reader.connections}
-            outputs = {"/beams/pose", "/beams/pose_cov", "/beams/ekf/odometry"}
+            outputs = {"/beams/pose", "/beams/pose_cov", "/beams/ekf/odometry", "/beams/ekf/pose"}
             assert set(qos) == {"/odom", "/beams/bearings", "/beams/sim/ground_truth"} | outputs, naming
             assert all(profiles == [offered_qos(10)] for profiles in qos.values()), qos
 

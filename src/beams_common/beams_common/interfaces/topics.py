@@ -11,6 +11,7 @@ POSE = "beams/pose"
 POSE_COV = "beams/pose_cov"
 MARKERS = "beams/markers"
 EKF_ODOMETRY = "beams/ekf/odometry"
+EKF_POSE = "beams/ekf/pose"
 # each localisation node's status beside its estimates (beams_msgs/LocalisationStatus, latched)
 EKF_STATUS = "beams/ekf/status"
 TRIANGULATION_STATUS = "beams/triangulation/status"
