@@ -71,9 +71,12 @@ def test_no_zero_reference_is_an_error_and_bearings_return_with_it(rclpy_node, s
         published_before = len(bearings)
         before = len(diagnostics)
 
+        # the revolution rate's condition comes first in the message once 1 s passes without revolutions:
+        # the first report after the 0.5 s timeout lands just before it when idle (silence 1.0 s), after it
+        # when the node is starved (make test's DDS tier on 3 workers, once)
         def silence_reported() -> bool:
             return any(
-                s.level == DiagnosticStatus.ERROR and s.message.startswith("no zero reference for ")
+                s.level == DiagnosticStatus.ERROR and "no zero reference for " in s.message
                 for s in driver_statuses(diagnostics[before:])
             )
 
