@@ -259,9 +259,7 @@ class SensorSimulator:
         def mismatch(t: float, side: float, bias: float) -> tuple[float, float]:
             bearing, distance = view(beacon, pose_at(t))
             half = half_window_rad(distance, beacon.power_scale)
-            return (
-                (bearing + side * half + bias - omega * (t - t0) + math.pi) % _TWO_PI - math.pi
-            ) / omega, half
+            return _wrap(bearing + side * half + bias - omega * (t - t0)) / omega, half
 
         centre = t_guess
         for _ in range(_FIXED_POINT_STEPS):
@@ -280,21 +278,18 @@ class SensorSimulator:
 
     def turret_position(self, pose: tuple[float, float, float]) -> tuple[float, float]:
         """Map position (m) of the turret centre of a robot at pose (x, y, theta): the true offset applied."""
-        # Scalar math: called a few times per beacon and revolution, where numpy's overhead dominates.
-        x, y, theta = (float(v) for v in pose)
+        # Scalar math: called seven times per pass of each beacon, where numpy's overhead dominates.
+        x, y, theta = pose
+        theta = float(theta)
         c, s = math.cos(theta), math.sin(theta)
         ox, oy = self._turret_offset_m
         return x + c * ox - s * oy, y + s * ox + c * oy
 
     def _view(self, beacon: SimulatedBeacon, pose: tuple[float, float, float]) -> tuple[float, float]:
         """(bearing in [0, 2 pi) in the robot frame, distance m) of the beacon from the turret centre."""
-        # turret_position's arithmetic inline: seven calls per pass of each beacon
-        x, y, theta = pose
-        theta = float(theta)
-        c, s = math.cos(theta), math.sin(theta)
-        ox, oy = self._turret_offset_m
-        dx, dy = beacon.x_m - (x + c * ox - s * oy), beacon.y_m - (y + s * ox + c * oy)
-        return (math.atan2(dy, dx) - theta) % _TWO_PI, math.hypot(dx, dy)
+        turret_x, turret_y = self.turret_position(pose)
+        dx, dy = beacon.x_m - turret_x, beacon.y_m - turret_y
+        return (math.atan2(dy, dx) - float(pose[2])) % _TWO_PI, math.hypot(dx, dy)
 
     def _bias(self, window_rad: float, bearing_rad: float) -> float:
         """Injected chapter-7 biases (rad) added to the bearing this window gives (and the hardware's)."""
@@ -359,6 +354,10 @@ class SensorSimulator:
 
 def _is_beacon_sequence(beacons: object) -> bool:
     return isinstance(beacons, Sequence) and all(isinstance(b, SimulatedBeacon) for b in beacons)
+
+
+def _wrap(angle: float) -> float:
+    return (angle + math.pi) % _TWO_PI - math.pi
 
 
 def _union(starts: np.ndarray, ends: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
