@@ -69,6 +69,34 @@ def test_a_condition_holds_the_status_until_cleared_whatever_the_node_sets(diagn
     assert published[-1].status[0].level == b"\x00" and published[-1].status[0].message == "tracking"
 
 
+@pytest.mark.parametrize(
+    ("own", "condition", "cause_first"),
+    [
+        ("error", "error", True),  # a serial sensor without its zero reference: no revolution, rate 0 Hz
+        ("warn", "warn", True),
+        ("error", "warn", True),
+        ("warn", "error", False),  # the worse one leads
+        ("ok", "warn", False),
+        ("ok", "error", False),
+    ],
+)
+def test_the_node_s_own_state_leads_the_conditions_it_is_no_better_than(
+    diagnostics_node, own, condition, cause_first
+):
+    """The cause first: `ros2 topic echo /diagnostics` cuts a long message, and a reader reads its start."""
+    diagnostics, published = diagnostics_node
+    diagnostics.set_condition("revolution rate", condition, "revolution rate 0.0 Hz, expected 10 Hz")
+    diagnostics.set_level(own, "no zero reference for 2.0 s")
+    diagnostics.publish()
+    status = published[-1].status[0]
+    worst = "error" if "error" in (own, condition) else "warn"
+    assert status.level == {"warn": b"\x01", "error": b"\x02"}[worst]
+    first, second = "no zero reference", "revolution rate"
+    if not cause_first:
+        first, second = second, first
+    assert status.message.startswith(first) and second in status.message, status.message
+
+
 def test_a_held_condition_ends_by_itself(diagnostics_node):
     diagnostics, published = diagnostics_node
     diagnostics.set_condition("brief", "warn", "for a moment", hold_s=0.0)

@@ -396,9 +396,16 @@ class Diagnostics:
             self._values["status"] = str(verdict.status)
             level, message = verdict.level, verdict.message
         else:
-            conditions = self._ordered_conditions()
-            level = max([self._level, *(c_level for c_level, _ in conditions)], key=_LEVELS.__getitem__)
-            message = bounded("; ".join([*(reason for _, reason in conditions), self._message]))
+            said = self._ordered_conditions()
+            own = (self._level, self._message)
+            # the node's own state (a source's health: the cause) leads the conditions it is no better than
+            # (the rates and timeouts that follow from it); an OK state comes after any condition
+            leads = self._level != "ok" and all(
+                own[0] == max(own[0], c, key=_LEVELS.__getitem__) for c, _ in said
+            )
+            said = [own, *said] if leads else [*said, own]
+            level = max((c_level for c_level, _ in said), key=_LEVELS.__getitem__)
+            message = bounded("; ".join(reason for _, reason in said))
         if self._refusal is not None:
             refusal_level, reason = self._refusal
             self._refusal = None
