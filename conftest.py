@@ -39,14 +39,14 @@ TIERS = ("unit", "scenario", "dds", "thesis", "static")
 # Seconds each long test file took (`--junitxml`, its test times summed by file; the DDS files in one
 # process on 2026-11-24, the others on 2 workers on 2026-11-27, 2 shared cores at load average 4 to 7;
 # test_command_line_tools, test_calibration_file_schemas, test_self_calibration_beacons and
-# test_estimate_noise_cli on 2 workers on 2026-11-28 at load average 3 to 5.5),
+# test_estimate_noise_cli on 2 workers on 2026-11-28 at load average 3 to 5.5; test_calibration_guided_session
+# and test_service_concurrency alone on 2026-11-28, idle),
 # by file name so that a file moved between packages keeps its figure. A file not listed runs after these
 # in collection order: add it when it takes 8 s or more.
 FILE_SECONDS = {
     "test_fault_campaign.py": 165,
     "test_self_calibration.py": 164,
     "test_command_line_tools.py": 127,
-    "test_calibration_guided_session.py": 103,
     "test_system_faults.py": 95,
     "test_ekf_message_validation.py": 84,
     "test_plain_defaults.py": 81,
@@ -57,7 +57,7 @@ FILE_SECONDS = {
     "test_system_bad_inputs.py": 60,
     "test_respawn.py": 52,
     "test_system_multi_robot.py": 51,
-    "test_service_concurrency.py": 50,
+    "test_calibration_guided_session.py": 50,
     "test_nees_band.py": 48,
     "test_tools_bag_replay.py": 44,
     "test_executables.py": 43,
@@ -77,6 +77,7 @@ FILE_SECONDS = {
     "test_ekf_node.py": 28,
     "test_standby.py": 28,
     "test_common_validation.py": 25,
+    "test_service_concurrency.py": 25,
     "test_calibration_outputs.py": 24,
     "test_driver_node.py": 24,
     "test_virtual_turret.py": 24,

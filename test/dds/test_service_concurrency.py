@@ -23,10 +23,14 @@ CLIENTS = 4
 CLIENT_QOS = QoSProfile(depth=CALLS)
 UP_TIMEOUT_S = 30.0
 # a burst's answers come within 0.3 s; capture_reference without a driver answers its first call when its
-# wait for 100 revolutions ends (25 s), the other 19 at once (busy)
+# wait for the default request's revolutions ends (10 here: 7 s), the other 19 at once (busy)
 ANSWER_TIMEOUT_S = 30.0
-# what a node needs to start on its own (the rest are its defaults)
-PARAMS = {"driver_node": {"sim_static_pose": [1.5, 1.0, 0.0]}}
+# what a node needs to start on its own (the rest are its defaults); the calibration node's default request
+# waits for 100 revolutions (25 s without a driver): 10 keep the wait of one burst short
+PARAMS = {
+    "driver_node": {"sim_static_pose": [1.5, 1.0, 0.0]},
+    "calibration_node": {"default_revolutions": 10},
+}
 
 
 def _nodes() -> list[tuple[str, str]]:
