@@ -85,6 +85,8 @@ class Harness:
     def capture(self) -> None:
         for publisher in self.node.publishers:
             publisher.publish = partial(self._keep, publisher.topic_name)
+            # a reader on every output: what a node builds only while something subscribes is checked too
+            publisher.get_subscription_count = lambda: 1
 
     def _keep(self, topic: str, message: Any) -> None:
         self.outputs.append((topic, message))

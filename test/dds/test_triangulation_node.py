@@ -70,11 +70,22 @@ def _probe(rclpy_node):
 
 
 def test_exact_pose_with_covariance_stamped_with_the_bearings(start_node, rclpy_node):
+    from visualization_msgs.msg import Marker, MarkerArray
+
     node = start_node("beams_triangulation", "triangulation_node", PARAMS)
     publisher, poses, covariances = _probe(rclpy_node)
+    markers = rclpy_node.subscribe(MarkerArray, "beams/markers")
     pose = (1.3, 0.7, 2.4)
-    assert rclpy_node.publish_until(publisher, _static_revolution(pose), lambda: bool(covariances), WAIT_S), (
-        node.log()
+    assert rclpy_node.publish_until(
+        publisher, _static_revolution(pose), lambda: bool(covariances) and bool(markers), WAIT_S
+    ), node.log()
+    # the beacons, the pose's arrow and its 2-sigma ellipse, in the pose's frame and at its stamp
+    kinds = [m.type for m in markers[-1].markers]
+    assert kinds == [Marker.SPHERE] * 3 + [Marker.ARROW, Marker.CYLINDER], kinds
+    arrow = markers[-1].markers[3]
+    assert (arrow.pose.position.x, arrow.pose.position.y) == pytest.approx(pose[:2], abs=1e-9)
+    assert all(
+        m.header.frame_id == "map" and m.header.stamp == poses[-1].header.stamp for m in markers[-1].markers
     )
     message = poses[-1]
     assert message.accepted and message.reason == ""
@@ -90,6 +101,40 @@ def test_exact_pose_with_covariance_stamped_with_the_bearings(start_node, rclpy_
     assert 0.0 < message.inverse_abs_d < 2.0
     np.testing.assert_array_equal(covariances[-1].pose.covariance, message.pose.covariance)
     node.assert_clean_exit(signal.SIGTERM)
+
+
+def test_markers_are_built_only_while_something_subscribes(rclpy_context):
+    """A robot's run has no marker reader: the array (more work than the pose's two messages) is not built
+    for nobody; RViz (or a bag) subscribing gets them from the next pose on."""
+    import time
+
+    from visualization_msgs.msg import MarkerArray
+
+    from beams_triangulation.gating import PoseEstimate
+    from beams_triangulation.triangulation_node import TriangulationNode
+
+    node = TriangulationNode()
+    listener = rclpy_context.create_node("marker_listener")
+    try:
+        built = []
+        build = node._markers
+        node._markers = lambda *args: built.append(args) or build(*args)
+        covariance = np.diag([1e-6, 2e-6, 1e-6])
+        estimate = PoseEstimate(1.3, 0.7, 2.4, covariance, 0.5, (1, 2, 3), True, "")
+        node._publish(estimate, T0_S, False)
+        assert built == []
+        listener.create_subscription(MarkerArray, "beams/markers", lambda _msg: None, 10)
+        deadline = time.monotonic() + WAIT_S
+        while node.marker_publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        node._publish(estimate, T0_S + 0.1, False)
+        assert len(built) == 1
+        node.publish_markers = False  # the parameter still switches them off
+        node._publish(estimate, T0_S + 0.2, False)
+        assert len(built) == 1
+    finally:
+        listener.destroy_node()
+        node.destroy_node()
 
 
 def test_bad_input_is_logged_and_ignored_then_good_input_works(start_node, rclpy_node):

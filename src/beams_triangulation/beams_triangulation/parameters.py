@@ -48,7 +48,12 @@ TRIANGULATION_PARAMETERS = ParameterTable(
             maximum=1.0,
         ),
         ParameterSpec("map_frame", "map", "Frame of the published poses.", runtime=True),
-        ParameterSpec("publish_markers", True, "Publish RViz markers.", runtime=True),
+        ParameterSpec(
+            "publish_markers",
+            True,
+            "Publish RViz markers (built only while something subscribes).",
+            runtime=True,
+        ),
         *MOTION_SPECS,
         *STAMP_SPECS,
         *BEARING_RATE_SPECS,

@@ -196,7 +196,9 @@ class TriangulationNode(WatchedInputs, GuardedCallbacks, StampedInputs, Node):
         if estimate.accepted:
             self._accepted_stamp = message.header.stamp
             self.pose_cov_publisher.publish(self._pose_cov)
-        if self.publish_markers:
+        # built only while something displays them (RViz, a bag): a robot's run has no reader, and the
+        # array costs more than the pose's two messages
+        if self.publish_markers and self.marker_publisher.get_subscription_count():
             self.marker_publisher.publish(self._markers(estimate, message.header))
         self._update_diagnostics(estimate, compensated)
 
