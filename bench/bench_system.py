@@ -35,10 +35,8 @@ from rows_table import RosProbe, Row, bench_main, budget_row
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install"))
 # the robot's nodes (beams_tools.robot_processes), one process each (no hot standby), with these overrides
-ROS_ARGUMENTS = {
-    "sim_world_node": ["-p", "duration_s:=300.0"],
-    "triangulation_node": ["-p", "publish_markers:=false"],
-}
+# (triangulation_node's markers are left on, its default: nothing here reads them, so none is built)
+ROS_ARGUMENTS = {"sim_world_node": ["-p", "duration_s:=300.0"]}
 # the serial feed writes a revolution as it ends, and its closing zero reference comes with the next one:
 # the driver publishes it a turn later than a turret would, its newest bearing ~0.2 s old (0.25 s refused)
 FEED_ARGUMENTS = ["-p", "max_stamp_age_s:=0.5"]
@@ -214,8 +212,7 @@ def rows(
     with tempfile.TemporaryDirectory(prefix="beams_bench_system_") as log_dir:
         env = dict(os.environ, PYTHONUNBUFFERED="1", ROS_HOME=f"{log_dir}/ros_home")  # its own checkpoint
         probe = Probe()
-        arguments = {**ROS_ARGUMENTS, ONE_PROCESS.executable: ROS_ARGUMENTS["triangulation_node"]}
-        commands = process_commands(INSTALL_BASE, arguments, robot_processes(one_process), standby=False)
+        commands = process_commands(INSTALL_BASE, ROS_ARGUMENTS, robot_processes(one_process), standby=False)
         link, turret = pathlib.Path(log_dir) / "turret", {}
         if source == "virtual_turret":  # it runs the world (its arguments), first: driver_node opens its link
             executable = INSTALL_BASE / "beams_sim/lib/beams_sim/virtual_turret"
