@@ -84,18 +84,25 @@ def in_stamp_order(
     jump_ns: int = round(TIME_JUMP_S * NS_PER_S),
 ) -> Iterator[Event | None]:
     """Events by due instant within a reorder window (a later message is passed on late, the pipelines drop or
-    absorb it as the nodes do); TIME_JUMP where the stamps go back by > jump_ns in two consecutive messages (a
-    bag loop; one stray message is not: `beams_common.intake.time_jumps`)."""
+    absorb it as the nodes do); TIME_JUMP where a topic's own stamps go back by > jump_ns in two consecutive
+    messages of it (a bag loop; one stray message is not: `beams_common.intake.time_jumps`). A topic is
+    judged against itself, as each node judges its input: a recorder that fell behind on one topic (its
+    odometry received more than a second late on a loaded machine) writes it late among the others, and
+    that is no loop."""
     pending: list[Event] = []
     newest_ns: int | None = None
-    time_jumps = TimeJumpDetector(jump_ns * 1e-9)
+    newest_of_topic: dict[str, float] = {}
+    time_jumps: dict[str, TimeJumpDetector] = {}
     for event in events:
-        order = time_jumps.classify(event.due_ns * 1e-9, None if newest_ns is None else newest_ns * 1e-9)
-        if order is StampOrder.JUMP:
+        detector = time_jumps.setdefault(event.topic, TimeJumpDetector(jump_ns * 1e-9))
+        if detector.classify(event.due_ns * 1e-9, newest_of_topic.get(event.topic)) is StampOrder.JUMP:
             while pending:
                 yield heapq.heappop(pending)
             yield TIME_JUMP
             newest_ns = None
+            newest_of_topic.clear()
+            time_jumps = {event.topic: detector}
+        newest_of_topic[event.topic] = max(newest_of_topic.get(event.topic, -math.inf), event.due_ns * 1e-9)
         newest_ns = event.due_ns if newest_ns is None else max(newest_ns, event.due_ns)
         heapq.heappush(pending, event)
         while pending and pending[0].due_ns < newest_ns - window_ns:

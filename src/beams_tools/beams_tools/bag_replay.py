@@ -6,8 +6,9 @@
 Feeds the bag's `beams/bearings`, `odom` and `beams/sim/ground_truth` to the pure objects the nodes wrap,
 as fast as the CPU allows, and writes their outputs next to a copy of the inputs into a new bag, with a
 plot and a summary (RMS errors against the truth, agreement with the live nodes' recorded outputs). Time
-is the messages' stamps, never their arrival (reordered within `REORDER_WINDOW_S`; a jump back by more
-than `TIME_JUMP_S` resets both pipelines); bad input is counted and skipped. The parameters are the
+is the messages' stamps, never their arrival (reordered within `REORDER_WINDOW_S`; a topic's own stamps
+jumping back by more than `TIME_JUMP_S` reset both pipelines, a topic recorded late does not); bad input
+is counted and skipped. The parameters are the
 nodes' (beams_bringup's beams_params.yaml by default), validated by their tables.
 """
 
