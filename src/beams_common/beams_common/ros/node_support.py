@@ -396,14 +396,14 @@ class Diagnostics:
             self._values["status"] = str(verdict.status)
             level, message = verdict.level, verdict.message
         else:
-            said = self._ordered_conditions()
+            conditions = self._ordered_conditions()  # the worst first
             own = (self._level, self._message)
             # the node's own state (a source's health: the cause) leads the conditions it is no better than
             # (the rates and timeouts that follow from it); an OK state comes after any condition
-            leads = self._level != "ok" and all(
-                own[0] == max(own[0], c, key=_LEVELS.__getitem__) for c, _ in said
+            leads = self._level != "ok" and (
+                not conditions or _LEVELS[conditions[0][0]] <= _LEVELS[self._level]
             )
-            said = [own, *said] if leads else [*said, own]
+            said = [own, *conditions] if leads else [*conditions, own]
             level = max((c_level for c_level, _ in said), key=_LEVELS.__getitem__)
             message = bounded("; ".join(reason for _, reason in said))
         if self._refusal is not None:
