@@ -94,7 +94,9 @@ def in_stamp_order(
     newest_of_topic: dict[str, float] = {}
     time_jumps: dict[str, TimeJumpDetector] = {}
     for event in events:
-        detector = time_jumps.setdefault(event.topic, TimeJumpDetector(jump_ns * 1e-9))
+        detector = time_jumps.get(event.topic)
+        if detector is None:  # made at the topic's first message, not at every one
+            detector = time_jumps[event.topic] = TimeJumpDetector(jump_ns * 1e-9)
         if detector.classify(event.due_ns * 1e-9, newest_of_topic.get(event.topic)) is StampOrder.JUMP:
             while pending:
                 yield heapq.heappop(pending)
