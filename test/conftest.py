@@ -26,9 +26,30 @@ TEST_DOMAIN_IDS = [*range(1, 61), *range(70, 101)]
 SHUTDOWN_TIMEOUT_S = 15.0
 
 
+def processes_in_domain(domain_id: int) -> list[str]:
+    """The other processes started with this ROS_DOMAIN_ID in their environment ("pid: command line")."""
+    wanted = f"ROS_DOMAIN_ID={domain_id}".encode()
+    found = []
+    for entry in pathlib.Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            if wanted in (entry / "environ").read_bytes().split(b"\0"):
+                command = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+                found.append(f"{entry.name}: {command.strip()}")
+        except OSError:  # gone meanwhile, or another user's
+            continue
+    return found
+
+
 @pytest.fixture
 def ros_domain_id() -> Iterator[int]:
-    """A DDS domain no other test or session uses while this test runs."""
+    """A DDS domain no other test or session uses while this test runs.
+
+    The lock ends with the test, so a process of the test's that outlives it would talk to the next test
+    given the domain (its nodes in that test's graph, its messages on that test's topics): at the end each
+    one still running is killed and fails the test that left it; a domain still holding a process when
+    claimed (left by a test whose worker died) is passed over, with its processes printed."""
     lock_dir = pathlib.Path(tempfile.gettempdir()) / "beams_ros_domains"
     lock_dir.mkdir(exist_ok=True)
     for domain_id in TEST_DOMAIN_IDS:
@@ -38,8 +59,17 @@ def ros_domain_id() -> Iterator[int]:
         except BlockingIOError:
             handle.close()
             continue
+        if occupied := processes_in_domain(domain_id):
+            print(f"ROS_DOMAIN_ID {domain_id} passed over: still used by {occupied}")
+            handle.close()
+            continue
         try:
             yield domain_id
+            if left := processes_in_domain(domain_id):
+                for line in left:
+                    with contextlib.suppress(ProcessLookupError):
+                        os.kill(int(line.split(":")[0]), signal.SIGKILL)
+                pytest.fail(f"processes left running in ROS_DOMAIN_ID {domain_id} after the test: {left}")
         finally:
             handle.close()
         return
