@@ -27,14 +27,19 @@ SHUTDOWN_TIMEOUT_S = 15.0
 
 
 def processes_in_domain(domain_id: int) -> list[str]:
-    """The other processes started with this ROS_DOMAIN_ID in their environment ("pid: command line")."""
+    """The other processes on DDS started with this ROS_DOMAIN_ID in their environment ("pid: command
+    line"); those without an rmw library loaded cannot talk (multiprocessing's resource tracker, which a
+    test's pool starts and which lives as long as the test process)."""
     wanted = f"ROS_DOMAIN_ID={domain_id}".encode()
     found = []
     for entry in pathlib.Path("/proc").iterdir():
         if not entry.name.isdigit() or int(entry.name) == os.getpid():
             continue
         try:
-            if wanted in (entry / "environ").read_bytes().split(b"\0"):
+            if (
+                wanted in (entry / "environ").read_bytes().split(b"\0")
+                and b"/librmw" in (entry / "maps").read_bytes()
+            ):
                 command = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
                 found.append(f"{entry.name}: {command.strip()}")
         except OSError:  # gone meanwhile, or another user's
