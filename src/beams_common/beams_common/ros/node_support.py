@@ -198,7 +198,8 @@ def _spin(nodes: Sequence[Node], executor: Executor, stop_signals: list[int]) ->
     while rclpy.ok() and not stop_signals:
         try:
             # Python runs the signal handler between callbacks or when spin_once returns: this period
-            # bounds the time from a signal to the shutdown of an idle node.
+            # bounds the time from a signal to the shutdown of an idle node. (Jazzy's EventsExecutor.spin()
+            # answered no service request at all here, busy on a core, and ignored SIGINT.)
             executor.spin_once(timeout_sec=STOP_POLL_PERIOD_S)
         except (_rclpy.RCLError, RuntimeError) as error:
             # A context shut down under the executor (rclpy.shutdown elsewhere) may make it fail to
