@@ -81,7 +81,7 @@ FILE_SECONDS = {
     "test_calibration_outputs.py": 24,
     "test_driver_node.py": 24,
     "test_virtual_turret.py": 24,
-    "test_parameter_refusals.py": 24,
+    "test_parameter_refusals.py": 93,
     "test_firmware_hil.py": 23,
     "test_ekf_hardware_consistency.py": 23,
     "test_triangulation_error_analysis.py": 23,
