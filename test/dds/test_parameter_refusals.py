@@ -28,9 +28,9 @@ from field_walk import bad_value
 
 SRC = pathlib.Path(__file__).resolve().parents[2] / "src"
 # a node a bad value did not stop is stopped (SIGTERM: run_node's quiet shutdown, status 0) after this
-ACCEPTED_AFTER_S = 5.0
+ACCEPTED_AFTER_S = 30.0  # a start-up on a loaded machine took over 5 s (SIGTERM before it judged)
 STOP_TIMEOUT_S = 15.0
-PARALLEL_CASES = 4  # node start-ups at once: about 1.3 s of CPU each, mostly imports
+PARALLEL_CASES = 2  # node start-ups at once: about 1.3 s of CPU each, mostly imports
 SECRET = "beams-secret-9c21"
 # the parameters naming a file or a device, and the value the node needs for the table to be declared
 FILE_PARAMETERS = ("calibration_file", "sim_bias_file", "dataset_file", "checkpoint_file", "device")
