@@ -25,7 +25,7 @@ INSTALL_BASE = pathlib.Path(os.environ.get("BEAMS_INSTALL_BASE", ROOT / "install
 TEST_DOMAIN_IDS = [*range(1, 61), *range(70, 101)]
 SHUTDOWN_TIMEOUT_S = 15.0
 # Read-only queries, which `RosGraph.call` sends again each QUERY_RESEND_S without an answer: on a loaded
-# machine a call to a node just started now and then gets no answer at all (2 runs of the DDS tier in 9
+# machine a call to a node just started now and then gets no answer at all (2 runs of the DDS tier in 10
 # here, no process of another test in the domain, nothing in the node's log), as public reports of
 # Fast DDS services under load describe; a second request is answered.
 QUERY_SERVICES = {"GetParameters", "DescribeParameters", "ListParameters", "GetParameterTypes", "GetState"}
