@@ -39,8 +39,9 @@ TIERS = ("unit", "scenario", "dds", "thesis", "static")
 # Seconds each long test file took (`--junitxml`, its test times summed by file; the DDS files in one
 # process on 2026-11-24, the others on 2 workers on 2026-11-27, 2 shared cores at load average 4 to 7;
 # test_command_line_tools, test_calibration_file_schemas, test_self_calibration_beacons and
-# test_estimate_noise_cli on 2 workers on 2026-11-28 at load average 3 to 5.5; test_calibration_guided_session,
-# test_service_concurrency and test_parameter_refusals alone on 2026-11-28, idle),
+# test_estimate_noise_cli on 2 workers on 2026-11-28 at load average 3 to 5.5;
+# test_calibration_guided_session, test_service_concurrency and test_parameter_refusals alone on
+# 2026-11-28, idle),
 # by file name so that a file moved between packages keeps its figure. A file not listed runs after these
 # in collection order: add it when it takes 8 s or more.
 FILE_SECONDS = {
